@@ -1,0 +1,275 @@
+"""BaseVersion I/O: official files load unchanged, round trips are exact, bad input is named."""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from tracker.baseversion import LoadReport, read_baseversion, write_baseversion
+from tracker.boxes import Boxes
+from tracker.categories import category_index
+from tracker.errors import InputError
+from tracker.frame import Camera, Frame
+
+# An official-style file as the original MCTrack converters write it (spec §1.5): KITTI frame
+# with null timestamp, unwrapped yaw, camera2image with the [1,1,1,1] bottom-row quirk; and a
+# nuScenes frame with microsecond timestamps and an ego pose.
+P2 = [[721.5, 0, 609.6, 44.9], [0, 721.5, 172.9, 0.2], [0, 0, 1, 0.003], [1, 1, 1, 1]]
+OFFICIAL: dict[str, Any] = {
+    "0007": [
+        {
+            "frame_id": 0,
+            "timestamp": None,
+            "cur_sample_token": None,
+            "transform_matrix": {
+                "global2ego": None,
+                "ego2lidar": None,
+                "global2lidar": [[1, 0, 0, -2.1], [0, 1, 0, 0.4], [0, 0, 1, -1.7], [0, 0, 0, 1]],
+                "cameras_transform_matrix": {
+                    "CAM_FRONT": {
+                        "image_shape": [1242, 375],
+                        "ego2camera": None,
+                        "camera2image": P2,
+                        "lidar2camera": [
+                            [0.0, -1.0, 0.0, 0.0],
+                            [0.0, 0.0, -1.0, -0.07],
+                            [1.0, 0.0, 0.0, -0.27],
+                            [0, 0, 0, 1],
+                        ],
+                        "camera_token": None,
+                        "camera_image": None,
+                    }
+                },
+            },
+            "bboxes": [
+                {
+                    "category": "car",
+                    "detection_score": 0.93,
+                    "global_xyz": [14.2, -3.1, 0.85],
+                    "lwh": [3.9, 1.6, 1.5],
+                    "global_yaw": 4.65,
+                    "global_orientation": [-0.69, 0.0, 0.0, 0.72],
+                    "global_velocity": [0.0, 0.0],
+                    "global_acceleration": [0.0, 0.0],
+                    "bbox_image": {"camera_type": "CAM_FRONT", "x1y1x2y2": [612.0, 170.5, 690.3, 221.8]},
+                },
+                {
+                    "category": "Tram",  # tracked by nobody, but a known category
+                    "detection_score": 0.5,
+                    "global_xyz": [30.0, 2.0, 1.5],
+                    "lwh": [12.0, 2.5, 3.2],
+                    "global_yaw": 0.1,
+                    "global_orientation": [1, 0, 0, 0],
+                    "global_velocity": [0.0, 0.0],
+                    "global_acceleration": [0.0, 0.0],
+                    "bbox_image": {"camera_type": None, "x1y1x2y2": None},
+                },
+            ],
+        },
+        {
+            "frame_id": 1,
+            "timestamp": None,
+            "cur_sample_token": None,
+            "transform_matrix": {},
+            "bboxes": [],
+        },
+    ],
+    "scene-0103": [
+        {
+            "frame_id": 0,
+            "timestamp": 1533151603547590,
+            "cur_sample_token": "3e8750f331d7499e9b5123e9eb70f2e2",
+            "transform_matrix": {"global2ego": np.eye(4).tolist(), "ego2lidar": None},
+            "bboxes": [
+                {
+                    "category": "pedestrian",
+                    "detection_score": 0.41,
+                    "global_xyz": [1010.3, 610.8, 1.1],
+                    "lwh": [0.7, 0.65, 1.75],
+                    "global_yaw": -1.32,
+                    "global_orientation": [0.79, 0.0, 0.0, -0.61],
+                    "global_velocity": [0.9, -1.1],
+                    "global_acceleration": [0.0, 0.0],
+                    "bbox_image": {"camera_type": "CAM_BACK_LEFT", "x1y1x2y2": [201.4, 402, 260.9, 560]},
+                },
+                {
+                    "category": "traffic_cone",  # unknown: a logged, counted skip
+                    "detection_score": 0.3,
+                    "global_xyz": [1000.0, 600.0, 0.5],
+                    "lwh": [0.4, 0.4, 0.8],
+                    "global_yaw": 0.0,
+                    "global_orientation": [1, 0, 0, 0],
+                    "global_velocity": [0.0, 0.0],
+                    "global_acceleration": [0.0, 0.0],
+                    "bbox_image": {"camera_type": None, "x1y1x2y2": None},
+                },
+            ],
+        },
+        {
+            "frame_id": 1,
+            "timestamp": 1533151604048025,
+            "cur_sample_token": "b",
+            "transform_matrix": {"global2ego": np.eye(4).tolist()},
+            "bboxes": [],
+        },
+    ],
+}
+
+
+def write(tmp_path: Path, payload: Any, name: str = "bv.json") -> Path:
+    path = tmp_path / name
+    path.write_text(json.dumps(payload))
+    return path
+
+
+def test_official_file_loads_unchanged(tmp_path: Path) -> None:
+    report = LoadReport()
+    scenes = read_baseversion(write(tmp_path, OFFICIAL), fallback_frame_rate_hz=10.0, report=report)
+    assert list(scenes) == ["0007", "scene-0103"]
+    kitti = scenes["0007"]
+    assert [f.frame_id for f in kitti] == [0, 1]
+    assert [f.timestamp_secs for f in kitti] == [0.0, 0.1]  # null timestamps: frame_id / rate
+    car = kitti[0].boxes
+    assert car.category.tolist() == [category_index("car"), category_index("tram")]
+    assert car.yaw[0] == pytest.approx(4.65 - 2 * math.pi)  # wrapped to (-pi, pi]
+    cam = kitti[0].cameras[0]
+    assert cam.name == "CAM_FRONT" and (cam.width_px, cam.height_px) == (1242, 375)
+    np.testing.assert_allclose(cam.image_from_camera, np.array(P2)[:3])
+    # official KITTI chain: camera_from_world = lidar2camera @ global2lidar
+    lidar2camera = np.array(OFFICIAL["0007"][0]["transform_matrix"]["cameras_transform_matrix"]
+                            ["CAM_FRONT"]["lidar2camera"])
+    global2lidar = np.array(OFFICIAL["0007"][0]["transform_matrix"]["global2lidar"])
+    np.testing.assert_allclose(cam.camera_from_world, lidar2camera @ global2lidar)
+    assert car.camera.tolist() == [0, -1]
+    assert np.isnan(car.xyxy_image[1]).all()
+    assert len(kitti[1].boxes) == 0
+
+    nusc = scenes["scene-0103"]
+    assert nusc[0].timestamp_secs == pytest.approx(1533151603.547590)
+    assert nusc[0].sample_token == "3e8750f331d7499e9b5123e9eb70f2e2"
+    assert len(nusc[0].boxes) == 1  # the traffic cone was skipped ...
+    assert report.skipped_categories == {"traffic_cone": 1}  # ... and counted
+    np.testing.assert_allclose(nusc[0].boxes.velocity, [[0.9, -1.1]])
+    assert nusc[0].boxes.camera.tolist() == [-1]  # CAM_BACK_LEFT has no camera model here
+
+
+def make_frames() -> dict[str, list[Frame]]:
+    rng = np.random.default_rng(0)
+    cam = Camera(
+        "CAM_FRONT",
+        image_from_camera=rng.normal(size=(3, 4)),
+        camera_from_world=np.vstack([rng.normal(size=(3, 4)), [0, 0, 0, 1]]),
+        width_px=1242,
+        height_px=375,
+    )
+    frames = []
+    for i in range(3):
+        n = i * 2
+        boxes = Boxes.create(
+            xyz=rng.normal(size=(n, 3)) * 20,
+            lwh=rng.uniform(0.5, 5, size=(n, 3)),
+            yaw=rng.uniform(-np.pi, np.pi, size=n),
+            category=rng.integers(0, 3, size=n),
+            score=rng.uniform(size=n),
+            velocity=rng.normal(size=(n, 2)),
+            xyxy_image=np.where(rng.uniform(size=(n, 1)) < 0.5, np.nan, rng.uniform(0, 300, (n, 4))),
+            camera=np.where(rng.uniform(size=n) < 0.5, -1, 0),
+            track_id=np.arange(n),
+            score_raw=rng.normal(size=n),
+        )
+        frames.append(
+            Frame(
+                scene="s",
+                frame_id=i * 2,
+                timestamp_secs=100.0 + 0.1 * i,
+                boxes=boxes,
+                cameras=(cam,),
+                world_from_ego=np.eye(4),
+                ignore_xyxy_image=np.array([[1.0, 2.0, 3.0, 4.0]]),
+                ignore_camera=np.array([0]),
+            )
+        )
+    return {"s": frames}
+
+
+def test_round_trip_is_exact(tmp_path: Path) -> None:
+    scenes = make_frames()
+    path = tmp_path / "out.json"
+    write_baseversion(path, scenes)
+    back = read_baseversion(path)
+    for a, b in zip(scenes["s"], back["s"], strict=True):
+        assert a.frame_id == b.frame_id
+        assert a.timestamp_secs == pytest.approx(b.timestamp_secs, abs=1e-6)
+        assert a.boxes.equals(b.boxes)
+        np.testing.assert_array_equal(a.cameras[0].camera_from_world, b.cameras[0].camera_from_world)
+        np.testing.assert_array_equal(a.cameras[0].image_from_camera, b.cameras[0].image_from_camera)
+        np.testing.assert_array_equal(a.world_from_ego, b.world_from_ego)
+        np.testing.assert_array_equal(a.ignore_xyxy_image, b.ignore_xyxy_image)
+    # and a second generation is byte-identical
+    path2 = tmp_path / "out2.json"
+    write_baseversion(path2, back)
+    assert path.read_bytes() == path2.read_bytes()
+
+
+def _official_with(edit: Any) -> dict[str, Any]:
+    data = copy.deepcopy(OFFICIAL)
+    edit(data)
+    return data
+
+
+def _box(d: dict[str, Any]) -> dict[str, Any]:
+    return d["0007"][0]["bboxes"][0]
+
+
+BAD_CASES = [
+    ("missing key", lambda d: _box(d).pop("lwh"), "box 0: missing key 'lwh'"),
+    ("wrong shape", lambda d: _box(d).update(global_xyz=[1, 2]), "field 'global_xyz'"),
+    ("wrong type", lambda d: _box(d).update(detection_score="high"), "field 'detection_score'"),
+    ("NaN", lambda d: _box(d).update(global_yaw=float("nan")), "field 'global_yaw'"),
+    ("inf", lambda d: _box(d).update(global_xyz=[1, float("inf"), 0]), "field 'global_xyz'"),
+    ("negative size", lambda d: _box(d).update(lwh=[3.9, -1.6, 1.5]), "field 'lwh'"),
+    ("score range", lambda d: _box(d).update(detection_score=7.5), "field 'detection_score'"),
+    ("frame not object", lambda d: d["0007"].insert(0, 5), "frame index 0"),
+    ("frame missing key", lambda d: d["0007"][0].pop("bboxes"), "missing key 'bboxes'"),
+    ("frame id order", lambda d: d["0007"][1].update(frame_id=0), "field 'frame_id'"),
+    ("timestamp order", lambda d: d["scene-0103"][1].update(timestamp=5), "field 'timestamp'"),
+    ("scene not list", lambda d: d.update({"0007": {"a": 1}}), "scene '0007'"),
+    ("bad camera matrix", lambda d: d["0007"][0]["transform_matrix"]["cameras_transform_matrix"]
+     ["CAM_FRONT"].update(camera2image=[[1, 2]]), "camera2image"),
+]
+
+
+@pytest.mark.parametrize(("case", "edit", "expected"), BAD_CASES, ids=[c[0] for c in BAD_CASES])
+def test_bad_input_names_the_field(tmp_path: Path, case: str, edit: Any, expected: str) -> None:
+    path = write(tmp_path, _official_with(edit))
+    with pytest.raises(InputError) as info:
+        read_baseversion(path, fallback_frame_rate_hz=10.0)
+    message = str(info.value)
+    assert str(path) in message
+    assert expected in message
+
+
+def test_malformed_json_and_cli_exit_code(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "broken.json"
+    path.write_text('{"0000": [ {"frame_id": 0, ')
+    with pytest.raises(InputError, match="malformed JSON"):
+        read_baseversion(path)
+    assert main(["validate", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "broken.json" in err  # one line, names the file
+
+
+def test_validate_cli_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = write(tmp_path, OFFICIAL)
+    assert main(["validate", str(path), "--frame-rate", "10", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["scenes"] == 2 and summary["frames"] == 4
+    assert summary["boxes_per_category"] == {"car": 1, "pedestrian": 1, "tram": 1}
+    assert summary["skipped_unknown_categories"] == {"traffic_cone": 1}

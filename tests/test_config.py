@@ -1,0 +1,60 @@
+"""Config loading: built-ins resolve, overrides merge, unknown keys name their dotted path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tracker.config import CostKind, CostState, config_to_dict, load_config
+from tracker.errors import InputError
+
+
+@pytest.mark.parametrize("name", ["kitti"])
+def test_builtin_configs_load(name: str) -> None:
+    cfg = load_config(name)
+    assert cfg.dataset == name
+    assert set(cfg.per_category) == set(cfg.categories)
+    assert config_to_dict(cfg)["per_category"]["car"]["bev"]["cost"] == "ro_gdiou"
+
+
+def test_kitti_reference_values() -> None:
+    car = load_config("kitti").per_category["car"]
+    assert car.bev.cost is CostKind.RO_GDIOU and car.bev.cost_state is CostState.PREDICT
+    assert (car.bev.w1, car.bev.w2, car.bev.cost_max, car.rv.cost_max) == (1.0, 1.0, 1.4, -0.3)
+
+
+def test_override_merges_one_key() -> None:
+    cfg = load_config("kitti", overrides={"category": {"car": {"bev": {"cost_max": 0.9}}}})
+    assert cfg.per_category["car"].bev.cost_max == 0.9
+    assert cfg.per_category["car"].bev.w1 == 1.0  # sibling kept
+    assert cfg.per_category["pedestrian"].bev.cost_max == 1.4  # other categories untouched
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"category": {"car": {"bev": {"cost_mx": 1}}}}, "unknown key 'category.car.bev.cost_mx'"),
+        ({"defaults": {"bev": {"cost": "foo"}}}, "bev.cost: 'foo' is not one of"),
+        ({"frame_rate": 3}, "unknown key 'frame_rate'"),
+        ({"defaults": {"score_min": "high"}}, "score_min: expected a number"),
+        ({"categories": ["car", "unicorn"]}, "unknown category 'unicorn'"),
+        ({"category": {"bus": {"score_min": 0.1}}}, "category.bus: not in 'categories'"),
+        ({"defaults": {"size": {"q": "x"}}}, "size.q: expected a list"),
+    ],
+)
+def test_strict_errors(overrides: dict, message: str) -> None:
+    with pytest.raises(InputError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        load_config("kitti", overrides=overrides)
+
+
+def test_config_file_path(tmp_path: Path) -> None:
+    path = tmp_path / "c.toml"
+    path.write_text('dataset = "x"\nframe_rate_hz = 2\ncategories = ["car"]\n')
+    cfg = load_config(path)
+    assert cfg.frame_rate_hz == 2.0 and cfg.categories == ("car",)
+    with pytest.raises(InputError, match="config not found"):
+        load_config(tmp_path / "missing.toml")
+    path.write_text("dataset = [")
+    with pytest.raises(InputError, match="malformed TOML"):
+        load_config(path)

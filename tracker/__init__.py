@@ -1,0 +1,1 @@
+"""MCTrack core: data types, BaseVersion I/O, costs, Kalman filters and the tracker (no rerun)."""

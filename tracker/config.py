@@ -1,0 +1,312 @@
+"""Tracker configuration: TOML files loaded into frozen dataclasses with strict validation.
+
+File shape (see tracker/configs/kitti.toml)::
+
+    dataset = "kitti"
+    frame_rate_hz = 10.0
+    categories = ["car", "pedestrian", "cyclist"]
+    [defaults]            # every per-category key, once
+    score_min = 0.4
+    [defaults.bev]
+    cost_max = 1.4
+    [category.car]        # overrides only what differs
+    score_min = 0.5
+
+Unknown keys fail with their dotted path (``category.car.bev.cost_mx``); strings become enums
+here, once, so the algorithm never compares strings.
+"""
+
+from __future__ import annotations
+
+import copy
+import enum
+import tomllib
+import typing
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tracker.boxes import FloatArray
+from tracker.categories import CATEGORIES, category_index
+from tracker.errors import InputError
+
+
+class CostKind(enum.Enum):
+    IOU = "iou"
+    GIOU = "giou"
+    DIOU = "diou"
+    RO_GDIOU = "ro_gdiou"
+
+
+class CostState(enum.Enum):
+    """Which boxes the BEV cost compares (paper §3.2.2)."""
+
+    PREDICT = "predict"  # the track predicted forward to the detection's time
+    BACK_PREDICT = "back_predict"  # the detection moved back by its velocity to the track's time
+    FUSION = "fusion"  # alpha * predict + (1 - alpha) * back_predict
+
+
+class MotionModel(enum.Enum):
+    CV = "cv"  # constant velocity [x, y, vx, vy]
+    CA = "ca"  # constant acceleration [x, y, vx, vy, ax, ay] (the paper's model)
+
+
+class TrackingMode(enum.Enum):
+    ONLINE = "online"
+    OFFLINE = "offline"
+
+
+class GreedyOrder(enum.Enum):
+    DETECTION = "detection"  # the reference: detections in index order take their best track
+    COST = "cost"  # globally cheapest pair first
+
+
+@dataclass(frozen=True, slots=True)
+class KalmanNoise:
+    """Diagonal variances: initial covariance P0, process noise Q (per nominal frame), noise R."""
+
+    p: tuple[float, ...]
+    q: tuple[float, ...]
+    r: tuple[float, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class BevConfig:
+    cost: CostKind = CostKind.RO_GDIOU
+    w1: float = 1.0  # Ro_GDIoU weight of (C - U) / C
+    w2: float = 1.0  # Ro_GDIoU weight of c² / d²
+    cost_state: CostState = CostState.PREDICT
+    alpha: float = 0.5  # FUSION blend weight of the forward prediction
+    cost_max: float = 1.4  # accept a pair iff 1 - similarity <= cost_max
+    gate_distance_m: float = 10.0  # pairs farther apart than this (BEV centres) are not scored
+
+
+@dataclass(frozen=True, slots=True)
+class RvConfig:
+    cost_max: float = -0.3  # accept iff 1 - SDIoU <= cost_max
+    yaw_gate_deg: float = 90.0
+    distance_gate_m: float = 5.0
+
+
+@dataclass(frozen=True, slots=True)
+class LifecycleConfig:
+    min_hits: int = 1  # hits before a track is confirmed and output (1 = at birth)
+    max_misses_output: int = 0  # consecutive misses during which a coasting track is still output
+    max_misses: int = 30  # consecutive misses after which a track is deleted
+
+
+@dataclass(frozen=True, slots=True)
+class PoseFilterConfig:
+    motion: MotionModel = MotionModel.CV
+    measure_velocity: bool = False  # use the detector's velocity as a measurement (nuScenes)
+    cv: KalmanNoise = KalmanNoise((1, 1, 500, 500), (0.5, 0.5, 5, 5), (0.1, 0.1))
+    ca: KalmanNoise = KalmanNoise((1, 1, 500, 500, 100, 100), (0.5, 0.5, 5, 5, 1, 1), (0.1, 0.1))
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingFilterConfig:
+    noise: KalmanNoise = KalmanNoise((0.1, 0.1), (0.1, 0.1), (0.2, 5.0))  # r: (det, velocity)
+    min_speed_mps: float = 2.0  # below this the velocity direction is noise: not used
+
+
+@dataclass(frozen=True, slots=True)
+class CategoryConfig:
+    score_min: float = 0.0  # detections with score <= this are dropped (strict >, as the reference)
+    nms_iou_max: float = 1.0  # class-aware BEV NMS; 1.0 disables it for this category
+    bev: BevConfig = BevConfig()
+    rv: RvConfig = RvConfig()
+    lifecycle: LifecycleConfig = LifecycleConfig()
+    pose: PoseFilterConfig = PoseFilterConfig()
+    size: KalmanNoise = KalmanNoise((1, 1, 10, 10), (0.5, 0.5, 1.5, 1.5), (0.02, 0.02))
+    heading: HeadingFilterConfig = HeadingFilterConfig()
+
+
+@dataclass(frozen=True, slots=True)
+class OfflineConfig:
+    track_score_min: float = 1.4  # a track is kept iff its mean detection logit > this
+    interpolate_max_gap: int = 30  # interior gaps up to this many frames are filled
+
+
+@dataclass(frozen=True, slots=True)
+class TrackerConfig:
+    dataset: str
+    frame_rate_hz: float
+    categories: tuple[str, ...]
+    per_category: dict[str, CategoryConfig]
+    mode: TrackingMode = TrackingMode.ONLINE
+    rv_matching: bool = True
+    rv_reference: bool = False  # reference stage 2: stale 2D boxes, gated detections dropped
+    greedy_order: GreedyOrder = GreedyOrder.DETECTION
+    nms: bool = False
+    offline: OfflineConfig = OfflineConfig()
+    source: str = "<defaults>"
+    category_ids: tuple[int, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "category_ids", tuple(category_index(c) for c in self.categories))
+
+    @property
+    def nominal_dt_secs(self) -> float:
+        return 1.0 / self.frame_rate_hz
+
+    def per_category_array(self, getter: typing.Callable[[CategoryConfig], float]) -> FloatArray:
+        """A value per global category index (NaN where not tracked), for vectorised use."""
+        out = np.full(len(CATEGORIES), np.nan)
+        for name, cfg in self.per_category.items():
+            out[category_index(name)] = getter(cfg)
+        return out
+
+
+# ---------------------------------------------------------------------------------------------
+# loading
+
+BUILTIN = ("kitti", "nuscenes", "waymo")
+
+
+def load_config(
+    name_or_path: str | Path, *, overrides: dict[str, Any] | None = None
+) -> TrackerConfig:
+    """Load a built-in config by name (kitti, nuscenes, waymo) or a TOML file by path.
+
+    ``overrides`` is a nested dict merged over the file (used by tuning scripts and tests).
+    """
+    text, source = _read_source(name_or_path)
+    try:
+        raw = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"{source}: malformed TOML ({exc})") from None
+    if overrides:
+        raw = _merge(raw, overrides)
+    return config_from_dict(raw, source=source)
+
+
+def _read_source(name_or_path: str | Path) -> tuple[str, str]:
+    if str(name_or_path) in BUILTIN:
+        res = resources.files("tracker") / "configs" / f"{name_or_path}.toml"
+        return res.read_text(), f"<builtin {name_or_path}>"
+    path = Path(name_or_path)
+    if not path.is_file():
+        raise InputError(f"{path}: config not found (built-in names: {', '.join(BUILTIN)})")
+    return path.read_text(), str(path)
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerConfig:
+    raw = dict(raw)
+    defaults = raw.pop("defaults", {})
+    per_cat_raw = raw.pop("category", {})
+    categories = raw.get("categories")
+    if not isinstance(categories, list) or not categories:
+        raise InputError(f"{source}: 'categories' must be a non-empty list of names")
+    for name in categories:
+        if category_index(str(name)) < 0:
+            raise InputError(f"{source}: categories: unknown category {name!r}")
+    for name in per_cat_raw:
+        if name not in categories:
+            raise InputError(f"{source}: category.{name}: not in 'categories' {categories}")
+    per_category = {
+        name: _build(
+            CategoryConfig, _merge(defaults, per_cat_raw.get(name, {})), f"category.{name}", source
+        )
+        for name in categories
+    }
+    top = _build(
+        TrackerConfig,
+        {**raw, "categories": tuple(categories), "per_category": per_category, "source": source},
+        "",
+        source,
+        skip={"per_category", "source"},
+    )
+    if top.frame_rate_hz <= 0:
+        raise InputError(f"{source}: frame_rate_hz must be > 0")
+    return top
+
+
+def _build(
+    cls: type,
+    raw: Any,
+    path: str,
+    source: str,
+    *,
+    base: Any = None,
+    skip: set[str] | None = None,
+) -> Any:
+    """A dataclass from a table; absent keys come from ``base`` (or the field default)."""
+    if not isinstance(raw, dict):
+        raise InputError(f"{source}: {path or '<top>'}: expected a table, got {raw!r}")
+    names = {f.name for f in fields(cls)} - {"category_ids"}
+    for key in raw:
+        if key not in names:
+            raise InputError(f"{source}: unknown key '{path + '.' if path else ''}{key}'")
+    hints = typing.get_type_hints(cls)
+    kwargs: dict[str, Any] = {}
+    for f in fields(cls):
+        if f.name not in raw:
+            if base is not None:
+                kwargs[f.name] = getattr(base, f.name)
+            continue
+        if skip and f.name in skip:
+            kwargs[f.name] = raw[f.name]
+            continue
+        dotted = f"{path}.{f.name}" if path else f.name
+        nested_base = getattr(base, f.name) if base is not None else f.default
+        if nested_base is MISSING:
+            nested_base = None
+        kwargs[f.name] = _coerce(hints[f.name], raw[f.name], dotted, source, nested_base)
+    try:
+        return cls(**kwargs)
+    except TypeError as exc:
+        raise InputError(f"{source}: {path or '<top>'}: {exc}") from None
+
+
+def _coerce(tp: Any, value: Any, dotted: str, source: str, base: Any = None) -> Any:
+    if isinstance(tp, type) and is_dataclass(tp):
+        return _build(tp, value, dotted, source, base=base)
+    if isinstance(tp, type) and issubclass(tp, enum.Enum):
+        try:
+            return tp(value)
+        except ValueError:
+            allowed = ", ".join(repr(m.value) for m in tp)
+            raise InputError(f"{source}: {dotted}: {value!r} is not one of {allowed}") from None
+    if typing.get_origin(tp) is tuple:
+        if not isinstance(value, list | tuple):
+            raise InputError(f"{source}: {dotted}: expected a list, got {value!r}")
+        item_tp = typing.get_args(tp)[0]
+        return tuple(_coerce(item_tp, v, f"{dotted}[{i}]", source) for i, v in enumerate(value))
+    checks: dict[Any, tuple[Any, str]] = {
+        bool: (bool, "true/false"),
+        int: (int, "an integer"),
+        float: (int | float, "a number"),
+        str: (str, "a string"),
+    }
+    if tp in checks:
+        allowed_types, what = checks[tp]
+        if (tp is not bool and isinstance(value, bool)) or not isinstance(value, allowed_types):
+            raise InputError(f"{source}: {dotted}: expected {what}, got {value!r}")
+        return float(value) if tp is float else value
+    return value
+
+
+def config_to_dict(cfg: Any) -> Any:
+    """Resolved config as plain data (for summaries and the recording's config document)."""
+    if is_dataclass(cfg):
+        return {f.name: config_to_dict(getattr(cfg, f.name)) for f in fields(cfg)}
+    if isinstance(cfg, enum.Enum):
+        return cfg.value
+    if isinstance(cfg, dict):
+        return {k: config_to_dict(v) for k, v in cfg.items()}
+    if isinstance(cfg, tuple | list):
+        return [config_to_dict(v) for v in cfg]
+    return cfg
