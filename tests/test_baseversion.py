@@ -58,7 +58,10 @@ OFFICIAL: dict[str, Any] = {
                     "global_orientation": [-0.69, 0.0, 0.0, 0.72],
                     "global_velocity": [0.0, 0.0],
                     "global_acceleration": [0.0, 0.0],
-                    "bbox_image": {"camera_type": "CAM_FRONT", "x1y1x2y2": [612.0, 170.5, 690.3, 221.8]},
+                    "bbox_image": {
+                        "camera_type": "CAM_FRONT",
+                        "x1y1x2y2": [612.0, 170.5, 690.3, 221.8],
+                    },
                 },
                 {
                     "category": "Tram",  # tracked by nobody, but a known category
@@ -97,7 +100,10 @@ OFFICIAL: dict[str, Any] = {
                     "global_orientation": [0.79, 0.0, 0.0, -0.61],
                     "global_velocity": [0.9, -1.1],
                     "global_acceleration": [0.0, 0.0],
-                    "bbox_image": {"camera_type": "CAM_BACK_LEFT", "x1y1x2y2": [201.4, 402, 260.9, 560]},
+                    "bbox_image": {
+                        "camera_type": "CAM_BACK_LEFT",
+                        "x1y1x2y2": [201.4, 402, 260.9, 560],
+                    },
                 },
                 {
                     "category": "traffic_cone",  # unknown: a logged, counted skip
@@ -143,8 +149,11 @@ def test_official_file_loads_unchanged(tmp_path: Path) -> None:
     assert cam.name == "CAM_FRONT" and (cam.width_px, cam.height_px) == (1242, 375)
     np.testing.assert_allclose(cam.image_from_camera, np.array(P2)[:3])
     # official KITTI chain: camera_from_world = lidar2camera @ global2lidar
-    lidar2camera = np.array(OFFICIAL["0007"][0]["transform_matrix"]["cameras_transform_matrix"]
-                            ["CAM_FRONT"]["lidar2camera"])
+    lidar2camera = np.array(
+        OFFICIAL["0007"][0]["transform_matrix"]["cameras_transform_matrix"]["CAM_FRONT"][
+            "lidar2camera"
+        ]
+    )
     global2lidar = np.array(OFFICIAL["0007"][0]["transform_matrix"]["global2lidar"])
     np.testing.assert_allclose(cam.camera_from_world, lidar2camera @ global2lidar)
     assert car.camera.tolist() == [0, -1]
@@ -179,7 +188,9 @@ def make_frames() -> dict[str, list[Frame]]:
             category=rng.integers(0, 3, size=n),
             score=rng.uniform(size=n),
             velocity=rng.normal(size=(n, 2)),
-            xyxy_image=np.where(rng.uniform(size=(n, 1)) < 0.5, np.nan, rng.uniform(0, 300, (n, 4))),
+            xyxy_image=np.where(
+                rng.uniform(size=(n, 1)) < 0.5, np.nan, rng.uniform(0, 300, (n, 4))
+            ),
             camera=np.where(rng.uniform(size=n) < 0.5, -1, 0),
             track_id=np.arange(n),
             score_raw=rng.normal(size=n),
@@ -208,8 +219,12 @@ def test_round_trip_is_exact(tmp_path: Path) -> None:
         assert a.frame_id == b.frame_id
         assert a.timestamp_secs == pytest.approx(b.timestamp_secs, abs=1e-6)
         assert a.boxes.equals(b.boxes)
-        np.testing.assert_array_equal(a.cameras[0].camera_from_world, b.cameras[0].camera_from_world)
-        np.testing.assert_array_equal(a.cameras[0].image_from_camera, b.cameras[0].image_from_camera)
+        np.testing.assert_array_equal(
+            a.cameras[0].camera_from_world, b.cameras[0].camera_from_world
+        )
+        np.testing.assert_array_equal(
+            a.cameras[0].image_from_camera, b.cameras[0].image_from_camera
+        )
         np.testing.assert_array_equal(a.world_from_ego, b.world_from_ego)
         np.testing.assert_array_equal(a.ignore_xyxy_image, b.ignore_xyxy_image)
     # and a second generation is byte-identical
@@ -241,8 +256,13 @@ BAD_CASES = [
     ("frame id order", lambda d: d["0007"][1].update(frame_id=0), "field 'frame_id'"),
     ("timestamp order", lambda d: d["scene-0103"][1].update(timestamp=5), "field 'timestamp'"),
     ("scene not list", lambda d: d.update({"0007": {"a": 1}}), "scene '0007'"),
-    ("bad camera matrix", lambda d: d["0007"][0]["transform_matrix"]["cameras_transform_matrix"]
-     ["CAM_FRONT"].update(camera2image=[[1, 2]]), "camera2image"),
+    (
+        "bad camera matrix",
+        lambda d: d["0007"][0]["transform_matrix"]["cameras_transform_matrix"]["CAM_FRONT"].update(
+            camera2image=[[1, 2]]
+        ),
+        "camera2image",
+    ),
 ]
 
 
@@ -256,7 +276,9 @@ def test_bad_input_names_the_field(tmp_path: Path, case: str, edit: Any, expecte
     assert expected in message
 
 
-def test_malformed_json_and_cli_exit_code(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_malformed_json_and_cli_exit_code(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     path = tmp_path / "broken.json"
     path.write_text('{"0000": [ {"frame_id": 0, ')
     with pytest.raises(InputError, match="malformed JSON"):

@@ -7,11 +7,10 @@ this boundary; inside the tracker the data is trusted.
 
 from __future__ import annotations
 
+import gzip
 import json
 import logging
 import math
-import os
-import tempfile
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,6 +21,7 @@ import numpy as np
 from tracker.boxes import Boxes, FloatArray
 from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
+from tracker.fileio import write_json_atomic
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
 
@@ -72,11 +72,12 @@ def read_baseversion(
     path = Path(path)
     report = report if report is not None else LoadReport()
     try:
-        with path.open("rb") as fh:
+        opener = gzip.open if path.suffix == ".gz" else open
+        with opener(path, "rb") as fh:
             data = json.load(fh)
     except FileNotFoundError:
         raise InputError(f"{path}: file not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except (json.JSONDecodeError, UnicodeDecodeError, EOFError, gzip.BadGzipFile) as exc:
         raise InputError(f"{path}: malformed JSON ({exc})") from None
     if isinstance(data, dict) and "results" in data and "meta" in data:
         raise InputError(
@@ -490,17 +491,6 @@ def write_baseversion(path: str | Path, scenes: Scenes) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     payload = {scene: [frame_to_dict(f) for f in frames] for scene, frames in scenes.items()}
     write_json_atomic(path, payload)
-
-
-def write_json_atomic(path: Path, payload: Any) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            json.dump(payload, fh, separators=(",", ":"), allow_nan=False)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 # ---------------------------------------------------------------------------------------------

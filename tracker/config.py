@@ -94,6 +94,8 @@ class RvConfig:
 @dataclass(frozen=True, slots=True)
 class LifecycleConfig:
     min_hits: int = 1  # hits before a track is confirmed and output (1 = at birth)
+    confirm_score: float = 2.0  # a detection scoring >= this confirms at once (2 = never)
+    max_misses_tentative: int = 0  # misses after which an unconfirmed track is deleted
     max_misses_output: int = 0  # consecutive misses during which a coasting track is still output
     max_misses: int = 30  # consecutive misses after which a track is deleted
 
@@ -115,6 +117,7 @@ class HeadingFilterConfig:
 @dataclass(frozen=True, slots=True)
 class CategoryConfig:
     score_min: float = 0.0  # detections with score <= this are dropped (strict >, as the reference)
+    birth_score_min: float = 0.0  # only detections scoring above this start tracks
     nms_iou_max: float = 1.0  # class-aware BEV NMS; 1.0 disables it for this category
     bev: BevConfig = BevConfig()
     rv: RvConfig = RvConfig()

@@ -1,0 +1,78 @@
+"""`mctrack bench`: tracker speed (frames/s, ms/frame) and peak memory.
+
+1. The 11 KITTI validation sequences, PointRCNN detections, all three classes (tracker only:
+   conversion and writing are outside the timed region).
+2. Synthetic dense scenes with 50 and 200 objects per frame.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+from pathlib import Path
+from typing import Any
+
+from tracker.config import load_config
+from tracker.pipeline import run_scene
+from tracker.synthetic import synthetic_scene
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--kitti-root", default="../shared/data/kitti/tracking")
+    parser.add_argument("--config", default="kitti")
+    parser.add_argument("--repeat", type=int, default=3, help="runs per case; the best is kept")
+    parser.add_argument("--frames", type=int, default=200, help="frames per synthetic scene")
+    parser.add_argument("--json", default=None, help="also write the results to this file")
+
+
+def _peak_rss_mb() -> float:
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+
+
+def run(args: argparse.Namespace) -> int:
+    from app.kitti import VALIDATION_SEQS
+
+    results: dict[str, Any] = {}
+    root = Path(args.kitti_root)
+    if root.is_dir():
+        from tracker.convert.kitti import convert_kitti
+
+        config = load_config(
+            args.config, overrides={"categories": ["car", "pedestrian", "cyclist"]}
+        )
+        scenes, _ = convert_kitti(root, seqs=VALIDATION_SEQS, with_gt=False)
+        frames = sum(len(f) for f in scenes.values())
+        best = min(
+            sum(run_scene(f, config).tracker_seconds for f in scenes.values())
+            for _ in range(args.repeat)
+        )
+        results["kitti_val"] = {
+            "frames": frames,
+            "seconds": round(best, 3),
+            "frames_per_sec": round(frames / best, 1),
+            "ms_per_frame": round(1000 * best / frames, 3),
+        }
+        print(
+            f"KITTI val (11 seqs, car+ped+cyc): {frames} frames in {best:.3f} s -> "
+            f"{frames / best:.0f} frames/s ({1000 * best / frames:.3f} ms/frame)"
+        )
+    else:
+        print(f"KITTI val: skipped ({root} not found)")
+
+    config = load_config(args.config, overrides={"categories": ["car", "pedestrian"]})
+    for n in (50, 200):
+        dets, _ = synthetic_scene(num_objects=n, num_frames=args.frames, seed=n)
+        best = min(run_scene(dets, config).tracker_seconds for _ in range(args.repeat))
+        ms = 1000 * best / len(dets)
+        results[f"synthetic_{n}"] = {
+            "objects": n,
+            "frames": len(dets),
+            "ms_per_frame": round(ms, 3),
+        }
+        print(f"synthetic {n} objects/frame: {ms:.2f} ms/frame ({len(dets)} frames)")
+    results["peak_rss_mb"] = _peak_rss_mb()
+    print(f"peak RSS: {results['peak_rss_mb']} MB")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2))
+    return 0

@@ -1,0 +1,164 @@
+"""Projection of world points and 3D boxes into a pinhole :class:`~tracker.frame.Camera`.
+
+Everything is vectorised over boxes. Depth is the third homogeneous image coordinate
+``w = (image_from_world @ [x, y, z, 1])[2]``; it is metric for KITTI ``P2`` and ``[K | 0]``
+matrices (third row ``[r3ᵀ | t]`` with a unit ``r3``), which is every camera we build.
+
+A box that straddles the camera plane cannot be projected corner by corner: a corner behind the
+camera flips sign through the perspective division and lands on the wrong side of the image (the
+nuScenes converter of the reference has exactly this bug). So each of the 12 edges is first
+clipped against the near plane ``w = near_m`` and only the part in front of it is projected; the
+2D box is the min/max over the clipped edges' end points, i.e. the exact image extent of the
+visible part of the box.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from tracker.boxes import Boxes, FloatArray
+from tracker.frame import Camera
+from tracker.geometry import BOX_EDGES, corners_3d
+
+BoolArray = NDArray[np.bool_]
+
+#: Default near plane (metres in front of the camera) for clipping.
+NEAR_PLANE_M = 0.1
+
+_EDGE_START = np.array([a for a, _ in BOX_EDGES], dtype=np.int64)
+_EDGE_END = np.array([b for _, b in BOX_EDGES], dtype=np.int64)
+
+
+def _homogeneous_image(xyz_world: ArrayLike, camera: Camera) -> FloatArray:
+    """(..., 3) homogeneous image coordinates (u·w, v·w, w) of (..., 3) world points."""
+    p = np.asarray(xyz_world, dtype=np.float64)
+    m = camera.image_from_world
+    return p @ m[:, :3].T + m[:, 3]
+
+
+def project_points(xyz_world: ArrayLike, camera: Camera) -> tuple[FloatArray, FloatArray]:
+    """Project world points into the image.
+
+    Parameters
+    ----------
+    xyz_world : (N, 3) points in the world frame, metres.
+    camera : the camera (``image_from_camera @ camera_from_world``).
+
+    Returns
+    -------
+    uv_px : (N, 2) pixel coordinates. Meaningless where ``depth_m <= 0`` (behind the camera);
+        filter with :func:`in_front`.
+    depth_m : (N,) depth along the optical axis, metres.
+    """
+    h = _homogeneous_image(np.asarray(xyz_world, dtype=np.float64).reshape(-1, 3), camera)
+    depth_m = h[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv_px = h[:, :2] / depth_m[:, None]
+    return uv_px, depth_m
+
+
+def in_front(xyz_world: ArrayLike, camera: Camera, *, near_m: float = NEAR_PLANE_M) -> BoolArray:
+    """(N,) True where a world point is at least ``near_m`` in front of the camera."""
+    _, depth_m = project_points(xyz_world, camera)
+    return depth_m >= near_m
+
+
+def _corners_world(boxes: Boxes | tuple[Any, Any, Any]) -> FloatArray:
+    """(N, 8, 3) world corners of a Boxes batch or of an ``(xyz, lwh, yaw)`` tuple."""
+    if isinstance(boxes, Boxes):
+        return corners_3d(boxes.xyz, boxes.lwh, boxes.yaw)
+    xyz, lwh, yaw = boxes
+    return corners_3d(xyz, lwh, yaw)
+
+
+def _clipped_edges_px(corners_world: FloatArray, camera: Camera, near_m: float) -> FloatArray:
+    """(N, 12, 2, 2) pixel end points of each box edge clipped to ``w >= near_m``; NaN if behind."""
+    h = _homogeneous_image(corners_world, camera)  # (N, 8, 3)
+    a, b = h[:, _EDGE_START], h[:, _EDGE_END]  # (N, 12, 3)
+    w_a, w_b = a[..., 2], b[..., 2]
+    front_a, front_b = w_a >= near_m, w_b >= near_m
+    # The image map is linear in homogeneous coordinates, so the near-plane crossing of the 3D
+    # edge is the same linear interpolation here. Only needed where exactly one end is in front
+    # (then w_b != w_a); elsewhere t = 0 keeps the arithmetic finite.
+    crosses = front_a != front_b
+    t = np.where(crosses, (near_m - w_a) / np.where(crosses, w_b - w_a, 1.0), 0.0)
+    crossing = a + t[..., None] * (b - a)
+    a = np.where(front_a[..., None], a, crossing)
+    b = np.where(front_b[..., None], b, crossing)
+    ends = np.stack([a, b], axis=2)  # (N, 12, 2, 3)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ends_px = ends[..., :2] / ends[..., 2:3]
+    behind = ~(front_a | front_b)
+    ends_px[behind] = np.nan
+    return ends_px
+
+
+def project_boxes(
+    boxes: Boxes | tuple[Any, Any, Any],
+    camera: Camera,
+    *,
+    near_m: float = NEAR_PLANE_M,
+    clip_to_image: bool = True,
+) -> tuple[FloatArray, BoolArray]:
+    """2D image boxes of 3D world boxes (the extent of the part in front of the near plane).
+
+    Parameters
+    ----------
+    boxes : a :class:`Boxes` batch, or a tuple ``(xyz (N, 3), lwh (N, 3), yaw (N,))`` of world
+        centres, sizes (metres) and headings (radians).
+    camera : the camera to project into.
+    near_m : near-plane distance; box edges are clipped to ``depth >= near_m`` before projecting.
+    clip_to_image : clip the result to ``[0, width_px - 1] x [0, height_px - 1]`` (the KITTI
+        pixel-index convention, as in the reference KITTI writer).
+
+    Returns
+    -------
+    xyxy_image : (N, 4) x1, y1, x2, y2 in pixels; NaN for boxes that are not visible.
+    visible : (N,) True when part of the box is in front of the near plane and its 2D box
+        overlaps the image with a positive area.
+    """
+    corners = _corners_world(boxes)
+    n = len(corners)
+    if n == 0:
+        return np.zeros((0, 4)), np.zeros(0, dtype=bool)
+    ends_px = _clipped_edges_px(corners, camera, near_m).reshape(n, -1, 2)  # (N, 24, 2)
+    any_front = ~np.isnan(ends_px[..., 0]).all(axis=1)
+    lo = np.where(np.isnan(ends_px), np.inf, ends_px).min(axis=1)  # (N, 2)
+    hi = np.where(np.isnan(ends_px), -np.inf, ends_px).max(axis=1)
+    xyxy_raw = np.concatenate([lo, hi], axis=1)
+    max_xy = np.array([camera.width_px - 1, camera.height_px - 1], dtype=np.float64)
+    lo_clip = np.clip(lo, 0.0, max_xy)
+    hi_clip = np.clip(hi, 0.0, max_xy)
+    visible = any_front & (hi_clip > lo_clip).all(axis=1)
+    xyxy_image = np.concatenate([lo_clip, hi_clip], axis=1) if clip_to_image else xyxy_raw
+    xyxy_image[~visible] = np.nan
+    return xyxy_image, visible
+
+
+def box_wireframes_image(
+    boxes: Boxes | tuple[Any, Any, Any],
+    camera: Camera,
+    *,
+    near_m: float = NEAR_PLANE_M,
+) -> FloatArray:
+    """Projected box edges for drawing, clipped to the near plane (not to the image).
+
+    Parameters
+    ----------
+    boxes : a :class:`Boxes` batch or an ``(xyz, lwh, yaw)`` tuple, as in :func:`project_boxes`.
+    camera : the camera to project into.
+    near_m : near-plane distance in metres.
+
+    Returns
+    -------
+    segments_px : (N, 12, 2, 2) the two pixel end points of each edge of
+        :data:`tracker.geometry.BOX_EDGES`; NaN for edges entirely behind the near plane.
+        ``segments_px.reshape(-1, 2, 2)`` filtered on ``~isnan`` feeds a line-strip logger.
+    """
+    corners = _corners_world(boxes)
+    if len(corners) == 0:
+        return np.zeros((0, len(BOX_EDGES), 2, 2))
+    return _clipped_edges_px(corners, camera, near_m)

@@ -1,0 +1,37 @@
+"""Atomic file output: every output file is written completely or not at all."""
+
+from __future__ import annotations
+
+import gzip
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    """Write to a temporary file in the same folder, then rename it into place."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; use the user's normal mode
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json_atomic(path: str | Path, payload: Any) -> None:
+    """Compact JSON; gzip-compressed (reproducibly, mtime 0) when the name ends in .gz."""
+    text = json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+    write_bytes_atomic(path, gzip.compress(text, mtime=0) if str(path).endswith(".gz") else text)
+
+
+def write_text_atomic(path: str | Path, lines: list[str]) -> None:
+    write_bytes_atomic(path, "".join(lines).encode())

@@ -1,0 +1,135 @@
+"""Running the tracker over scenes: online, or offline (global) with track-level post-processing.
+
+Offline mode (reference §2.9, improved): run online with the offline config, then per track
+  1. score = mean logit of its real detections; drop the whole track if score <= threshold,
+  2. fill interior gaps (up to ``interpolate_max_gap`` frames) by linear interpolation of
+     position, size, heading (on the circle) and velocity — replacing coasting predictions,
+  3. drop trailing coasting rows after the last real detection (offline knows the track ended).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from tracker.boxes import Boxes
+from tracker.config import TrackerConfig, TrackingMode
+from tracker.events import Observer, TrackOutput, TrackStatus
+from tracker.frame import Frame
+from tracker.geometry import wrap_angle
+from tracker.mctracker import MCTracker
+
+
+@dataclass(frozen=True, slots=True)
+class SceneResult:
+    scene: str
+    outputs: list[TrackOutput]
+    tracker_seconds: float  # time inside the tracker (and offline post-processing) only
+
+
+def run_scene(
+    frames: Sequence[Frame], config: TrackerConfig, *, observer: Observer | None = None
+) -> SceneResult:
+    """Track one scene's frames (in time order) with a fresh tracker."""
+    tracker = MCTracker(config, observer=observer)
+    outputs: list[TrackOutput] = []
+    start = time.perf_counter()
+    for frame in frames:
+        outputs.append(tracker.step(frame))
+    if config.mode is TrackingMode.OFFLINE:
+        outputs = offline_postprocess(outputs, config)
+    elapsed = time.perf_counter() - start
+    scene = frames[0].scene if frames else ""
+    return SceneResult(scene, outputs, elapsed)
+
+
+def offline_postprocess(outputs: list[TrackOutput], config: TrackerConfig) -> list[TrackOutput]:
+    """Track-score filter and gap interpolation over a whole scene (see module docstring)."""
+    if not outputs:
+        return outputs
+    # flatten: one row per (frame, track)
+    frame_index = np.concatenate([np.full(len(o), i) for i, o in enumerate(outputs)])
+    boxes = Boxes.concat([o.boxes for o in outputs])
+    acc = np.concatenate([o.acceleration for o in outputs])
+    status = np.concatenate([o.status for o in outputs])
+    det_row = np.concatenate([o.det_row for o in outputs])
+    stage = np.concatenate([o.stage for o in outputs])
+    real = det_row >= 0
+    keep = real.copy()
+    new_rows: list[tuple[int, int, float]] = []  # (frame index, source row a, weight) pairs
+    new_src: list[tuple[int, int, int, float]] = []
+    logit = np.log(
+        np.clip(boxes.score, 1e-6, 1 - 1e-6) / (1 - np.clip(boxes.score, 1e-6, 1 - 1e-6))
+    )
+    tracks_score: dict[int, float] = {}
+    for tid in np.unique(boxes.track_id):
+        rows = np.flatnonzero((boxes.track_id == tid) & real)
+        if not len(rows):
+            continue
+        score = float(logit[rows].mean())
+        tracks_score[int(tid)] = score
+        if score <= config.offline.track_score_min:
+            keep[rows] = False
+            continue
+        fi = frame_index[rows]
+        for a, b in zip(rows[:-1], rows[1:], strict=True):
+            gap = frame_index[b] - frame_index[a] - 1
+            if 0 < gap <= config.offline.interpolate_max_gap:
+                for k in range(1, gap + 1):
+                    new_src.append((int(frame_index[a]) + k, int(a), int(b), k / (gap + 1)))
+        del fi
+    del new_rows
+    parts: list[list[Boxes]] = [[] for _ in outputs]
+    extra_acc: list[list[np.ndarray]] = [[] for _ in outputs]
+    if new_src:
+        f_idx = np.array([s[0] for s in new_src])
+        a = np.array([s[1] for s in new_src])
+        b = np.array([s[2] for s in new_src])
+        w = np.array([s[3] for s in new_src])[:, None]
+        yaw = wrap_angle(boxes.yaw[a] + w[:, 0] * wrap_angle(boxes.yaw[b] - boxes.yaw[a]))
+        interp = Boxes(
+            xyz=(1 - w) * boxes.xyz[a] + w * boxes.xyz[b],
+            lwh=(1 - w) * boxes.lwh[a] + w * boxes.lwh[b],
+            yaw=yaw,
+            velocity=(1 - w) * boxes.velocity[a] + w * boxes.velocity[b],
+            score=np.full(len(a), np.nan),  # set below to the track score (as a probability)
+            category=boxes.category[a],
+            xyxy_image=np.full((len(a), 4), np.nan),
+            camera=boxes.camera[a],
+            track_id=boxes.track_id[a],
+            score_raw=np.full(len(a), np.nan),
+        )
+        track_p = np.array([1 / (1 + np.exp(-tracks_score[int(t)])) for t in interp.track_id])
+        interp = interp.replace(score=track_p)
+        interp_acc = (1 - w) * acc[a] + w * acc[b]
+        for i in range(len(outputs)):
+            sel = f_idx == i
+            if sel.any():
+                parts[i].append(interp[sel])
+                extra_acc[i].append(interp_acc[sel])
+    result: list[TrackOutput] = []
+    for i, out in enumerate(outputs):
+        rows = np.flatnonzero((frame_index == i) & keep)
+        n_new = sum(len(p) for p in parts[i])
+        merged = Boxes.concat([boxes[rows], *parts[i]])
+        order = np.argsort(merged.track_id, kind="stable")
+        result.append(
+            TrackOutput(
+                scene=out.scene,
+                frame_id=out.frame_id,
+                time_secs=out.time_secs,
+                boxes=merged[order],
+                acceleration=np.concatenate([acc[rows], *extra_acc[i]])[order]
+                if n_new
+                else acc[rows],
+                status=np.concatenate(
+                    [status[rows], np.full(n_new, TrackStatus.COASTING, dtype=np.int8)]
+                )[order],
+                det_row=np.concatenate([det_row[rows], np.full(n_new, -1)])[order],
+                stage=np.concatenate([stage[rows], np.zeros(n_new, dtype=np.int8)])[order],
+            )
+        )
+    return result

@@ -1,0 +1,131 @@
+"""Result writers: KITTI tracking text files and the tracks file (BaseVersion + motion).
+
+Every file is written to a temporary name and renamed into place: complete or not at all.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from tracker.baseversion import frame_to_dict
+from tracker.boxes import Boxes, FloatArray
+from tracker.camera import project_boxes
+from tracker.categories import CATEGORIES
+from tracker.convert.kitti import WORLD_FROM_CAMERA_AXES, boxes_world_to_rect
+from tracker.events import TrackOutput
+from tracker.fileio import write_json_atomic, write_text_atomic
+from tracker.frame import Camera, Frame
+from tracker.geometry import wrap_angle
+
+KITTI_CLASS_NAMES = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
+
+
+def kitti_label_fields(boxes: Boxes, camera: Camera) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """KITTI label fields of world boxes seen by a (rectified) camera.
+
+    Returns ``fields (N, 8)`` = alpha, h, w, l, x, y, z, rotation_y (location = bottom centre in
+    the camera, y down), the 2D box ``xyxy (N, 4)`` and ``visible (N,)``. The 2D box projects
+    the box *upright in camera axes*, as KITTI annotates it and the reference writer does:
+    projecting the z-up world box would tilt it by the ego's pitch/roll relative to the world.
+    """
+    location, hwl, rotation_y = boxes_world_to_rect(
+        boxes.xyz, boxes.lwh, boxes.yaw, camera.camera_from_world
+    )
+    centre_cam = location - np.column_stack(
+        [np.zeros(len(boxes)), hwl[:, 0] / 2.0, np.zeros(len(boxes))]
+    )
+    upright = Boxes.create(
+        xyz=centre_cam @ WORLD_FROM_CAMERA_AXES[:3, :3].T,
+        lwh=boxes.lwh,
+        yaw=-rotation_y - np.pi / 2.0,  # heading about camera -y, as a z-up yaw
+        category=boxes.category,
+    )
+    camera_axes = Camera(
+        camera.name,
+        camera.image_from_camera,
+        np.linalg.inv(WORLD_FROM_CAMERA_AXES),
+        camera.width_px,
+        camera.height_px,
+    )
+    xyxy, visible = project_boxes(upright, camera_axes)
+    alpha = wrap_angle(rotation_y - np.arctan2(location[:, 0], location[:, 2]))
+    fields = np.column_stack([alpha, hwl, location, rotation_y])
+    return fields, xyxy, visible
+
+
+def kitti_lines(output: TrackOutput, camera: Camera) -> list[str]:
+    """label_02 lines of one frame: boxes not visible in the image are left out (KITTI GT only
+    annotates objects in the camera view, so anything else would count as a false positive)."""
+    boxes = output.boxes
+    if not len(boxes):
+        return []
+    fields, xyxy, visible = kitti_label_fields(boxes, camera)
+    lines = []
+    for i in np.flatnonzero(visible):
+        name = KITTI_CLASS_NAMES.get(CATEGORIES[boxes.category[i]], CATEGORIES[boxes.category[i]])
+        a, h, w, length, x, y, z, ry = fields[i]
+        x1, y1, x2, y2 = xyxy[i]
+        lines.append(
+            f"{output.frame_id} {boxes.track_id[i]} {name} -1 -1 {a:.4f} "
+            f"{x1:.4f} {y1:.4f} {x2:.4f} {y2:.4f} {h:.4f} {w:.4f} {length:.4f} "
+            f"{x:.4f} {y:.4f} {z:.4f} {ry:.4f} {boxes.score[i]:.4f}\n"
+        )
+    return lines
+
+
+def write_kitti_sequence(
+    path: Path,
+    outputs: Sequence[TrackOutput],
+    frames: Sequence[Frame],
+    camera_name: str = "CAM_FRONT",
+) -> int:
+    """Write one sequence's KITTI tracking result file; returns the number of lines."""
+    by_frame = {f.frame_id: f for f in frames}
+    lines: list[str] = []
+    for out in outputs:
+        frame = by_frame[out.frame_id]
+        index = frame.camera_index(camera_name)
+        if index < 0:
+            raise ValueError(f"scene {frame.scene} frame {frame.frame_id}: no {camera_name} model")
+        lines.extend(kitti_lines(out, frame.cameras[index]))
+    write_text_atomic(path, lines)
+    return len(lines)
+
+
+def write_tracks_file(
+    path: Path, results: dict[str, tuple[Sequence[Frame], Sequence[TrackOutput]]]
+) -> None:
+    """The tracks file: a valid BaseVersion file whose boxes are the tracker output.
+
+    Each box carries ``track_id``, the filtered ``global_velocity`` (m/s) and
+    ``global_acceleration`` (m/s²), and ``status``; frames keep the input's camera models, so
+    the file loads with :func:`tracker.baseversion.read_baseversion` for evaluation and viewing.
+    """
+    payload = {}
+    for scene, (frames, outputs) in results.items():
+        by_frame = {f.frame_id: f for f in frames}
+        scene_frames = []
+        for out in outputs:
+            src = by_frame[out.frame_id]
+            frame = Frame(
+                scene=scene,
+                frame_id=out.frame_id,
+                timestamp_secs=out.time_secs,
+                boxes=out.boxes,
+                cameras=src.cameras,
+                world_from_ego=src.world_from_ego,
+                sample_token=src.sample_token,
+                transform_matrix=src.transform_matrix,
+            )
+            record = frame_to_dict(frame)
+            for box, acc, status in zip(
+                record["bboxes"], out.acceleration, out.status, strict=True
+            ):
+                box["global_acceleration"] = [None if not np.isfinite(a) else float(a) for a in acc]
+                box["status"] = int(status)
+            scene_frames.append(record)
+        payload[scene] = scene_frames
+    write_json_atomic(Path(path), payload)
