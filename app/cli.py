@@ -19,6 +19,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "track": ("app.track", "run the tracker on a BaseVersion file"),
     "kitti": ("app.kitti", "convert, track and evaluate KITTI tracking sequences"),
     "bench": ("app.bench", "tracker speed benchmark (frames/s, ms/frame, peak memory)"),
+    "eval": ("app.eval", "evaluate a tracks file: KITTI static metrics and motion metrics"),
 }
 
 

@@ -51,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--classes", type=_csv, default=["car", "pedestrian", "cyclist"], help="detection classes"
     )
     kitti.add_argument("--no-gt", action="store_true", help="skip label_02 ground truth")
+    kitti.add_argument("--gzip", action="store_true", help="write .json.gz (about 5x smaller)")
     kitti.add_argument("--out", type=Path, required=True, help="output folder")
 
 
@@ -80,11 +81,12 @@ def _run_kitti(args: argparse.Namespace) -> int:
     )
     converted = time.perf_counter()
     args.out.mkdir(parents=True, exist_ok=True)
-    write_baseversion(args.out / "detections.json", detections)
-    print(_summary("detections", detections), "->", args.out / "detections.json")
+    suffix = ".json.gz" if args.gzip else ".json"
+    write_baseversion(args.out / f"detections{suffix}", detections)
+    print(_summary("detections", detections), "->", args.out / f"detections{suffix}")
     if gt is not None:
-        write_baseversion(args.out / "gt.json", gt)
-        print(_summary("gt", gt), "->", args.out / "gt.json")
+        write_baseversion(args.out / f"gt{suffix}", gt)
+        print(_summary("gt", gt), "->", args.out / f"gt{suffix}")
     done = time.perf_counter()
     print(f"converted in {converted - start:.2f} s, written in {done - converted:.2f} s")
     return 0

@@ -55,6 +55,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--poses", default="orbslam3", help="orbslam3, none or a pose folder")
     parser.add_argument("--no-eval", action="store_true", help="skip the evaluation")
+    parser.add_argument(
+        "--motion",
+        action="store_true",
+        help="also compute the motion metrics (summary.json 'motion', motion.md, PNG)",
+    )
     parser.add_argument("--out", required=True, help="output folder")
 
 
@@ -69,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         labels=Path(args.labels) if args.labels else None,
         poses=None if args.poses == "none" else args.poses,
         evaluate=not args.no_eval,
+        motion=args.motion,
         out=Path(args.out),
     )
     _print_summary(summary)
@@ -86,11 +92,17 @@ def run_kitti(
     labels: Path | None = None,
     poses: str | None = "orbslam3",
     evaluate: bool = True,
+    motion: bool = False,
     out: Path,
     config_overrides: dict[str, Any] | None = None,
     quiet: bool = False,
 ) -> dict[str, Any]:
-    """The end-to-end KITTI job; returns (and writes) ``out/summary.json``."""
+    """The end-to-end KITTI job; returns (and writes) ``out/summary.json``.
+
+    With ``motion`` the labels are converted too and the motion metrics
+    (:func:`tracker.motion_eval.evaluate_motion`) go to ``summary["motion"]``, ``out/motion.md``
+    and ``out/motion_velocity.png``.
+    """
     from tracker.convert.kitti import convert_kitti
 
     overrides = dict(config_overrides or {})
@@ -99,8 +111,8 @@ def run_kitti(
         overrides["mode"] = mode
     config = load_config(config_name, overrides=overrides)
     t0 = time.perf_counter()
-    detections, _gt = convert_kitti(
-        kitti_root, seqs=seqs, detector=detector, poses=poses, classes=classes, with_gt=False
+    detections, gt = convert_kitti(
+        kitti_root, seqs=seqs, detector=detector, poses=poses, classes=classes, with_gt=motion
     )
     convert_secs = time.perf_counter() - t0
 
@@ -146,9 +158,38 @@ def run_kitti(
                 label_dir=label_dir, result_dir=data_dir, seq_lengths=lengths, classes=classes
             )
             summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
+    if motion:
+        summary["motion"] = _motion(detections, gt, results, classes, out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary
+
+
+def _motion(
+    detections: dict[str, Any],
+    gt: dict[str, Any] | None,
+    results: dict[str, SceneResult],
+    classes: list[str],
+    out: Path,
+) -> dict[str, Any] | str:
+    """Motion metrics of the run, and ``out/motion.md`` with the velocity-curve PNG."""
+    from tracker.fileio import write_text_atomic
+    from tracker.motion_eval import evaluate_motion, motion_markdown
+
+    missing = sorted(s for s in detections if gt is None or s not in gt)
+    if gt is None or missing:
+        return f"skipped: no labels for {missing}"
+    plot = "motion_velocity.png"
+    motion = evaluate_motion(
+        detections,
+        gt,
+        {s: r.outputs for s, r in results.items()},
+        classes=classes,
+        plot_path=out / plot,
+    )
+    text = "\n".join(["# Motion metrics", "", motion_markdown(motion, heading_level=2)])
+    write_text_atomic(out / "motion.md", [f"{text}\n![velocity curves]({plot})\n"])
+    return motion
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
@@ -164,3 +205,18 @@ def _print_summary(summary: dict[str, Any]) -> None:
             print(f"{cls:<12}" + "".join(f"{m[c]:>9}" for c in cols))
     elif "evaluation" in summary:
         print(summary["evaluation"])
+    motion = summary.get("motion")
+    if isinstance(motion, dict):
+        cols = ["vae_deg", "vne_mps", "vir_ratio", "vse_mps", "vde_secs", "n_samples"]
+        print(f"{'motion (all)':<14}" + "".join(f"{c:>11}" for c in cols))
+        for est, rows in motion["metrics"].items():
+            row = rows["all"]
+            print(f"{est:<14}" + "".join(_cell(row[c]) for c in cols))
+    elif isinstance(motion, str):
+        print(f"motion: {motion}")
+
+
+def _cell(value: float | int | None) -> str:
+    if value is None:
+        return f"{'n/a':>11}"
+    return f"{value:>11.3f}" if isinstance(value, float) else f"{value:>11}"

@@ -39,7 +39,7 @@ def best_ms(tracks: Boxes, dets: Boxes, mask: np.ndarray | None, number: int) ->
     def call() -> None:
         ro_gdiou_bev(tracks, dets, w1=1.0, w2=1.0, mask=mask)
 
-    return min(timeit.repeat(call, number=number, repeat=5)) / number * 1e3
+    return min(timeit.repeat(call, number=number, repeat=9)) / number * 1e3
 
 
 def main() -> None:

@@ -182,3 +182,31 @@ def test_min_area_rect_matches_shapely_far_from_origin_and_chunked() -> None:
 def test_min_area_rect_empty() -> None:
     area, diag_sq = min_area_rect_bev(np.zeros((0, 4, 2)), np.zeros((0, 4, 2)))
     assert area.shape == diag_sq.shape == (0,)
+
+
+def test_non_finite_corners_give_nan() -> None:
+    a = np.concatenate([rect(0, 0, 0), rect(np.nan, 0, 0), rect(0, 0, 0)])
+    a[2, 1, 0] = np.inf
+    b = np.concatenate([rect(1, 0, 0), rect(0, 0, 0), rect(0, 0, 0)])
+    inter = intersection_area_bev(a, b)
+    area, diag_sq = min_area_rect_bev(a, b)
+    assert inter[0] == pytest.approx(6.0) and area[0] == pytest.approx(10.0)
+    assert np.all(np.isnan(inter[1:])) and np.all(np.isnan(area[1:]))
+    assert np.all(np.isnan(diag_sq[1:]))
+
+
+def test_degenerate_grid_configurations_match_shapely() -> None:
+    """Boxes on a half-metre grid at multiples of 45°: many shared edges, touching corners."""
+    rng = np.random.default_rng(6)
+    n = 3000
+    xy = rng.integers(-8, 9, (2, n, 2)) * 0.5
+    lw = rng.choice([1.0, 2.0, 4.0], (2, n, 2))
+    yaw = rng.choice([0.0, np.pi / 4, np.pi / 2, 3 * np.pi / 4, np.pi, -np.pi / 2], (2, n))
+    a, b = corners_bev(xy[0], lw[0], yaw[0]), corners_bev(xy[1], lw[1], yaw[1])
+    expected = shapely.area(shapely.intersection(shapely.polygons(a), shapely.polygons(b)))
+    np.testing.assert_allclose(intersection_area_bev(a, b), expected, rtol=0, atol=1e-12)
+    hull = shapely.union(shapely.multipoints(a), shapely.multipoints(b))
+    area, _ = min_area_rect_bev(a, b)
+    np.testing.assert_allclose(
+        area, shapely.area(shapely.minimum_rotated_rectangle(hull)), rtol=1e-12
+    )

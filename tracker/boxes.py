@@ -118,6 +118,17 @@ class Boxes:
         )
 
     @classmethod
+    def _trusted(cls, values: dict[str, Any]) -> Boxes:
+        """Internal fast path for arrays derived from valid Boxes (hot loops): no shape checks,
+        but still read-only. Validation happens where data enters (``__init__``/``create``)."""
+        out = object.__new__(cls)
+        for name, arr in values.items():
+            if arr.flags.writeable:
+                arr.flags.writeable = False
+            object.__setattr__(out, name, arr)
+        return out
+
+    @classmethod
     def empty(cls) -> Boxes:
         return cls.create(xyz=np.zeros((0, 3)), lwh=np.zeros((0, 3)), yaw=[], category=[])
 
@@ -137,10 +148,10 @@ class Boxes:
         index = np.asarray(index)
         if index.ndim == 0:
             index = index.reshape(1)
-        return Boxes(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+        return Boxes._trusted({name: getattr(self, name)[index] for name in _FIELDS})
 
     def replace(self, **changes: Any) -> Boxes:
-        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        values = {name: getattr(self, name) for name in _FIELDS}
         values.update({k: np.asarray(v) for k, v in changes.items()})
         return Boxes(**values)
 
@@ -152,3 +163,6 @@ class Boxes:
             else np.array_equal(getattr(self, f.name), getattr(other, f.name))
             for f in fields(self)
         )
+
+
+_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(Boxes))

@@ -59,6 +59,11 @@ class TrackingMode(enum.Enum):
     OFFLINE = "offline"
 
 
+class OutputGeometry(enum.Enum):
+    FILTERED = "filtered"  # Kalman position, size and heading
+    DETECTION = "detection"  # a matched track reports its detection's box (velocity filtered)
+
+
 class GreedyOrder(enum.Enum):
     DETECTION = "detection"  # the reference: detections in index order take their best track
     COST = "cost"  # globally cheapest pair first
@@ -144,6 +149,7 @@ class TrackerConfig:
     rv_reference: bool = False  # reference stage 2: stale 2D boxes, gated detections dropped
     greedy_order: GreedyOrder = GreedyOrder.DETECTION
     nms: bool = False
+    output_geometry: OutputGeometry = OutputGeometry.FILTERED
     offline: OfflineConfig = OfflineConfig()
     source: str = "<defaults>"
     category_ids: tuple[int, ...] = field(default=())

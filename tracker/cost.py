@@ -1,11 +1,11 @@
 """Pairwise similarities between track boxes (M rows) and detections (N columns).
 
 Every function returns an (M, N) float64 *similarity* (higher is better); the matcher uses
-cost = 1 - similarity (MCTrack §3.2). Pairs that are not compared (outside ``mask``, or with a
-missing box) get -inf, i.e. cost +inf, so they can never be matched.
+cost = 1 - similarity. Pairs that are not compared (outside ``mask``, or with a missing box) get
+-inf, i.e. cost +inf, so they can never be matched.
 
-BEV scores follow the reference ``cal_rotation_gdiou_inbev`` (spec §2.3) in float64 instead of
-cv2's float32: expect ~1e-6 relative agreement with the official code, not bit equality.
+BEV scores follow the reference ``cal_rotation_gdiou_inbev`` (mctrack_reference.md §2.3) in
+float64 instead of cv2's float32: expect ~1e-6 agreement with the official code, not bit equality.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.geometry import corners_bev, intersection_area_bev, min_area_rect_bev
@@ -27,7 +27,7 @@ class RoGdiouTerms:
 
     Attributes
     ----------
-    iou : (M, N) I / U, with U = l1·w1 + l2·w2 - I.
+    iou : (M, N) I / U: intersection over union, U = l_a·w_a + l_b·w_b - I.
     enclosure : (M, N) (C - U) / C, C the minimum-area rotated rectangle around both boxes.
     distance : (M, N) c² / d², c the BEV centre distance, d the diagonal of that rectangle.
     """
@@ -41,8 +41,7 @@ class RoGdiouTerms:
         m = self.iou.shape[0]
         w1_rows = np.broadcast_to(np.asarray(w1, dtype=np.float64), (m,))[:, None]
         w2_rows = np.broadcast_to(np.asarray(w2, dtype=np.float64), (m,))[:, None]
-        # Skip zero-weight terms so giou/diou never see 0 · NaN.
-        similarity = self.iou.copy()
+        similarity = self.iou.copy()  # Ro_GDIoU = IoU - w1·(C - U)/C - w2·c²/d²
         if np.any(w1_rows):
             similarity -= w1_rows * self.enclosure
         if np.any(w2_rows):
@@ -69,6 +68,9 @@ def _pairs(m: int, n: int, mask: ArrayLike | None) -> tuple[IntArray, IntArray]:
 def _scatter(
     values: FloatArray, rows: IntArray, cols: IntArray, shape: tuple[int, int]
 ) -> FloatArray:
+    """(M, N) array holding ``values`` at the computed pairs and NaN elsewhere."""
+    if len(values) == shape[0] * shape[1]:  # every pair, in row-major order (see _pairs)
+        return values.reshape(shape)
     out = np.full(shape, np.nan)
     out[rows, cols] = values
     return out
@@ -96,30 +98,43 @@ def _bev_terms(
     half_diag_a = 0.5 * np.hypot(lw_a[:, 0], lw_a[:, 1])
     half_diag_b = 0.5 * np.hypot(lw_b[:, 0], lw_b[:, 1])
     close = centre_dist_sq < (half_diag_a[rows] + half_diag_b[cols]) ** 2
-    corners_a = corners_bev(xy_a, lw_a, a.yaw)  # once per box, gathered per pair below
-    corners_b = corners_bev(xy_b, lw_b, b.yaw)
+    # Corners once per box (one call for both sets), gathered per pair below.
+    corners = corners_bev(
+        np.concatenate([xy_a, xy_b]), np.concatenate([lw_a, lw_b]), np.concatenate([a.yaw, b.yaw])
+    )
+    corners_a, corners_b = corners[: len(a)], corners[len(a) :]
     inter = np.zeros(len(rows))
     inter[close] = intersection_area_bev(corners_a[rows[close]], corners_b[cols[close]])
 
-    # U = l1·w1 + l2·w2 - I (areas from the dimensions, as the reference)
+    # U = l_a·w_a + l_b·w_b - I (areas from the dimensions, as the reference)
     area_a, area_b = lw_a[:, 0] * lw_a[:, 1], lw_b[:, 0] * lw_b[:, 1]
     union = area_a[rows] + area_b[cols] - inter
+    # A box with a non-finite position, size or heading is missing: every term is NaN.
+    missing = ~(_finite_bev(a)[rows] & _finite_bev(b)[cols])
     with np.errstate(divide="ignore", invalid="ignore"):
-        iou = np.where(union > 0, inter / union, np.where(np.isnan(union), np.nan, 0.0))
+        iou = np.where(union > 0, inter / union, 0.0)
+        iou[missing] = np.nan
         if not with_enclosure:
             return _scatter(iou, rows, cols, shape), None, None
         enclosing_area, diag_sq = min_area_rect_bev(corners_a[rows], corners_b[cols])
         # Degenerate (point-like) boxes: an empty enclosure or zero diagonal adds no penalty.
         enclosure = np.where(enclosing_area > 0, (enclosing_area - union) / enclosing_area, 0.0)
         distance = np.where(diag_sq > 0, centre_dist_sq / diag_sq, 0.0)
-    # NaN boxes stay NaN in every term (np.where above would otherwise hide them).
-    nan_pair = np.isnan(union) | np.isnan(enclosing_area) | np.isnan(centre_dist_sq)
-    enclosure[nan_pair] = np.nan
-    distance[nan_pair] = np.nan
+    enclosure[missing] = np.nan
+    distance[missing] = np.nan
     return (
         _scatter(iou, rows, cols, shape),
         _scatter(enclosure, rows, cols, shape),
         _scatter(distance, rows, cols, shape),
+    )
+
+
+def _finite_bev(boxes: Boxes) -> NDArray[np.bool_]:
+    """(N,) whether a box's BEV geometry (x, y, l, w, yaw) is all finite."""
+    return (
+        np.isfinite(boxes.xyz[:, :2]).all(axis=1)
+        & np.isfinite(boxes.lwh[:, :2]).all(axis=1)
+        & np.isfinite(boxes.yaw)
     )
 
 
@@ -147,7 +162,7 @@ def ro_gdiou_terms_bev(a: Boxes, b: Boxes, *, mask: ArrayLike | None = None) -> 
 def ro_gdiou_bev(
     a: Boxes, b: Boxes, *, w1: ArrayLike, w2: ArrayLike, mask: ArrayLike | None = None
 ) -> FloatArray:
-    """Ro_GDIoU = IoU - w1 · (C - U)/C - w2 · c²/d² in bird's-eye view (MCTrack §3.2.1).
+    """Ro_GDIoU = IoU - w1 · (C - U)/C - w2 · c²/d² in bird's-eye view (MCTrack Alg. 1).
 
     C is the minimum-area rotated rectangle enclosing both boxes' BEV corners, d its diagonal,
     c the distance between the BEV centres, U the union area. Heading only enters through the
@@ -183,7 +198,7 @@ def diou_bev(a: Boxes, b: Boxes, *, mask: ArrayLike | None = None) -> FloatArray
 
 
 def iou_bev(a: Boxes, b: Boxes, *, mask: ArrayLike | None = None) -> FloatArray:
-    """(M, N) rotated BEV IoU, I / (l1·w1 + l2·w2 - I); -inf outside ``mask`` or for NaN boxes.
+    """(M, N) rotated BEV IoU, I / (l_a·w_a + l_b·w_b - I); -inf outside ``mask`` or NaN boxes.
 
     Used by NMS as well as matching; skips the enclosing rectangle entirely.
     """
@@ -192,7 +207,7 @@ def iou_bev(a: Boxes, b: Boxes, *, mask: ArrayLike | None = None) -> FloatArray:
 
 
 def sdiou_image(xyxy_a: ArrayLike, xyxy_b: ArrayLike) -> FloatArray:
-    """(M, N) SDIoU between 2D image boxes, exactly as the reference ``cal_sdiou_inrv`` (§2.5).
+    """(M, N) SDIoU between 2D image boxes, exactly as the reference ``cal_sdiou_inrv``.
 
     SDIoU = IoU + area_ratio · (1 - |centre_a - centre_b| / enclosing_diagonal) · aspect_ratio,
     in [0, 2]. IoU and the area ratio use KITTI-style inclusive pixel areas (+1); the distance

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from tracker.boxes import FloatArray
 
@@ -121,26 +121,20 @@ def _chunked(
     n_pairs = a.shape[-1]
     if n_pairs == 0:
         return tuple(np.zeros(0) for _ in range(n_outputs))
+    finite = np.isfinite(a).all(axis=(0, 1)) & np.isfinite(b).all(axis=(0, 1))
+    if not finite.all():  # computed as points (no warnings), reported as NaN
+        a, b = np.where(finite, a, 0.0), np.where(finite, b, 0.0)
     if n_pairs <= _CHUNK_PAIRS:
-        return fn(a, b)
-    parts = [
-        fn(a[..., s : s + _CHUNK_PAIRS], b[..., s : s + _CHUNK_PAIRS])
-        for s in range(0, n_pairs, _CHUNK_PAIRS)
-    ]
-    return tuple(np.concatenate(outs) for outs in zip(*parts, strict=True))
-
-
-def _inside_convex(
-    px: FloatArray, py: FloatArray, poly: FloatArray, edges: FloatArray, slack: FloatArray
-) -> NDArray[np.bool_]:
-    """(K, p) whether points (K, p) lie in the CCW quads ``poly`` (4, 2, p), boundary included.
-
-    ``slack`` (4, p) is the tolerance times each edge's length.
-    """
-    # Left of (or on) every edge: cross(edge_k, point - corner_k) >= -tol · |edge_k|.
-    ex, ey = edges[:, 0, None], edges[:, 1, None]  # (4, 1, p)
-    cross = ex * (py - poly[:, 1, None]) - ey * (px - poly[:, 0, None])  # (4, K, p)
-    return np.all(cross >= -slack[:, None], axis=0)
+        outs = fn(a, b)
+    else:
+        parts = [
+            fn(a[..., s : s + _CHUNK_PAIRS], b[..., s : s + _CHUNK_PAIRS])
+            for s in range(0, n_pairs, _CHUNK_PAIRS)
+        ]
+        outs = tuple(np.concatenate(chunks) for chunks in zip(*parts, strict=True))
+    if not finite.all():
+        outs = tuple(np.where(finite, out, np.nan) for out in outs)
+    return outs
 
 
 def _shoelace(x: FloatArray, y: FloatArray) -> FloatArray:
@@ -150,81 +144,127 @@ def _shoelace(x: FloatArray, y: FloatArray) -> FloatArray:
     return 0.5 * np.sum(x * y_next - x_next * y, axis=0)
 
 
+def _to_frame(
+    x: FloatArray, y: FloatArray, ux: FloatArray, uy: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Coordinates of points (x, y) in the frame whose x axis is the unit vector (ux, uy)."""
+    return ux * x + uy * y, ux * y - uy * x
+
+
+def _rect_frame(r: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Unit length axis (ux, uy) and half length/width of rectangles (4, 2, p)."""
+    hx, hy = 0.5 * (r[0, 0] - r[1, 0]), 0.5 * (r[0, 1] - r[1, 1])
+    half_l = np.hypot(hx, hy)
+    half_w = 0.5 * np.hypot(r[0, 0] - r[3, 0], r[0, 1] - r[3, 1])
+    safe = np.where(half_l > 0, half_l, 1.0)
+    return np.where(half_l > 0, hx / safe, 1.0), hy / safe, half_l, half_w
+
+
+# Corners of a rectangle [-l, l] × [-w, w] in its own frame, counter-clockwise.
+_SIGN_L = np.array([1.0, -1.0, -1.0, 1.0])[:, None]
+_SIGN_W = np.array([1.0, 1.0, -1.0, -1.0])[:, None]
+
+
 def _intersection_area(a: FloatArray, b: FloatArray) -> tuple[FloatArray]:
-    """Intersection areas of quads (4, 2, p) ``a`` and ``b``; see :func:`intersection_area_bev`."""
+    """Intersection areas of rectangles (4, 2, p); see :func:`intersection_area_bev`."""
     n_pairs = a.shape[-1]
-    tol = _BOUNDARY_RTOL * np.maximum(np.abs(a).max(axis=(0, 1)), np.abs(b).max(axis=(0, 1)))
-    edges_a = a[_NEXT] - a  # edge k runs from corner k to corner k + 1
-    edges_b = b[_NEXT] - b
-    len_sq_b = edges_b[:, 0] ** 2 + edges_b[:, 1] ** 2  # (4, p)
-    slack_b = tol * np.sqrt(len_sq_b)
-    a_in_b = _inside_convex(a[:, 0], a[:, 1], b, edges_b, slack_b)  # (4, p)
-    slack_a = tol * np.hypot(edges_a[:, 0], edges_a[:, 1])
-    b_in_a = _inside_convex(b[:, 0], b[:, 1], a, edges_a, slack_a)
+    area = np.zeros(n_pairs)
+    # In A's frame A is the box [-la, la] × [-wa, wa]; in B's frame B is [-lb, lb] × [-wb, wb].
+    ux, uy, la, wa = _rect_frame(a)
+    bx, by = _to_frame(b[:, 0], b[:, 1], ux, uy)  # (4, p) B's corners in A's frame
+    vx, vy = _to_frame(b[0, 0] - b[1, 0], b[0, 1] - b[1, 1], ux, uy)  # B's axis, length 2 lb
+    lb = 0.5 * np.hypot(vx, vy)
+    wb = 0.5 * np.hypot(b[0, 0] - b[3, 0], b[0, 1] - b[3, 1])
+    safe = np.where(lb > 0, 2.0 * lb, 1.0)
+    vx, vy = np.where(lb > 0, vx / safe, 1.0), vy / safe
+    centre_x, centre_y = 0.5 * (bx[0] + bx[2]), 0.5 * (by[0] + by[2])
+    # A's corners in B's frame (relative to B's centre).
+    ax, ay = _to_frame(_SIGN_L * la - centre_x, _SIGN_W * wa - centre_y, vx, vy)
 
-    # Edge i of A, a_i + t r with t in [0, 1], meets the line of edge j of B, b_j + u s, at
-    # t = (q × s) / (r × s), q = b_j - a_i. Parallel edges give no crossing (the ends of their
-    # overlap are corners, found above). For nearly parallel edges t is noise, so a crossing is
-    # accepted by where it lands: on B's edge (0 <= u <= 1, and on its line within tolerance).
-    # Any such point of A's edge is on the intersection's boundary, whatever t was.
-    rx, ry = edges_a[:, None, 0], edges_a[:, None, 1]  # (4, 1, p)
-    sx, sy = edges_b[None, :, 0], edges_b[None, :, 1]  # (1, 4, p)
-    qx = b[None, :, 0] - a[:, None, 0]  # (4, 4, p)
-    qy = b[None, :, 1] - a[:, None, 1]
+    # Separating axes (A's and B's): strictly apart means no overlap, the area is exactly 0.
+    apart = (
+        (bx.max(axis=0) < -la) | (bx.min(axis=0) > la) | (by.max(axis=0) < -wa)
+        | (by.min(axis=0) > wa) | (ax.max(axis=0) < -lb) | (ax.min(axis=0) > lb)
+        | (ay.max(axis=0) < -wb) | (ay.min(axis=0) > wb) | (la * wa * lb * wb == 0)
+    )  # fmt: skip
+    keep = np.flatnonzero(~apart)
+    if len(keep) == 0:
+        return (area,)
+    la, wa, lb, wb = la[keep], wa[keep], lb[keep], wb[keep]
+    bx, by, ax, ay = bx[:, keep], by[:, keep], ax[:, keep], ay[:, keep]
+    k = len(keep)
+    tol = _BOUNDARY_RTOL * (la + wa + lb + wb + np.abs(centre_x[keep]) + np.abs(centre_y[keep]))
+
+    b_in_a = (np.abs(bx) <= la + tol) & (np.abs(by) <= wa + tol)  # (4, k)
+    a_in_b = (np.abs(ax) <= lb + tol) & (np.abs(ay) <= wb + tol)
+
+    # B's edge j, b_j + t e_j (t in [0, 1]), crosses A's side x = ±la at t = (±la - bx_j) / ex_j
+    # (and y = ±wa likewise). The crossing is placed exactly on A's side: for a nearly parallel
+    # edge t is noise, but the edge then lies on the side line, so any t in [0, 1] gives a point
+    # of the intersection's boundary. It counts if it is within the side's extent.
+    ex, ey = bx[_NEXT] - bx, by[_NEXT] - by
+    side_l = np.concatenate([la[None], -la[None]])[:, None]  # (2, 1, k): x = ±la
+    side_w = np.concatenate([wa[None], -wa[None]])[:, None]
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (qx * sy - qy * sx) / (rx * sy - ry * sx)
-    on_a = (t >= -_BOUNDARY_RTOL) & (t <= 1.0 + _BOUNDARY_RTOL)  # False for NaN/inf
-    t = np.clip(np.where(on_a, t, 0.0), 0.0, 1.0)
-    ox, oy = t * rx - qx, t * ry - qy  # crossing - b_j
-    u_len_sq = ox * sx + oy * sy  # u · |s|²
-    on_b = (
-        (u_len_sq >= -_BOUNDARY_RTOL * len_sq_b)
-        & (u_len_sq <= (1.0 + _BOUNDARY_RTOL) * len_sq_b)
-        & (np.abs(sx * oy - sy * ox) <= slack_b)
-    )
+        t_l = (side_l - bx) / ex  # (2, 4, k)
+        t_w = (side_w - by) / ey
+    ok_l = (t_l >= -_BOUNDARY_RTOL) & (t_l <= 1.0 + _BOUNDARY_RTOL)  # False for NaN/inf
+    ok_w = (t_w >= -_BOUNDARY_RTOL) & (t_w <= 1.0 + _BOUNDARY_RTOL)
+    y_l = by + np.clip(np.where(ok_l, t_l, 0.0), 0.0, 1.0) * ey
+    x_w = bx + np.clip(np.where(ok_w, t_w, 0.0), 0.0, 1.0) * ex
+    ok_l &= np.abs(y_l) <= wa + tol
+    ok_w &= np.abs(x_w) <= la + tol
 
-    px = np.concatenate([a[:, 0], b[:, 0], (ox + b[None, :, 0]).reshape(16, n_pairs)])  # (24, p)
-    py = np.concatenate([a[:, 1], b[:, 1], (oy + b[None, :, 1]).reshape(16, n_pairs)])
-    valid = np.concatenate([a_in_b, b_in_a, (on_a & on_b).reshape(16, n_pairs)])
+    px = np.concatenate([bx, _SIGN_L * la, np.broadcast_to(side_l, (2, 4, k)).reshape(8, k)])
+    py = np.concatenate([by, _SIGN_W * wa, y_l.reshape(8, k)])
+    px = np.concatenate([px, x_w.reshape(8, k)])  # (24, k)
+    py = np.concatenate([py, np.broadcast_to(side_w, (2, 4, k)).reshape(8, k)])
+    valid = np.concatenate([b_in_a, a_in_b, ok_l.reshape(8, k), ok_w.reshape(8, k)])
+
+    # All candidates lie on the boundary of the convex intersection: sort them by angle about
+    # their centroid and take the shoelace area.
     count = valid.sum(axis=0)
     weight = valid / np.maximum(count, 1)
-    px -= np.sum(px * weight, axis=0)  # centred on the centroid of the valid points
+    px -= np.sum(px * weight, axis=0)
     py -= np.sum(py * weight, axis=0)
     order = np.argsort(np.where(valid, np.arctan2(py, px), np.inf), axis=0)
-    flat = (order * n_pairs + np.arange(n_pairs)).ravel()
-    px, py, valid = (v.ravel()[flat].reshape(24, n_pairs) for v in (px, py, valid))
+    flat = (order * k + np.arange(k)).ravel()
+    px, py, valid = (v.ravel()[flat].reshape(24, k) for v in (px, py, valid))
     # Invalid slots (sorted last) repeat the first vertex: they add zero-length edges only.
     px = np.where(valid, px, px[0])
     py = np.where(valid, py, py[0])
-    area = np.where(count >= 3, np.maximum(_shoelace(px, py), 0.0), 0.0)
-    smaller = np.minimum(_shoelace(a[:, 0], a[:, 1]), _shoelace(b[:, 0], b[:, 1]))
-    return (np.minimum(area, np.maximum(smaller, 0.0)),)
+    inter = np.where(count >= 3, np.maximum(_shoelace(px, py), 0.0), 0.0)
+    area[keep] = np.minimum(inter, 4.0 * np.minimum(la * wa, lb * wb))
+    return (area,)
 
 
 def intersection_area_bev(corners_a: ArrayLike, corners_b: ArrayLike) -> FloatArray:
-    """Intersection area of P pairs of convex quadrilaterals (pair p is ``a[p]`` with ``b[p]``).
+    """Intersection area of P pairs of rectangles (pair p is ``a[p]`` with ``b[p]``).
 
     The intersection of two convex polygons is the convex hull of: the corners of A inside B,
     the corners of B inside A, and the crossings of A's edges with B's edges. Those points all lie
     on its boundary, so sorting them by angle about their centroid gives the polygon, and the
-    shoelace formula its area.
+    shoelace formula its area. Each test is done in the frame of the rectangle it concerns, where
+    that rectangle is axis-aligned; pairs apart along one of the 4 axes (separating axis theorem)
+    are 0 without further work.
 
     Parameters
     ----------
     corners_a, corners_b : (P, 4, 2)
-        Counter-clockwise corners, metres (as from :func:`corners_bev`).
+        Rectangle corners in consecutive order (as from :func:`corners_bev`), metres.
 
     Returns
     -------
     (P,) intersection areas in m², exact to float64 rounding, including touching, identical,
     nested and disjoint pairs (those give 0 or the smaller area exactly, not cv2's float32).
+    NaN where a corner is not finite.
     """
     (area,) = _chunked(_intersection_area, corners_a, corners_b, n_outputs=1)
     return area
 
 
 def pairwise_intersection_area_bev(corners_a: ArrayLike, corners_b: ArrayLike) -> FloatArray:
-    """(M, N) intersection areas of each quad of ``corners_a`` (M, 4, 2) with each of (N, 4, 2)."""
+    """(M, N) intersection areas of every rectangle in ``corners_a`` (M, 4, 2) with (N, 4, 2)."""
     a = np.asarray(corners_a, dtype=np.float64).reshape(-1, 4, 2)
     b = np.asarray(corners_b, dtype=np.float64).reshape(-1, 4, 2)
     rows, cols = np.divmod(np.arange(len(a) * len(b)), max(len(b), 1))
@@ -308,11 +348,11 @@ def min_area_rect_bev(corners_a: ArrayLike, corners_b: ArrayLike) -> tuple[Float
     Parameters
     ----------
     corners_a, corners_b : (P, 4, 2)
-        Rectangle corners in consecutive order (as from :func:`corners_bev`), metres.
+        Rectangle corners, counter-clockwise (as from :func:`corners_bev`), metres.
 
     Returns
     -------
-    area : (P,) C, the rectangle's area, m².
+    area : (P,) C, the rectangle's area, m² (NaN where a corner is not finite).
     diag_sq : (P,) d², its squared diagonal, m².
     """
     area, diag_sq = _chunked(_min_area_rect, corners_a, corners_b, n_outputs=2)

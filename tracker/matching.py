@@ -23,6 +23,10 @@ from tracker.config import GreedyOrder
 # float64 rounding of a sum of gains and far below any meaningful cost difference.
 _TIE_BONUS_REL = 1e-12
 
+# Splitting the feasible graph into connected components pays off only for large problems:
+# below this many contested pairs one solver call is faster than the per-component overhead.
+_SPLIT_MIN_PAIRS = 1500
+
 
 def _readonly(array: ArrayLike, dtype: type) -> np.ndarray:
     out = np.array(array, dtype=dtype)
@@ -102,15 +106,17 @@ def _feasible(cost: FloatArray, threshold: FloatArray) -> np.ndarray:
 
 
 def hungarian(cost: ArrayLike, *, max_cost_per_row: ArrayLike) -> Matches:
-    """Optimal assignment with a per-row cost limit: the reference's ``lapjv(extend_cost=True,
-    cost_limit=thr)`` (spec §2.4).
+    """Optimal assignment under per-row cost limits: the reference's lapjv with ``cost_limit``.
 
-    lapjv pads the matrix to (M + N)² with thr/2 for "unassigned" and so maximises
-    Σ over matched pairs of (thr - cost). This is not "assign, then threshold": with
-    C = [[0.1, 0.2], [0.2, 5.0]] and thr 1.4 it matches (0, 1) and (1, 0), not (0, 0). Here the gain
-    of a pair is thr_row - cost; pairs with cost > thr_row, inf or NaN are never matched, and a
-    pair with cost == thr_row is matched. The feasible bipartite graph is split into connected
-    components, each solved separately (same optimum, much faster on sparse 200×200 problems).
+    ``lap.lapjv(cost, extend_cost=True, cost_limit=thr)`` (mctrack_reference.md §2.4) pads the
+    matrix to (M + N)² with thr/2 for "unassigned", so it maximises Σ_matched (thr - cost). That is
+    not "assign, then threshold": C = [[0.1, 0.2], [0.2, 5.0]] with thr 1.4 gives (0, 1), (1, 0),
+    not (0, 0). Here a pair gains thr_row - cost: a cost above thr_row, inf or NaN is never
+    matched, and among optimal assignments the one with more pairs wins, so a pair whose cost
+    equals its threshold is matched (as lapjv does). Only feasible pairs reach the solver: rows
+    and columns without one are unmatched, a pair alone in its row and column is matched
+    directly, and a large remainder is split into the connected components of the feasible
+    graph, each solved on its own. The optimum is the same; it is just cheaper.
 
     Parameters
     ----------
@@ -126,30 +132,38 @@ def hungarian(cost: ArrayLike, *, max_cost_per_row: ArrayLike) -> Matches:
     """
     cost_arr, threshold = _prepare(cost, max_cost_per_row)
     m, n = cost_arr.shape
-    feasible = _feasible(cost_arr, threshold)
-    rows, cols = np.nonzero(feasible)
+    rows, cols = np.nonzero(_feasible(cost_arr, threshold))  # rows/cols without one: unmatched
     if len(rows) == 0:
         return Matches.empty(m, n)
-    gain = threshold[rows] - cost_arr[rows, cols]  # >= 0
-    bonus = _TIE_BONUS_REL * max(1.0, float(gain.max()))
+    # maximise Σ_matched gain, gain = thr_row - cost >= 0 (lapjv's objective), + a tie bonus
+    gain = threshold[rows] - cost_arr[rows, cols]
+    gain += _TIE_BONUS_REL * max(1.0, float(gain.max()))
 
-    # Components of the graph rows ∪ columns with an edge per feasible pair.
-    graph = coo_matrix((np.ones(len(rows)), (rows, m + cols)), shape=(m + n, m + n))
-    _, label = connected_components(graph, directed=False)
-    edge_label = label[rows]
-    by_component = np.argsort(edge_label, kind="stable")
-    starts = np.flatnonzero(np.diff(edge_label[by_component], prepend=-1))
-    matched_rows: list[IntArray] = []
-    matched_cols: list[IntArray] = []
-    for edges in np.split(by_component, starts[1:]):
-        r, c = _solve_component(rows[edges], cols[edges], gain[edges] + bonus)
+    # A pair whose row and column have no other feasible pair is a component of its own, and
+    # matched (the usual case in tracking: a track with one nearby detection). No solver needed.
+    alone = (np.bincount(rows, minlength=m)[rows] == 1) & (
+        np.bincount(cols, minlength=n)[cols] == 1
+    )
+    matched_rows, matched_cols = [rows[alone]], [cols[alone]]
+    rows, cols, gain = rows[~alone], cols[~alone], gain[~alone]
+    if len(rows) > _SPLIT_MIN_PAIRS:
+        # Connected components of the feasible bipartite graph, each solved on its own.
+        graph = coo_matrix((np.ones(len(rows)), (rows, m + cols)), shape=(m + n, m + n))
+        _, label = connected_components(graph, directed=False)
+        by_component = np.argsort(label[rows], kind="stable")
+        starts = np.flatnonzero(np.diff(label[rows][by_component]))
+        groups = np.split(by_component, starts + 1)
+    else:
+        groups = [np.arange(len(rows))] if len(rows) else []
+    for edges in groups:
+        r, c = _solve_edges(rows[edges], cols[edges], gain[edges])
         matched_rows.append(r)
         matched_cols.append(c)
     return Matches.from_pairs(np.concatenate(matched_rows), np.concatenate(matched_cols), cost_arr)
 
 
-def _solve_component(rows: IntArray, cols: IntArray, gain: FloatArray) -> tuple[IntArray, IntArray]:
-    """Maximum-gain matching of one connected component given as edges with gain > 0."""
+def _solve_edges(rows: IntArray, cols: IntArray, gain: FloatArray) -> tuple[IntArray, IntArray]:
+    """Maximum-gain matching over the feasible pairs (edges) given, every gain > 0."""
     if len(rows) == 1:
         return rows, cols
     sub_rows, r = np.unique(rows, return_inverse=True)
@@ -175,7 +189,7 @@ def greedy(
     max_cost_per_row: ArrayLike,
     order: GreedyOrder | str = GreedyOrder.DETECTION,
 ) -> Matches:
-    """Greedy assignment with a per-row cost limit (the reference's RV-stage ``Greedy``, §2.5).
+    """Greedy assignment with a per-row cost limit (the reference's RV-stage ``Greedy``).
 
     Parameters
     ----------
@@ -196,18 +210,26 @@ def greedy(
     order = GreedyOrder(order)
     cost_arr, threshold = _prepare(cost, max_cost_per_row)
     m, n = cost_arr.shape
+    if m == 0 or n == 0:
+        return Matches.empty(m, n)
     feasible = _feasible(cost_arr, threshold)
     matched_rows: list[int] = []
     matched_cols: list[int] = []
     if order is GreedyOrder.DETECTION:
-        # NaN would win np.argmin; a used row is +inf (the reference writes 1e18: same outcome).
-        available = np.where(np.isnan(cost_arr), np.inf, cost_arr)
-        for col in np.flatnonzero(feasible.any(axis=0)):
-            row = int(np.argmin(available[:, col]))
-            if feasible[row, col] and available[row, col] < np.inf:  # not a used row
+        # NaN would win np.argmin. Each column's cheapest row is found once; only when that row
+        # has been taken is the argmin redone over the free rows (the reference sets taken rows
+        # to 1e18: the same outcome).
+        cost_arr = np.where(np.isnan(cost_arr), np.inf, cost_arr)
+        best_row = np.argmin(cost_arr, axis=0).tolist()
+        used = np.zeros(m, dtype=bool)
+        for col in np.flatnonzero(feasible.any(axis=0)).tolist():
+            row = best_row[col]
+            if used[row]:
+                row = int(np.argmin(np.where(used, np.inf, cost_arr[:, col])))
+            if feasible[row, col] and not used[row]:
+                used[row] = True
                 matched_rows.append(row)
-                matched_cols.append(int(col))
-                available[row, :] = np.inf
+                matched_cols.append(col)
     else:
         rows, cols = np.nonzero(feasible)
         by_cost = np.lexsort((rows, cols, cost_arr[rows, cols]))

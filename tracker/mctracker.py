@@ -20,7 +20,15 @@ from tracker import kalman
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.camera import project_boxes
 from tracker.categories import CATEGORIES
-from tracker.config import CategoryConfig, CostKind, CostState, MotionModel, TrackerConfig
+from tracker.config import (
+    CategoryConfig,
+    CostKind,
+    CostState,
+    MotionModel,
+    OutputGeometry,
+    TrackerConfig,
+    TrackingMode,
+)
 from tracker.cost import back_predict, iou_bev, ro_gdiou_bev, sdiou_image
 from tracker.errors import InputError
 from tracker.events import (
@@ -146,7 +154,7 @@ class MCTracker:
         prev_boxes = self._tracks.boxes() if self._needs_back_prediction() else None
         self._predict(dt)
         tracks = self._tracks
-        pred_boxes = tracks.boxes()
+        pred_boxes = tracks.boxes() if len(tracks) else Boxes.empty()
         if obs:
             obs(Predicted(tracks.track_id, pred_boxes, tracks.status))
 
@@ -154,13 +162,17 @@ class MCTracker:
         stage_of_track = np.zeros(len(tracks), dtype=np.int8)
 
         # stage 1: BEV plane, Ro_GDIoU cost, Hungarian
-        cost = self._bev_cost(pred_boxes, prev_boxes, dets, dt)
-        max_cost = self._cat.bev_cost_max[tracks.category]
-        m1 = hungarian(cost, max_cost_per_row=max_cost)
+        if len(tracks) and len(dets):
+            cost = self._bev_cost(pred_boxes, prev_boxes, dets, dt)
+            max_cost = self._cat.bev_cost_max[tracks.category]
+            m1 = hungarian(cost, max_cost_per_row=max_cost)
+            if obs:
+                obs(CostComputed(Stage.BEV, cost, tracks.track_id, kept_rows, max_cost))
+        else:
+            m1 = Matches.empty(len(tracks), len(dets))
         det_for_track[m1.pairs[:, 0]] = m1.pairs[:, 1]
         stage_of_track[m1.pairs[:, 0]] = 1
         if obs:
-            obs(CostComputed(Stage.BEV, cost, tracks.track_id, kept_rows, max_cost))
             obs(_matched(Stage.BEV, m1, tracks.track_id, kept_rows))
         unmatched_dets = m1.unmatched_cols
 
@@ -263,8 +275,6 @@ class MCTracker:
     def _bev_cost(self, pred: Boxes, prev: Boxes | None, dets: Boxes, dt: float) -> FloatArray:
         """(T, D) cost = 1 - similarity; +inf across categories and beyond the distance gate."""
         tr, cat = self._tracks, self._cat
-        if not len(tr) or not len(dets):
-            return np.zeros((len(tr), len(dets)))
         same = tr.category[:, None] == dets.category[None, :]
         delta = pred.xyz[:, None, :2] - dets.xyz[None, :, :2]
         near = np.einsum("tdk,tdk->td", delta, delta) < cat.gate_m[tr.category][:, None] ** 2
@@ -488,11 +498,23 @@ class MCTracker:
     def _output(self, frame: Frame, time_secs: float) -> TrackOutput:
         tr = self._tracks
         out = (tr.status == TrackStatus.CONFIRMED) | (tr.status == TrackStatus.COASTING)
+        if self.config.mode is TrackingMode.OFFLINE:
+            # offline post-processing decides per whole track (it knows the future), so it also
+            # gets the detections of tracks not confirmed yet
+            out |= (tr.status == TrackStatus.TENTATIVE) & (tr.matched_det >= 0)
+        boxes = tr.boxes()[out]
+        if self.config.output_geometry is OutputGeometry.DETECTION:
+            hit = tr.matched_det[out] >= 0
+            boxes = boxes.replace(
+                xyz=np.where(hit[:, None], tr.last_det_xyz[out], boxes.xyz),
+                lwh=np.where(hit[:, None], tr.last_det_lwh[out], boxes.lwh),
+                yaw=np.where(hit, kalman.align_heading(tr.last_det_yaw[out], boxes.yaw), boxes.yaw),
+            )
         return TrackOutput(
             scene=frame.scene,
             frame_id=frame.frame_id,
             time_secs=time_secs,
-            boxes=tr.boxes()[out],
+            boxes=boxes,
             acceleration=tr.pose_x[out, 4:6].copy(),
             status=tr.status[out].copy(),
             det_row=tr.matched_det[out].copy(),

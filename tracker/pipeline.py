@@ -1,7 +1,9 @@
 """Running the tracker over scenes: online, or offline (global) with track-level post-processing.
 
 Offline mode (reference §2.9, improved): run online with the offline config, then per track
-  1. score = mean logit of its real detections; drop the whole track if score <= threshold,
+  1. score = mean logit of its real detections; drop the whole track if score <= threshold
+     or it has fewer than ``min_hits`` detections (tentative rows are kept for confirmed tracks:
+     offline, a track's first detections need not wait for its confirmation),
   2. fill interior gaps (up to ``interpolate_max_gap`` frames) by linear interpolation of
      position, size, heading (on the circle) and velocity — replacing coasting predictions,
   3. drop trailing coasting rows after the last real detection (offline knows the track ended).
@@ -9,6 +11,7 @@ Offline mode (reference §2.9, improved): run online with the offline config, th
 
 from __future__ import annotations
 
+import itertools
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -16,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tracker.boxes import Boxes
+from tracker.categories import CATEGORIES
 from tracker.config import TrackerConfig, TrackingMode
 from tracker.events import Observer, TrackOutput, TrackStatus
 from tracker.frame import Frame
@@ -59,8 +63,7 @@ def offline_postprocess(outputs: list[TrackOutput], config: TrackerConfig) -> li
     stage = np.concatenate([o.stage for o in outputs])
     real = det_row >= 0
     keep = real.copy()
-    new_rows: list[tuple[int, int, float]] = []  # (frame index, source row a, weight) pairs
-    new_src: list[tuple[int, int, int, float]] = []
+    new_src: list[tuple[int, int, int, float]] = []  # (frame index, row before, row after, w)
     logit = np.log(
         np.clip(boxes.score, 1e-6, 1 - 1e-6) / (1 - np.clip(boxes.score, 1e-6, 1 - 1e-6))
     )
@@ -71,17 +74,16 @@ def offline_postprocess(outputs: list[TrackOutput], config: TrackerConfig) -> li
             continue
         score = float(logit[rows].mean())
         tracks_score[int(tid)] = score
-        if score <= config.offline.track_score_min:
+        name = CATEGORIES[int(boxes.category[rows[0]])]
+        min_hits = config.per_category[name].lifecycle.min_hits
+        if score <= config.offline.track_score_min or len(rows) < min_hits:
             keep[rows] = False
             continue
-        fi = frame_index[rows]
-        for a, b in zip(rows[:-1], rows[1:], strict=True):
+        for a, b in itertools.pairwise(rows):
             gap = frame_index[b] - frame_index[a] - 1
             if 0 < gap <= config.offline.interpolate_max_gap:
                 for k in range(1, gap + 1):
                     new_src.append((int(frame_index[a]) + k, int(a), int(b), k / (gap + 1)))
-        del fi
-    del new_rows
     parts: list[list[Boxes]] = [[] for _ in outputs]
     extra_acc: list[list[np.ndarray]] = [[] for _ in outputs]
     if new_src:

@@ -50,7 +50,7 @@ def synthetic_scene(
     is_ped = rng.uniform(size=n) < 0.2
     category = np.where(is_ped, PEDESTRIAN, CAR)
     lwh = np.where(is_ped[:, None], [0.8, 0.7, 1.75], [4.2, 1.8, 1.6])
-    xy = rng.uniform(0, extent_m, size=(n, 2)) + [5.0, -extent_m / 2]
+    xy = rng.uniform(0, extent_m, size=(n, 2)) + np.array([5.0, -extent_m / 2])
     heading = rng.uniform(-np.pi, np.pi, size=n)
     speed = np.where(is_ped, rng.uniform(1, 2, n), rng.uniform(5, 15, n))
     turn = rng.normal(0, 0.05, size=n)

@@ -90,15 +90,20 @@ class TrackTable:
 
     def boxes(self) -> Boxes:
         """The tracks' current (filtered or predicted) boxes, with ids and velocities."""
-        return Boxes(
-            xyz=np.column_stack([self.pose_x[:, 0], self.pose_x[:, 1], self.z]),
-            lwh=np.column_stack([self.size_x[:, 0], self.size_x[:, 1], self.height]),
-            yaw=self.head_x[:, 0].copy(),
-            velocity=self.pose_x[:, 2:4].copy(),
-            score=self.score.copy(),
-            category=self.category.copy(),
-            xyxy_image=self.last_xyxy.copy(),
-            camera=self.last_camera.copy(),
-            track_id=self.track_id.copy(),
-            score_raw=np.full(len(self), np.nan),
+        return Boxes._trusted(
+            {
+                "xyz": np.column_stack([self.pose_x[:, 0], self.pose_x[:, 1], self.z]),
+                "lwh": np.column_stack([self.size_x[:, 0], self.size_x[:, 1], self.height]),
+                "yaw": self.head_x[:, 0].copy(),
+                "velocity": self.pose_x[:, 2:4].copy(),
+                "score": self.score.copy(),
+                "category": self.category.copy(),
+                "xyxy_image": self.last_xyxy.copy(),
+                "camera": self.last_camera.copy(),
+                "track_id": self.track_id.copy(),
+                "score_raw": np.full(len(self), np.nan),
+            }
         )
+
+
+_FIELDS: tuple[str, ...] = tuple(f.name for f in fields(TrackTable))

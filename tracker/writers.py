@@ -1,21 +1,25 @@
-"""Result writers: KITTI tracking text files and the tracks file (BaseVersion + motion).
+"""Result writers: KITTI tracking text files and the tracks file (BaseVersion + motion), and
+the tracks file's reader.
 
 Every file is written to a temporary name and renamed into place: complete or not at all.
 """
 
 from __future__ import annotations
 
+import gzip
+import json
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from tracker.baseversion import frame_to_dict
+from tracker.baseversion import frame_to_dict, read_baseversion
 from tracker.boxes import Boxes, FloatArray
 from tracker.camera import project_boxes
 from tracker.categories import CATEGORIES
 from tracker.convert.kitti import WORLD_FROM_CAMERA_AXES, boxes_world_to_rect
-from tracker.events import TrackOutput
+from tracker.errors import InputError
+from tracker.events import TrackOutput, TrackStatus
 from tracker.fileio import write_json_atomic, write_text_atomic
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
@@ -56,13 +60,29 @@ def kitti_label_fields(boxes: Boxes, camera: Camera) -> tuple[FloatArray, FloatA
     return fields, xyxy, visible
 
 
-def kitti_lines(output: TrackOutput, camera: Camera) -> list[str]:
+def kitti_lines(
+    output: TrackOutput, camera: Camera, detections: Boxes | None = None
+) -> list[str]:
     """label_02 lines of one frame: boxes not visible in the image are left out (KITTI GT only
-    annotates objects in the camera view, so anything else would count as a false positive)."""
+    annotates objects in the camera view, so anything else would count as a false positive).
+
+    With ``detections`` (the frame's input boxes), a track matched this frame reports its
+    detection's own 2D box when it has one, instead of the projected tracked box.
+    """
     boxes = output.boxes
     if not len(boxes):
         return []
     fields, xyxy, visible = kitti_label_fields(boxes, camera)
+    if detections is not None:
+        rows = output.det_row
+        has = rows >= 0
+        det_xyxy = detections.xyxy_image[rows[has]]
+        ok = np.isfinite(det_xyxy).all(axis=1)
+        idx = np.flatnonzero(has)[ok]
+        xyxy = xyxy.copy()
+        xyxy[idx] = det_xyxy[ok]
+        visible = visible.copy()
+        visible[idx] = True
     lines = []
     for i in np.flatnonzero(visible):
         name = KITTI_CLASS_NAMES.get(CATEGORIES[boxes.category[i]], CATEGORIES[boxes.category[i]])
@@ -81,6 +101,8 @@ def write_kitti_sequence(
     outputs: Sequence[TrackOutput],
     frames: Sequence[Frame],
     camera_name: str = "CAM_FRONT",
+    *,
+    detection_image_boxes: bool = False,
 ) -> int:
     """Write one sequence's KITTI tracking result file; returns the number of lines."""
     by_frame = {f.frame_id: f for f in frames}
@@ -90,7 +112,8 @@ def write_kitti_sequence(
         index = frame.camera_index(camera_name)
         if index < 0:
             raise ValueError(f"scene {frame.scene} frame {frame.frame_id}: no {camera_name} model")
-        lines.extend(kitti_lines(out, frame.cameras[index]))
+        dets = frame.boxes if detection_image_boxes else None
+        lines.extend(kitti_lines(out, frame.cameras[index], dets))
     write_text_atomic(path, lines)
     return len(lines)
 
@@ -101,8 +124,10 @@ def write_tracks_file(
     """The tracks file: a valid BaseVersion file whose boxes are the tracker output.
 
     Each box carries ``track_id``, the filtered ``global_velocity`` (m/s) and
-    ``global_acceleration`` (m/s²), and ``status``; frames keep the input's camera models, so
-    the file loads with :func:`tracker.baseversion.read_baseversion` for evaluation and viewing.
+    ``global_acceleration`` (m/s²), ``status`` and ``det_row`` (the row of the input frame's
+    detections matched this frame, -1 when coasting); frames keep the input's camera models, so
+    the file loads with :func:`tracker.baseversion.read_baseversion` for evaluation and viewing,
+    and with :func:`read_tracks_file` as tracker output.
     """
     payload = {}
     for scene, (frames, outputs) in results.items():
@@ -121,11 +146,58 @@ def write_tracks_file(
                 transform_matrix=src.transform_matrix,
             )
             record = frame_to_dict(frame)
-            for box, acc, status in zip(
-                record["bboxes"], out.acceleration, out.status, strict=True
+            for box, acc, status, det_row in zip(
+                record["bboxes"], out.acceleration, out.status, out.det_row, strict=True
             ):
                 box["global_acceleration"] = [None if not np.isfinite(a) else float(a) for a in acc]
                 box["status"] = int(status)
+                box["det_row"] = int(det_row)
             scene_frames.append(record)
         payload[scene] = scene_frames
     write_json_atomic(Path(path), payload)
+
+
+def read_tracks_file(
+    path: str | Path,
+) -> tuple[dict[str, list[Frame]], dict[str, list[TrackOutput]]]:
+    """Load a tracks file (:func:`write_tracks_file`, ``.json`` or ``.json.gz``).
+
+    Returns the frames (boxes = tracker output, with the camera models) and the tracker output
+    per scene. Fields an older or foreign file lacks get their "missing" value: ``status``
+    CONFIRMED, ``det_row`` -1, acceleration NaN, ``stage`` 0.
+
+    Raises
+    ------
+    InputError (from :func:`tracker.baseversion.read_baseversion`) for an invalid file.
+    """
+    scenes = read_baseversion(path)
+    opener = gzip.open if str(path).endswith(".gz") else open
+    with opener(path, "rb") as fh:
+        raw = json.load(fh)
+    outputs: dict[str, list[TrackOutput]] = {}
+    for scene, frames in scenes.items():
+        scene_out = []
+        for frame, record in zip(frames, raw[scene], strict=True):
+            bboxes = record["bboxes"]
+            if len(bboxes) != len(frame.boxes):  # an unknown category was skipped on reading
+                raise InputError(
+                    f"{path}: scene {scene!r} frame {frame.frame_id}: "
+                    f"{len(bboxes) - len(frame.boxes)} boxes of unknown categories"
+                )
+            acc = [b.get("global_acceleration") or (None, None) for b in bboxes]
+            scene_out.append(
+                TrackOutput(
+                    scene=scene,
+                    frame_id=frame.frame_id,
+                    time_secs=frame.timestamp_secs,
+                    boxes=frame.boxes,
+                    acceleration=np.array(acc, dtype=np.float64).reshape(-1, 2),
+                    status=np.array(
+                        [b.get("status", TrackStatus.CONFIRMED) for b in bboxes], dtype=np.int8
+                    ),
+                    det_row=np.array([b.get("det_row", -1) for b in bboxes], dtype=np.int64),
+                    stage=np.zeros(len(bboxes), dtype=np.int8),
+                )
+            )
+        outputs[scene] = scene_out
+    return scenes, outputs
