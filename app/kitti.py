@@ -12,7 +12,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from tracker.config import config_to_dict, load_config
+from tracker.config import BUILTIN, config_to_dict, load_config
 from tracker.pipeline import SceneResult, run_scene
 from tracker.writers import write_kitti_sequence, write_tracks_file
 
@@ -51,7 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--mode",
         choices=["online", "offline"],
         default=None,
-        help="override the config's tracking mode",
+        help="tracking mode; offline with a built-in config uses <config>_offline",
     )
     parser.add_argument("--poses", default="orbslam3", help="orbslam3, none or a pose folder")
     parser.add_argument("--no-eval", action="store_true", help="skip the evaluation")
@@ -107,6 +107,8 @@ def run_kitti(
 
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
+    if mode == "offline" and f"{config_name}_offline" in BUILTIN:
+        config_name = f"{config_name}_offline"  # the built-in offline settings
     if mode:
         overrides["mode"] = mode
     config = load_config(config_name, overrides=overrides)

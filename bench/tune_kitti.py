@@ -72,7 +72,9 @@ def main() -> None:
                 result = run_scene(frames, config)
                 secs += result.tracker_seconds
                 write_kitti_sequence(
-                    Path(tmp) / f"{seq}.txt", result.outputs, frames,
+                    Path(tmp) / f"{seq}.txt",
+                    result.outputs,
+                    frames,
                     detection_image_boxes=args.det_image_boxes,
                 )
             start = time.perf_counter()

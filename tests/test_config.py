@@ -39,7 +39,8 @@ def test_override_merges_one_key() -> None:
         ({"frame_rate": 3}, "unknown key 'frame_rate'"),
         ({"defaults": {"score_min": "high"}}, "score_min: expected a number"),
         ({"categories": ["car", "unicorn"]}, "unknown category 'unicorn'"),
-        ({"category": {"bus": {"score_min": 0.1}}}, "category.bus: not in 'categories'"),
+        ({"category": {"unicorn": {"score_min": 0.1}}}, "category.unicorn: unknown category"),
+        ({"category": {"bus": {"score_mn": 0.1}}}, "unknown key 'category.bus.score_mn'"),
         ({"defaults": {"size": {"q": "x"}}}, "size.q: expected a list"),
     ],
 )
@@ -58,3 +59,20 @@ def test_config_file_path(tmp_path: Path) -> None:
     path.write_text("dataset = [")
     with pytest.raises(InputError, match="malformed TOML"):
         load_config(path)
+
+
+def test_base_inheritance_and_loops(tmp_path: Path) -> None:
+    offline = load_config("kitti_offline")
+    online = load_config("kitti")
+    assert offline.mode.value == "offline" and online.mode.value == "online"
+    assert offline.per_category["car"] == online.per_category["car"]  # inherited
+    child = tmp_path / "child.toml"
+    child.write_text('base = "kitti"\n[category.car]\nscore_min = 0.6\n')
+    cfg = load_config(child)
+    assert cfg.per_category["car"].score_min == 0.6
+    assert cfg.per_category["car"].birth_score_min == online.per_category["car"].birth_score_min
+    a, b = tmp_path / "a.toml", tmp_path / "b.toml"
+    a.write_text('base = "b.toml"\n')
+    b.write_text('base = "a.toml"\n')
+    with pytest.raises(InputError, match="loops"):
+        load_config(a)

@@ -172,24 +172,40 @@ class TrackerConfig:
 # ---------------------------------------------------------------------------------------------
 # loading
 
-BUILTIN = ("kitti", "nuscenes", "waymo")
+BUILTIN = ("kitti", "kitti_offline", "kitti_reference", "nuscenes", "waymo")
 
 
 def load_config(
     name_or_path: str | Path, *, overrides: dict[str, Any] | None = None
 ) -> TrackerConfig:
-    """Load a built-in config by name (kitti, nuscenes, waymo) or a TOML file by path.
+    """Load a built-in config by name (see ``BUILTIN``) or a TOML file by path.
 
     ``overrides`` is a nested dict merged over the file (used by tuning scripts and tests).
     """
+    raw, source = _load_raw(name_or_path, seen=())
+    if overrides:
+        raw = _merge(raw, overrides)
+    return config_from_dict(raw, source=source)
+
+
+def _load_raw(name_or_path: str | Path, *, seen: tuple[str, ...]) -> tuple[dict[str, Any], str]:
+    """The TOML table, with ``base = "<name or path>"`` resolved (the file overrides its base)."""
     text, source = _read_source(name_or_path)
+    if source in seen:
+        raise InputError(f"{source}: 'base' chain loops: {' -> '.join((*seen, source))}")
     try:
         raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{source}: malformed TOML ({exc})") from None
-    if overrides:
-        raw = _merge(raw, overrides)
-    return config_from_dict(raw, source=source)
+    base = raw.pop("base", None)
+    if base is None:
+        return raw, source
+    if not isinstance(base, str):
+        raise InputError(f"{source}: 'base' must be a config name or path")
+    if base not in BUILTIN and not Path(base).is_absolute() and str(name_or_path) not in BUILTIN:
+        base = str(Path(name_or_path).parent / base)  # relative to the file
+    base_raw, _ = _load_raw(base, seen=(*seen, source))
+    return _merge(base_raw, raw), source
 
 
 def _read_source(name_or_path: str | Path) -> tuple[str, str]:
@@ -222,15 +238,19 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
     for name in categories:
         if category_index(str(name)) < 0:
             raise InputError(f"{source}: categories: unknown category {name!r}")
+    _build(CategoryConfig, defaults, "defaults", source)  # validated even where overridden
     for name in per_cat_raw:
-        if name not in categories:
-            raise InputError(f"{source}: category.{name}: not in 'categories' {categories}")
-    per_category = {
+        if category_index(str(name)) < 0:
+            raise InputError(f"{source}: category.{name}: unknown category")
+    # every section is validated (typos fail even when that category is not tracked in this
+    # run); the tracked categories are kept
+    sections = {
         name: _build(
             CategoryConfig, _merge(defaults, per_cat_raw.get(name, {})), f"category.{name}", source
         )
-        for name in categories
+        for name in sorted(set(categories) | set(per_cat_raw))
     }
+    per_category = {name: sections[name] for name in categories}
     top = _build(
         TrackerConfig,
         {**raw, "categories": tuple(categories), "per_category": per_category, "source": source},

@@ -51,6 +51,7 @@ from tracker.matching import Matches, greedy, hungarian
 from tracker.track import POSE_DIM, TrackTable
 
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
+HEADING_FLIP_VOTES = 3  # consecutive detections disagreeing by > 90° that flip a static track
 
 
 class _PerCategory:
@@ -395,13 +396,22 @@ class MCTracker:
         size_x, size_P = kalman.size_update(
             tr.size_x[idx], tr.size_P[idx], lw=dets.lwh[:, :2], r_diag=cat.size_r[c]
         )
-        # heading from perception and from velocity (paper §3.3). When the object clearly
-        # moves, the direction of travel decides the sign of the heading (detections carry a
-        # 180° ambiguity); the detection's yaw is then aligned to that heading.
+        # heading from perception and from velocity (paper §3.3). Detections carry a 180°
+        # ambiguity, so the sign of the heading is decided first: by the direction of travel
+        # when the object clearly moves (speed above its threshold and 3 sigma of its
+        # estimate), else by the detector's majority (a run of disagreeing detections flips
+        # the state). The detection's yaw is then aligned to that heading and both update θ.
         head_x = tr.head_x[idx].copy()
         yaw_vel = np.arctan2(pose_x[:, 3], pose_x[:, 2])
-        moving = np.hypot(pose_x[:, 2], pose_x[:, 3]) > cat.head_min_speed[c]
+        speed = np.hypot(pose_x[:, 2], pose_x[:, 3])
+        speed_sigma = np.sqrt(pose_P[:, 2, 2] + pose_P[:, 3, 3])
+        moving = (speed > cat.head_min_speed[c]) & (speed > 3.0 * speed_sigma)
+        disagree = np.abs(wrap_angle(dets.yaw - head_x[:, 0])) > np.pi / 2
+        votes = np.where(disagree, tr.heading_votes[idx] + 1, 0)
+        flip_by_votes = ~moving & (votes >= HEADING_FLIP_VOTES)
         head_x[:, 0] = np.where(moving, kalman.align_heading(head_x[:, 0], yaw_vel), head_x[:, 0])
+        head_x[:, 0] = np.where(flip_by_votes, wrap_angle(head_x[:, 0] + np.pi), head_x[:, 0])
+        tr.heading_votes[idx] = np.where(flip_by_votes | moving, 0, votes)
         yaw_det = kalman.align_heading(dets.yaw, head_x[:, 0])
         head_x, head_P = kalman.heading_update(
             head_x,
@@ -454,6 +464,7 @@ class MCTracker:
         new.last_xyxy, new.last_camera = dets.xyxy_image.copy(), dets.camera.copy()
         new.last_det_xyz, new.last_det_lwh = dets.xyz.copy(), dets.lwh.copy()
         new.last_det_yaw = dets.yaw.copy()
+        new.heading_votes = np.zeros(n, dtype=np.int64)
         new.matched_det = det_rows.copy()
         new.matched_stage = np.zeros(n, dtype=np.int8)
         self._tracks = self._tracks.append(new)

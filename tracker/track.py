@@ -40,6 +40,7 @@ class TrackTable:
     last_det_xyz: FloatArray  # (T, 3) last detection's centre (reference RV gate)
     last_det_lwh: FloatArray  # (T, 3)
     last_det_yaw: FloatArray  # (T,)
+    heading_votes: IntArray  # (T,) consecutive detections whose yaw disagrees by > 90°
     matched_det: IntArray  # (T,) this frame's matched detection row (-1: none)
     matched_stage: np.ndarray  # (T,) int8: 1 BEV, 2 RV, 0 none (births: 0)
 
@@ -67,6 +68,7 @@ class TrackTable:
             "last_det_xyz": ((0, 3), np.float64),
             "last_det_lwh": ((0, 3), np.float64),
             "last_det_yaw": ((0,), np.float64),
+            "heading_votes": ((0,), np.int64),
             "matched_det": ((0,), np.int64),
             "matched_stage": ((0,), np.int8),
         }

@@ -60,9 +60,7 @@ def kitti_label_fields(boxes: Boxes, camera: Camera) -> tuple[FloatArray, FloatA
     return fields, xyxy, visible
 
 
-def kitti_lines(
-    output: TrackOutput, camera: Camera, detections: Boxes | None = None
-) -> list[str]:
+def kitti_lines(output: TrackOutput, camera: Camera, detections: Boxes | None = None) -> list[str]:
     """label_02 lines of one frame: boxes not visible in the image are left out (KITTI GT only
     annotates objects in the camera view, so anything else would count as a false positive).
 
