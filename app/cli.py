@@ -18,8 +18,12 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "convert": ("app.convert", "convert a dataset's detections and labels to BaseVersion"),
     "track": ("app.track", "run the tracker on a BaseVersion file"),
     "kitti": ("app.kitti", "convert, track and evaluate KITTI tracking sequences"),
+    "nuscenes": ("app.nuscenes", "convert, track and evaluate nuScenes (official devkit metrics)"),
+    "waymo": ("app.waymo", "convert and track Waymo segments, write the per-segment result npz"),
     "bench": ("app.bench", "tracker speed benchmark (frames/s, ms/frame, peak memory)"),
     "eval": ("app.eval", "evaluate a tracks file: KITTI static metrics and motion metrics"),
+    "view": ("app.view", "run the tracker with the Rerun visual debugger (file, viewer or web)"),
+    "shots": ("app.shots", "headless screenshots of a recording at its ID switches and lag"),
 }
 
 

@@ -1,6 +1,7 @@
 """``mctrack convert <dataset>``: raw benchmark files → BaseVersion JSON.
 
-Only ``kitti`` exists so far; ``nuscenes`` and ``waymo`` get their own sub-subcommands here.
+Datasets: ``kitti``, ``nuscenes`` (detection results + metadata tables, needs the devkit) and
+``waymo`` (ImmortalTracker-style npz detections + ego_info/ts_info); docs/nuscenes_waymo.md.
 """
 
 from __future__ import annotations
@@ -53,6 +54,52 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     kitti.add_argument("--no-gt", action="store_true", help="skip label_02 ground truth")
     kitti.add_argument("--gzip", action="store_true", help="write .json.gz (about 5x smaller)")
     kitti.add_argument("--out", type=Path, required=True, help="output folder")
+    _add_nuscenes(datasets)
+    _add_waymo(datasets)
+
+
+def _add_nuscenes(datasets: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    nusc = datasets.add_parser(
+        "nuscenes",
+        help="nuScenes detection results (submission JSON) + metadata tables (needs the devkit)",
+        description="Write OUT (BaseVersion detections with ego poses and the six cameras) and, "
+        "with --gt-out, the split's ground truth. docs/nuscenes_waymo.md",
+    )
+    nusc.add_argument("--dataroot", type=Path, required=True, help="holds <version>/ and maps/")
+    nusc.add_argument(
+        "--version", default="v1.0-trainval", help="v1.0-trainval, v1.0-mini or v1.0-test"
+    )
+    nusc.add_argument("--detections", type=Path, required=True, help="detection results JSON")
+    nusc.add_argument(
+        "--split", default="val", help="val, mini_val, test, ... or a custom split (splits.json)"
+    )
+    nusc.add_argument(
+        "--score-min",
+        type=float,
+        default=0.0,
+        help="drop detections scoring below this (smaller files; the tracker filters anyway)",
+    )
+    nusc.add_argument("--gt-out", type=Path, default=None, help="also write the GT BaseVersion")
+    nusc.add_argument("--out", type=Path, required=True, help="output FILE.json (or .json.gz)")
+
+
+def _add_waymo(datasets: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    waymo = datasets.add_parser(
+        "waymo",
+        help="Waymo: ImmortalTracker-style <segment>.npz detections + ego_info/ts_info",
+        description="Write OUT (BaseVersion in the world frame, with the five cameras). "
+        "docs/nuscenes_waymo.md",
+    )
+    waymo.add_argument(
+        "--data-root", type=Path, required=True, help="folder with ego_info/ and ts_info/"
+    )
+    waymo.add_argument(
+        "--detections", type=Path, required=True, help="folder of <segment>.npz detections"
+    )
+    waymo.add_argument("--gt", type=Path, default=None, help="folder of <segment>.npz GT (ids)")
+    waymo.add_argument("--segments", type=_csv, default=None, help="segment names (default all)")
+    waymo.add_argument("--gt-out", type=Path, default=None, help="write the GT BaseVersion here")
+    waymo.add_argument("--out", type=Path, required=True, help="output FILE.json (or .json.gz)")
 
 
 def _summary(name: str, scenes: dict[str, list[Frame]]) -> str:
@@ -92,11 +139,58 @@ def _run_kitti(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_nuscenes(args: argparse.Namespace) -> int:
+    from tracker.baseversion import write_baseversion
+    from tracker.convert.nuscenes import convert_nuscenes
+
+    start = time.perf_counter()
+    conv = convert_nuscenes(
+        args.dataroot,
+        version=args.version,
+        detections=args.detections,
+        split=args.split,
+        with_gt=args.gt_out is not None,
+        score_min=args.score_min,
+    )
+    write_baseversion(args.out, conv.detections)
+    print(_summary("detections", conv.detections), "->", args.out)
+    if conv.skipped_detections:
+        print(f"skipped non-tracking classes: {dict(sorted(conv.skipped_detections.items()))}")
+    if conv.gt is not None:
+        write_baseversion(args.gt_out, conv.gt)
+        print(_summary("gt", conv.gt), "->", args.gt_out)
+    print(f"done in {time.perf_counter() - start:.2f} s")
+    return 0
+
+
+def _run_waymo(args: argparse.Namespace) -> int:
+    from tracker.baseversion import write_baseversion
+    from tracker.convert.waymo import convert_waymo
+
+    if args.gt_out is not None and args.gt is None:
+        raise InputError("--gt-out needs --gt (the ground-truth npz folder)")
+    start = time.perf_counter()
+    conv = convert_waymo(args.data_root, args.detections, gt=args.gt, segments=args.segments)
+    write_baseversion(args.out, conv.detections)
+    print(_summary("detections", conv.detections), "->", args.out)
+    if conv.skipped_types:
+        print(f"skipped untracked Waymo types: {dict(sorted(conv.skipped_types.items()))}")
+    if conv.gt is not None and args.gt_out is not None:
+        write_baseversion(args.gt_out, conv.gt)
+        print(_summary("gt", conv.gt), "->", args.gt_out)
+    print(f"done in {time.perf_counter() - start:.2f} s")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``mctrack convert``; returns the exit code (2 for bad or missing input)."""
     try:
         if args.dataset == "kitti":
             return _run_kitti(args)
+        if args.dataset == "nuscenes":
+            return _run_nuscenes(args)
+        if args.dataset == "waymo":
+            return _run_waymo(args)
     except (InputError, FileNotFoundError) as exc:
         print(f"mctrack convert {args.dataset}: error: {exc}", file=sys.stderr)
         return 2

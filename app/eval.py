@@ -1,6 +1,11 @@
 """`mctrack eval TRACKS --gt GT`: evaluate a tracks file: static KITTI metrics (HOTA, CLEAR,
 Identity) when label files are given, motion metrics (VAE, VNE, VAIE, VIR, VSE, VDE) with
-``--motion``. Writes ``OUT/eval.json`` and ``OUT/eval.md`` (and the velocity-curve PNG)."""
+``--motion``. Writes ``OUT/eval.json`` and ``OUT/eval.md`` (and the velocity-curve PNG).
+
+``--dataset nuscenes``: the official nuScenes tracking metrics (devkit ``TrackingEval``, AMOTA,
+AMOTP, MOTA, IDS, recall) of a tracks file (written as ``OUT/results.json`` first) or of a
+tracking submission ``results.json`` directly; ``--motion`` with ``--gt`` adds the motion
+metrics of a tracks file."""
 
 from __future__ import annotations
 
@@ -21,8 +26,26 @@ MOTION_PLOT = "motion_velocity.png"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("tracks", help="tracks file written by `mctrack track` / `mctrack kitti`")
-    parser.add_argument("--gt", required=True, help="ground-truth BaseVersion file (track_id set)")
+    parser.add_argument(
+        "tracks",
+        help="tracks file written by `mctrack track` / `mctrack kitti` / `mctrack nuscenes` "
+        "(with --dataset nuscenes also a tracking submission results.json)",
+    )
+    parser.add_argument(
+        "--dataset",
+        choices=["kitti", "nuscenes"],
+        default="kitti",
+        help="kitti: TrackEval KITTI protocol + motion metrics; nuscenes: the devkit's "
+        "TrackingEval (needs the nuscenes extra, docs/nuscenes_waymo.md)",
+    )
+    parser.add_argument(
+        "--gt",
+        default=None,
+        help="ground-truth BaseVersion file (track_id set); required for --dataset kitti",
+    )
+    parser.add_argument("--dataroot", default=None, help="nuScenes root (--dataset nuscenes)")
+    parser.add_argument("--version", default="v1.0-trainval", help="nuScenes table version")
+    parser.add_argument("--split", default="val", help="nuScenes split evaluated")
     parser.add_argument(
         "--detections",
         default=None,
@@ -42,6 +65,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tracker.writers import read_tracks_file
 
+    if args.dataset == "nuscenes":
+        return _run_nuscenes(args)
+    if args.gt is None:
+        raise InputError("--gt is required for --dataset kitti")
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)
@@ -151,3 +178,79 @@ def _static_markdown(static: dict[str, Any] | str) -> list[str]:
     ]
     lines += [f"| {c} | " + " | ".join(str(m[k]) for k in cols) + " |" for c, m in static.items()]
     return [*lines, ""]
+
+
+# ---------------------------------------------------------------------------------------------
+# nuScenes
+
+
+def _is_submission(path: Path) -> bool:
+    """True for a nuScenes results file (``{"results": ..., "meta": ...}``), from its start."""
+    import gzip
+    import re
+
+    opener = gzip.open if path.suffix == ".gz" else open
+    with opener(path, "rb") as fh:
+        head = fh.read(4096)
+    return re.match(rb'\s*\{\s*"(meta|results)"', head) is not None
+
+
+def _run_nuscenes(args: argparse.Namespace) -> int:
+    from tracker.nuscenes_eval import evaluate_nuscenes, nuscenes_markdown
+
+    if not args.dataroot:
+        raise InputError("--dataset nuscenes needs --dataroot (the nuScenes tables)")
+    tracks = Path(args.tracks)
+    if not tracks.is_file():
+        raise InputError(f"{tracks}: file not found")
+    out = Path(args.out) if args.out else tracks.parent
+    out.mkdir(parents=True, exist_ok=True)
+    result: dict[str, Any] = {"tracks": str(tracks), "dataset": "nuscenes"}
+    md = ["# Evaluation", ""]
+    motion_inputs = None
+    if _is_submission(tracks):
+        results_path = tracks
+        if args.motion:
+            raise InputError("--motion needs a tracks file, not a submission results.json")
+    else:
+        from tracker.writers import read_tracks_file
+        from tracker.writers_nuscenes import write_nuscenes_results
+
+        track_frames, outputs = read_tracks_file(tracks)
+        results_path = out / "results.json"
+        write_nuscenes_results(results_path, {s: (track_frames[s], outputs[s]) for s in outputs})
+        motion_inputs = outputs
+    result["results"] = str(results_path)
+    result["static"] = evaluate_nuscenes(
+        results_path,
+        dataroot=args.dataroot,
+        version=args.version,
+        split=args.split,
+        out_dir=out / "nuscenes_eval",
+    )
+    md.append(nuscenes_markdown(result["static"]))
+    if args.motion and motion_inputs is not None:
+        from tracker.motion_eval import evaluate_motion, motion_markdown
+
+        if args.gt is None:
+            raise InputError("--motion needs --gt (the GT BaseVersion of `mctrack nuscenes`)")
+        classes = [c.strip() for c in args.classes.split(",") if c.strip()]
+        gt = read_baseversion(args.gt)
+        dets = read_baseversion(args.detections) if args.detections else None
+        result["motion"] = evaluate_motion(
+            dets, gt, motion_inputs, classes=classes, plot_path=out / MOTION_PLOT
+        )
+        md += [
+            motion_markdown(result["motion"], heading_level=2),
+            f"![velocity]({MOTION_PLOT})",
+            "",
+        ]
+    (out / "eval.json").write_text(json.dumps(result, indent=2, allow_nan=False))
+    write_text_atomic(out / "eval.md", ["\n".join(md) + "\n"])
+    overall = result["static"]["overall"]
+    print(
+        "AMOTA {amota:.3f}  AMOTP {amotp:.3f}  recall {recall:.3f}  MOTA {mota:.3f}  "
+        "IDS {ids:.0f}".format(**{k: overall.get(k) or 0.0 for k in overall})
+    )
+    print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
+    return 0

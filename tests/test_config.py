@@ -65,7 +65,8 @@ def test_base_inheritance_and_loops(tmp_path: Path) -> None:
     offline = load_config("kitti_offline")
     online = load_config("kitti")
     assert offline.mode.value == "offline" and online.mode.value == "online"
-    assert offline.per_category["car"] == online.per_category["car"]  # inherited
+    assert offline.per_category["pedestrian"] == online.per_category["pedestrian"]  # inherited
+    assert offline.per_category["car"].score_min < online.per_category["car"].score_min
     child = tmp_path / "child.toml"
     child.write_text('base = "kitti"\n[category.car]\nscore_min = 0.6\n')
     cfg = load_config(child)

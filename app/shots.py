@@ -1,0 +1,54 @@
+"""`mctrack shots RECORDING --out DIR`: headless screenshots of a recording's key views.
+
+At the frames of the first ID switches (the first fragmentations when there are none) and of
+the largest velocity lag, as listed in the recording's ``summary/index``. Needs a Vulkan driver;
+on a machine without GPU, Mesa's software one: ``apt-get install -y mesa-vulkan-drivers
+libvulkan1``. Without it, this says so and exits with status 3.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from tracker.errors import InputError
+
+EXIT_NO_RENDERER = 3
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("recording", help="an .rrd written by mctrack view / demo / kitti --record")
+    parser.add_argument("--out", required=True, help="folder for the PNG files")
+    parser.add_argument("--events", type=int, default=3, help="ID switches to capture")
+    parser.add_argument("--settle", type=float, default=2.0, help="seconds to wait per frame")
+    parser.add_argument("--timeout", type=float, default=120.0, help="seconds to load the file")
+
+
+def run(args: argparse.Namespace) -> int:
+    from viz.shots import RendererMissing, plan_shots, read_shot_index, take_shots
+
+    recording = Path(args.recording)
+    if not recording.is_file():
+        raise InputError(f"{recording}: file not found")
+    plan = plan_shots(read_shot_index(recording), max_events=args.events)
+    if not plan:
+        print(
+            f"{recording}: no ID switches, fragmentations or velocity lag recorded; nothing "
+            "to capture (record with ground truth: mctrack view INPUT --gt GT)"
+        )
+        return 0
+    try:
+        shots = take_shots(
+            recording, args.out, plan=plan, settle_secs=args.settle, timeout_secs=args.timeout
+        )
+    except RendererMissing as exc:
+        print(
+            f"mctrack shots: cannot render: {exc}. The headless viewer needs a Vulkan driver; "
+            "without a GPU install Mesa's software renderer (lavapipe).",
+            file=sys.stderr,
+        )
+        return EXIT_NO_RENDERER
+    for shot in shots:
+        print(f"{shot.path}  ({shot.reason} at frame {shot.frame}: {shot.view})")
+    return 0

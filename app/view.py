@@ -1,0 +1,158 @@
+"""`mctrack view INPUT`: run the tracker with the Rerun observer (file, native viewer or web).
+
+Every stage of every frame is recorded under the entity paths of :mod:`viz.paths`, plus (with
+``--gt``) the ground truth, the ID switches and fragmentations against it and the matched GT's
+velocity curves. ``--save`` streams to disk, so memory stays flat on long sequences.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from tracker.errors import InputError
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("input", help="BaseVersion detections (.json or .json.gz)")
+    parser.add_argument("--gt", default=None, help="BaseVersion ground truth of the same scenes")
+    parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
+    parser.add_argument("--mode", choices=["online", "offline"], default=None)
+    parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
+    parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
+    parser.add_argument(
+        "--labels",
+        default=None,
+        help="KITTI label_02 folder: ID switches and metrics by TrackEval's KITTI protocol "
+        "(default: BEV IoU on --gt)",
+    )
+    parser.add_argument(
+        "--images",
+        action="append",
+        default=[],
+        metavar="[CAMERA=]DIR",
+        help="folder of <frame_id:06d>.png images for a camera (default camera: the first); "
+        "repeatable. Default: <input folder>/image_02 for the first camera when it exists",
+    )
+    parser.add_argument("--no-motion", action="store_true", help="skip the motion metrics")
+    sink = parser.add_mutually_exclusive_group()
+    sink.add_argument("--save", default=None, metavar="OUT.rrd", help="write a recording file")
+    sink.add_argument("--spawn", action="store_true", help="stream to a new native viewer")
+    sink.add_argument("--serve-web", action="store_true", help="serve a web viewer (until Ctrl-C)")
+    parser.add_argument("--web-port", type=int, default=9090)
+    parser.add_argument("--grpc-port", type=int, default=9876)
+
+
+def _images(specs: list[str], input_path: Path, first_camera: str | None) -> dict[str, Path]:
+    images: dict[str, Path] = {}
+    for spec in specs:
+        name, sep, folder = spec.partition("=")
+        if not sep:
+            name, folder = first_camera or "", spec
+        if not Path(folder).is_dir():
+            raise InputError(f"--images: {folder} is not a folder")
+        images[name] = Path(folder)
+    if not specs and first_camera and (input_path.parent / "image_02").is_dir():
+        images[first_camera] = input_path.parent / "image_02"  # the KITTI layout
+    return images
+
+
+def _save_path(save: str | None, scene: str, many: bool) -> Path:
+    if save is None:
+        return Path(f"mctrack_{scene}.rrd")
+    path = Path(save)
+    return path.with_name(f"{path.stem}_{scene}{path.suffix}") if many else path
+
+
+def run(args: argparse.Namespace) -> int:
+    import rerun as rr
+
+    from app.track import parse_frame_range, select_scenes
+    from tracker.baseversion import read_baseversion
+    from tracker.config import load_config
+    from viz.layout import debug_blueprint
+    from viz.record import new_recording, record_scene
+
+    overrides = {"mode": args.mode} if args.mode else None
+    config = load_config(args.config, overrides=overrides)
+    rate = config.frame_rate_hz
+    scenes = read_baseversion(args.input, fallback_frame_rate_hz=rate)
+    scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames))
+    gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
+    many = len(scenes) > 1
+    live = args.spawn or args.serve_web
+    web_url = None
+    for scene, frames in scenes.items():
+        if not frames:
+            print(f"scene {scene}: no frames in range, skipped")
+            continue
+        cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras]
+        images = _images(args.images, Path(args.input), cameras[0][0] if cameras else None)
+        gt = None
+        if args.gt:
+            wanted = {f.frame_id for f in frames}
+            gt = [f for f in gt_scenes.get(scene, []) if f.frame_id in wanted]
+            if not gt:
+                print(f"scene {scene}: not in {args.gt}; recording without ground truth")
+                gt = None
+        path = None if live else _save_path(args.save, scene, many)
+        rec = new_recording(scene, path=path)
+        if args.spawn:
+            rec.spawn(port=args.grpc_port, default_blueprint=debug_blueprint(cameras))
+        elif args.serve_web:
+            url = rec.serve_grpc(
+                grpc_port=args.grpc_port, default_blueprint=debug_blueprint(cameras)
+            )
+            if web_url is None:
+                rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=url)
+                web_url = f"http://localhost:{args.web_port}/?url={url}"
+                print(f"web viewer: {web_url}")
+        first = frames[0].frame_id
+        description = (
+            f"- detections: `{args.input}`, scene `{scene}`, frames {first}..{frames[-1].frame_id}"
+            f" ({len(frames)} frames)\n- ground truth: `{args.gt or 'none'}`"
+            f"\n- labels: `{args.labels or 'none'}`\n- config: `{args.config}`"
+        )
+        result = record_scene(
+            frames,
+            config,
+            gt,
+            rec=rec,
+            labels_dir=args.labels,
+            images=images,
+            input_description=description,
+            motion_metrics=not args.no_motion,
+            live=live,
+        )
+        rec.flush()
+        if not args.serve_web:
+            rec.disconnect()
+        _print_result(result, path)
+    if args.serve_web:
+        print("serving; press Ctrl-C to stop")
+        try:
+            while True:
+                time.sleep(1.0)
+        except KeyboardInterrupt:
+            return 0
+    return 0
+
+
+def _print_result(result: object, path: Path | None) -> None:
+    from viz.record import RecordResult
+
+    assert isinstance(result, RecordResult)
+    ev = result.id_evaluation
+    line = (
+        f"scene {result.scene}: {result.counts.get('frames', 0)} frames, "
+        f"{len(result.track_ids)} tracks"
+    )
+    if ev is not None:
+        line += ", " + ", ".join(
+            f"{c}: {n['IDSW']} ID switches, {n['Frag']} fragmentations"
+            for c, n in ev.counts.items()
+        )
+    print(line)
+    if path is not None:
+        print(f"wrote {path}  (open it with: rerun {path})")

@@ -1,0 +1,411 @@
+"""nuScenes: converter, camera assignment, submission writer and the official evaluation, on a
+synthetic dataset written in the devkit's own table schema (tests/test_nuscenes_fixture.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from tests.test_nuscenes_fixture import (
+    CAMERA_DELAY_MICROS,
+    CAMERAS,
+    EGO_SPEED_MPS,
+    SCENES,
+    SyntheticNuScenes,
+    make_detections,
+    rot_z,
+    write_synthetic_nuscenes,
+)
+from tracker.baseversion import read_baseversion, write_baseversion
+from tracker.boxes import Boxes
+from tracker.camera import project_points
+from tracker.categories import CATEGORIES, category_index
+from tracker.config import load_config
+from tracker.convert.nuscenes import (
+    CATEGORY_TO_TRACKING_NAME,
+    NUSCENES_CAMERAS,
+    assign_cameras,
+    convert_nuscenes,
+    load_nuscenes,
+    yaw_from_quaternions,
+)
+from tracker.errors import InputError
+from tracker.events import TrackOutput, TrackStatus
+from tracker.frame import Camera, Frame
+from tracker.geometry import corners_3d
+from tracker.pipeline import run_scene
+from tracker.writers_nuscenes import nuscenes_results, write_nuscenes_results
+
+VAL_SCENES = ("scene-0103", "scene-0916")
+NOISY = {
+    "position_sigma_m": 0.4,
+    "velocity_sigma_mps": 0.6,
+    "yaw_sigma_rad": 0.1,
+    "dropout": 0.25,
+    "false_positives_per_sample": 2.0,
+}
+
+
+def _devkit_missing() -> str | None:
+    try:
+        import motmetrics  # noqa: F401
+        import nuscenes.eval.tracking.evaluate  # noqa: F401
+    except ImportError as exc:
+        return (
+            f"nuScenes devkit not importable ({exc}); install: pip install -e '.[nuscenes]' && "
+            "pip install --no-deps nuscenes-devkit==1.2.0"
+        )
+    return None
+
+
+needs_devkit = pytest.mark.skipif(_devkit_missing() is not None, reason=str(_devkit_missing()))
+
+
+# ---------------------------------------------------------------------------------------------
+# devkit-free units
+
+
+def _front_camera() -> Camera:
+    """A 1600x900 camera at the world origin looking along world +x (camera axes: x right,
+    y down, z forward)."""
+    camera_from_world = np.array(
+        [[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+    )
+    k = np.array([[1266.0, 0.0, 800.0, 0.0], [0.0, 1266.0, 450.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    return Camera("CAM_FRONT", k, camera_from_world, 1600, 900)
+
+
+def _back_camera() -> Camera:
+    front = _front_camera()
+    turn = np.eye(4)
+    turn[:3, :3] = rot_z(math.pi)
+    return Camera("CAM_BACK", front.image_from_camera, front.camera_from_world @ turn, 1600, 900)
+
+
+def _naive_reference_visible(xyz: np.ndarray, lwh: np.ndarray, yaw: np.ndarray, cam: Camera):
+    """The reference's test: divide every corner by its depth (no in-front check), clip to the
+    canvas and call the box visible when the result has an area."""
+    corners = corners_3d(xyz, lwh, yaw)[0]
+    uv, _ = project_points(corners, cam)
+    x1, y1 = np.clip(uv.min(axis=0), 0, [cam.width_px, cam.height_px])
+    x2, y2 = np.clip(uv.max(axis=0), 0, [cam.width_px, cam.height_px])
+    return x2 > x1 and y2 > y1
+
+
+def test_box_behind_a_camera_is_never_assigned_to_it() -> None:
+    front, back = _front_camera(), _back_camera()
+    behind = (np.array([[-8.0, 0.3, 0.8]]), np.array([[4.5, 1.9, 1.6]]), np.array([0.2]))
+    ahead = (np.array([[12.0, -1.0, 0.8]]), np.array([[4.5, 1.9, 1.6]]), np.array([0.0]))
+    # the reference's sign-flip bug: the box behind "projects" into the front image
+    assert _naive_reference_visible(*behind, front)
+    camera, xyxy = assign_cameras(*behind, [front])
+    assert camera.tolist() == [-1] and np.isnan(xyxy).all()
+    camera, xyxy = assign_cameras(*behind, [front, back])
+    assert camera.tolist() == [1] and np.isfinite(xyxy).all()
+    camera, _ = assign_cameras(*ahead, [front, back])
+    assert camera.tolist() == [0]
+
+
+def test_box_straddling_the_camera_plane_keeps_its_visible_part() -> None:
+    front = _front_camera()
+    # a bus beside the camera: its front half is ahead and visible on the left of the image
+    xyz, lwh, yaw = np.array([[1.0, 3.0, 1.5]]), np.array([[12.0, 2.9, 3.4]]), np.array([0.0])
+    camera, xyxy = assign_cameras(xyz, lwh, yaw, [front])
+    assert camera.tolist() == [0]
+    assert xyxy[0, 0] == 0.0 and xyxy[0, 2] < 800  # to the left of the principal point
+
+
+def test_yaw_from_quaternions_round_trip() -> None:
+    yaws = np.array([-3.0, -1.2, 0.0, 0.7, 3.1])
+    quats = np.stack([np.cos(yaws / 2), 0 * yaws, 0 * yaws, np.sin(yaws / 2)], axis=1)
+    np.testing.assert_allclose(yaw_from_quaternions(quats), yaws, atol=1e-12)
+    np.testing.assert_allclose(yaw_from_quaternions(-quats), yaws, atol=1e-12)  # q ≡ -q
+
+
+def _output(scene: str, frame_id: int, n: int, rng: np.random.Generator) -> TrackOutput:
+    boxes = Boxes.create(
+        xyz=rng.normal(0, 30, (n, 3)),
+        lwh=np.tile([4.5, 1.9, 1.6], (n, 1)),
+        yaw=rng.uniform(-3, 3, n),
+        velocity=rng.normal(0, 3, (n, 2)),
+        score=rng.uniform(0, 1, n),
+        category=np.full(n, category_index("car")),
+        track_id=np.arange(n),
+    )
+    status = np.full(n, TrackStatus.CONFIRMED, dtype=np.int8)
+    status[:3] = TrackStatus.COASTING
+    det_row = np.arange(n)
+    det_row[:3] = -1
+    return TrackOutput(
+        scene=scene,
+        frame_id=frame_id,
+        time_secs=0.0,
+        boxes=boxes,
+        acceleration=np.zeros((n, 2)),
+        status=status,
+        det_row=det_row,
+        stage=np.ones(n, dtype=np.int8),
+    )
+
+
+def test_writer_fields_top_500_and_coasting_score() -> None:
+    rng = np.random.default_rng(0)
+    out = _output("scene-x", 0, 600, rng)
+    frame = Frame("scene-x", 0, 0.0, Boxes.empty(), sample_token="tok0")
+    per_sample = nuscenes_results({"scene-x": ([frame], [out])})
+    boxes = per_sample["tok0"]
+    assert len(boxes) == 500
+    scores = [b["tracking_score"] for b in boxes]
+    assert scores == sorted(scores, reverse=True)
+    kept = np.sort(np.r_[np.zeros(3), out.boxes.score[3:]])[::-1][:500]
+    np.testing.assert_allclose(scores, kept)
+    b = boxes[0]
+    assert b["size"] == [1.9, 4.5, 1.6]  # nuScenes w, l, h
+    assert b["tracking_name"] == "car" and b["tracking_id"].startswith("scene-x_")
+    i = int(b["tracking_id"].split("_")[1])
+    yaw = out.boxes.yaw[i]
+    np.testing.assert_allclose(b["rotation"], [math.cos(yaw / 2), 0, 0, math.sin(yaw / 2)])
+    np.testing.assert_allclose(b["velocity"], out.boxes.velocity[i])
+    # coasting boxes get score 0 (the reference), or keep theirs with coasting_score=None
+    small = nuscenes_results({"scene-x": ([frame], [_output("scene-x", 0, 5, rng)])})
+    assert sorted(b["tracking_score"] for b in small["tok0"])[:3] == [0.0, 0.0, 0.0]
+    keep = nuscenes_results(
+        {"scene-x": ([frame], [_output("scene-x", 0, 5, rng)])}, coasting_score=None
+    )
+    assert min(b["tracking_score"] for b in keep["tok0"]) > 0.0
+
+
+def test_writer_needs_sample_tokens() -> None:
+    out = _output("s", 0, 2, np.random.default_rng(1))
+    with pytest.raises(InputError, match="no nuScenes sample token"):
+        nuscenes_results({"s": ([Frame("s", 0, 0.0, Boxes.empty())], [out])})
+
+
+# ---------------------------------------------------------------------------------------------
+# with the devkit: the synthetic dataset
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> SyntheticNuScenes:
+    if _devkit_missing():
+        pytest.skip(str(_devkit_missing()))
+    return write_synthetic_nuscenes(tmp_path_factory.mktemp("nuscenes"))
+
+
+@pytest.fixture(scope="module")
+def nusc(dataset: SyntheticNuScenes) -> Any:
+    return load_nuscenes(dataset.dataroot, dataset.version)
+
+
+def _write_detections(data: SyntheticNuScenes, name: str, seed: int, **noise: Any) -> Path:
+    path = data.dataroot / f"{name}.json"
+    path.write_text(json.dumps(make_detections(data, seed=seed, **noise)))
+    return path
+
+
+@pytest.fixture(scope="module")
+def clean_path(dataset: SyntheticNuScenes) -> Path:
+    return _write_detections(dataset, "clean", seed=1)
+
+
+@needs_devkit
+def test_category_mapping_matches_devkit() -> None:
+    from nuscenes.eval.tracking.utils import category_to_tracking_name
+
+    for name, tracking in CATEGORY_TO_TRACKING_NAME.items():
+        assert category_to_tracking_name(name) == tracking
+    assert category_to_tracking_name("movable_object.barrier") is None
+    assert all(category_index(t) >= 0 for t in CATEGORY_TO_TRACKING_NAME.values())
+
+
+@needs_devkit
+def test_convert_frames_cameras_and_gt(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
+) -> None:
+    conv = convert_nuscenes(
+        dataset.dataroot,
+        version=dataset.version,
+        detections=clean_path,
+        split="mini_val",
+        with_gt=True,
+        nusc=nusc,
+    )
+    assert list(conv.detections) == list(VAL_SCENES)
+    assert conv.skipped_detections == {"barrier": 32}
+    assert conv.meta["use_lidar"] is True
+    for scene, frames in conv.detections.items():
+        n_samples, heading, start = SCENES[scene]
+        assert [f.sample_token for f in frames] == dataset.samples[scene]
+        assert [f.frame_id for f in frames] == list(range(n_samples))
+        np.testing.assert_allclose(np.diff([f.timestamp_secs for f in frames]), 0.5)
+        for f in frames:
+            assert tuple(c.name for c in f.cameras) == NUSCENES_CAMERAS
+            assert len(f.boxes) == 10  # every tracking object, the barrier dropped
+            gt = dataset.gt[f.sample_token]
+            cars = f.boxes.category == category_index("car")
+            np.testing.assert_allclose(f.boxes.lwh[cars][0], [4.5, 1.9, 1.6])
+            expected_xyz = np.array([g["translation"] for g in gt if g["class"] != "barrier"])
+            np.testing.assert_allclose(f.boxes.xyz, expected_xyz, atol=1e-9)
+            # the ego pose (LIDAR_TOP) and each camera's own pose at its timestamp
+            t0 = frames[0].timestamp_secs
+            forward = np.array([math.cos(heading), math.sin(heading)])
+            ego_xy = np.array(start) + EGO_SPEED_MPS * (f.timestamp_secs - t0) * forward
+            np.testing.assert_allclose(f.world_from_ego[:2, 3], ego_xy, atol=1e-6)
+            for cam, (name, _yaw, x, y, z, *_k) in zip(f.cameras, CAMERAS, strict=True):
+                assert cam.name == name
+                delay = CAMERA_DELAY_MICROS[name] / 1e6  # the ego moved on since LIDAR_TOP
+                cam_ego_xy = ego_xy + EGO_SPEED_MPS * delay * forward
+                origin = np.linalg.inv(cam.camera_from_world)[:3, 3]
+                expected = np.r_[cam_ego_xy, 0.0] + rot_z(heading) @ np.array([x, y, z])
+                np.testing.assert_allclose(origin, expected, atol=1e-6)
+    # GT: ids per instance, devkit box_velocity = the known velocity
+    assert conv.gt is not None
+    first = conv.gt["scene-0103"][3]
+    truth = [g for g in dataset.gt[first.sample_token] if g["class"] != "barrier"]
+    np.testing.assert_allclose(first.boxes.velocity, [g["velocity"] for g in truth], atol=1e-6)
+    ids = {int(t) for f in conv.gt["scene-0103"] for t in f.boxes.track_id}
+    assert len(ids) == 10 and min(ids) >= 0
+    assert conv.gt_velocity_unknown == 0
+    # the BaseVersion round trip keeps boxes, cameras and camera assignment
+    path = tmp_path / "dets.json"
+    write_baseversion(path, conv.detections)
+    back = read_baseversion(path)
+    f0, b0 = conv.detections["scene-0916"][5], back["scene-0916"][5]
+    np.testing.assert_allclose(b0.boxes.xyz, f0.boxes.xyz)
+    names0 = [f0.cameras[c].name if c >= 0 else None for c in f0.boxes.camera]
+    names1 = [b0.cameras[c].name if c >= 0 else None for c in b0.boxes.camera]
+    assert names0 == names1 and any(n is not None for n in names0)
+    for cam in f0.cameras:
+        twin = b0.cameras[b0.camera_index(cam.name)]
+        np.testing.assert_allclose(twin.camera_from_world, cam.camera_from_world, atol=1e-9)
+
+
+@needs_devkit
+def test_projection_matches_devkit_and_no_box_behind_its_camera(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path
+) -> None:
+    from nuscenes.utils.geometry_utils import view_points
+
+    conv = convert_nuscenes(
+        dataset.dataroot,
+        version=dataset.version,
+        detections=clean_path,
+        split="mini_val",
+        nusc=nusc,
+    )
+    checked = 0
+    for frames in conv.detections.values():
+        for f in frames:
+            sample = nusc.get("sample", f.sample_token)
+            for c, cam in enumerate(f.cameras):
+                # the devkit's own chain: global -> ego (camera time) -> camera, then view_points
+                _, boxes, intrinsic = nusc.get_sample_data(sample["data"][cam.name])
+                for box in boxes:
+                    if box.center[2] < 1.0:
+                        continue
+                    devkit_uv = view_points(box.center[:, None], intrinsic, normalize=True)[:2, 0]
+                    ann = nusc.get("sample_annotation", box.token)
+                    uv, depth = project_points(np.array([ann["translation"]]), cam)
+                    np.testing.assert_allclose(uv[0], devkit_uv, atol=1e-6)
+                    np.testing.assert_allclose(depth[0], box.center[2], atol=1e-6)
+                    checked += 1
+                mine = f.boxes.camera == c
+                if mine.any():
+                    corners = corners_3d(f.boxes.xyz[mine], f.boxes.lwh[mine], f.boxes.yaw[mine])
+                    _, depth = project_points(corners.reshape(-1, 3), cam)
+                    assert (depth.reshape(-1, 8).max(axis=1) > 0.1).all()
+    assert checked > 100
+
+
+@needs_devkit
+def test_bad_inputs_name_the_table_or_token(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
+) -> None:
+    # a missing table
+    broken = tmp_path / "broken"
+    shutil.copytree(dataset.dataroot / dataset.version, broken / dataset.version)
+    (broken / dataset.version / "sample_data.json").unlink()
+    (broken / dataset.version / "ego_pose.json").unlink()
+    with pytest.raises(InputError, match=r"missing nuScenes tables: ego_pose\.json, sample_data"):
+        load_nuscenes(broken, dataset.version)
+    with pytest.raises(InputError, match=r"no table folder for version 'v1\.0-trainval'"):
+        load_nuscenes(dataset.dataroot, "v1.0-trainval")
+    # the split belongs to other tables
+    with pytest.raises(InputError, match=r"split 'val' belongs to the v1\.0-trainval tables"):
+        convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=clean_path, split="val", nusc=nusc
+        )
+    results = json.loads(clean_path.read_text())
+    # an unknown sample token
+    bad = dict(results, results={**results["results"], "feedbeef" * 4: []})
+    path = tmp_path / "unknown.json"
+    path.write_text(json.dumps(bad))
+    with pytest.raises(InputError, match="sample token 'feedbeeffeedbeeffeedbeeffeedbeef'"):
+        convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
+        )
+    # detections for a sample of another split (scene-0061 is mini_train)
+    outside = dataset.samples["scene-0061"][2]
+    bad = dict(results, results={**results["results"], outside: []})
+    path.write_text(json.dumps(bad))
+    with pytest.raises(InputError, match=f"'{outside}' belongs to scene 'scene-0061'.*mini_val"):
+        convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
+        )
+    # a malformed box names its sample and index
+    token = dataset.samples["scene-0103"][1]
+    boxes = [dict(b) for b in results["results"][token]]
+    boxes[2]["size"] = [1.0, "x", 2.0]
+    bad = dict(results, results={**results["results"], token: boxes})
+    path.write_text(json.dumps(bad))
+    with pytest.raises(InputError, match=rf"results\['{token}'\]\[2\]: field 'size'"):
+        convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
+        )
+
+
+def _track_and_evaluate(
+    data: SyntheticNuScenes, nusc: Any, detections: Path, out: Path
+) -> dict[str, Any]:
+    from tracker.nuscenes_eval import evaluate_nuscenes, load_results_with_devkit
+
+    conv = convert_nuscenes(
+        data.dataroot, version=data.version, detections=detections, split="mini_val", nusc=nusc
+    )
+    config = load_config("nuscenes")
+    results = {s: (f, run_scene(f, config).outputs) for s, f in conv.detections.items()}
+    path = out / "results.json"
+    written = write_nuscenes_results(path, results, meta=conv.meta)
+    # the devkit's own loader accepts the file, with every sample of the split
+    loaded, meta = load_results_with_devkit(path)
+    assert set(loaded.sample_tokens) == set(data.split_samples(VAL_SCENES))
+    assert sum(len(loaded[t]) for t in loaded.sample_tokens) == written
+    assert meta["use_lidar"] is True
+    return evaluate_nuscenes(
+        path, dataroot=data.dataroot, version=data.version, split="mini_val", out_dir=out
+    )
+
+
+@needs_devkit
+def test_official_evaluation_clean_vs_noisy(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
+) -> None:
+    clean = _track_and_evaluate(dataset, nusc, clean_path, tmp_path / "clean")
+    noisy_path = _write_detections(dataset, "noisy", seed=7, **NOISY)
+    noisy = _track_and_evaluate(dataset, nusc, noisy_path, tmp_path / "noisy")
+    print("AMOTA clean", clean["overall"]["amota"], "noisy", noisy["overall"]["amota"])
+    assert clean["overall"]["amota"] >= 0.98
+    assert clean["overall"]["recall"] == pytest.approx(1.0)
+    assert clean["overall"]["ids"] == 0
+    assert set(clean["per_class"]) == {
+        c for c in CATEGORIES if c in CATEGORY_TO_TRACKING_NAME.values()
+    }
+    assert 0.5 <= noisy["overall"]["amota"] <= clean["overall"]["amota"] - 0.02
+    assert noisy["overall"]["recall"] < 1.0
+    assert (tmp_path / "clean" / "metrics_summary.json").is_file()

@@ -1,0 +1,99 @@
+"""`mctrack convert nuscenes`, `mctrack nuscenes` and `mctrack eval --dataset nuscenes` on the
+synthetic dataset (tests/test_nuscenes_fixture.py)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+from tests.test_nuscenes import NOISY, _devkit_missing
+from tests.test_nuscenes_fixture import (
+    SyntheticNuScenes,
+    make_detections,
+    write_synthetic_nuscenes,
+)
+from tracker.baseversion import read_baseversion
+from tracker.writers import read_tracks_file
+
+pytestmark = pytest.mark.skipif(_devkit_missing() is not None, reason=str(_devkit_missing()))
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory: pytest.TempPathFactory) -> SyntheticNuScenes:
+    return write_synthetic_nuscenes(tmp_path_factory.mktemp("nuscenes_cli"))
+
+
+@pytest.fixture(scope="module")
+def noisy(dataset: SyntheticNuScenes) -> Path:
+    path = dataset.dataroot / "noisy.json"
+    path.write_text(json.dumps(make_detections(dataset, seed=11, **NOISY)))
+    return path
+
+
+def _common(data: SyntheticNuScenes) -> list[str]:
+    return ["--dataroot", str(data.dataroot), "--version", data.version, "--split", "mini_val"]
+
+
+def test_convert_nuscenes_cli(dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path) -> None:
+    out, gt = tmp_path / "dets.json", tmp_path / "gt.json.gz"
+    argv = ["convert", "nuscenes", *_common(dataset), "--detections", str(noisy)]
+    assert main([*argv, "--out", str(out), "--gt-out", str(gt)]) == 0
+    dets, truth = read_baseversion(out), read_baseversion(gt)
+    assert sorted(dets) == sorted(truth) == ["scene-0103", "scene-0916"]
+    frame = truth["scene-0103"][0]
+    assert len(frame.boxes) == 10 and frame.sample_token == dataset.samples["scene-0103"][0]
+    assert len(frame.cameras) == 6 and (frame.boxes.camera >= 0).any()
+
+
+def test_convert_nuscenes_cli_names_the_bad_token(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    data = json.loads(noisy.read_text())
+    outside = dataset.samples["scene-0061"][0]
+    data["results"][outside] = []
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(data))
+    argv = ["convert", "nuscenes", *_common(dataset), "--detections", str(bad)]
+    assert main([*argv, "--out", str(tmp_path / "x.json")]) == 2
+    err = capsys.readouterr().err
+    assert outside in err and "scene-0061" in err and "mini_val" in err
+
+
+def test_nuscenes_end_to_end_and_eval(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "run"
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--motion"]
+    assert main([*argv, "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    amota = summary["metrics"]["overall"]["amota"]
+    assert 0.5 < amota < 0.99
+    assert summary["frames"] == 32 and summary["boxes_written"] > 0
+    assert isinstance(summary["motion"], dict)
+    assert (out / "motion.md").is_file() and (out / "gt.json").is_file()
+    frames, _ = read_tracks_file(out / "tracks.json")
+    assert frames["scene-0103"][0].sample_token == dataset.samples["scene-0103"][0]
+
+    # the same numbers from the tracks file and from the submission itself
+    common = [*_common(dataset), "--dataset", "nuscenes"]
+    assert main(["eval", str(out / "tracks.json"), *common, "--out", str(tmp_path / "e1")]) == 0
+    again = json.loads((tmp_path / "e1" / "eval.json").read_text())
+    assert again["static"]["overall"]["amota"] == pytest.approx(amota)
+    assert main(["eval", str(out / "results.json"), *common, "--out", str(tmp_path / "e2")]) == 0
+    direct = json.loads((tmp_path / "e2" / "eval.json").read_text())
+    assert direct["static"]["overall"]["amota"] == pytest.approx(amota)
+    assert "AMOTA" in (tmp_path / "e2" / "eval.md").read_text()
+
+
+def test_nuscenes_record(dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path) -> None:
+    pytest.importorskip("rerun")
+    out = tmp_path / "rec"
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--record"]
+    assert main([*argv, "--scenes", "scene-0916", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["evaluation"].startswith("skipped: --scenes")
+    rrd = out / "recordings" / "scene-0916.rrd"
+    assert rrd.is_file() and rrd.stat().st_size > 10_000

@@ -1,0 +1,279 @@
+"""The debug recording, read back from a real .rrd with rerun.chunk.RrdReader.
+
+One recording per session (frames 0-199 of the sample, the reference config, which has ID switches
+there), written by the same function `mctrack demo` / `view` use. Every entity path of the
+contract must exist; the logged track ids and velocity curves must be the tracker's own output,
+and that output must equal a run without observer; the recorded ID switches and fragmentations
+must be as many as TrackEval counts on the same frames.
+"""
+
+from __future__ import annotations
+
+import atexit
+import functools
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pytest
+
+from tracker.baseversion import read_baseversion
+from tracker.config import load_config
+from tracker.pipeline import run_scene
+from viz import paths
+from viz.record import RecordResult, record_scene
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+FRAMES = slice(0, 200)
+CONFIG = "kitti_reference"  # the tuned config has no ID switch on this sequence
+
+
+@functools.cache
+def sample_frames() -> tuple[list, list]:
+    if not (SAMPLE / "detections.json.gz").is_file():
+        pytest.skip(f"sample data missing in {SAMPLE}")
+    det = read_baseversion(SAMPLE / "detections.json.gz", fallback_frame_rate_hz=10.0)["0001"]
+    gt = read_baseversion(SAMPLE / "gt.json.gz", fallback_frame_rate_hz=10.0)["0001"]
+    return det[FRAMES], gt[FRAMES]
+
+
+@functools.cache
+def recording() -> tuple[Path, RecordResult]:
+    """(path, RecordResult) of the session's recording (cached: shared by the viz test modules)."""
+    det, gt = sample_frames()
+    folder = Path(tempfile.mkdtemp(prefix="mctrack-test-viz-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    path = folder / "sample.rrd"
+    result = record_scene(
+        det,
+        load_config(CONFIG),
+        gt,
+        path,
+        labels_dir=SAMPLE / "raw" / "training" / "label_02",
+        images={"CAM_FRONT": SAMPLE / "image_02"},
+        input_description="test",
+        motion_metrics=False,
+    )
+    return path, result
+
+
+@pytest.fixture(scope="module")
+def rrd() -> Path:
+    return recording()[0]
+
+
+@pytest.fixture(scope="module")
+def result() -> RecordResult:
+    return recording()[1]
+
+
+def entity_table(path: Path, entity: str, *, static: bool = False) -> pa.Table:
+    from rerun.chunk import RrdReader
+
+    chunks = (
+        RrdReader(str(path))
+        .stream()
+        .filter(content=paths.entity(entity), is_static=static)
+        .to_chunks()
+    )
+    tables = [pa.Table.from_batches([c.to_record_batch()]) for c in chunks]
+    assert tables, f"{entity}: nothing recorded"
+    table = pa.concat_tables(tables, promote_options="default")
+    return table if static else table.sort_by(paths.FRAME)
+
+
+def entity_paths(path: Path) -> set[str]:
+    from rerun.chunk import RrdReader
+
+    return {c.entity_path for c in RrdReader(str(path)).stream().to_chunks()}
+
+
+def column_at(table: pa.Table, column: str, frame: int) -> list:
+    rows = table.filter(pc.equal(table[paths.FRAME], frame))
+    values = [v for v in rows[column].to_pylist() if v is not None]
+    assert values, f"{column}: no row at frame {frame}"
+    return values[-1]
+
+
+# ---------------------------------------------------------------------------------------------
+
+
+def test_every_contract_path_exists(rrd: Path, result: RecordResult) -> None:
+    cam = "CAM_FRONT"
+    some_track = result.track_ids[0]
+    series_track = next(
+        t for t in result.track_ids if sum(t in o.boxes.track_id for o in result.outputs) >= 3
+    )
+    expected = [
+        paths.DETECTIONS_RAW,
+        paths.DETECTIONS_KEPT,
+        paths.TRACKS_PREDICTED,
+        paths.TRACKS_UPDATED,
+        paths.TRACKS_VELOCITY,
+        paths.TRAILS,
+        paths.EGO,
+        paths.EGO_PATH,
+        paths.GT,
+        paths.MATCHES_BEV,
+        paths.UNMATCHED_TRACKS,
+        paths.UNMATCHED_DETECTIONS,
+        paths.COST_BEV,
+        paths.COST_RV,
+        paths.camera(cam),
+        paths.camera_image(cam),
+        paths.camera_detections(cam),
+        paths.camera_tracks(cam),
+        paths.camera_matches_rv(cam),
+        paths.EVENTS,
+        paths.ID_SWITCH_MARKERS,
+        paths.SUMMARY,
+        paths.SHOT_INDEX,
+        *(paths.track_series(series_track, s) for s in paths.SERIES),
+    ]
+    present = entity_paths(rrd)
+    missing = [p for p in expected if paths.entity(p) not in present]
+    assert not missing, missing
+    assert some_track in result.track_ids
+    # the matched GT's curves exist for some track
+    assert any(p.endswith("/" + paths.GT_PREFIX + paths.SPEED) for p in present)
+
+
+def test_blueprint_is_embedded(rrd: Path) -> None:
+    from rerun.chunk import RrdReader
+
+    reader = RrdReader(str(rrd))
+    assert len(reader.blueprints()) >= 1
+    assert reader.recordings()[0].application_id == paths.APPLICATION_ID
+
+
+def test_observing_does_not_change_the_output(result: RecordResult) -> None:
+    det, _ = sample_frames()
+    plain = run_scene(det, load_config(CONFIG)).outputs
+    assert len(plain) == len(result.outputs)
+    for a, b in zip(plain, result.outputs, strict=True):
+        assert a.frame_id == b.frame_id
+        assert a.boxes.equals(b.boxes)
+        np.testing.assert_array_equal(a.status, b.status)
+
+
+@pytest.mark.parametrize("frame", [10, 120])
+def test_updated_tracks_hold_the_output_ids(rrd: Path, result: RecordResult, frame: int) -> None:
+    table = entity_table(rrd, paths.TRACKS_UPDATED)
+    labels = column_at(table, "Boxes3D:labels", frame)
+    out = next(o for o in result.outputs if o.frame_id == frame)
+    assert [int(x) for x in labels] == out.boxes.track_id.tolist()
+    centers = np.array(column_at(table, "Boxes3D:centers", frame))
+    np.testing.assert_allclose(centers, out.boxes.xyz, rtol=0, atol=1e-4)  # float32
+
+
+def test_velocity_series_equal_the_output(rrd: Path, result: RecordResult) -> None:
+    counts: dict[int, int] = {}
+    for o in result.outputs:
+        for t in o.boxes.track_id.tolist():
+            counts[t] = counts.get(t, 0) + 1
+    track = max(counts, key=lambda t: (counts[t], -t))  # the longest track
+    rows = [(o.frame_id, o.boxes[o.boxes.track_id == track]) for o in result.outputs]
+    rows = [(f, b) for f, b in rows if len(b)]
+    expected_frames = [f for f, _ in rows]
+    vx = np.array([b.velocity[0, 0] for _, b in rows])
+    vy = np.array([b.velocity[0, 1] for _, b in rows])
+    for series, values in (
+        (paths.VELOCITY_X, vx),
+        (paths.VELOCITY_Y, vy),
+        (paths.SPEED, np.hypot(vx, vy)),
+        (paths.HEADING, np.array([b.yaw[0] for _, b in rows])),
+    ):
+        table = entity_table(rrd, paths.track_series(track, series))
+        assert table[paths.FRAME].to_pylist() == expected_frames
+        got = pc.list_flatten(table["Scalars:scalars"]).to_numpy()
+        np.testing.assert_allclose(got, values, rtol=1e-12, atol=1e-12)
+
+
+def test_recorded_id_events_equal_trackeval(rrd: Path, result: RecordResult) -> None:
+    """The WARN events in the recording are as many as TrackEval's IDSW and Frag."""
+    table = entity_table(rrd, paths.EVENTS)
+    levels = table["TextLog:level"].to_pylist()
+    texts = table["TextLog:text"].to_pylist()
+    warn = [t[0] for t, lv in zip(texts, levels, strict=True) if lv and lv[0] == "WARN"]
+    switches = [t for t in warn if t.startswith("ID switch")]
+    frags = [t for t in warn if t.startswith("fragmentation")]
+    metrics = result.kitti_metrics  # evaluate_kitti (TrackEval's own counting), same frames
+    assert len(switches) == sum(m["IDSW"] for m in metrics.values())
+    assert len(frags) == sum(m["Frag"] for m in metrics.values())
+    assert len(switches) > 0, "the reference config should switch ids on frames 0-199"
+    # and the shot index lists the same frames
+    index = entity_table(rrd, paths.SHOT_INDEX, static=True)
+    frames = index["id_switch_frames"].to_pylist()[-1]
+    assert frames == [e.frame_id for e in result.id_evaluation.id_switches]
+    assert sorted({int(t.split("frame ")[1].split(":")[0]) for t in switches}) == sorted(
+        set(frames)
+    )
+
+
+def test_id_switch_markers_sit_at_the_objects(rrd: Path, result: RecordResult) -> None:
+    event = result.id_evaluation.id_switches[0]
+    table = entity_table(rrd, paths.ID_SWITCH_MARKERS)
+    labels = column_at(table, "Points3D:labels", event.frame_id)
+    assert any(f"GT {event.gt_id}" in label for label in labels)
+    _, gt = sample_frames()
+    gt_frame = next(f for f in gt if f.frame_id == event.frame_id)
+    xyz = gt_frame.boxes.xyz[gt_frame.boxes.track_id == event.gt_id][0]
+    positions = np.array(column_at(table, "Points3D:positions", event.frame_id))
+    assert np.min(np.linalg.norm(positions[:, :2] - xyz[:2], axis=1)) < 0.01
+
+
+def test_cost_matrix_rows_and_columns_are_labelled(rrd: Path) -> None:
+    labels = entity_table(rrd, f"{paths.COST_BEV}/{paths.COST_LABELS}")
+    frame = 50
+    texts = column_at(labels, "Points2D:labels", frame)
+    assert any(t.startswith("T") for t in texts) and any(t.startswith("d") for t in texts)
+    image = entity_table(rrd, paths.COST_BEV)
+    fmt = column_at(image, "Image:format", frame)[0]
+    rows = sum(t.startswith("T") for t in texts)
+    cols = sum(t.startswith("d") and t[1:].isdigit() for t in texts)
+    assert (fmt["height"], fmt["width"]) == (rows, cols)
+
+
+def test_dropped_detections_say_why(rrd: Path) -> None:
+    table = entity_table(rrd, paths.DETECTIONS_RAW)
+    labels = [x for row in table["Boxes3D:labels"].to_pylist() if row for x in row]
+    assert any("dropped: score" in x for x in labels)
+
+
+def test_camera_image_only_at_its_frames(rrd: Path) -> None:
+    table = entity_table(rrd, paths.camera_image("CAM_FRONT"))
+    opacity = {
+        f: o[0]
+        for f, o in zip(
+            table[paths.FRAME].to_pylist(), table["EncodedImage:opacity"].to_pylist(), strict=True
+        )
+        if o
+    }
+    assert {f for f, o in opacity.items() if o == 1.0} == {10, 15, 20}
+    assert opacity[11] == 0.0  # hidden again afterwards, not left behind later boxes
+
+
+def test_summary_lists_the_switches(rrd: Path, result: RecordResult) -> None:
+    table = entity_table(rrd, paths.SUMMARY, static=True)
+    text = table["TextDocument:text"].to_pylist()[-1][0]
+    assert "## ID switches" in text and "## Config (resolved)" in text
+    first = result.id_evaluation.id_switches[0]
+    assert f"| {first.frame_id} | car | {first.gt_id} |" in text
+    assert "motion metrics: not available" in text  # motion_metrics=False here
+
+
+def test_recorded_gt_wireframes_are_the_projection(rrd: Path) -> None:
+    from tracker.camera import box_wireframes_image
+    from viz.projection import drawable_segments
+
+    _, gt = sample_frames()
+    frame = gt[10]
+    cam = frame.cameras[0]
+    seg = box_wireframes_image(frame.boxes, cam)
+    expected, _ = drawable_segments(seg, np.tile([cam.width_px, cam.height_px], (len(seg), 1)))
+    table = entity_table(rrd, f"{paths.camera(cam.name)}/gt")
+    strips = np.array(column_at(table, "LineStrips2D:strips", frame.frame_id))
+    np.testing.assert_allclose(strips, expected, atol=1e-2)

@@ -1,0 +1,249 @@
+"""Waymo: a synthetic segment in the ImmortalTracker / MCTrack file layout → BaseVersion (world
+frame, five cameras), the tracker, and the per-segment result npz writer."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from tracker.baseversion import read_baseversion, write_baseversion
+from tracker.camera import project_points
+from tracker.categories import category_index
+from tracker.config import load_config
+from tracker.convert.waymo import WAYMO_CAMERAS, convert_waymo
+from tracker.errors import InputError
+from tracker.pipeline import run_scene
+from tracker.writers_waymo import read_waymo_results, write_waymo_results
+
+SEGMENT = "segment-1234_5678_with_camera_labels"
+N_FRAMES = 20
+N_DET_FRAMES = 17  # ImmortalTracker's files stop at the last frame with a box
+T0_MICROS = 1_550_083_467_346_370
+F_PX, CX_PX, CY_PX = 2055.0, 960.0, 640.0
+CAMERA_YAWS_DEG = {"FRONT": 0, "FRONT_LEFT": 45, "FRONT_RIGHT": -45, "SIDE_LEFT": 90,
+                   "SIDE_RIGHT": -90}  # fmt: skip
+CAMERA_XYZ = (1.5, 0.0, 2.1)
+EGO_HEADING = 0.7
+EGO_SPEED_MPS = 8.0
+
+#: id, Waymo type, start in the world relative to the ego start (m), velocity (m/s), lwh
+OBJECTS = (
+    ("veh-a", 1, (20.0, 0.0), (8.0, 0.0), (4.6, 2.0, 1.7)),  # straight ahead, pacing the ego
+    ("veh-b", 1, (-15.0, 0.0), (8.0, 0.0), (4.6, 2.0, 1.7)),  # straight behind: no camera
+    ("ped-a", 2, (2.0, 15.0), (0.0, -1.0), (0.8, 0.7, 1.8)),  # on the left
+    ("cyc-a", 4, (25.0, -8.0), (5.0, 0.0), (1.9, 0.7, 1.6)),  # ahead right
+    ("sign-a", 3, (30.0, 10.0), (0.0, 0.0), (0.3, 0.3, 2.0)),  # not tracked
+)
+
+
+def rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def world_from_ego(i: int) -> np.ndarray:
+    """Ego pose at frame i: heading EGO_HEADING, driving forward, with a slight roll."""
+    m = np.eye(4)
+    roll = np.array([[1.0, 0, 0], [0, math.cos(0.02), -math.sin(0.02)], [0, math.sin(0.02), 0]])
+    roll[2, 2] = math.cos(0.02)
+    m[:3, :3] = rot_z(EGO_HEADING) @ roll
+    forward = rot_z(EGO_HEADING)[:, 0]
+    m[:3, 3] = np.array([1000.0, -500.0, 30.0]) + EGO_SPEED_MPS * 0.1 * i * forward
+    return m
+
+
+def object_world(i: int, start: tuple[float, float], vel: tuple[float, float]) -> np.ndarray:
+    """World centre of an object at frame i; start/velocity are in the ego's initial axes."""
+    r0 = rot_z(EGO_HEADING)
+    origin = world_from_ego(0)[:3, 3]
+    rel = np.array([start[0] + vel[0] * 0.1 * i, start[1] + vel[1] * 0.1 * i, 0.0])
+    centre = origin + r0 @ rel
+    centre[2] = origin[2] + 2.1  # at the camera height, so "straight ahead" is the image centre
+    return centre
+
+
+def object_yaw_world(vel: tuple[float, float]) -> float:
+    return EGO_HEADING + (math.atan2(vel[1], vel[0]) if any(vel) else 0.3)
+
+
+def write_segment(root: Path, *, mctrack_layout: bool = True, with_gt: bool = True) -> Path:
+    """ts_info, ego_info and detections (and GT) of one segment, as the preprocessing writes."""
+    for sub in ("ts_info", "ego_info", "dets", "gt"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    (root / "ts_info" / f"{SEGMENT}.json").write_text(
+        json.dumps([T0_MICROS + 100_000 * i for i in range(N_FRAMES)])
+    )
+    if mctrack_layout:
+        infos = np.empty((N_FRAMES, 1, 16), dtype=object)
+        for i in range(N_FRAMES):
+            infos[i, 0, 0] = world_from_ego(i)
+            for k, name in enumerate(("FRONT", "FRONT_LEFT", "FRONT_RIGHT", "SIDE_LEFT",
+                                      "SIDE_RIGHT")):  # fmt: skip
+                extrinsic = np.eye(4)  # camera -> vehicle, Waymo camera axes
+                extrinsic[:3, :3] = rot_z(math.radians(CAMERA_YAWS_DEG[name]))
+                extrinsic[:3, 3] = CAMERA_XYZ
+                infos[i, 0, 1 + k] = extrinsic
+                infos[i, 0, 6 + k] = np.array([F_PX, F_PX, CX_PX, CY_PX, 0, 0, 0, 0, 0])
+            for k in range(5):
+                infos[i, 0, 11 + k] = np.eye(4)
+        np.savez_compressed(root / "ego_info" / f"{SEGMENT}.npz", ego_infos=infos)
+    else:
+        np.savez_compressed(
+            root / "ego_info" / f"{SEGMENT}.npz",
+            **{str(i): world_from_ego(i) for i in range(N_FRAMES)},
+        )
+    bboxes, types, ids, velos = [], [], [], []
+    for i in range(N_DET_FRAMES):
+        ego_from_world = np.linalg.inv(world_from_ego(i))
+        rows, frame_types, frame_ids, frame_velos = [], [], [], []
+        for obj_id, code, start, vel, lwh in OBJECTS:
+            centre = ego_from_world[:3, :3] @ object_world(i, start, vel) + ego_from_world[:3, 3]
+            heading = object_yaw_world(vel) - EGO_HEADING  # the roll is tiny; exact enough
+            rows.append([*centre, heading, *lwh, 0.9])
+            frame_types.append(code)
+            frame_ids.append(obj_id)
+            world_v = rot_z(EGO_HEADING)[:2, :2] @ np.array(vel)
+            frame_velos.append(rot_z(-EGO_HEADING)[:2, :2] @ world_v)
+        bboxes.append(np.array(rows))
+        types.append(np.array(frame_types))
+        ids.append(frame_ids)
+        velos.append(np.array(frame_velos))
+
+    def ragged(items: list[Any]) -> np.ndarray:
+        out = np.empty(len(items), dtype=object)
+        for k, item in enumerate(items):
+            out[k] = item
+        return out
+
+    np.savez_compressed(
+        root / "dets" / f"{SEGMENT}.npz", bboxes=ragged(bboxes), types=ragged(types)
+    )
+    if with_gt:
+        np.savez_compressed(
+            root / "gt" / f"{SEGMENT}.npz",
+            bboxes=ragged([b[:, :7] for b in bboxes]),
+            types=ragged(types),
+            ids=ragged(ids),
+            velos=ragged(velos),
+        )
+    return root
+
+
+@pytest.fixture
+def segment(tmp_path: Path) -> Path:
+    return write_segment(tmp_path / "waymo")
+
+
+def test_segment_to_world_frames_and_cameras(segment: Path, tmp_path: Path) -> None:
+    conv = convert_waymo(segment, segment / "dets", gt=segment / "gt")
+    frames = conv.detections[SEGMENT]
+    assert len(frames) == N_FRAMES  # frames after the last detection are kept, empty
+    assert [len(f.boxes) for f in frames] == [4] * N_DET_FRAMES + [0] * (N_FRAMES - N_DET_FRAMES)
+    assert conv.skipped_types == {3: N_DET_FRAMES}
+    assert frames[1].timestamp_secs - frames[0].timestamp_secs == pytest.approx(0.1, abs=1e-6)
+    f = frames[6]
+    tracked = [o for o in OBJECTS if o[1] != 3]
+    np.testing.assert_allclose(f.boxes.xyz, [object_world(6, o[2], o[3]) for o in tracked])
+    np.testing.assert_allclose(f.boxes.yaw, [object_yaw_world(o[3]) for o in tracked], atol=1e-3)
+    assert [f.boxes.category[k] for k in range(4)] == [
+        category_index(c) for c in ("car", "car", "pedestrian", "cyclist")
+    ]
+    np.testing.assert_allclose(f.world_from_ego, world_from_ego(6))
+    assert [c.name for c in f.cameras] == [c[0] for c in WAYMO_CAMERAS]
+    assert [c.height_px for c in f.cameras] == [1280, 1280, 1280, 886, 886]
+    # camera axes: an object straight ahead at the camera height is at the front image centre
+    front = f.cameras[0]
+    uv, depth = project_points(f.boxes.xyz[:1], front)
+    np.testing.assert_allclose(uv[0], [CX_PX, CY_PX], atol=6.0)  # the ego's 0.02 rad roll
+    # exactly: Waymo camera axes x forward, y left, z up; u grows to the right, v downwards
+    x, y, z = (np.linalg.inv(world_from_ego(6)) @ np.r_[f.boxes.xyz[0], 1.0])[:3] - CAMERA_XYZ
+    np.testing.assert_allclose(uv[0], [CX_PX - F_PX * y / x, CY_PX - F_PX * z / x], atol=1e-6)
+    assert depth[0] == pytest.approx(x)
+    # camera assignment: ahead -> CAM_FRONT, behind -> none (Waymo has no rear camera), the
+    # pedestrian on the left -> CAM_SIDE_LEFT (or FRONT_LEFT), the cyclist -> a front camera
+    names = [f.cameras[c].name if c >= 0 else None for c in f.boxes.camera]
+    assert names[0] == "CAM_FRONT" and names[1] is None
+    assert names[2] in ("CAM_FRONT_LEFT", "CAM_SIDE_LEFT")
+    assert names[3] in ("CAM_FRONT", "CAM_FRONT_RIGHT")
+    u_ped = project_points(f.boxes.xyz[2:3], f.cameras[f.boxes.camera[2]])[0][0, 0]
+    assert 0 <= u_ped <= 1920
+    # GT: one id per object, velocity rotated into the world
+    assert conv.gt is not None
+    gt = conv.gt[SEGMENT]
+    assert {int(t) for g in gt for t in g.boxes.track_id} == {0, 1, 2, 3}
+    np.testing.assert_allclose(
+        gt[3].boxes.velocity[0], rot_z(EGO_HEADING)[:2, :2] @ [8.0, 0.0], atol=0.2
+    )
+    # round trip through the BaseVersion file
+    path = tmp_path / "waymo.json"
+    write_baseversion(path, conv.detections)
+    back = read_baseversion(path)[SEGMENT][6]
+    np.testing.assert_allclose(back.boxes.xyz, f.boxes.xyz)
+    for cam in f.cameras:
+        twin = back.cameras[back.camera_index(cam.name)]
+        np.testing.assert_allclose(twin.camera_from_world, cam.camera_from_world, atol=1e-9)
+        np.testing.assert_allclose(twin.image_from_camera, cam.image_from_camera)
+    assert [back.cameras[c].name if c >= 0 else None for c in back.boxes.camera] == names
+
+
+def test_immortaltracker_ego_layout_has_no_cameras(tmp_path: Path) -> None:
+    root = write_segment(tmp_path / "w", mctrack_layout=False, with_gt=False)
+    frames = convert_waymo(root, root / "dets").detections[SEGMENT]
+    assert frames[3].cameras == () and (frames[3].boxes.camera == -1).all()
+    np.testing.assert_allclose(
+        frames[3].boxes.xyz[0], object_world(3, OBJECTS[0][2], OBJECTS[0][3])
+    )
+
+
+def test_tracking_and_result_writer(segment: Path, tmp_path: Path) -> None:
+    conv = convert_waymo(segment, segment / "dets")
+    frames = conv.detections[SEGMENT]
+    outputs = run_scene(frames, load_config("waymo")).outputs
+    written = write_waymo_results(tmp_path / "results", {SEGMENT: (frames, outputs)})
+    assert written["vehicle"] == 2 * N_DET_FRAMES and written["pedestrian"] == N_DET_FRAMES
+    assert written["cyclist"] == N_DET_FRAMES
+    ids, bboxes = read_waymo_results(tmp_path / "results" / "vehicle" / f"{SEGMENT}.npz")
+    assert len(ids) == len(bboxes) == N_FRAMES
+    assert all(len(i) == 2 for i in ids[:N_DET_FRAMES]) and ids[-1] == []
+    assert len({tuple(i) for i in ids[:N_DET_FRAMES]}) == 1  # no identity switch
+    # world-frame rows [x, y, z, o, l, w, h, s] close to the truth
+    k = ids[10].index(ids[0][0])
+    row = bboxes[10][k]
+    np.testing.assert_allclose(row[:3], object_world(10, OBJECTS[0][2], OBJECTS[0][3]), atol=0.3)
+    np.testing.assert_allclose(row[4:7], OBJECTS[0][4], atol=0.2)
+    assert row[7] == pytest.approx(0.9)
+    with np.load(tmp_path / "results" / "vehicle" / f"{SEGMENT}.npz", allow_pickle=True) as npz:
+        assert set(npz.files) >= {"ids", "bboxes", "states", "timestamps"}
+        assert npz["timestamps"][0] == T0_MICROS
+
+
+def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
+    (segment / "ts_info" / f"{SEGMENT}.json").unlink()
+    with pytest.raises(InputError, match=rf"ts_info/{SEGMENT}\.json: ts_info file not found"):
+        convert_waymo(segment, segment / "dets")
+    (segment / "ts_info" / f"{SEGMENT}.json").write_text(json.dumps([T0_MICROS, T0_MICROS + 1]))
+    with pytest.raises(InputError, match=r"ego_infos|17 frames"):
+        convert_waymo(segment, segment / "dets")
+    with pytest.raises(InputError, match="detections folder not found"):
+        convert_waymo(segment, segment / "nope")
+
+
+def test_waymo_cli(segment: Path, tmp_path: Path) -> None:
+    out = tmp_path / "bv.json"
+    argv = ["convert", "waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--gt-out", str(tmp_path / "gt.json"),
+                 "--out", str(out)]) == 0  # fmt: skip
+    assert len(read_baseversion(out)[SEGMENT]) == N_FRAMES
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--out", str(run)]) == 0
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["boxes_written"]["vehicle"] == 2 * N_DET_FRAMES
+    assert (run / "results" / "cyclist" / f"{SEGMENT}.npz").is_file()
+    assert (run / "tracks.json").is_file()

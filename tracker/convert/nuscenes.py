@@ -1,0 +1,590 @@
+"""nuScenes: detection results + the dataset's metadata tables → world-frame Frame sequences.
+
+Inputs
+------
+* ``DATAROOT/<version>/*.json``: the metadata tables (``v1.0-trainval``, ``v1.0-mini``,
+  ``v1.0-test``), read with the official ``nuscenes-devkit`` (``NuScenes``), which also provides
+  the official split definitions (``val``, ``mini_val``, ``test``, ..., or a custom split from
+  ``DATAROOT/<version>/splits.json``) and the ground-truth velocity (``box_velocity``).
+* A detection results file in the standard nuScenes submission format
+  ``{"meta": {...}, "results": {sample_token: [box, ...]}}`` with boxes
+  ``{translation, size (w, l, h), rotation (w, x, y, z), velocity, detection_name,
+  detection_score}`` in the global frame.
+
+Output (one :class:`~tracker.frame.Frame` per sample, scenes in split order)
+--------------------------------------------------------------------------------
+* ``frame_id`` 0.. in sample order, ``timestamp_secs`` from the sample timestamp (µs),
+  ``sample_token``.
+* ``world_from_ego``: the ego pose at the LIDAR_TOP keyframe.
+* Six :class:`~tracker.frame.Camera` models per frame. ``camera_from_world`` uses the ego pose
+  at *that camera's own* sample_data timestamp and its calibrated sensor (the cameras fire up to
+  ~40 ms apart, while the ego may move 0.5 m in that time); ``image_from_camera = [K | 0]``.
+  nuScenes camera axes already are ours (x right, y down, z forward).
+* Boxes: ``lwh = (size[1], size[0], size[2])``, yaw from the quaternion, the detector velocity,
+  the score. Only the seven tracking classes are kept (the other detection classes are counted
+  and logged). Each box gets the first camera of FRONT, FRONT_RIGHT, FRONT_LEFT, BACK,
+  BACK_LEFT, BACK_RIGHT in which part of it is visible, and its 2D box there.
+  **Fixed:** the reference projects corners behind a camera through the perspective division
+  (sign flip) and so "sees" objects behind it; here box edges are clipped to the near plane
+  first (:func:`tracker.camera.project_boxes`), so a box behind a camera is never assigned to it.
+* Ground truth (optional): the sample annotations of the tracking classes with at least one
+  lidar or radar point (the official evaluation drops the others), ``track_id`` = the index of
+  the instance in the ``instance`` table (stable across runs), the devkit's ``box_velocity``
+  (centred difference; [0, 0] where the devkit returns NaN, i.e. single-annotation instances).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from collections import Counter
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Final
+
+import numpy as np
+
+from tracker.boxes import Boxes, FloatArray, IntArray
+from tracker.camera import project_boxes
+from tracker.categories import category_index
+from tracker.errors import InputError
+from tracker.frame import Camera, Frame
+from tracker.geometry import wrap_angle
+
+log = logging.getLogger(__name__)
+
+#: Camera order of the reference's assignment (the first camera that sees the box wins).
+NUSCENES_CAMERAS: Final[tuple[str, ...]] = (
+    "CAM_FRONT",
+    "CAM_FRONT_RIGHT",
+    "CAM_FRONT_LEFT",
+    "CAM_BACK",
+    "CAM_BACK_LEFT",
+    "CAM_BACK_RIGHT",
+)
+LIDAR_CHANNEL: Final = "LIDAR_TOP"
+DEFAULT_IMAGE_SIZE: Final = (1600, 900)
+
+#: Tables the devkit loads (``NuScenes.table_names``); every one must exist.
+REQUIRED_TABLES: Final[tuple[str, ...]] = (
+    "category",
+    "attribute",
+    "visibility",
+    "instance",
+    "sensor",
+    "calibrated_sensor",
+    "ego_pose",
+    "log",
+    "scene",
+    "sample",
+    "sample_data",
+    "sample_annotation",
+    "map",
+)
+
+#: The nuScenes tracking classes (devkit ``tracking_nips_2019``); all are in our vocabulary.
+TRACKING_NAMES: Final[tuple[str, ...]] = (
+    "bicycle",
+    "bus",
+    "car",
+    "motorcycle",
+    "pedestrian",
+    "trailer",
+    "truck",
+)
+
+#: nuScenes category → tracking class (identical to devkit ``category_to_tracking_name``).
+CATEGORY_TO_TRACKING_NAME: Final[dict[str, str]] = {
+    "vehicle.bicycle": "bicycle",
+    "vehicle.bus.bendy": "bus",
+    "vehicle.bus.rigid": "bus",
+    "vehicle.car": "car",
+    "vehicle.motorcycle": "motorcycle",
+    "human.pedestrian.adult": "pedestrian",
+    "human.pedestrian.child": "pedestrian",
+    "human.pedestrian.construction_worker": "pedestrian",
+    "human.pedestrian.police_officer": "pedestrian",
+    "vehicle.trailer": "trailer",
+    "vehicle.truck": "truck",
+}
+
+#: Which table version each predefined split belongs to (the devkit asserts the same).
+SPLIT_VERSION_SUFFIX: Final[dict[str, str]] = {
+    "train": "trainval",
+    "val": "trainval",
+    "train_detect": "trainval",
+    "train_track": "trainval",
+    "mini_train": "mini",
+    "mini_val": "mini",
+    "test": "test",
+}
+
+DEVKIT_INSTALL_HINT: Final = (
+    "the nuScenes support needs the official devkit: "
+    "pip install -e '.[nuscenes]' && pip install --no-deps nuscenes-devkit==1.2.0 "
+    "(docs/nuscenes_waymo.md)"
+)
+
+Scenes = dict[str, list[Frame]]
+
+
+@dataclass
+class NuScenesConversion:
+    """What :func:`convert_nuscenes` returns."""
+
+    detections: Scenes
+    gt: Scenes | None
+    meta: dict[str, Any]  # the detection file's "meta" (copied into the tracking submission)
+    skipped_detections: Counter[str] = field(default_factory=Counter)  # per detection_name
+    gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (written as 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# devkit access
+
+
+def require_devkit() -> None:
+    """Raise an :class:`InputError` with the install line when the devkit is missing."""
+    try:
+        import nuscenes  # noqa: F401
+    except ImportError:
+        raise InputError(DEVKIT_INSTALL_HINT) from None
+
+
+def check_tables(dataroot: str | Path, version: str) -> Path:
+    """The table folder ``DATAROOT/<version>``; every missing table is named in the error."""
+    root = Path(dataroot)
+    if not root.is_dir():
+        raise InputError(f"{root}: nuScenes dataroot not found")
+    table_dir = root / version
+    if not table_dir.is_dir():
+        present = sorted(p.name for p in root.iterdir() if p.is_dir() and p.name.startswith("v"))
+        raise InputError(
+            f"{table_dir}: no table folder for version {version!r} (found: {present or 'none'})"
+        )
+    missing = [t for t in REQUIRED_TABLES if not (table_dir / f"{t}.json").is_file()]
+    if missing:
+        raise InputError(
+            f"{table_dir}: missing nuScenes tables: {', '.join(f'{t}.json' for t in missing)}"
+        )
+    return table_dir
+
+
+def load_nuscenes(dataroot: str | Path, version: str) -> Any:
+    """The devkit's ``NuScenes`` database, with clear errors for missing or broken tables."""
+    require_devkit()
+    check_tables(dataroot, version)
+    from nuscenes import NuScenes
+
+    try:
+        return NuScenes(version=version, dataroot=str(dataroot), verbose=False)
+    except AssertionError as exc:  # the devkit asserts, e.g. "map mask ... does not exist"
+        raise InputError(f"{dataroot}/{version}: nuScenes devkit: {exc}") from None
+    except (KeyError, json.JSONDecodeError) as exc:
+        raise InputError(f"{dataroot}/{version}: malformed nuScenes tables ({exc!r})") from None
+
+
+def split_scene_names(nusc: Any, split: str) -> list[str]:
+    """Scene names of an official split (or a custom one from ``splits.json``)."""
+    from nuscenes.utils.splits import get_scenes_of_split
+
+    suffix = SPLIT_VERSION_SUFFIX.get(split)
+    if suffix is not None and not nusc.version.endswith(suffix):
+        raise InputError(
+            f"split {split!r} belongs to the v1.0-{suffix} tables, not {nusc.version!r}"
+        )
+    try:
+        return list(get_scenes_of_split(split_name=split, nusc=nusc))
+    except (ValueError, AssertionError) as exc:
+        raise InputError(f"split {split!r}: {exc}") from None
+
+
+# ---------------------------------------------------------------------------------------------
+# geometry helpers
+
+
+def quaternion_to_matrix(q_wxyz: Sequence[float]) -> FloatArray:
+    """3x3 rotation of a unit quaternion [w, x, y, z] (normalised first)."""
+    w, x, y, z = np.asarray(q_wxyz, dtype=np.float64) / np.linalg.norm(q_wxyz)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def pose_matrix(translation: Sequence[float], rotation_wxyz: Sequence[float]) -> FloatArray:
+    """4x4 ``parent_from_child`` of a nuScenes pose record (ego_pose, calibrated_sensor)."""
+    m = np.eye(4)
+    m[:3, :3] = quaternion_to_matrix(rotation_wxyz)
+    m[:3, 3] = np.asarray(translation, dtype=np.float64)
+    return m
+
+
+def yaw_from_quaternions(q_wxyz: FloatArray) -> FloatArray:
+    """(N,) heading about +z of (N, 4) quaternions [w, x, y, z], as the reference converter."""
+    q = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+    w, x, y, z = q.T
+    return wrap_angle(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+def assign_cameras(
+    xyz: FloatArray, lwh: FloatArray, yaw: FloatArray, cameras: Sequence[Camera]
+) -> tuple[IntArray, FloatArray]:
+    """The first camera (in ``cameras`` order) that sees part of each box, and the 2D box there.
+
+    Box edges are clipped to the camera's near plane before projection, so a box behind a camera
+    is never assigned to it (the reference's sign-flip bug).
+
+    Returns
+    -------
+    camera : (N,) index into ``cameras``, -1 when no camera sees the box.
+    xyxy_image : (N, 4) pixels in that camera, NaN when none.
+    """
+    n = len(yaw)
+    camera = np.full(n, -1, dtype=np.int64)
+    xyxy_image = np.full((n, 4), np.nan)
+    for index, cam in enumerate(cameras):
+        todo = camera < 0
+        if not todo.any():
+            break
+        xyxy, visible = project_boxes((xyz[todo], lwh[todo], yaw[todo]), cam)
+        rows = np.flatnonzero(todo)[visible]
+        camera[rows] = index
+        xyxy_image[rows] = xyxy[visible]
+    return camera, xyxy_image
+
+
+# ---------------------------------------------------------------------------------------------
+# detections file
+
+
+def read_detection_results(path: str | Path) -> tuple[dict[str, list[Any]], dict[str, Any]]:
+    """``(results, meta)`` of a nuScenes detection (or tracking) results file."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            data = json.load(fh)
+    except FileNotFoundError:
+        raise InputError(f"{path}: detections file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: malformed JSON ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("results"), dict):
+        raise InputError(
+            f"{path}: not a nuScenes results file (expected {{'results': {{sample_token: "
+            "[box, ...]}, 'meta': {...}}})"
+        )
+    meta = data.get("meta") if isinstance(data.get("meta"), dict) else {}
+    for token, boxes in data["results"].items():
+        if not isinstance(boxes, list):
+            raise InputError(f"{path}: results[{token!r}] must be a list of boxes")
+    return data["results"], dict(meta)
+
+
+def _detection_boxes(
+    raw: list[Any], token: str, path: Path, score_min: float, skipped: Counter[str]
+) -> Boxes:
+    """Boxes of one sample's detections (tracking classes only), validated."""
+    keep: list[dict[str, Any]] = []
+    for i, box in enumerate(raw):
+        at = f"{path}: results[{token!r}][{i}]"
+        if not isinstance(box, dict):
+            raise InputError(f"{at}: a box must be an object")
+        for key in ("translation", "size", "rotation", "detection_name", "detection_score"):
+            if key not in box:
+                raise InputError(f"{at}: missing key '{key}'")
+        token_in_box = box.get("sample_token", token)
+        if token_in_box != token:
+            raise InputError(
+                f"{at}: field 'sample_token' = {token_in_box!r} differs from its results key"
+            )
+        name = box["detection_name"]
+        if name not in TRACKING_NAMES:
+            skipped[str(name)] += 1
+            continue
+        try:
+            score = float(box["detection_score"])
+        except (TypeError, ValueError):
+            raise InputError(f"{at}: field 'detection_score' must be a number") from None
+        if not 0.0 <= score <= 1.0:
+            raise InputError(f"{at}: field 'detection_score' = {score} is outside [0, 1]")
+        if score < score_min:
+            continue
+        for key, size in (("translation", 3), ("size", 3), ("rotation", 4)):
+            value = np.asarray(box[key], dtype=np.float64) if _numeric(box[key]) else None
+            if value is None or value.shape != (size,) or not np.isfinite(value).all():
+                raise InputError(f"{at}: field '{key}' must be {size} finite numbers")
+        if (np.asarray(box["size"]) < 0).any():
+            raise InputError(f"{at}: field 'size' has a negative value {box['size']}")
+        keep.append(box)
+    if not keep:
+        return Boxes.empty()
+    velocity = np.array([_velocity(b.get("velocity"), f"{path}: results[{token!r}]") for b in keep])
+    size = np.array([b["size"] for b in keep], dtype=np.float64)
+    return Boxes.create(
+        xyz=np.array([b["translation"] for b in keep], dtype=np.float64),
+        lwh=size[:, [1, 0, 2]],
+        yaw=yaw_from_quaternions(np.array([b["rotation"] for b in keep], dtype=np.float64)),
+        velocity=velocity,
+        score=np.array([float(b["detection_score"]) for b in keep]),
+        category=[category_index(b["detection_name"]) for b in keep],
+    )
+
+
+def _numeric(value: Any) -> bool:
+    return isinstance(value, list | tuple) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value
+    )
+
+
+def _velocity(value: Any, at: str) -> tuple[float, float]:
+    """[vx, vy]; absent → 0, NaN → 0 (the detector has no estimate)."""
+    if value is None:
+        return (0.0, 0.0)
+    if not _numeric(value) or len(value) < 2:
+        raise InputError(f"{at}: field 'velocity' must be [vx, vy], got {value!r}")
+    vx, vy = float(value[0]), float(value[1])
+    return (vx if math.isfinite(vx) else 0.0, vy if math.isfinite(vy) else 0.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# frames
+
+
+@dataclass(frozen=True, slots=True)
+class _SampleGeometry:
+    world_from_ego: FloatArray
+    cameras: tuple[Camera, ...]
+    transform_matrix: dict[str, Any]
+
+
+def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
+    """Ego pose (LIDAR_TOP keyframe), the six camera models and the official transform object."""
+    data = sample["data"]
+    if LIDAR_CHANNEL not in data:
+        raise InputError(f"sample {sample['token']!r}: no {LIDAR_CHANNEL} sample_data")
+    lidar_sd = nusc.get("sample_data", data[LIDAR_CHANNEL])
+    ego = nusc.get("ego_pose", lidar_sd["ego_pose_token"])
+    lidar_cs = nusc.get("calibrated_sensor", lidar_sd["calibrated_sensor_token"])
+    world_from_ego = pose_matrix(ego["translation"], ego["rotation"])
+    ego_from_lidar = pose_matrix(lidar_cs["translation"], lidar_cs["rotation"])
+    world_from_lidar = world_from_ego @ ego_from_lidar
+    cameras: list[Camera] = []
+    camera_records: dict[str, Any] = {}
+    for name in NUSCENES_CAMERAS:
+        if name not in data:
+            continue
+        sd = nusc.get("sample_data", data[name])
+        cs = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
+        cam_ego = nusc.get("ego_pose", sd["ego_pose_token"])
+        intrinsic = np.asarray(cs.get("camera_intrinsic") or [], dtype=np.float64)
+        if intrinsic.shape != (3, 3):
+            raise InputError(
+                f"calibrated_sensor {cs['token']!r} ({name}): camera_intrinsic must be 3x3"
+            )
+        ego_from_camera = pose_matrix(cs["translation"], cs["rotation"])
+        world_from_camera = pose_matrix(cam_ego["translation"], cam_ego["rotation"]) @ (
+            ego_from_camera
+        )
+        camera_from_world = np.linalg.inv(world_from_camera)
+        image_from_camera = np.zeros((3, 4))
+        image_from_camera[:, :3] = intrinsic
+        width = int(sd.get("width") or DEFAULT_IMAGE_SIZE[0])
+        height = int(sd.get("height") or DEFAULT_IMAGE_SIZE[1])
+        cameras.append(Camera(name, image_from_camera, camera_from_world, width, height))
+        camera2image = np.eye(4)
+        camera2image[:3, :3] = intrinsic
+        camera_records[name] = {
+            "image_shape": [width, height],
+            "ego2camera": np.linalg.inv(ego_from_camera).tolist(),
+            "camera2image": camera2image.tolist(),
+            "lidar2camera": (camera_from_world @ world_from_lidar).tolist(),
+            "camera_token": sd["token"],
+            "camera_path": sd.get("filename"),
+        }
+    ego_from_world = np.linalg.inv(world_from_ego)
+    lidar_from_ego = np.linalg.inv(ego_from_lidar)
+    transform = {
+        "global2ego": ego_from_world.tolist(),
+        "ego2lidar": lidar_from_ego.tolist(),
+        "global2lidar": (lidar_from_ego @ ego_from_world).tolist(),
+        "cameras_transform_matrix": camera_records,
+    }
+    return _SampleGeometry(world_from_ego, tuple(cameras), transform)
+
+
+def _scene_samples(nusc: Any, scene: dict[str, Any]) -> list[dict[str, Any]]:
+    samples = []
+    token = scene["first_sample_token"]
+    while token:
+        sample = nusc.get("sample", token)
+        samples.append(sample)
+        token = sample["next"]
+    return samples
+
+
+def _with_cameras(boxes: Boxes, cameras: Sequence[Camera]) -> Boxes:
+    if not len(boxes) or not cameras:
+        return boxes
+    camera, xyxy = assign_cameras(boxes.xyz, boxes.lwh, boxes.yaw, cameras)
+    return boxes.replace(camera=camera, xyxy_image=xyxy)
+
+
+def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxes, int]:
+    """GT boxes of one sample and the number whose velocity was unknown (set to 0)."""
+    rows: list[dict[str, Any]] = []
+    for ann_token in sample["anns"]:
+        ann = nusc.get("sample_annotation", ann_token)
+        name = CATEGORY_TO_TRACKING_NAME.get(ann["category_name"])
+        if name is None:
+            continue
+        if not keep_empty and ann.get("num_lidar_pts", 1) + ann.get("num_radar_pts", 0) <= 0:
+            continue
+        rows.append({**ann, "tracking_name": name})
+    if not rows:
+        return Boxes.empty(), 0
+    velocity = np.array([nusc.box_velocity(a["token"])[:2] for a in rows], dtype=np.float64)
+    unknown = ~np.isfinite(velocity).all(axis=1)
+    velocity[unknown] = 0.0
+    size = np.array([a["size"] for a in rows], dtype=np.float64)
+    boxes = Boxes.create(
+        xyz=np.array([a["translation"] for a in rows], dtype=np.float64),
+        lwh=size[:, [1, 0, 2]],
+        yaw=yaw_from_quaternions(np.array([a["rotation"] for a in rows], dtype=np.float64)),
+        velocity=velocity,
+        score=np.ones(len(rows)),
+        category=[category_index(a["tracking_name"]) for a in rows],
+        track_id=[nusc.getind("instance", a["instance_token"]) for a in rows],
+    )
+    return boxes, int(unknown.sum())
+
+
+def _frame(
+    scene: str, frame_id: int, sample: dict[str, Any], geometry: _SampleGeometry, boxes: Boxes
+) -> Frame:
+    return Frame(
+        scene=scene,
+        frame_id=frame_id,
+        timestamp_secs=sample["timestamp"] / 1e6,
+        boxes=_with_cameras(boxes, geometry.cameras),
+        cameras=geometry.cameras,
+        world_from_ego=geometry.world_from_ego,
+        sample_token=sample["token"],
+        transform_matrix=geometry.transform_matrix,
+    )
+
+
+def convert_nuscenes(
+    dataroot: str | Path,
+    *,
+    version: str,
+    detections: str | Path,
+    split: str,
+    with_gt: bool = False,
+    score_min: float = 0.0,
+    keep_empty_gt: bool = False,
+    nusc: Any = None,
+) -> NuScenesConversion:
+    """Convert a detection results file of one split to frames (and the split's GT).
+
+    Parameters
+    ----------
+    dataroot : the nuScenes root holding ``<version>/`` (and ``maps/``).
+    version : ``v1.0-trainval``, ``v1.0-mini`` or ``v1.0-test``.
+    detections : the detection results JSON (nuScenes submission format).
+    split : ``val``, ``mini_val``, ``test``, ... or a custom split of ``splits.json``.
+    with_gt : also convert the sample annotations (not for ``test``).
+    score_min : drop detections scoring below this at conversion (keeps files small; the
+        tracker's own thresholds still apply).
+    keep_empty_gt : keep GT boxes without lidar/radar points (the official eval drops them).
+    nusc : an already loaded devkit ``NuScenes`` (tests, repeated calls).
+
+    Raises
+    ------
+    InputError naming the missing table, the unknown sample token, or the sample outside the
+    split (with its scene), or the bad detection field.
+    """
+    if nusc is None:
+        nusc = load_nuscenes(dataroot, version)
+    else:
+        require_devkit()
+    det_path = Path(detections)
+    results, meta = read_detection_results(det_path)
+    scene_names = split_scene_names(nusc, split)
+    wanted = set(scene_names)
+    by_name = {s["name"]: s for s in nusc.scene}
+    absent = [n for n in scene_names if n not in by_name]
+    if absent and len(absent) == len(scene_names):
+        raise InputError(
+            f"split {split!r}: none of its {len(scene_names)} scenes is in {nusc.version} at "
+            f"{nusc.dataroot} (e.g. {absent[0]!r})"
+        )
+    if absent:
+        log.warning("split %s: %d scenes not in the tables, skipped", split, len(absent))
+
+    _check_result_tokens(nusc, results, wanted, split, det_path)
+    skipped: Counter[str] = Counter()
+    det_scenes: Scenes = {}
+    gt_scenes: Scenes | None = {} if with_gt else None
+    unknown_velocity = 0
+    missing_samples = 0
+    for scene in nusc.scene:  # table order, as the devkit
+        if scene["name"] not in wanted:
+            continue
+        det_frames: list[Frame] = []
+        gt_frames: list[Frame] = []
+        for frame_id, sample in enumerate(_scene_samples(nusc, scene)):
+            geometry = _sample_geometry(nusc, sample)
+            raw = results.get(sample["token"])
+            if raw is None:
+                missing_samples += 1
+                raw = []
+            boxes = _detection_boxes(raw, sample["token"], det_path, score_min, skipped)
+
+            det_frames.append(_frame(scene["name"], frame_id, sample, geometry, boxes))
+            if gt_scenes is not None:
+                gt, unknown = _gt_boxes(nusc, sample, keep_empty_gt)
+                unknown_velocity += unknown
+                gt_frames.append(_frame(scene["name"], frame_id, sample, geometry, gt))
+        det_scenes[scene["name"]] = det_frames
+        if gt_scenes is not None:
+            gt_scenes[scene["name"]] = gt_frames
+    if skipped:
+        log.info("skipped detections of non-tracking classes: %s", dict(sorted(skipped.items())))
+    if missing_samples:
+        log.warning(
+            "%s: %d samples of split %s have no entry (converted as empty frames)",
+            det_path,
+            missing_samples,
+            split,
+        )
+    return NuScenesConversion(det_scenes, gt_scenes, meta, skipped, unknown_velocity)
+
+
+def _check_result_tokens(
+    nusc: Any, results: Mapping[str, Any], wanted: set[str], split: str, path: Path
+) -> None:
+    """Every results key must be a sample of the tables and of the split (named if not)."""
+    sample_index = nusc._token2ind["sample"]
+    unknown = [t for t in results if t not in sample_index]
+    if unknown:
+        raise InputError(
+            f"{path}: sample token {unknown[0]!r} is not in the {nusc.version} tables at "
+            f"{nusc.dataroot}" + (f" ({len(unknown) - 1} more unknown)" if len(unknown) > 1 else "")
+        )
+    outside = []
+    for token in results:
+        scene = nusc.get("scene", nusc.get("sample", token)["scene_token"])
+        if scene["name"] not in wanted:
+            outside.append((token, scene["name"]))
+    if outside:
+        token, name = outside[0]
+        more = f" ({len(outside) - 1} more outside the split)" if len(outside) > 1 else ""
+        raise InputError(
+            f"{path}: sample token {token!r} belongs to scene {name!r}, which is not in split "
+            f"{split!r}{more}"
+        )

@@ -1,0 +1,108 @@
+"""Waymo result writer: per-segment ``.npz`` files in the ImmortalTracker / MCTrack convention.
+
+Layout: ``OUT/{vehicle,pedestrian,cyclist}/<segment>.npz``, each with
+
+* ``ids``: per frame, the list of integer track ids;
+* ``bboxes``: per frame, the list of ``[x, y, z, heading, l, w, h, score]`` rows in the **world**
+  frame (filtered position, size and heading; the score of the track's last detection);
+* ``states``: per frame, the list of track states (``"confirmed"`` / ``"coasting"``);
+* ``velos``: per frame, the list of filtered world ``[vx, vy]`` (m/s);
+* ``timestamps``: (F,) frame timestamps in µs.
+
+Frames without a track keep an empty list, so every segment file has one entry per frame of
+``ts_info``. The ragged per-frame lists are pickled object arrays (``np.load(...,
+allow_pickle=True)``), exactly what the reference's ``pred_bin.py`` (from ImmortalTracker) reads:
+it turns these files into the ``pred.bin`` protobuf of the Waymo tracking benchmark (moving each
+box back to the vehicle frame with ``ego_info``). That step needs TensorFlow and the
+``waymo-open-dataset`` package, which this project does not depend on (docs/nuscenes_waymo.md).
+"""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Final
+
+import numpy as np
+
+from tracker.categories import CATEGORIES
+from tracker.events import TrackOutput, TrackStatus
+from tracker.fileio import write_bytes_atomic
+from tracker.frame import Frame
+
+#: Our category → the Waymo result folder (the benchmark's object types).
+WAYMO_RESULT_DIRS: Final[dict[str, str]] = {
+    "car": "vehicle",
+    "pedestrian": "pedestrian",
+    "cyclist": "cyclist",
+    "bicycle": "cyclist",  # the reference's name for Waymo cyclists
+}
+RESULT_TYPES: Final[tuple[str, ...]] = ("vehicle", "pedestrian", "cyclist")
+
+
+def _ragged(items: list[np.ndarray | list[object]]) -> np.ndarray:
+    """A 1-D object array whose elements are the per-frame items (never broadcast)."""
+    out = np.empty(len(items), dtype=object)
+    for i, item in enumerate(items):
+        out[i] = item
+    return out
+
+
+def write_waymo_results(
+    out_dir: str | Path,
+    results: Mapping[str, tuple[Sequence[Frame], Sequence[TrackOutput]]],
+) -> dict[str, int]:
+    """Write ``OUT/<type>/<segment>.npz`` for every segment; returns boxes written per type."""
+    out_dir = Path(out_dir)
+    written = dict.fromkeys(RESULT_TYPES, 0)
+    for segment, (frames, outputs) in results.items():
+        by_frame = {o.frame_id: o for o in outputs}
+        timestamps = np.array([round(f.timestamp_secs * 1e6) for f in frames], dtype=np.int64)
+        for result_type in RESULT_TYPES:
+            ids, bboxes, states, velos = [], [], [], []
+            for frame in frames:
+                output = by_frame.get(frame.frame_id)
+                if output is None:
+                    ids.append([])
+                    bboxes.append(np.zeros((0, 8)))
+                    states.append([])
+                    velos.append(np.zeros((0, 2)))
+                    continue
+                b = output.boxes
+                rows = np.flatnonzero(
+                    [WAYMO_RESULT_DIRS.get(CATEGORIES[c]) == result_type for c in b.category]
+                )
+                ids.append([int(t) for t in b.track_id[rows]])
+                bboxes.append(
+                    np.column_stack([b.xyz[rows], b.yaw[rows], b.lwh[rows], b.score[rows]]).reshape(
+                        -1, 8
+                    )
+                )
+                states.append(
+                    [
+                        "coasting" if s == TrackStatus.COASTING else "confirmed"
+                        for s in output.status[rows]
+                    ]
+                )
+                velos.append(b.velocity[rows].reshape(-1, 2))
+                written[result_type] += len(rows)
+            buffer = io.BytesIO()
+            np.savez_compressed(
+                buffer,
+                ids=_ragged(ids),
+                bboxes=_ragged(bboxes),
+                states=_ragged(states),
+                velos=_ragged(velos),
+                timestamps=timestamps,
+            )
+            write_bytes_atomic(out_dir / result_type / f"{segment}.npz", buffer.getvalue())
+    return written
+
+
+def read_waymo_results(path: str | Path) -> tuple[list[list[int]], list[np.ndarray]]:
+    """``(ids, bboxes)`` per frame of one result file (rows ``[x, y, z, o, l, w, h, s]``)."""
+    with np.load(Path(path), allow_pickle=True) as npz:
+        ids = [list(map(int, row)) for row in npz["ids"]]
+        bboxes = [np.asarray(row, dtype=np.float64).reshape(-1, 8) for row in npz["bboxes"]]
+    return ids, bboxes

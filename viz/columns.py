@@ -1,0 +1,261 @@
+"""Per-frame rows buffered per entity and sent with ``send_columns``: the observer's fast path.
+
+Measured on this project's 2-core machine (rerun-sdk 0.41): one ``rec.log`` of a 20-box
+Boxes3D costs ~0.6-0.8 ms, a tiny Points3D ~0.2 ms, almost all of it per call; the same boxes
+sent as 64 frames in one ``send_columns`` cost ~0.07 ms per frame. A debug recording logs ~25
+entities per frame, so per-frame logging would be ~15 ms per frame and buffering is ~1-2 ms.
+
+Rows are flushed after ``max_rows`` frames or ``max_secs`` seconds (whichever comes first), so
+memory stays flat and a live viewer lags by at most a fraction of a second.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import rerun as rr
+
+from viz import paths
+
+#: What a deferred builder returns for a list of row payloads: per-instance fields (already
+#: concatenated over the rows), the number of instances of each row, and one-per-row fields.
+Built = tuple[dict[str, Any], Any, dict[str, list[Any]]]
+
+
+@dataclass
+class _Rows:
+    archetype: Any
+    build: Callable[[list[Any]], Built] | None = None
+    frames: list[int] = field(default_factory=list)
+    times: list[float] = field(default_factory=list)
+    lengths: list[int] = field(default_factory=list)
+    fields: dict[str, list[Any]] = field(default_factory=dict)  # per-instance values
+    mono: dict[str, list[Any]] = field(default_factory=dict)  # one value per row
+    payloads: list[Any] = field(default_factory=list)  # deferred rows
+
+
+class ColumnBuffer:
+    """Collects rows ``(entity, archetype) -> [(frame, time, instances)]`` and sends columns.
+
+    Rows are either eager (:meth:`add`: the fields are ready) or deferred (:meth:`add_deferred`:
+    a payload of references, turned into fields for all buffered rows at once at flush time,
+    which vectorises the per-frame numpy work across frames). Every row of one (entity,
+    archetype) is of one kind and carries the same field names.
+    """
+
+    def __init__(
+        self, rec: rr.RecordingStream, *, max_rows: int = 256, max_secs: float = 2.0
+    ) -> None:
+        self.rec = rec
+        self.max_rows = max_rows
+        self.max_secs = max_secs
+        self._rows: dict[tuple[str, str], _Rows] = {}
+        self._count = 0
+        self._last_flush = time.perf_counter()
+
+    def _entity(self, path: str, archetype: Any, build: Any = None) -> _Rows:
+        key = (path, archetype.__name__)
+        rows = self._rows.get(key)
+        if rows is None:
+            rows = self._rows[key] = _Rows(archetype, build)
+        return rows
+
+    def add(
+        self,
+        path: str,
+        archetype: Any,
+        frame_id: int,
+        time_secs: float,
+        n: int,
+        mono: dict[str, Any] | None = None,
+        **instances: Any,
+    ) -> None:
+        """One row: ``n`` instances (each field has ``n`` entries along axis 0), plus ``mono``
+        components that have exactly one value per row (``show_labels``, an image, a Clear)."""
+        rows = self._entity(path, archetype)
+        rows.frames.append(frame_id)
+        rows.times.append(time_secs)
+        rows.lengths.append(n)
+        for name, value in instances.items():
+            rows.fields.setdefault(name, []).append(value)
+        for name, value in (mono or {}).items():
+            rows.mono.setdefault(name, []).append(value)
+
+    def add_deferred(
+        self,
+        path: str,
+        archetype: Any,
+        frame_id: int,
+        time_secs: float,
+        payload: Any,
+        build: Callable[[list[Any]], Built],
+    ) -> None:
+        """One row described by ``payload``; ``build(payloads)`` makes the fields at flush."""
+        rows = self._entity(path, archetype, build)
+        rows.frames.append(frame_id)
+        rows.times.append(time_secs)
+        rows.payloads.append(payload)
+
+    def end_frame(self) -> None:
+        """Call once per frame: flushes when enough rows or time accumulated."""
+        self._count += 1
+        now = time.perf_counter()
+        if self._count >= self.max_rows or now - self._last_flush >= self.max_secs:
+            self.flush()
+
+    def flush(self) -> None:
+        for (path, _), rows in self._rows.items():
+            if not rows.frames:
+                continue
+            if rows.build is not None:
+                fields, lengths, mono = rows.build(rows.payloads)
+            else:
+                fields = {name: _concat(values) for name, values in rows.fields.items()}
+                lengths, mono = rows.lengths, rows.mono
+            self._send(path, rows.archetype, rows.frames, rows.times, fields, lengths, mono)
+        self._rows.clear()
+        self._count = 0
+        self._last_flush = time.perf_counter()
+
+    def _send(
+        self,
+        path: str,
+        archetype: Any,
+        frames: list[int],
+        times: list[float],
+        fields: dict[str, Any],
+        lengths: Any,
+        mono: dict[str, list[Any]],
+    ) -> None:
+        indexes = time_columns(np.asarray(frames), np.asarray(times, dtype=np.float64))
+        lengths = np.asarray(lengths, dtype=np.int64)
+        columns: list[Any] = []
+        fields = dict(fields)
+        strips = fields.pop("strips", None)
+        if strips is not None:
+            # line strips by hand: Rerun's converter loops in Python over every strip
+            desc = archetype.descriptor_strips()
+            batch = _ArrowBatch(_strips_array(strips), desc)
+            columns.append(rr.ComponentColumn(desc, batch, lengths=lengths))
+        if fields:
+            columns += list(archetype.columns(**fields).partition(lengths))
+        if mono and archetype is rr.Image:
+            columns += _image_columns(mono)
+        elif mono:
+            columns += list(archetype.columns(**mono))
+        self.rec.send_columns(path, indexes=indexes, columns=columns)
+
+
+class _ArrowBatch:
+    """A ready arrow array posing as a component batch (for ``rr.ComponentColumn``)."""
+
+    def __init__(self, array: pa.Array, descriptor: Any) -> None:
+        self.array, self.descriptor = array, descriptor
+
+    def as_arrow_array(self) -> pa.Array:
+        return self.array
+
+    def component_descriptor(self) -> Any:
+        return self.descriptor
+
+
+def arrow_column(descriptor: Any, array: pa.Array) -> rr.ComponentColumn:
+    """A ready arrow array (one instance per row) as a ``send_columns`` column."""
+    return rr.ComponentColumn(descriptor, _ArrowBatch(array, descriptor))
+
+
+_FORMATS: dict[str, pa.Array] = {}
+
+
+def _format_array(fmt: Any) -> pa.Array:
+    """Arrow of an ImageFormat, cached: a run repeats a few hundred matrix shapes."""
+    key = repr(fmt)
+    array = _FORMATS.get(key)
+    if array is None:
+        if len(_FORMATS) > 4096:  # bounded: memory stays flat on endless runs
+            _FORMATS.clear()
+        array = _FORMATS[key] = rr.components.ImageFormatBatch(fmt).as_arrow_array()
+    return array
+
+
+def _image_columns(mono: dict[str, list[Any]]) -> list[rr.ComponentColumn]:
+    """Image rows by hand: ``Image.columns`` cannot batch buffers of different sizes (0.41)."""
+    arrays = {
+        "buffer": (
+            rr.Image.descriptor_buffer(),
+            [rr.components.ImageBufferBatch(b).as_arrow_array() for b in mono["buffer"]],
+        ),
+        "format": (rr.Image.descriptor_format(), [_format_array(f) for f in mono["format"]]),
+    }
+    cols = [
+        rr.ComponentColumn(desc, _ArrowBatch(pa.concat_arrays(parts), desc))
+        for desc, parts in arrays.values()
+    ]
+    return cols
+
+
+def _strips_array(strips: Any) -> pa.Array:
+    """``list<fixed_size_list<float32, D>>`` from an (S, P, D) array (S strips of P points) or
+    a list of (P_i, D) arrays."""
+    if isinstance(strips, np.ndarray):
+        s, p, dim = strips.shape
+        flat = strips.reshape(-1, dim).astype(np.float32)
+        offsets = np.arange(0, s * p + 1, p, dtype=np.int32) if p else np.zeros(s + 1, np.int32)
+    else:
+        dim = next((q.shape[-1] for q in strips if len(q)), 3)
+        counts = np.array([len(q) for q in strips], dtype=np.int64)
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+        flat = (
+            np.concatenate([np.asarray(q, np.float32).reshape(-1, dim) for q in strips])
+            if len(strips)
+            else np.zeros((0, dim), np.float32)
+        )
+    # Rerun only visualises the exact physical type: non-nullable items at both levels
+    point_type = pa.list_(pa.field("item", pa.float32(), nullable=False), dim)
+    values = pa.FixedSizeListArray.from_arrays(
+        pa.array(flat.ravel(), type=pa.float32()), type=point_type
+    )
+    strip_type = pa.list_(pa.field("item", point_type, nullable=False))
+    return pa.ListArray.from_arrays(pa.array(offsets, type=pa.int32()), values, type=strip_type)
+
+
+def _concat(values: list[Any]) -> Any:
+    if isinstance(values[0], np.ndarray):
+        return np.concatenate(values)
+    out: list[Any] = []
+    for v in values:
+        out.extend(v)
+    return out
+
+
+def time_columns(frame_ids: np.ndarray, times_secs: np.ndarray) -> list[rr.TimeColumn]:
+    """The ``frame`` and ``time`` index columns (``time`` as in :func:`time_kind`)."""
+    frame_col = rr.TimeColumn(paths.FRAME, sequence=np.asarray(frame_ids, dtype=np.int64))
+    finite = np.isfinite(times_secs)
+    if not finite.all():
+        return [frame_col]
+    if time_kind(times_secs) == "timestamp":
+        return [frame_col, rr.TimeColumn(paths.TIME, timestamp=times_secs)]
+    return [frame_col, rr.TimeColumn(paths.TIME, duration=times_secs)]
+
+
+def time_kind(times_secs: Any) -> str:
+    """Small times are durations since the scene start (KITTI: frame / 10 Hz); epoch-sized ones
+    (nuScenes, Waymo) are timestamps, which the viewer shows as dates."""
+    t = np.asarray(times_secs, dtype=np.float64)
+    return "timestamp" if t.size and np.nanmax(t) > 1e8 else "duration"
+
+
+def set_frame_time(rec: rr.RecordingStream, frame_id: int, time_secs: float) -> None:
+    """Both timelines for the following ``rec.log`` calls."""
+    rec.set_time(paths.FRAME, sequence=int(frame_id))
+    if np.isfinite(time_secs):
+        if time_kind(time_secs) == "timestamp":
+            rec.set_time(paths.TIME, timestamp=float(time_secs))
+        else:
+            rec.set_time(paths.TIME, duration=float(time_secs))

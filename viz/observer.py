@@ -1,0 +1,753 @@
+"""RerunObserver: turns the tracker's stage events into one row per stage per frame.
+
+It takes an explicit :class:`rerun.RecordingStream` (never the global one) and logs under the
+paths of :mod:`viz.paths`. Per frame, a handler only keeps references to arrays the tracker
+computed anyway; every few hundred frames the rows of each entity are turned into Rerun fields in
+one vectorised pass and sent with ``send_columns`` (:mod:`viz.columns`), an order of magnitude
+cheaper than ``rec.log`` per entity per frame. Stages that produce nothing this frame still write
+an empty row (or a Clear), so scrubbing never shows a stale box from an earlier frame.
+"""
+
+from __future__ import annotations
+
+import os
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+
+from tracker.boxes import Boxes, FloatArray, IntArray
+from tracker.events import (
+    CostComputed,
+    DetectionsFiltered,
+    DropReason,
+    Event,
+    FrameFinished,
+    FrameStarted,
+    LifecycleChanged,
+    Matched,
+    Predicted,
+    Stage,
+    TrackOutput,
+    TrackStatus,
+)
+from tracker.frame import Camera, Frame
+from viz import paths
+from viz.archetypes import (
+    DETECTION_DROPPED_RGB,
+    DETECTION_KEPT_RGB,
+    GT_RGB,
+    REJECTED_RGB,
+    UNMATCHED_DETECTION_RGB,
+    UNMATCHED_TRACK_RGB,
+    boxes2d_fields,
+    boxes3d_fields,
+    cost_colors,
+    pack_rgb,
+    quaternions_xyzw,
+    solid,
+    track_colors_u32,
+)
+from viz.columns import Built, ColumnBuffer, set_frame_time
+from viz.projection import drawable_segments, project_boxes_batched
+
+_DROP_LABEL = {
+    DropReason.CATEGORY: "dropped: category",
+    DropReason.SCORE: "dropped: score",
+    DropReason.NMS: "dropped: nms",
+}
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: Cost cells get a text label only up to this many comparable cells (labels are slow to draw).
+MAX_CELL_LABELS = 400
+_KEPT = pack_rgb(DETECTION_KEPT_RGB)
+_DROPPED = pack_rgb(DETECTION_DROPPED_RGB)
+_EMPTY_INT = np.zeros(0, dtype=np.int64)
+
+
+@dataclass
+class FrameMatchCosts:
+    """The tracker's accepted pairs of one frame (for explaining ID switches afterwards)."""
+
+    track_ids: IntArray
+    costs: FloatArray
+    stage: np.ndarray  # 1 = BEV, 2 = RV
+
+
+@dataclass
+class _FrameState:
+    frame: Frame
+    time_secs: float
+    kept_rows: IntArray = field(default_factory=lambda: _EMPTY_INT)
+    pred_ids: IntArray = field(default_factory=lambda: _EMPTY_INT)
+    pred_boxes: Boxes = field(default_factory=Boxes.empty)
+    bev_cost: CostComputed | None = None
+    rv_cost: CostComputed | None = None
+    bev_matched: Matched | None = None
+    rv_matched: Matched | None = None
+
+
+class RerunObserver:
+    """Logs every tracker stage of every frame to ``rec``.
+
+    Parameters
+    ----------
+    rec : the recording to log to (its sinks decide file / viewer / web).
+    gt : ground-truth frames by ``frame_id`` (logged as ``world/gt`` and in the cameras).
+    images : camera name -> folder of ``<frame_id:06d>.png|jpg`` images (KITTI layout).
+    trail_frames : positions kept per track for ``world/trails``.
+    flush_rows, flush_secs : rows are sent after this many frames or seconds (smaller = lower
+        latency in a live viewer, a little more overhead).
+    """
+
+    def __init__(
+        self,
+        rec: rr.RecordingStream,
+        *,
+        gt: Mapping[int, Frame] | None = None,
+        images: Mapping[str, str | Path] | None = None,
+        trail_frames: int = 20,
+        flush_rows: int = 256,
+        flush_secs: float = 2.0,
+    ) -> None:
+        self.rec = rec
+        self.gt = gt or {}
+        self.trail_frames = trail_frames
+        self.columns = ColumnBuffer(rec, max_rows=flush_rows, max_secs=flush_secs)
+        self._images = {cam: _list_images(Path(d)) for cam, d in (images or {}).items()}
+        self._pinholes: set[str] = set()
+        self._image_shown: set[str] = set()
+        self._rv_shown = False
+        self._cost_shown = {paths.COST_BEV: False, paths.COST_RV: False}
+        self._trails: dict[int, deque[tuple[int, np.ndarray]]] = {}
+        self._state: _FrameState | None = None
+        # kept for the post-run part of the recording (small per frame)
+        self.frame_times: dict[int, float] = {}
+        self.match_costs: dict[int, FrameMatchCosts] = {}
+        self.ego_xyz: list[np.ndarray] = []
+        self._ego_yaw_offset: float | None = None
+        self.lifecycle_counts = {"born": 0, "lost": 0, "reacquired": 0, "deleted": 0}
+        self.detection_counts = {"raw": 0, "kept": 0}
+        self._dispatch: dict[type, Any] = {
+            FrameStarted: self._on_frame_started,
+            DetectionsFiltered: self._on_detections_filtered,
+            Predicted: self._on_predicted,
+            CostComputed: self._on_cost,
+            Matched: self._on_matched,
+            LifecycleChanged: self._on_lifecycle,
+            FrameFinished: self._on_frame_finished,
+        }
+
+    def __call__(self, event: Event) -> None:
+        self._dispatch[type(event)](event)
+
+    def flush(self) -> None:
+        """Send every buffered row (call after the last frame)."""
+        self.columns.flush()
+
+    # -----------------------------------------------------------------------------------------
+    def _add(
+        self, path: str, archetype: Any, n: int, mono: dict[str, Any] | None = None, **fields: Any
+    ) -> None:
+        s = self._require_state()
+        self.columns.add(path, archetype, s.frame.frame_id, s.time_secs, n, mono, **fields)
+
+    def _defer(self, path: str, archetype: Any, payload: Any, build: Any) -> None:
+        s = self._require_state()
+        self.columns.add_deferred(path, archetype, s.frame.frame_id, s.time_secs, payload, build)
+
+    def _on_frame_started(self, event: FrameStarted) -> None:
+        frame = event.frame
+        self._state = _FrameState(frame, event.time_secs)
+        self.frame_times[frame.frame_id] = event.time_secs
+        pose = frame.world_from_ego
+        if np.isfinite(pose).all():
+            self.ego_xyz.append(pose[:3, 3].astype(np.float32))
+            self._defer(paths.EGO, rr.Transform3D, pose, self._build_ego)
+            self._defer(paths.EGO, rr.TransformAxes3D, None, _build_ego_axes)
+        gt = self.gt.get(frame.frame_id)
+        if gt is not None:
+            self._defer(paths.GT, rr.Boxes3D, gt.boxes, _build_gt)
+        for cam in frame.cameras:
+            self._log_camera_static(cam, frame.frame_id)
+            if gt is not None:
+                self._defer(
+                    f"{paths.camera(cam.name)}/gt",
+                    rr.LineStrips2D,
+                    (gt.boxes, None, cam, GT_RGB),
+                    _build_wireframes,
+                )
+
+    def _build_ego(self, poses: list[FloatArray]) -> Built:
+        """The ego as a z-up frame heading along its direction of travel.
+
+        Datasets disagree on the ego axes (KITTI: camera axes, x right; nuScenes: x forward), so
+        the heading is the yaw of the ego's x axis plus a multiple of 90 degrees found once from
+        the motion (the rotation keeps the heading smooth while the ego stands still). The BEV
+        view looks from behind this frame, whatever the dataset.
+        """
+        pose = np.stack(poses)  # (R, 4, 4)
+        xyz = pose[:, :3, 3]
+        yaw_x = np.arctan2(pose[:, 1, 0], pose[:, 0, 0])
+        if self._ego_yaw_offset is None:
+            step = np.diff(xyz[:, :2], axis=0)
+            moving = np.hypot(step[:, 0], step[:, 1]) > 0.2
+            if moving.any():
+                motion = np.arctan2(step[moving, 1], step[moving, 0])
+                gap = np.angle(np.mean(np.exp(1j * (motion - yaw_x[1:][moving]))))
+                self._ego_yaw_offset = float(np.round(gap / (np.pi / 2)) * (np.pi / 2))
+        yaw = yaw_x + (self._ego_yaw_offset or 0.0)
+        mono = {"translation": xyz.astype(np.float32), "quaternion": quaternions_xyzw(yaw)}
+        return {}, np.zeros(len(poses), np.int64), mono
+
+    def _log_camera_static(self, cam: Camera, frame_id: int) -> None:
+        rec = self.rec
+        if cam.name not in self._pinholes:
+            self._pinholes.add(cam.name)
+            # the 2D space of the camera view exists even without any image
+            rec.log(
+                paths.camera(cam.name),
+                rr.Pinhole(
+                    image_from_camera=cam.image_from_camera[:, :3],
+                    resolution=[cam.width_px, cam.height_px],
+                    camera_xyz=rr.ViewCoordinates.RDF,
+                ),
+                static=True,
+            )
+        image = self._images.get(cam.name, {}).get(frame_id)
+        if image is not None or cam.name in self._image_shown:  # rare: a direct log is fine
+            state = self._require_state()
+            set_frame_time(rec, frame_id, state.time_secs)
+        if image is not None:
+            rec.log(paths.camera_image(cam.name), rr.EncodedImage(path=image, opacity=1.0))
+            self._image_shown.add(cam.name)
+        elif cam.name in self._image_shown:
+            # the viewer plays encoded images as a video stream and ignores a Clear (0.41): hide
+            # the last one instead, or it would stand behind the boxes of later frames
+            rec.log(paths.camera_image(cam.name), rr.EncodedImage.from_fields(opacity=0.0))
+            self._image_shown.discard(cam.name)
+
+    def _on_detections_filtered(self, event: DetectionsFiltered) -> None:
+        frame = event.frame
+        self._require_state().kept_rows = event.kept_rows
+        self.detection_counts["raw"] += len(frame.boxes)
+        self.detection_counts["kept"] += len(event.kept_rows)
+        payload = (frame.boxes, event.reason)
+        self._defer(paths.DETECTIONS_RAW, rr.Boxes3D, payload, _build_detections_raw)
+        self._defer(paths.DETECTIONS_KEPT, rr.Boxes3D, payload, _build_detections_kept)
+        kept = event.reason == DropReason.KEPT
+        for c, cam in enumerate(frame.cameras):
+            path = paths.camera_detections(cam.name)
+            self._defer(
+                path,
+                rr.LineStrips2D,
+                (frame.boxes, kept, cam, DETECTION_KEPT_RGB),
+                _build_wireframes,
+            )
+            self._defer(path, rr.Boxes2D, (frame.boxes, kept, c), _build_detection_boxes2d)
+
+    def _on_predicted(self, event: Predicted) -> None:
+        state = self._require_state()
+        state.pred_ids, state.pred_boxes = event.track_ids, event.boxes
+        self._defer(
+            paths.TRACKS_PREDICTED, rr.Boxes3D, (event.track_ids, event.boxes), _build_predicted
+        )
+
+    def _on_cost(self, event: CostComputed) -> None:
+        state = self._require_state()
+        if event.stage is Stage.BEV:
+            state.bev_cost = event
+        else:
+            state.rv_cost = event
+
+    def _on_matched(self, event: Matched) -> None:
+        state = self._require_state()
+        if event.stage is Stage.BEV:
+            state.bev_matched = event
+            cost = state.bev_cost
+            at = _positions(state.pred_ids, event.track_ids)
+            max_cost = cost.max_cost_per_row[at] if cost is not None else np.full(len(at), np.inf)
+            strips = np.stack(
+                [state.pred_boxes.xyz[at], state.frame.boxes.xyz[event.det_rows]], axis=1
+            )
+            self._defer(
+                paths.MATCHES_BEV,
+                rr.LineStrips3D,
+                (strips, event.costs, max_cost),
+                _build_matches_bev,
+            )
+        else:
+            state.rv_matched = event
+
+    def _on_lifecycle(self, event: LifecycleChanged) -> None:
+        texts, levels = [], []
+        for kind, key, ids in (
+            ("born", "born", event.born),
+            ("lost", "lost", event.lost),
+            ("re-acquired", "reacquired", event.reacquired),
+            ("deleted", "deleted", event.deleted),
+        ):
+            if len(ids):
+                self.lifecycle_counts[key] += len(ids)
+                texts.append(f"{kind}: " + ", ".join(f"T{i}" for i in ids.tolist()))
+                levels.append("DEBUG" if kind == "born" else "INFO")
+        if texts:
+            self._add(paths.EVENTS, rr.TextLog, len(texts), text=texts, level=levels)
+        for i in event.deleted.tolist():
+            self._trails.pop(i, None)
+
+    def _on_frame_finished(self, event: FrameFinished) -> None:
+        state, out = self._require_state(), event.output
+        self._defer(paths.TRACKS_UPDATED, rr.Boxes3D, out, _build_updated)
+        self._defer(paths.TRACKS_VELOCITY, rr.Arrows3D, out, _build_velocity)
+        self._log_trails(out)
+        self._log_unmatched(state)
+        for cam in state.frame.cameras:
+            path = paths.camera_tracks(cam.name)
+            self._defer(path, rr.LineStrips2D, (out.boxes, None, cam, None), _build_wireframes)
+            self._defer(path, rr.Boxes2D, (out.boxes, cam), _build_track_boxes2d)
+        self._log_cost(paths.COST_BEV, state.bev_cost, state.bev_matched)
+        self._log_cost(paths.COST_RV, state.rv_cost, state.rv_matched)
+        self._log_matches_rv(state)
+        self._keep_match_costs(out.frame_id, state)
+        self._state = None
+        self.columns.end_frame()
+
+    def _keep_match_costs(self, frame_id: int, state: _FrameState) -> None:
+        parts = [(m, s) for m, s in ((state.bev_matched, 1), (state.rv_matched, 2)) if m]
+        if parts:
+            self.match_costs[frame_id] = FrameMatchCosts(
+                np.concatenate([m.track_ids for m, _ in parts]),
+                np.concatenate([m.costs for m, _ in parts]).astype(np.float32),
+                np.concatenate([np.full(len(m.track_ids), s, np.int8) for m, s in parts]),
+            )
+
+    def _log_cost(self, path: str, cost: CostComputed | None, matched: Matched | None) -> None:
+        """Only non-empty matrices are sent; an empty one clears the previous picture once."""
+        if cost is None or not np.isfinite(cost.cost).any():
+            if self._cost_shown[path]:
+                self._add(path, rr.Clear, 0, mono={"is_recursive": [True]})
+                self._cost_shown[path] = False
+            return
+        self._cost_shown[path] = True
+        self._defer(path, rr.Image, cost, _build_cost_image)
+        self._defer(f"{path}/{paths.COST_LABELS}", rr.Points2D, cost, _build_cost_labels)
+        self._defer(
+            f"{path}/{paths.COST_MATCHED}", rr.Boxes2D, (cost, matched), _build_cost_matched
+        )
+
+    def _log_matches_rv(self, state: _FrameState) -> None:
+        """The image-plane stage: track box used -> detection box, labelled with the SDIoU."""
+        cost, event, frame = state.rv_cost, state.rv_matched, state.frame
+        active = cost is not None and event is not None and cost.track_xyxy is not None
+        if not active:
+            if self._rv_shown:
+                for cam in frame.cameras:
+                    self._add(
+                        paths.camera_matches_rv(cam.name),
+                        rr.Clear,
+                        0,
+                        mono={"is_recursive": [False]},
+                    )
+            self._rv_shown = False
+            return
+        assert cost is not None and event is not None and cost.track_xyxy is not None
+        self._rv_shown = True
+        ids = np.concatenate([event.track_ids, event.rejected_track_ids])
+        det_rows = np.concatenate([event.det_rows, event.rejected_det_rows])
+        accepted = np.arange(len(det_rows)) < len(event.track_ids)
+        sdiou = np.concatenate([1.0 - event.costs, np.full(len(event.rejected_track_ids), np.nan)])
+        for c, cam in enumerate(frame.cameras):
+            on_cam = frame.boxes.camera[det_rows] == c
+            t_xyxy = cost.track_xyxy[_positions(cost.track_ids, ids[on_cam])]
+            d_xyxy = frame.boxes.xyxy_image[det_rows[on_cam]]
+            centres = np.stack(
+                [(t_xyxy[:, :2] + t_xyxy[:, 2:]) / 2, (d_xyxy[:, :2] + d_xyxy[:, 2:]) / 2], axis=1
+            )
+            ok = accepted[on_cam]
+            labels = [
+                f"T{t}-d{d} SDIoU {s:.2f}" if a else f"T{t}-d{d} gated"
+                for t, d, s, a in zip(
+                    ids[on_cam].tolist(),
+                    det_rows[on_cam].tolist(),
+                    sdiou[on_cam].tolist(),
+                    ok.tolist(),
+                    strict=True,
+                )
+            ]
+            colors = np.where(ok, track_colors_u32(ids[on_cam]), pack_rgb(REJECTED_RGB))
+            colors = colors.astype(np.uint32)
+            k = len(labels)
+            path = paths.camera_matches_rv(cam.name)
+            self._add(
+                path,
+                rr.LineStrips2D,
+                k,
+                mono={"show_labels": [True]},
+                strips=centres.astype(np.float32),
+                colors=colors,
+                labels=labels,
+                radii=np.full(k, -2.0, np.float32),
+            )
+            self._add(
+                path,
+                rr.Boxes2D,
+                k,
+                **boxes2d_fields(t_xyxy, colors=colors, labels=[""] * k, ui_points=2.0),
+            )
+
+    def _log_trails(self, out: TrackOutput) -> None:
+        frame_id = out.frame_id
+        horizon = frame_id - self.trail_frames
+        strips = []
+        xyz = out.boxes.xyz.astype(np.float32)
+        ids = out.boxes.track_id
+        for tid, p in zip(ids.tolist(), xyz, strict=True):
+            trail = self._trails.get(tid)
+            if trail is None:
+                trail = self._trails[tid] = deque(maxlen=self.trail_frames)
+            trail.append((frame_id, p))
+            strips.append(np.array([q for f, q in trail if f > horizon], dtype=np.float32))
+        # tracks that stopped being output long ago are forgotten (memory stays flat)
+        if len(self._trails) > 4 * max(len(ids), 16):
+            for tid in [t for t, tr in self._trails.items() if tr[-1][0] <= horizon]:
+                del self._trails[tid]
+        self._add(
+            paths.TRAILS,
+            rr.LineStrips3D,
+            len(strips),
+            strips=strips,
+            colors=track_colors_u32(ids),
+            radii=np.full(len(strips), 0.04, np.float32),
+        )
+
+    def _log_unmatched(self, state: _FrameState) -> None:
+        matched = [m for m in (state.bev_matched, state.rv_matched) if m is not None]
+        matched_ids = np.concatenate([m.track_ids for m in matched]) if matched else _EMPTY_INT
+        matched_dets = np.concatenate([m.det_rows for m in matched]) if matched else _EMPTY_INT
+        lonely = _not_in(state.pred_ids, matched_ids)
+        self._defer(
+            paths.UNMATCHED_TRACKS,
+            rr.Points3D,
+            (state.pred_ids[lonely], state.pred_boxes.xyz[lonely]),
+            _build_unmatched_tracks,
+        )
+        rows = state.kept_rows[_not_in(state.kept_rows, matched_dets)]
+        self._defer(
+            paths.UNMATCHED_DETECTIONS,
+            rr.Points3D,
+            (rows, state.frame.boxes.xyz[rows]),
+            _build_unmatched_detections,
+        )
+
+    def _require_state(self) -> _FrameState:
+        if self._state is None:
+            raise RuntimeError("RerunObserver: stage event before FrameStarted")
+        return self._state
+
+
+# ---------------------------------------------------------------------------------------------
+# Builders: a list of per-frame payloads -> (fields over all rows, lengths, one-per-row fields)
+
+
+def _hidden(rows: int) -> dict[str, list[Any]]:
+    """Labels only on hover: shown, the 3D view drowns in text."""
+    return {"show_labels": [False] * rows}
+
+
+def _lengths(parts: Sequence[Any]) -> IntArray:
+    return np.array([len(p) for p in parts], dtype=np.int64)
+
+
+def _build_ego_axes(parts: list[None]) -> Built:
+    return {}, np.zeros(len(parts), np.int64), {"axis_length": [3.0] * len(parts)}
+
+
+def _build_gt(parts: list[Boxes]) -> Built:
+    boxes = Boxes.concat(parts)
+    labels = [f"gt {i}" for i in boxes.track_id.tolist()]
+    fields = boxes3d_fields(boxes, colors=solid(GT_RGB, len(boxes)), labels=labels, radius=0.02)
+    return fields, _lengths(parts), _hidden(len(parts))
+
+
+def _frame_rows(lengths: IntArray) -> IntArray:
+    """Row index within its frame for every instance of concatenated frames."""
+    starts = np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return np.arange(int(lengths.sum())) - starts
+
+
+def _build_detections_raw(parts: list[tuple[Boxes, np.ndarray]]) -> Built:
+    boxes = Boxes.concat([b for b, _ in parts])
+    reason = np.concatenate([r for _, r in parts])
+    lengths = _lengths([r for _, r in parts])
+    rows = _frame_rows(lengths)
+    labels = [
+        f"d{i} {s:.2f}" if r == DropReason.KEPT else f"d{i} {_DROP_LABEL[DropReason(r)]}"
+        for i, s, r in zip(rows.tolist(), boxes.score.tolist(), reason.tolist(), strict=True)
+    ]
+    colors = np.where(reason == DropReason.KEPT, _KEPT, _DROPPED).astype(np.uint32)
+    return (
+        boxes3d_fields(boxes, colors=colors, labels=labels, radius=0.015),
+        lengths,
+        _hidden(len(parts)),
+    )
+
+
+def _build_detections_kept(parts: list[tuple[Boxes, np.ndarray]]) -> Built:
+    boxes = Boxes.concat([b for b, _ in parts])
+    reason = np.concatenate([r for _, r in parts])
+    rows = _frame_rows(_lengths([r for _, r in parts]))
+    kept = reason == DropReason.KEPT
+    lengths = np.array([int(np.count_nonzero(r == DropReason.KEPT)) for _, r in parts])
+    boxes = boxes[kept]
+    labels = [
+        f"d{i} {s:.2f}" for i, s in zip(rows[kept].tolist(), boxes.score.tolist(), strict=True)
+    ]
+    fields = boxes3d_fields(
+        boxes, colors=solid(DETECTION_KEPT_RGB, len(boxes)), labels=labels, radius=0.03
+    )
+    return fields, lengths, _hidden(len(parts))
+
+
+def _build_predicted(parts: list[tuple[IntArray, Boxes]]) -> Built:
+    ids = np.concatenate([i for i, _ in parts])
+    boxes = Boxes.concat([b for _, b in parts])
+    fields = boxes3d_fields(
+        boxes, colors=track_colors_u32(ids), labels=[str(i) for i in ids.tolist()], radius=0.015
+    )
+    return fields, _lengths([i for i, _ in parts]), _hidden(len(parts))
+
+
+def _build_updated(outputs: list[TrackOutput]) -> Built:
+    boxes = Boxes.concat([o.boxes for o in outputs])
+    status = np.concatenate([o.status for o in outputs])
+    ids = boxes.track_id
+    radius = np.where(status == TrackStatus.COASTING, 0.03, 0.07)  # thin while coasting
+    fields = boxes3d_fields(
+        boxes, colors=track_colors_u32(ids), labels=[str(i) for i in ids.tolist()], radius=radius
+    )
+    return fields, _lengths(outputs), {"show_labels": [True] * len(outputs)}
+
+
+def _build_velocity(outputs: list[TrackOutput]) -> Built:
+    boxes = Boxes.concat([o.boxes for o in outputs])
+    n = len(boxes)
+    fields = {
+        "origins": boxes.xyz.astype(np.float32),
+        "vectors": np.column_stack([boxes.velocity, np.zeros(n)]).astype(np.float32),
+        "colors": track_colors_u32(boxes.track_id),
+        "radii": np.full(n, 0.08, np.float32),
+    }
+    return fields, _lengths(outputs), {}
+
+
+def _project(
+    parts: Sequence[tuple[Boxes, np.ndarray | None, Camera]],
+) -> tuple[Boxes, FloatArray, FloatArray, np.ndarray, IntArray, np.ndarray]:
+    """Concatenate (boxes, row mask or None, camera) rows and project every selected box into
+    its row's camera. Returns the boxes, segments, 2D boxes, visibility, the row of each box and
+    its image size."""
+    boxes = Boxes.concat([b for b, _, _ in parts])
+    frame_of_box = np.repeat(np.arange(len(parts)), _lengths([b for b, _, _ in parts]))
+    if any(mask is not None for _, mask, _ in parts):
+        sel = np.concatenate(
+            [np.ones(len(b), bool) if mask is None else mask for b, mask, _ in parts]
+        )
+        boxes, frame_of_box = boxes[sel], frame_of_box[sel]
+    m = np.stack([c.image_from_world for _, _, c in parts])[frame_of_box]
+    size = np.array([[c.width_px, c.height_px] for _, _, c in parts]).reshape(-1, 2)[frame_of_box]
+    seg, xyxy, visible = project_boxes_batched(boxes.xyz, boxes.lwh, boxes.yaw, m, size)
+    return boxes, seg, xyxy, visible, frame_of_box, size
+
+
+def _build_wireframes(parts: list[tuple[Boxes, Any, Camera, Any]]) -> Built:
+    """Projected 3D boxes. Payload: (boxes, row mask or None, camera, one RGB colour, or None
+    to colour each box by its track id)."""
+    boxes, seg, _, _, frame_of_box, size = _project([(b, m, c) for b, m, c, _ in parts])
+    strips, box_rows = drawable_segments(seg, size)
+    rgb = parts[0][3]
+    if rgb is None:
+        colors, radius = track_colors_u32(boxes.track_id)[box_rows], -1.5
+    else:
+        colors, radius = solid(rgb, len(strips)), -1.0
+    fields = {
+        "strips": strips,
+        "colors": colors,
+        "radii": np.full(len(strips), radius, np.float32),
+    }
+    return fields, np.bincount(frame_of_box[box_rows], minlength=len(parts)), {}
+
+
+def _build_track_boxes2d(parts: list[tuple[Boxes, Camera]]) -> Built:
+    boxes, _, xyxy, visible, frame_of_box, _ = _project([(b, None, c) for b, c in parts])
+    ids = boxes.track_id[visible]
+    fields = boxes2d_fields(
+        xyxy[visible],
+        colors=track_colors_u32(ids),
+        labels=[str(i) for i in ids.tolist()],
+        ui_points=0.75,
+    )
+    return fields, np.bincount(frame_of_box[visible], minlength=len(parts)), {}
+
+
+def _build_detection_boxes2d(parts: list[tuple[Boxes, np.ndarray, int]]) -> Built:
+    """The detector's own 2D boxes of the kept detections in this camera."""
+    boxes = Boxes.concat([b for b, _, _ in parts])
+    lengths = _lengths([b for b, _, _ in parts])
+    cam = np.repeat([c for _, _, c in parts], lengths)
+    sel = np.concatenate([k for _, k, _ in parts]) & (boxes.camera == cam)
+    rows = _frame_rows(lengths)[sel]
+    frame_of_box = np.repeat(np.arange(len(parts)), lengths)[sel]
+    fields = boxes2d_fields(
+        boxes.xyxy_image[sel],
+        colors=solid(DETECTION_KEPT_RGB, len(rows)),
+        labels=[f"d{i}" for i in rows.tolist()],
+        ui_points=1.0,
+    )
+    return fields, np.bincount(frame_of_box, minlength=len(parts)), {}
+
+
+def _build_matches_bev(parts: list[tuple[FloatArray, FloatArray, FloatArray]]) -> Built:
+    strips = np.concatenate([s for s, _, _ in parts]).astype(np.float32).reshape(-1, 2, 3)
+    costs = np.concatenate([c for _, c, _ in parts])
+    max_cost = np.concatenate([m for _, _, m in parts])
+    n = len(costs)
+    fields = {
+        "strips": strips,
+        "colors": pack_rgb(cost_colors(costs, max_cost)).reshape(n),
+        "radii": np.full(n, 0.06, np.float32),
+        "labels": [f"{c:.2f}" for c in costs.tolist()],
+    }
+    return fields, _lengths([c for _, c, _ in parts]), _hidden(len(parts))
+
+
+def _build_unmatched_tracks(parts: list[tuple[IntArray, FloatArray]]) -> Built:
+    ids = np.concatenate([i for i, _ in parts])
+    n = len(ids)
+    fields = {
+        "positions": np.concatenate([x for _, x in parts]).astype(np.float32).reshape(-1, 3),
+        "radii": np.full(n, 0.35, np.float32),
+        "colors": solid(UNMATCHED_TRACK_RGB, n),
+        "labels": [f"T{i} unmatched" for i in ids.tolist()],
+    }
+    return fields, _lengths([i for i, _ in parts]), _hidden(len(parts))
+
+
+def _build_unmatched_detections(parts: list[tuple[IntArray, FloatArray]]) -> Built:
+    rows = np.concatenate([r for r, _ in parts])
+    n = len(rows)
+    fields = {
+        "positions": np.concatenate([x for _, x in parts]).astype(np.float32).reshape(-1, 3),
+        "radii": np.full(n, 0.3, np.float32),
+        "colors": solid(UNMATCHED_DETECTION_RGB, n),
+        "labels": [f"d{i} unmatched" for i in rows.tolist()],
+    }
+    return fields, _lengths([r for r, _ in parts]), _hidden(len(parts))
+
+
+def _comparable_rows(c: CostComputed) -> IntArray:
+    """Rows (tracks) with at least one comparable detection: the others are all +inf (another
+    category, beyond the gate) and would bury the informative rows (KITTI keeps lost tracks
+    for 30 frames, so ~90 rows against ~15 detections)."""
+    return np.flatnonzero(np.isfinite(c.cost).any(axis=1))
+
+
+def _build_cost_image(parts: list[CostComputed]) -> Built:
+    """One RGB pixel per cell (rows tracks, columns detections); see :func:`cost_colors`."""
+    buffers, formats = [], []
+    for c in parts:
+        rows = _comparable_rows(c)
+        m, n = len(rows), c.cost.shape[1]
+        rgb = cost_colors(c.cost[rows], np.asarray(c.max_cost_per_row)[rows, None])
+        buffers.append(rgb.tobytes())
+        formats.append(
+            rr.components.ImageFormat(width=n, height=m, color_model="RGB", channel_datatype="U8")
+        )
+    return {}, np.zeros(len(parts), np.int64), {"buffer": buffers, "format": formats}
+
+
+def _build_cost_labels(parts: list[CostComputed]) -> Built:
+    """Row ids "T<track>" left of the matrix, column ids "d<detection row>" above it, and the
+    value of every cell that passes its row's threshold."""
+    positions, labels, colors, lengths = [], [], [], []
+    for c in parts:
+        kept = _comparable_rows(c)
+        cost, max_cost, ids = c.cost[kept], c.max_cost_per_row[kept], c.track_ids[kept]
+        m, n = cost.shape
+        # values only where a match was allowed: dark red cells (over the threshold) say enough,
+        # and their numbers would crowd out the ones that decide
+        with np.errstate(invalid="ignore"):
+            r, k = np.nonzero(cost <= max_cost[:, None])
+        if len(r) > MAX_CELL_LABELS:
+            r, k = r[:0], k[:0]
+        values = cost[r, k]
+        positions += [
+            np.column_stack([np.full(m, -1.2), np.arange(m) + 0.5]),
+            np.column_stack([np.arange(n) + 0.5, np.full(n, -0.8)]),
+            np.column_stack([k + 0.5, r + 0.5]),
+        ]
+        labels += [f"T{i}" for i in ids.tolist()]
+        labels += [f"d{i}" for i in c.det_rows.tolist()]
+        labels += [f"{v:.2f}" for v in values.tolist()]
+        colors += [
+            track_colors_u32(ids),
+            solid(DETECTION_KEPT_RGB, n),
+            solid((255, 255, 255), len(values)),
+        ]
+        lengths.append(m + n + len(r))
+    total = int(sum(lengths))
+    fields = {
+        "positions": np.concatenate(positions).astype(np.float32),
+        "radii": np.full(total, 0.03, np.float32),
+        "colors": np.concatenate(colors),
+        "labels": labels,
+    }
+    return fields, np.array(lengths), {"show_labels": [True] * len(parts)}
+
+
+def _build_cost_matched(parts: list[tuple[CostComputed, Matched | None]]) -> Built:
+    """White outlines of the accepted cells."""
+    centres, lengths = [], []
+    for c, matched in parts:
+        if matched is None:
+            centres.append(np.zeros((0, 2)))
+            lengths.append(0)
+            continue
+        rows = _positions(c.track_ids[_comparable_rows(c)], matched.track_ids)
+        cols = _positions(c.det_rows, matched.det_rows)
+        centres.append(np.column_stack([cols, rows]) + 0.5)
+        lengths.append(len(rows))
+    total = int(sum(lengths))
+    fields = {
+        "centers": np.concatenate(centres).astype(np.float32),
+        "half_sizes": np.full((total, 2), 0.45, np.float32),
+        "colors": solid((255, 255, 255), total),
+        "radii": np.full(total, -2.0, np.float32),
+    }
+    return fields, np.array(lengths), {}
+
+
+def _not_in(values: IntArray, exclude: IntArray) -> np.ndarray:
+    """``~np.isin(values, exclude)`` for the few dozen ids of a frame, ~10x faster."""
+    skip = set(exclude.tolist())
+    return np.fromiter((v not in skip for v in values.tolist()), dtype=bool, count=len(values))
+
+
+def _positions(ids: IntArray, wanted: IntArray) -> IntArray:
+    """Row of each ``wanted`` id in ``ids`` (all present)."""
+    order = np.argsort(ids, kind="stable")
+    return order[np.searchsorted(ids, wanted, sorter=order)]
+
+
+def _list_images(folder: Path) -> dict[int, Path]:
+    """frame id -> image file of a KITTI-style folder (``000010.png``), listed once."""
+    out: dict[int, Path] = {}
+    if folder.is_dir():
+        for name in os.listdir(folder):
+            stem, ext = os.path.splitext(name)
+            if ext.lower() in _IMAGE_SUFFIXES and stem.isdigit():
+                out[int(stem)] = folder / name
+    return out

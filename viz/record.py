@@ -1,0 +1,772 @@
+"""One call from frames to a complete debug recording: :func:`record_scene`.
+
+During the run the :class:`~viz.observer.RerunObserver` streams every stage to the sinks (a
+file sink keeps memory flat). Whatever is only known after the run is logged at the end: the
+velocity curves (``send_columns``, one call per series), the ID switches and fragmentations
+against the ground truth (at their frames), the summary and the index of frames worth a
+screenshot (``summary/index``, read back by ``mctrack shots``), and the final blueprint, which
+focuses the velocity views on the tracks of the largest lag and of the first ID switch.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import itertools
+import json
+import logging
+import tempfile
+import time
+import uuid
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import rerun as rr
+
+from tracker.boxes import Boxes, FloatArray, IntArray
+from tracker.config import TrackerConfig, config_to_dict
+from tracker.events import TrackOutput
+from tracker.frame import Frame
+from tracker.id_switches import (
+    IdEvaluation,
+    IdEvent,
+    IdEventKind,
+    bev_id_events,
+    kitti_id_events,
+    kitti_num_timesteps,
+)
+from tracker.motion_metrics import gt_velocity_central
+from tracker.pipeline import run_scene
+from viz import paths
+from viz.archetypes import ID_SWITCH_RGB, annotation_context, pack_rgb, track_colors_u32
+from viz.columns import arrow_column, set_frame_time, time_columns
+from viz.layout import debug_blueprint
+from viz.observer import RerunObserver
+
+log = logging.getLogger(__name__)
+
+KITTI_EVAL_CLASSES = ("car", "pedestrian", "cyclist")
+#: Output samples at the start of each track left out of the lag search: the filter starts from
+#: zero velocity (KITTI detections carry none), so every birth would otherwise "win".
+LAG_WARMUP_SAMPLES = 5
+#: Velocity-lag search (:func:`find_velocity_lag`).
+LAG_MIN_SAMPLES = 20
+LAG_MIN_SPEED_RANGE_MPS = 1.0
+LAG_MAX_SHIFT_SAMPLES = 10
+LAG_SMOOTH_SAMPLES = 7
+#: How long an ID-switch marker stays in the 3D view after its frame (scrubbing finds it).
+MARKER_HOLD_FRAMES = 5
+GT_SERIES_RGB = (60, 220, 120)
+GT_SERIES_U32 = int(pack_rgb(GT_SERIES_RGB))
+#: Tracks output in fewer frames get no velocity curves: a one- or two-point "curve" shows
+#: nothing, and on KITTI most such tracks are false positives (hundreds of entities otherwise).
+MIN_SERIES_SAMPLES = 3
+
+
+@dataclass(frozen=True, slots=True)
+class LagSample:
+    """Where the velocity lags most (see :func:`find_velocity_lag`)."""
+
+    frame_id: int
+    track_id: int
+    gt_id: int
+    track_speed_mps: float
+    gt_speed_mps: float
+    delay_secs: float | None = None  # VDE delay of the GT object (None: no VDE candidate)
+
+    @property
+    def error_mps(self) -> float:
+        return abs(self.track_speed_mps - self.gt_speed_mps)
+
+
+@dataclass
+class RecordResult:
+    scene: str
+    path: Path | None
+    outputs: list[TrackOutput]
+    tracker_seconds: float  # tracker + observer (the observer runs inside each step)
+    total_seconds: float  # everything, post-run analysis and flushing included
+    id_evaluation: IdEvaluation | None = None
+    lag: LagSample | None = None
+    kitti_metrics: dict[str, dict[str, float]] | None = None
+    motion_markdown: str = "motion metrics: not available"
+    counts: dict[str, int] = field(default_factory=dict)
+    #: wall seconds per phase: "track" (tracker + observer), "flush", "evaluate" (ID switches,
+    #: TrackEval, motion metrics: analysis, not recording), "post" (curves, events, summary)
+    seconds: dict[str, float] = field(default_factory=dict)
+    #: process CPU seconds per phase (all threads: Rerun compresses and writes in the background)
+    cpu_seconds: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def recording_seconds(self) -> float:
+        """Wall time of everything except the evaluation."""
+        return self.total_seconds - self.seconds.get("evaluate", 0.0)
+
+    @property
+    def track_ids(self) -> list[int]:
+        return sorted({int(i) for o in self.outputs for i in o.boxes.track_id})
+
+
+def new_recording(
+    scene: str,
+    *,
+    path: str | Path | None = None,
+    recording_id: str | None = None,
+) -> rr.RecordingStream:
+    """A recording stream of its own (never the global one); with ``path`` it streams to a file.
+
+    The blueprint is sent at the end of :func:`record_scene` (it depends on the results); a live
+    viewer gets a preliminary one right away from the caller.
+    """
+    rec = rr.RecordingStream(
+        paths.APPLICATION_ID, recording_id=recording_id or f"{scene}-{uuid.uuid4().hex[:8]}"
+    )
+    if path is not None:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        rec.save(path)
+    rec.send_recording_name(f"MCTrack {scene}")
+    return rec
+
+
+def record_scene(
+    frames: Sequence[Frame],
+    config: TrackerConfig,
+    gt_frames: Sequence[Frame] | None = None,
+    path: str | Path | None = None,
+    *,
+    rec: rr.RecordingStream | None = None,
+    labels_dir: str | Path | None = None,
+    images: Mapping[str, str | Path] | None = None,
+    input_description: str = "",
+    motion_metrics: bool = True,
+    live: bool = False,
+) -> RecordResult:
+    """Track one scene with the Rerun observer and write the full debug recording.
+
+    Parameters
+    ----------
+    frames : the scene's detection frames, in time order.
+    config : the resolved tracker configuration.
+    gt_frames : ground truth of the same scene (ID switches, GT boxes and velocity curves).
+    path : the ``.rrd`` to write (streamed). Ignored when ``rec`` is given.
+    rec : an existing stream (live viewer, web viewer); the caller owns and closes it.
+    labels_dir : a KITTI ``label_02`` folder: when it has ``<scene>.txt``, ID switches and the
+        static metrics come from TrackEval's KITTI protocol; otherwise BEV IoU on ``gt_frames``.
+    images : camera name -> folder of ``<frame_id:06d>.png`` images.
+    input_description : free text for the summary (input files, frame range).
+    motion_metrics : call ``tracker.motion_eval.evaluate_motion`` when it is importable.
+    live : a viewer watches while it runs: send rows every few frames instead of every few
+        hundred (slightly more overhead, no visible lag).
+
+    Returns
+    -------
+    The outputs (identical to a run without observer), timings and the GT analysis.
+    """
+    start, cpu_start = time.perf_counter(), time.process_time()
+    scene = frames[0].scene if frames else ""
+    cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras] if frames else []
+    camera_names = [name for name, _, _ in cameras]
+    own = rec is None
+    if rec is None:
+        rec = new_recording(scene, path=path)
+    rec.log(paths.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    rec.log("/", annotation_context(), static=True)
+
+    gt_by_frame = {f.frame_id: f for f in gt_frames} if gt_frames else None
+    observer = RerunObserver(
+        rec,
+        gt=gt_by_frame,
+        images=images,
+        flush_rows=8 if live else 256,
+        flush_secs=0.25 if live else 2.0,
+    )
+    scene_result = run_scene(frames, config, observer=observer)
+    t_track, c_track = time.perf_counter(), time.process_time()
+    observer.flush()
+    t_flush, c_flush = time.perf_counter(), time.process_time()
+    outputs = scene_result.outputs
+    result = RecordResult(
+        scene=scene,
+        path=Path(path) if (own and path is not None) else None,
+        outputs=outputs,
+        tracker_seconds=scene_result.tracker_seconds,
+        total_seconds=0.0,
+    )
+
+    gt_index = _GtIndex(gt_frames) if gt_frames else None
+    if gt_frames:
+        label_file = Path(labels_dir) / f"{scene}.txt" if labels_dir else None
+        with tempfile.TemporaryDirectory(prefix="mctrack-record-") as tmp:
+            if label_file is not None and label_file.is_file() and camera_names:
+                label_file = _labels_for_frames(label_file, frames, Path(tmp))
+                classes = [c for c in config.categories if c in KITTI_EVAL_CLASSES]
+                result.id_evaluation = kitti_id_events(
+                    outputs, frames, label_file, classes=classes, camera_name=camera_names[0]
+                )
+                result.kitti_metrics = _kitti_metrics(
+                    outputs, frames, label_file, classes, camera_names[0], Path(tmp)
+                )
+            else:
+                result.id_evaluation = bev_id_events(
+                    outputs, gt_frames, categories=list(config.categories)
+                )
+        if motion_metrics:
+            result.motion_markdown = _motion_metrics(frames, gt_frames, outputs, config)
+    t_eval, c_eval = time.perf_counter(), time.process_time()
+
+    times = _frame_times(observer.frame_times, outputs)
+    result.lag, n_series = _log_velocity_series(rec, outputs, times, result.id_evaluation, gt_index)
+    if result.id_evaluation is not None:
+        _log_id_events(rec, result.id_evaluation, outputs, times, gt_index, observer)
+    if observer.ego_xyz:
+        rec.log(
+            paths.EGO_PATH,
+            rr.LineStrips3D([np.array(observer.ego_xyz)], colors=(200, 200, 200), radii=0.05),
+            static=True,
+        )
+    result.counts = {
+        "frames": len(frames),
+        "tracks": len(result.track_ids),
+        f"tracks with velocity curves (>= {MIN_SERIES_SAMPLES} outputs)": n_series,
+        "detections_raw": observer.detection_counts["raw"],
+        "detections_kept": observer.detection_counts["kept"],
+        **{f"tracks_{k}": v for k, v in observer.lifecycle_counts.items()},
+    }
+    _log_index(rec, result)
+    rec.log(
+        paths.SUMMARY,
+        rr.TextDocument(
+            summary_markdown(result, config, input_description, observer),
+            media_type=rr.MediaType.MARKDOWN,
+        ),
+        static=True,
+    )
+    first_switch = result.id_evaluation.id_switches[:1] if result.id_evaluation else []
+    rec.send_blueprint(
+        debug_blueprint(
+            cameras,
+            lag_track_ids=[result.lag.track_id] if result.lag else [],
+            switch_track_ids=[e for s in first_switch for e in (s.old_track_id, s.new_track_id)],
+        ),
+        make_active=True,
+        make_default=True,
+    )
+    if own:
+        rec.flush()
+        rec.disconnect()
+    end, cpu_end = time.perf_counter(), time.process_time()
+    result.total_seconds = end - start
+    result.cpu_seconds = {
+        "track": c_track - cpu_start,
+        "flush": c_flush - c_track,
+        "evaluate": c_eval - c_flush,
+        "post": cpu_end - c_eval,
+    }
+    result.seconds = {
+        "track": t_track - start,
+        "flush": t_flush - t_track,
+        "evaluate": t_eval - t_flush,
+        "post": end - t_eval,
+    }
+    return result
+
+
+# ---------------------------------------------------------------------------------------------
+# ground truth helpers
+
+
+class _GtIndex:
+    """GT boxes of a scene as one table, with the GT velocity from positions per GT id."""
+
+    def __init__(self, gt_frames: Sequence[Frame]) -> None:
+        self.boxes = Boxes.concat([f.boxes for f in gt_frames])
+        self.frame_id = np.concatenate(
+            [np.full(len(f.boxes), f.frame_id, dtype=np.int64) for f in gt_frames]
+        )
+        times = np.concatenate([np.full(len(f.boxes), f.timestamp_secs) for f in gt_frames])
+        if not np.isfinite(times).all():
+            times = self.frame_id * 0.1  # BaseVersion without timestamps: KITTI's 10 Hz
+        self.velocity = np.full((len(self.boxes), 2), np.nan)
+        ids = self.boxes.track_id
+        order = np.lexsort((times, ids))
+        bounds = np.flatnonzero(np.r_[True, ids[order][1:] != ids[order][:-1], True])
+        for a, b in itertools.pairwise(bounds):
+            rows = order[a:b]
+            t = times[rows]
+            keep = np.r_[True, np.diff(t) > 0]  # a GT id twice in one frame: first one wins
+            rows, t = rows[keep], t[keep]
+            self.velocity[rows] = gt_velocity_central(t, self.boxes.xyz[rows, :2])
+        self._row = {
+            (int(f), int(i)): r for r, (f, i) in enumerate(zip(self.frame_id, ids, strict=True))
+        }
+
+    def rows(self, frame_ids: IntArray, gt_ids: IntArray) -> IntArray:
+        """Row of each (frame, GT id); -1 when absent."""
+        return np.array(
+            [self._row.get((int(f), int(g)), -1) for f, g in zip(frame_ids, gt_ids, strict=True)],
+            dtype=np.int64,
+        )
+
+
+def _labels_for_frames(label_file: Path, frames: Sequence[Frame], tmp: Path) -> Path:
+    """The label file restricted to the tracked frames (a --frames range is not all FNs)."""
+    wanted = {f.frame_id for f in frames}
+    lines = label_file.read_text().splitlines(keepends=True)
+    kept = [ln for ln in lines if ln.strip() and int(ln.split(maxsplit=1)[0]) in wanted]
+    if len(kept) == sum(1 for ln in lines if ln.strip()):
+        return label_file
+    target = tmp / "labels" / label_file.name
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text("".join(kept))
+    return target
+
+
+def _kitti_metrics(
+    outputs: Sequence[TrackOutput],
+    frames: Sequence[Frame],
+    label_file: Path,
+    classes: Sequence[str],
+    camera_name: str,
+    tmp: Path,
+) -> dict[str, dict[str, float]]:
+    from tracker.kitti_eval import evaluate_kitti
+    from tracker.writers import write_kitti_sequence
+
+    seq = label_file.stem
+    result_dir = tmp / "results"
+    write_kitti_sequence(result_dir / f"{seq}.txt", outputs, frames, camera_name)
+    with contextlib.redirect_stdout(io.StringIO()):  # TrackEval prints its metric configs
+        return evaluate_kitti(
+            label_dir=label_file.parent,
+            result_dir=result_dir,
+            seq_lengths={seq: kitti_num_timesteps(label_file, frames)},
+            classes=classes,
+        )
+
+
+def _motion_metrics(
+    frames: Sequence[Frame],
+    gt_frames: Sequence[Frame],
+    outputs: Sequence[TrackOutput],
+    config: TrackerConfig,
+) -> str:
+    """Motion metrics from ``tracker.motion_eval`` (written separately) when it is there."""
+    try:
+        from tracker.motion_eval import evaluate_motion, motion_markdown
+    except ImportError:
+        return "motion metrics: not available"
+    scene = frames[0].scene
+    try:
+        result = evaluate_motion(
+            {scene: frames}, {scene: gt_frames}, {scene: outputs}, classes=list(config.categories)
+        )
+        return motion_markdown(result, heading_level=3)
+    except Exception as exc:  # a module under construction must not break recording
+        log.warning("motion metrics failed: %s", exc)
+        return f"motion metrics: not available ({type(exc).__name__}: {exc})"
+
+
+# ---------------------------------------------------------------------------------------------
+# post-run logging
+
+
+def _frame_times(seen: Mapping[int, float], outputs: Sequence[TrackOutput]) -> dict[int, float]:
+    times = dict(seen)
+    for o in outputs:
+        times.setdefault(o.frame_id, o.time_secs)
+    return times
+
+
+def _send_series(
+    rec: rr.RecordingStream,
+    path: str,
+    name: str,
+    color_u32: int,
+    indexes: list[rr.TimeColumn],
+    values: FloatArray,
+) -> None:
+    """One scalar series in one ``send_columns`` call, columns built straight in arrow.
+
+    The style (colour, legend name) rides along as per-row components instead of a static
+    ``SeriesLines`` log: a static log per entity costs ~0.3 ms each for hundreds of entities
+    (and mixes static and temporal data on one entity), and Rerun's own column converters
+    cost more than the data here."""
+    n = len(values)
+    columns = [
+        arrow_column(rr.Scalars.descriptor_scalars(), pa.array(values, type=pa.float64())),
+        arrow_column(
+            rr.SeriesLines.descriptor_colors(),
+            pa.array(np.full(n, color_u32, dtype=np.uint32), type=pa.uint32()),
+        ),
+        arrow_column(rr.SeriesLines.descriptor_names(), pa.array([name] * n, type=pa.utf8())),
+    ]
+    rec.send_columns(path, indexes=indexes, columns=columns)
+
+
+def _log_velocity_series(
+    rec: rr.RecordingStream,
+    outputs: Sequence[TrackOutput],
+    times: Mapping[int, float],
+    evaluation: IdEvaluation | None,
+    gt: _GtIndex | None,
+) -> tuple[LagSample | None, int]:
+    """tracks/<id>/{speed, velocity_x, velocity_y, heading} and the matched GT's curves.
+
+    Returns the largest lag and the number of tracks given curves.
+    """
+    if not outputs:
+        return None, 0
+    boxes = Boxes.concat([o.boxes for o in outputs])
+    frame_ids = np.concatenate([np.full(len(o), o.frame_id, dtype=np.int64) for o in outputs])
+    time_of = np.array([times[int(f)] for f in frame_ids])
+    # GT matched to each output row (CLEAR matches of its frame)
+    gt_row = np.full(len(boxes), -1, dtype=np.int64)
+    gt_id = np.full(len(boxes), -1, dtype=np.int64)
+    if evaluation is not None and gt is not None:
+        matches = {m.frame_id: m for m in evaluation.matches}
+        start = 0
+        for o in outputs:
+            m = matches.get(o.frame_id)
+            if m is not None and len(m.track_ids):
+                lookup = dict(zip(m.track_ids.tolist(), m.gt_ids.tolist(), strict=True))
+                g = np.array([lookup.get(int(t), -1) for t in o.boxes.track_id], dtype=np.int64)
+                gt_id[start : start + len(o)] = g
+            start += len(o)
+        has = gt_id >= 0
+        gt_row[has] = gt.rows(frame_ids[has], gt_id[has])
+
+    speed = np.hypot(boxes.velocity[:, 0], boxes.velocity[:, 1])
+    ids = boxes.track_id
+    order = np.lexsort((frame_ids, ids))
+    bounds = np.flatnonzero(np.r_[True, ids[order][1:] != ids[order][:-1], True])
+    samples: list[tuple[np.ndarray, ...]] = []
+    n_tracks = 0
+    for a, b in itertools.pairwise(bounds):
+        rows = order[a:b]
+        if len(rows) < MIN_SERIES_SAMPLES:
+            continue
+        tid = int(ids[rows[0]])
+        n_tracks += 1
+        color = int(track_colors_u32(np.array([tid]))[0])
+        f, t = frame_ids[rows], time_of[rows]
+        indexes = time_columns(f, t)
+        values = {
+            paths.SPEED: speed[rows],
+            paths.VELOCITY_X: boxes.velocity[rows, 0],
+            paths.VELOCITY_Y: boxes.velocity[rows, 1],
+            paths.HEADING: boxes.yaw[rows],
+        }
+        for series, v in values.items():
+            _send_series(
+                rec, paths.track_series(tid, series), f"T{tid} {series}", color, indexes, v
+            )
+        if gt is None:
+            continue
+        g = gt_row[rows]
+        on = g >= 0
+        if not on.any():
+            continue
+        gv = gt.velocity[g[on]]
+        gt_values = {
+            paths.SPEED: np.hypot(gv[:, 0], gv[:, 1]),
+            paths.VELOCITY_X: gv[:, 0],
+            paths.VELOCITY_Y: gv[:, 1],
+            paths.HEADING: gt.boxes.yaw[g[on]],
+        }
+        gt_indexes = time_columns(f[on], t[on])
+        for series, v in gt_values.items():
+            path = paths.track_series(tid, paths.GT_PREFIX + series)
+            _send_series(rec, path, f"GT of T{tid} {series}", GT_SERIES_U32, gt_indexes, v)
+        warm = np.flatnonzero(on) >= LAG_WARMUP_SAMPLES
+        samples.append(
+            (
+                f[on][warm],
+                t[on][warm],
+                np.full(int(warm.sum()), tid),
+                gt_id[rows][on][warm],
+                speed[rows][on][warm],
+                gv[warm],
+                gt.boxes.xyz[g[on][warm], :2],
+            )
+        )
+    return find_velocity_lag(samples), n_tracks
+
+
+def find_velocity_lag(samples: Sequence[tuple[np.ndarray, ...]]) -> LagSample | None:
+    """Where the track's speed trails the GT's most visibly.
+
+    ``samples``: per track, arrays (frame, time, track id, GT id, track speed, GT velocity (K, 2),
+    GT xy (K, 2)) of its GT-matched outputs after the warm-up. Static GT objects are left out:
+    their GT "velocity" is label and ego-pose noise (on KITTI, ORB-SLAM poses), not motion.
+
+    For each moving GT object that changes speed (>= :data:`LAG_MIN_SAMPLES` samples, speed range
+    >= :data:`LAG_MIN_SPEED_RANGE_MPS`) the delay is the shift of the track's speed curve that
+    best matches the GT's (mean absolute difference, 0..:data:`LAG_MAX_SHIFT_SAMPLES` samples).
+    The object with the largest delay wins (ties: the larger speed range), and its frame is the
+    one where the track trails most: the speed gap in the direction the GT speed changes
+    (behind while it accelerates, above while it brakes), averaged over
+    :data:`LAG_SMOOTH_SAMPLES` samples so that a single noisy detection does not win. Without any
+    such object: the largest trailing gap of any moving object (``delay_secs`` None).
+    """
+    from tracker.motion_metrics import static_gt_mask
+
+    if not samples:
+        return None
+    columns = [np.concatenate(x) for x in zip(*samples, strict=True)]
+    frame, times, track, gt_id, speed, gt_vel, gt_xy = columns
+    ok = np.isfinite(gt_vel).all(axis=1) & np.isfinite(speed)
+    frame, times, track, gt_id, speed = frame[ok], times[ok], track[ok], gt_id[ok], speed[ok]
+    gt_vel, gt_xy = gt_vel[ok], gt_xy[ok]
+    if not len(frame):
+        return None
+    moving = ~static_gt_mask(gt_id, gt_vel, gt_xy)
+    gt_speed = np.hypot(gt_vel[:, 0], gt_vel[:, 1])
+    best: tuple[float, float] | None = None
+    best_rows: np.ndarray | None = None
+    fallback: tuple[float, int] | None = None
+    for g in np.unique(gt_id[moving]):
+        rows = np.flatnonzero((gt_id == g) & moving)
+        rows = rows[np.argsort(times[rows], kind="stable")]
+        _, first = np.unique(times[rows], return_index=True)  # one sample per time
+        rows = rows[np.sort(first)]
+        # trailing = the track's speed is behind the GT's in the direction the GT's changes
+        gt_smooth = _moving_average(gt_speed[rows], LAG_SMOOTH_SAMPLES)
+        trend = np.sign(np.gradient(gt_smooth)) if len(rows) > 1 else np.zeros(len(rows))
+        gap = _moving_average((gt_speed[rows] - speed[rows]) * trend, LAG_SMOOTH_SAMPLES)
+        k = int(np.argmax(gap))
+        if fallback is None or gap[k] > fallback[0]:
+            fallback = (float(gap[k]), int(rows[k]))
+        speed_range = float(np.ptp(gt_speed[rows]))
+        if len(rows) < LAG_MIN_SAMPLES or speed_range < LAG_MIN_SPEED_RANGE_MPS:
+            continue
+        shift = _best_shift(gt_speed[rows], speed[rows], LAG_MAX_SHIFT_SAMPLES)
+        delay = shift * float(np.median(np.diff(times[rows])))
+        if best is None or (delay, speed_range) > best:
+            best, best_rows = (delay, speed_range), rows[[k]]
+    if best is not None and best_rows is not None:
+        k, delay_secs = int(best_rows[0]), best[0]
+    elif fallback is not None:
+        k, delay_secs = fallback[1], None
+    else:
+        return None
+    return LagSample(
+        frame_id=int(frame[k]),
+        track_id=int(track[k]),
+        gt_id=int(gt_id[k]),
+        track_speed_mps=float(speed[k]),
+        gt_speed_mps=float(gt_speed[k]),
+        delay_secs=delay_secs,
+    )
+
+
+def _moving_average(x: FloatArray, window: int) -> FloatArray:
+    if len(x) < window:
+        return np.full(len(x), float(np.mean(x)) if len(x) else 0.0)
+    kernel = np.ones(window) / window
+    return np.convolve(x, kernel, mode="same")
+
+
+def _best_shift(reference: FloatArray, delayed: FloatArray, max_shift: int) -> int:
+    """Samples by which ``delayed`` trails ``reference`` (smallest mean absolute difference)."""
+    scores = [
+        float(np.mean(np.abs(delayed[s:] - reference[: len(reference) - s])))
+        for s in range(min(max_shift, len(reference) - 2) + 1)
+    ]
+    return int(np.argmin(scores))
+
+
+def _log_id_events(
+    rec: rr.RecordingStream,
+    evaluation: IdEvaluation,
+    outputs: Sequence[TrackOutput],
+    times: Mapping[int, float],
+    gt: _GtIndex | None,
+    observer: RerunObserver,
+) -> None:
+    """WARN TextLogs at each event's frame, and 3D markers at each ID switch for a few frames."""
+    by_frame = {o.frame_id: o for o in outputs}
+    markers: dict[int, list[tuple[np.ndarray, str]]] = {}
+    for e in evaluation.events:
+        set_frame_time(rec, e.frame_id, times.get(e.frame_id, np.nan))
+        rec.log(
+            paths.EVENTS,
+            rr.TextLog(event_text(e, observer), level=rr.TextLogLevel.WARN),
+        )
+        if e.kind is not IdEventKind.ID_SWITCH:
+            continue
+        xyz = _event_position(e, by_frame.get(e.frame_id), gt)
+        if xyz is None:
+            continue
+        label = f"ID switch GT {e.gt_id}: T{e.old_track_id} -> T{e.new_track_id}"
+        for f in range(e.frame_id, e.frame_id + MARKER_HOLD_FRAMES):
+            markers.setdefault(f, []).append((xyz, label))
+    shown = False
+    frames_with_time = sorted(times)
+    for f in frames_with_time:
+        items = markers.get(f)
+        if items is None and not shown:
+            continue
+        set_frame_time(rec, f, times[f])
+        items = items or []
+        rec.log(
+            paths.ID_SWITCH_MARKERS,
+            rr.Points3D(
+                np.array([p for p, _ in items], dtype=np.float32).reshape(-1, 3),
+                radii=0.8,
+                colors=ID_SWITCH_RGB,
+                labels=[lbl for _, lbl in items],
+                show_labels=True,
+            ),
+        )
+        shown = bool(items)
+
+
+def _event_position(
+    e: IdEvent, output: TrackOutput | None, gt: _GtIndex | None
+) -> np.ndarray | None:
+    if gt is not None:
+        row = gt.rows(np.array([e.frame_id]), np.array([e.gt_id]))[0]
+        if row >= 0:
+            return gt.boxes.xyz[row] + np.array([0.0, 0.0, 1.5])
+    if output is not None:
+        hit = np.flatnonzero(output.boxes.track_id == e.new_track_id)
+        if len(hit):
+            return output.boxes.xyz[hit[0]] + np.array([0.0, 0.0, 1.5])
+    return None
+
+
+def event_text(e: IdEvent, observer: RerunObserver | None = None) -> str:
+    """One line per event: what switched, the evaluator's similarity, the tracker's cost."""
+    tracker_cost = ""
+    costs = observer.match_costs.get(e.frame_id) if observer is not None else None
+    if costs is not None:
+        hit = np.flatnonzero(costs.track_ids == e.new_track_id)
+        if len(hit):
+            stage = "BEV" if costs.stage[hit[0]] == 1 else "RV"
+            tracker_cost = (
+                f"; tracker matched T{e.new_track_id} in {stage} at cost {costs.costs[hit[0]]:.3f}"
+            )
+        else:
+            tracker_cost = f"; T{e.new_track_id} had no detection this frame (coasting)"
+    what = "ID switch" if e.kind is IdEventKind.ID_SWITCH else "fragmentation"
+    return (
+        f"{what} at frame {e.frame_id}: GT {e.gt_id} ({e.category}) "
+        f"T{e.old_track_id} -> T{e.new_track_id} (last matched at frame {e.last_frame_id}); "
+        f"evaluator similarity {e.similarity:.3f} (cost {e.cost:.3f}){tracker_cost}"
+    )
+
+
+def _log_index(rec: rr.RecordingStream, result: RecordResult) -> None:
+    """Static ``summary/index``: where ``mctrack shots`` (or a test) should look.
+
+    Empty lists are left out (Rerun drops empty AnyValues columns with a warning); a reader
+    treats a missing field as empty."""
+    ev = result.id_evaluation
+    switches = ev.id_switches if ev else []
+    frags = ev.fragmentations if ev else []
+    lag = result.lag
+    fields = {
+        "id_switch_frames": [e.frame_id for e in switches],
+        "id_switch_gt_ids": [e.gt_id for e in switches],
+        "id_switch_old_track_ids": [e.old_track_id for e in switches],
+        "id_switch_new_track_ids": [e.new_track_id for e in switches],
+        "fragmentation_frames": [e.frame_id for e in frags],
+        "lag_frame": [lag.frame_id] if lag else [],
+        "lag_track_id": [lag.track_id] if lag else [],
+        "lag_gt_id": [lag.gt_id] if lag else [],
+        "lag_error_mps": [lag.error_mps] if lag else [],
+        "lag_delay_secs": [lag.delay_secs] if lag and lag.delay_secs is not None else [],
+        "frames": [result.counts.get("frames", 0)],
+    }
+    values = {
+        k: np.array(v, dtype=np.float64 if k.endswith(("_mps", "_secs")) else np.int64)
+        for k, v in fields.items()
+        if v
+    }
+    rec.log(paths.SHOT_INDEX, rr.AnyValues(**values), static=True)
+
+
+def summary_markdown(
+    result: RecordResult,
+    config: TrackerConfig,
+    input_description: str,
+    observer: RerunObserver | None = None,
+) -> str:
+    """The static ``summary`` document."""
+    lines = [f"# MCTrack debug recording: scene {result.scene}", "", "## Input", ""]
+    lines += [input_description or "(not given)", ""]
+    lines += ["## Counts", "", "| what | count |", "|---|---:|"]
+    lines += [f"| {k.replace('_', ' ')} | {v} |" for k, v in result.counts.items()]
+    ev = result.id_evaluation
+    lines += ["", "## Static metrics", ""]
+    if result.kitti_metrics:
+        cols = ["HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "FN"]
+        lines += ["TrackEval 1.3.0, KITTI 2D-box protocol.", ""]
+        lines += ["| class | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
+        for cls, m in result.kitti_metrics.items():
+            lines.append(f"| {cls} | " + " | ".join(str(m[c]) for c in cols) + " |")
+    elif ev is not None:
+        lines += [
+            f"{ev.method}: "
+            + ", ".join(f"{c} IDSW {n['IDSW']} Frag {n['Frag']}" for c, n in ev.counts.items())
+        ]
+    else:
+        lines.append("no ground truth given")
+    lines += ["", "## Motion metrics", "", result.motion_markdown, ""]
+    if result.lag is not None:
+        lag = result.lag
+        lines += [
+            "Largest velocity lag (the moving GT object whose speed curve the track trails "
+            f"most; its frame of largest speed gap): frame {lag.frame_id}, T{lag.track_id} "
+            f"{lag.track_speed_mps:.2f} m/s vs GT {lag.gt_id} {lag.gt_speed_mps:.2f} m/s"
+            + (f", delay {lag.delay_secs:.1f} s." if lag.delay_secs is not None else "."),
+            "",
+        ]
+    lines += ["## ID switches", ""]
+    if ev is None:
+        lines.append("no ground truth given")
+    else:
+        lines += [f"Counted as TrackEval's CLEAR does ({ev.method}).", ""]
+        switches = ev.id_switches
+        if switches:
+            lines += [
+                "| frame | class | GT | old track | new track | similarity | tracker |",
+                "|---:|---|---:|---:|---:|---:|---|",
+            ]
+            for e in switches:
+                lines.append(
+                    f"| {e.frame_id} | {e.category} | {e.gt_id} | T{e.old_track_id} | "
+                    f"T{e.new_track_id} | {e.similarity:.3f} | "
+                    f"{_tracker_cost_cell(e, observer)} |"
+                )
+        else:
+            lines.append("none")
+        frags = ev.fragmentations
+        lines += [
+            "",
+            f"Fragmentations: {len(frags)} at frames "
+            + (", ".join(str(e.frame_id) for e in frags) or "-"),
+        ]
+    lines += [
+        "",
+        "## Config (resolved)",
+        "",
+        "```json",
+        json.dumps(config_to_dict(config), indent=1, default=str),
+        "```",
+    ]
+    return "\n".join(lines)
+
+
+def _tracker_cost_cell(e: IdEvent, observer: RerunObserver | None) -> str:
+    costs = observer.match_costs.get(e.frame_id) if observer is not None else None
+    if costs is None:
+        return "-"
+    hit = np.flatnonzero(costs.track_ids == e.new_track_id)
+    if not len(hit):
+        return "coasting"
+    stage = "BEV" if costs.stage[hit[0]] == 1 else "RV"
+    return f"{stage} {costs.costs[hit[0]]:.3f}"
