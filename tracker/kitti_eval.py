@@ -67,8 +67,8 @@ def evaluate_kitti(
         )
         metrics = [
             trackeval.metrics.HOTA(),
-            trackeval.metrics.CLEAR(),
-            trackeval.metrics.Identity(),
+            trackeval.metrics.CLEAR({"PRINT_CONFIG": False}),
+            trackeval.metrics.Identity({"PRINT_CONFIG": False}),
         ]
         out: dict[str, dict[str, float]] = {}
         standard = [c for c in classes if c in ("car", "pedestrian")]

@@ -1,0 +1,179 @@
+"""MCTracker behaviour: lifecycle state machine, matching rules, time handling, determinism,
+and an end-to-end regression on the bundled sample sequence."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tracker.baseversion import read_baseversion
+from tracker.boxes import Boxes
+from tracker.categories import category_index
+from tracker.config import load_config
+from tracker.errors import InputError
+from tracker.events import LifecycleChanged, ListObserver, TrackStatus
+from tracker.frame import Frame
+from tracker.mctracker import MCTracker
+from tracker.pipeline import run_scene
+
+CAR = category_index("car")
+PED = category_index("pedestrian")
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+GOLDEN = Path(__file__).resolve().parent / "golden" / "sample_metrics.json"
+
+
+def config(**lifecycle: int | float):
+    """KITTI config with explicit, test-owned lifecycle numbers (not the tuned ones)."""
+    life = {
+        "min_hits": 2,
+        "confirm_score": 2.0,
+        "max_misses_output": 1,
+        "max_misses": 3,
+        "max_misses_tentative": 0,
+        **lifecycle,
+    }
+    return load_config(
+        "kitti",
+        overrides={
+            "categories": ["car", "pedestrian"],
+            "rv_matching": False,
+            "defaults": {"score_min": 0.1, "birth_score_min": 0.5, "lifecycle": life},
+            "category": {
+                name: {"score_min": 0.1, "birth_score_min": 0.5, "lifecycle": life}
+                for name in ("car", "pedestrian", "cyclist")
+            },
+        },
+    )
+
+
+def frame(
+    i: int,
+    xs: list[float],
+    *,
+    cats: list[int] | None = None,
+    scores: list[float] | None = None,
+    t: float | None = None,
+) -> Frame:
+    n = len(xs)
+    boxes = Boxes.create(
+        xyz=[[x, 0.0, 0.8] for x in xs],
+        lwh=[[4.0, 1.8, 1.6]] * n,
+        yaw=[0.0] * n,
+        category=cats if cats is not None else [CAR] * n,
+        score=scores if scores is not None else [0.9] * n,
+    )
+    return Frame(scene="s", frame_id=i, timestamp_secs=0.1 * i if t is None else t, boxes=boxes)
+
+
+def test_tentative_confirm_coast_lose_delete() -> None:
+    obs = ListObserver()
+    tracker = MCTracker(config(), observer=obs)
+    out0 = tracker.step(frame(0, [10.0]))
+    assert len(out0) == 0  # tentative: not output at birth (min_hits 2)
+    out1 = tracker.step(frame(1, [11.0]))
+    assert out1.boxes.track_id.tolist() == [0]
+    assert out1.status.tolist() == [TrackStatus.CONFIRMED]
+    out2 = tracker.step(frame(2, []))  # first miss: coasting, still output (max_misses_output 1)
+    assert out2.status.tolist() == [TrackStatus.COASTING]
+    assert out2.det_row.tolist() == [-1]
+    assert out2.boxes.xyz[0, 0] > 11.0  # predicted forward, beyond the last detection
+    assert len(tracker.step(frame(3, []))) == 0  # second miss: lost, not output
+    tracker.step(frame(4, []))
+    tracker.step(frame(5, []))  # fourth miss > max_misses 3: deleted
+    changes = [e for e in obs.events if isinstance(e, LifecycleChanged)]
+    assert changes[0].born.tolist() == [0]
+    assert changes[1].confirmed.tolist() == [0]
+    assert changes[3].lost.tolist() == [0]
+    assert changes[5].deleted.tolist() == [0]
+    assert len(tracker.step(frame(6, [16.0]))) == 0  # a new, tentative track
+    assert tracker.step(frame(7, [17.0])).boxes.track_id.tolist() == [1]
+
+
+def test_reacquire_keeps_identity() -> None:
+    tracker = MCTracker(config())
+    for i in range(3):
+        tracker.step(frame(i, [10.0 + i]))
+    tracker.step(frame(3, []))
+    tracker.step(frame(4, []))
+    out = tracker.step(frame(5, [15.0]))  # re-acquired within max_misses
+    assert out.boxes.track_id.tolist() == [0]
+    assert out.status.tolist() == [TrackStatus.CONFIRMED]
+
+
+def test_tentative_track_dies_on_first_miss_and_confirm_score() -> None:
+    tracker = MCTracker(config(confirm_score=0.95))
+    assert len(tracker.step(frame(0, [10.0], scores=[0.9]))) == 0
+    assert len(tracker.step(frame(1, []))) == 0  # tentative + miss -> deleted
+    out = tracker.step(frame(2, [30.0], scores=[0.99]))  # confident: confirmed at birth
+    assert out.boxes.track_id.tolist() == [1]
+
+
+def test_birth_threshold_and_score_filter() -> None:
+    tracker = MCTracker(config(min_hits=1))
+    out = tracker.step(frame(0, [10.0, 30.0, 50.0], scores=[0.05, 0.3, 0.9]))
+    # 0.05 is below score_min (dropped), 0.3 can match but not start a track, 0.9 starts one
+    assert len(out) == 1 and out.boxes.xyz[0, 0] == pytest.approx(50.0)
+
+
+def test_never_matches_across_categories() -> None:
+    tracker = MCTracker(config(min_hits=1))
+    tracker.step(frame(0, [10.0], cats=[CAR]))
+    out = tracker.step(frame(1, [10.1], cats=[PED]))
+    assert sorted(out.boxes.track_id.tolist()) == [0, 1]
+    assert out.boxes.category[out.boxes.track_id == 1].tolist() == [PED]
+
+
+def test_real_time_step_and_order() -> None:
+    tracker = MCTracker(config(min_hits=1))
+    for i in range(5):  # 10 m/s along x
+        tracker.step(frame(i, [10.0 + 1.0 * i]))
+    # a frame 0.3 s later (two frames missing): the prediction covers the real elapsed time
+    out = tracker.step(frame(5, [], t=0.7))
+    assert out.boxes.xyz[0, 0] == pytest.approx(14.0 + 3.0, abs=0.3)
+    with pytest.raises(InputError, match="time order"):
+        tracker.step(frame(6, [20.0], t=0.5))
+
+
+def test_empty_frames_and_determinism() -> None:
+    frames = [frame(i, [10.0 + i, 40.0 - i] if i % 4 else []) for i in range(20)]
+    a = run_scene(frames, config(min_hits=1)).outputs
+    b = run_scene(frames, config(min_hits=1)).outputs
+    for x, y in zip(a, b, strict=True):
+        assert x.boxes.equals(y.boxes)
+        assert np.all(np.diff(x.boxes.track_id) > 0)  # sorted, unique ids
+
+
+def test_observer_does_not_change_results() -> None:
+    frames = [frame(i, [10.0 + i, 40.0 - 0.5 * i]) for i in range(15)]
+    plain = run_scene(frames, config()).outputs
+    observed = run_scene(frames, config(), observer=ListObserver()).outputs
+    for x, y in zip(plain, observed, strict=True):
+        assert x.boxes.equals(y.boxes)
+
+
+@pytest.mark.skipif(not SAMPLE.is_dir(), reason="sample_data/kitti-0001 missing")
+def test_sample_sequence_regression() -> None:
+    """Track count and ID switches on the bundled sequence, against committed numbers."""
+    from tracker.kitti_eval import evaluate_kitti
+    from tracker.writers import write_kitti_sequence
+
+    cfg = load_config("kitti")
+    frames = read_baseversion(SAMPLE / "detections.json.gz")["0001"]
+    outputs = run_scene(frames, cfg).outputs
+    ids = {int(t) for o in outputs for t in o.boxes.track_id}
+    result = Path(pytest.importorskip("tempfile").mkdtemp())
+    write_kitti_sequence(result / "0001.txt", outputs, frames)
+    metrics = evaluate_kitti(
+        label_dir=SAMPLE / "raw" / "training" / "label_02",
+        result_dir=result,
+        seq_lengths={"0001": len(frames)},
+        classes=["car", "pedestrian"],
+    )
+    golden = json.loads(GOLDEN.read_text())
+    assert len(ids) == golden["tracks"]
+    assert metrics["car"]["IDSW"] == golden["car"]["IDSW"]
+    assert metrics["pedestrian"]["IDSW"] == golden["pedestrian"]["IDSW"]
+    assert metrics["car"]["HOTA"] == pytest.approx(golden["car"]["HOTA"], abs=0.05)
