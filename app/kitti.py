@@ -60,6 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="also compute the motion metrics (summary.json 'motion', motion.md, PNG)",
     )
+    parser.add_argument("--record", default=None, help="one Rerun recording per sequence in DIR")
     parser.add_argument("--out", required=True, help="output folder")
 
 
@@ -75,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
         poses=None if args.poses == "none" else args.poses,
         evaluate=not args.no_eval,
         motion=args.motion,
+        record=Path(args.record) if args.record else None,
         out=Path(args.out),
     )
     _print_summary(summary)
@@ -93,6 +95,7 @@ def run_kitti(
     poses: str | None = "orbslam3",
     evaluate: bool = True,
     motion: bool = False,
+    record: Path | None = None,
     out: Path,
     config_overrides: dict[str, Any] | None = None,
     quiet: bool = False,
@@ -114,7 +117,12 @@ def run_kitti(
     config = load_config(config_name, overrides=overrides)
     t0 = time.perf_counter()
     detections, gt = convert_kitti(
-        kitti_root, seqs=seqs, detector=detector, poses=poses, classes=classes, with_gt=motion
+        kitti_root,
+        seqs=seqs,
+        detector=detector,
+        poses=poses,
+        classes=classes,
+        with_gt=motion or record is not None,
     )
     convert_secs = time.perf_counter() - t0
 
@@ -126,6 +134,20 @@ def run_kitti(
             results[seq] = run_scene(frames, config)
             bar.update(len(frames))
     tracker_secs = sum(r.tracker_seconds for r in results.values())
+    label_dir = labels or kitti_root / "training" / "label_02"
+    if record is not None:  # outside the timed tracker region
+        from viz.record import record_scene
+
+        for seq, frames in detections.items():
+            labels_ok = label_dir if (label_dir / f"{seq}.txt").is_file() else None
+            record_scene(
+                frames,
+                config,
+                (gt or {}).get(seq),
+                record / f"{seq}.rrd",
+                labels_dir=labels_ok,
+                motion_metrics=False,
+            )
 
     data_dir = out / "data"
     for seq, frames in detections.items():
@@ -147,7 +169,6 @@ def run_kitti(
         "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
         "config": config_to_dict(config),
     }
-    label_dir = labels or kitti_root / "training" / "label_02"
     if evaluate:
         missing = [s for s in detections if not (label_dir / f"{s}.txt").is_file()]
         if missing:

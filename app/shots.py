@@ -15,6 +15,7 @@ from pathlib import Path
 from tracker.errors import InputError
 
 EXIT_NO_RENDERER = 3
+EXIT_VIEWER_FAILED = 4
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,6 +50,9 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_NO_RENDERER
+    except (RuntimeError, TimeoutError, OSError) as exc:  # the viewer died or never answered
+        print(f"mctrack shots: the headless viewer failed: {exc}", file=sys.stderr)
+        return EXIT_VIEWER_FAILED
     for shot in shots:
         print(f"{shot.path}  ({shot.reason} at frame {shot.frame}: {shot.view})")
     return 0

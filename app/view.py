@@ -37,7 +37,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--no-motion", action="store_true", help="skip the motion metrics")
     sink = parser.add_mutually_exclusive_group()
-    sink.add_argument("--save", default=None, metavar="OUT.rrd", help="write a recording file")
+    sink.add_argument(
+        "--save",
+        default=None,
+        metavar="OUT.rrd",
+        help="write a recording file (the default, as ./mctrack_<scene>.rrd)",
+    )
     sink.add_argument("--spawn", action="store_true", help="stream to a new native viewer")
     sink.add_argument("--serve-web", action="store_true", help="serve a web viewer (until Ctrl-C)")
     parser.add_argument("--web-port", type=int, default=9090)

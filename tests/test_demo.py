@@ -31,7 +31,7 @@ def test_demo_writes_a_recording_and_says_how_to_open_it(
     assert f"rerun {rrd}" in out
     assert "tracks:" in out and "ID switches (car):" in out and "HOTA" in out and "MOTA" in out
     found = _entity_paths(rrd)
-    for path in (paths.TRACKS_UPDATED, paths.GT, paths.SUMMARY, paths.EVENTS):
+    for path in (paths.TRACKS_UPDATED, paths.GT, paths.SUMMARY, paths.EVENTS_LIFECYCLE):
         assert paths.entity(path) in found
 
 
@@ -57,7 +57,7 @@ def test_ci_artifact_recording() -> None:
         paths.camera_image("CAM_FRONT"),
         paths.camera_detections("CAM_FRONT"),
         paths.camera_tracks("CAM_FRONT"),
-        paths.EVENTS,
+        paths.EVENTS_LIFECYCLE,
         paths.SUMMARY,
         paths.SHOT_INDEX,
     ]

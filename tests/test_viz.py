@@ -128,6 +128,7 @@ def test_every_contract_path_exists(rrd: Path, result: RecordResult) -> None:
         paths.camera_tracks(cam),
         paths.camera_matches_rv(cam),
         paths.EVENTS,
+        paths.EVENTS_LIFECYCLE,
         paths.ID_SWITCH_MARKERS,
         paths.SUMMARY,
         paths.SHOT_INDEX,
@@ -232,9 +233,19 @@ def test_cost_matrix_rows_and_columns_are_labelled(rrd: Path) -> None:
     assert any(t.startswith("T") for t in texts) and any(t.startswith("d") for t in texts)
     image = entity_table(rrd, paths.COST_BEV)
     fmt = column_at(image, "Image:format", frame)[0]
-    rows = sum(t.startswith("T") for t in texts)
+    rows = sum(t.startswith("T") and t[1:].isdigit() for t in texts)
     cols = sum(t.startswith("d") and t[1:].isdigit() for t in texts)
     assert (fmt["height"], fmt["width"]) == (rows, cols)
+
+
+def test_lifecycle_events_are_logged(rrd: Path, result: RecordResult) -> None:
+    table = entity_table(rrd, paths.EVENTS_LIFECYCLE)
+    texts = [t[0] for t in table["TextLog:text"].to_pylist() if t]
+    levels = {lv[0] for lv in table["TextLog:level"].to_pylist() if lv}
+    assert levels <= {"DEBUG", "INFO"}
+    born = [t for t in texts if t.startswith("born: ")]
+    assert sum(len(t.split(", ")) for t in born) == result.counts["tracks_born"]
+    assert any(t.startswith("lost: ") for t in texts)
 
 
 def test_dropped_detections_say_why(rrd: Path) -> None:
@@ -277,3 +288,23 @@ def test_recorded_gt_wireframes_are_the_projection(rrd: Path) -> None:
     table = entity_table(rrd, f"{paths.camera(cam.name)}/gt")
     strips = np.array(column_at(table, "LineStrips2D:strips", frame.frame_id))
     np.testing.assert_allclose(strips, expected, atol=1e-2)
+
+
+@pytest.mark.parametrize("with_gt", [False, True])
+def test_synthetic_scene_without_labels(tmp_path: Path, with_gt: bool) -> None:
+    """No KITTI labels, no ego pose: the recording still works (BEV-IoU ID switches with GT)."""
+    from tracker.synthetic import synthetic_scene
+
+    det, gt = synthetic_scene(num_objects=6, num_frames=40, seed=3)
+    config = load_config("kitti", overrides={"categories": ["car", "pedestrian"]})
+    path = tmp_path / "synthetic.rrd"
+    result = record_scene(det, config, gt if with_gt else None, path, motion_metrics=False)
+    present = entity_paths(path)
+    for p in (paths.TRACKS_UPDATED, paths.COST_BEV, paths.camera_tracks("CAM_FRONT")):
+        assert paths.entity(p) in present
+    assert (paths.entity(paths.GT) in present) == with_gt
+    assert paths.entity(paths.EGO) not in present  # synthetic frames have no ego pose
+    if with_gt:
+        assert result.id_evaluation is not None and "BEV IoU" in result.id_evaluation.method
+    else:
+        assert result.id_evaluation is None and result.lag is None

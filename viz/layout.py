@@ -138,6 +138,7 @@ def debug_blueprint(
     text = rrb.Tabs(
         rrb.TextLogView(
             origin=paths.entity(paths.EVENTS),
+            contents=["$origin"],
             name=f"{VIEW_ID_EVENTS}, fragmentations",
             rows=rrb.archetypes.TextLogRows(filter_by_log_level=["WARN", "ERROR"]),
         ),

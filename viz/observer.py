@@ -100,7 +100,9 @@ class RerunObserver:
     images : camera name -> folder of ``<frame_id:06d>.png|jpg`` images (KITTI layout).
     trail_frames : positions kept per track for ``world/trails``.
     flush_rows, flush_secs : rows are sent after this many frames or seconds (smaller = lower
-        latency in a live viewer, a little more overhead).
+        latency in a live viewer, a little more overhead; larger = fewer, bigger chunks, whose
+        per-chunk bookkeeping in the file sink is what grows with a long recording).
+    keep_match_costs : keep each frame's accepted pairs in :attr:`match_costs`.
     """
 
     def __init__(
@@ -110,8 +112,9 @@ class RerunObserver:
         gt: Mapping[int, Frame] | None = None,
         images: Mapping[str, str | Path] | None = None,
         trail_frames: int = 20,
-        flush_rows: int = 256,
-        flush_secs: float = 2.0,
+        flush_rows: int = 512,
+        flush_secs: float = 4.0,
+        keep_match_costs: bool = False,
     ) -> None:
         self.rec = rec
         self.gt = gt or {}
@@ -125,8 +128,10 @@ class RerunObserver:
         self._trails: dict[int, deque[tuple[int, np.ndarray]]] = {}
         self._state: _FrameState | None = None
         # kept for the post-run part of the recording (small per frame)
-        self.frame_times: dict[int, float] = {}
+        #: the tracker's accepted pairs per frame, kept only with ``keep_match_costs`` (they
+        #: explain ID switches afterwards; ~0.1 KB per frame otherwise not worth keeping)
         self.match_costs: dict[int, FrameMatchCosts] = {}
+        self.keep_match_costs = keep_match_costs
         self.ego_xyz: list[np.ndarray] = []
         self._ego_yaw_offset: float | None = None
         self.lifecycle_counts = {"born": 0, "lost": 0, "reacquired": 0, "deleted": 0}
@@ -162,7 +167,6 @@ class RerunObserver:
     def _on_frame_started(self, event: FrameStarted) -> None:
         frame = event.frame
         self._state = _FrameState(frame, event.time_secs)
-        self.frame_times[frame.frame_id] = event.time_secs
         pose = frame.world_from_ego
         if np.isfinite(pose).all():
             self.ego_xyz.append(pose[:3, 3].astype(np.float32))
@@ -283,7 +287,6 @@ class RerunObserver:
             state.rv_matched = event
 
     def _on_lifecycle(self, event: LifecycleChanged) -> None:
-        texts, levels = [], []
         for kind, key, ids in (
             ("born", "born", event.born),
             ("lost", "lost", event.lost),
@@ -292,10 +295,10 @@ class RerunObserver:
         ):
             if len(ids):
                 self.lifecycle_counts[key] += len(ids)
-                texts.append(f"{kind}: " + ", ".join(f"T{i}" for i in ids.tolist()))
-                levels.append("DEBUG" if kind == "born" else "INFO")
-        if texts:
-            self._add(paths.EVENTS, rr.TextLog, len(texts), text=texts, level=levels)
+                # one message per row: a TextLog's level is one per row, not per message
+                text = f"{kind}: " + ", ".join(f"T{i}" for i in ids.tolist())
+                level = "DEBUG" if kind == "born" else "INFO"
+                self._add(paths.EVENTS_LIFECYCLE, rr.TextLog, 1, text=[text], level=[level])
         for i in event.deleted.tolist():
             self._trails.pop(i, None)
 
@@ -308,11 +311,12 @@ class RerunObserver:
         for cam in state.frame.cameras:
             path = paths.camera_tracks(cam.name)
             self._defer(path, rr.LineStrips2D, (out.boxes, None, cam, None), _build_wireframes)
-            self._defer(path, rr.Boxes2D, (out.boxes, cam), _build_track_boxes2d)
+            self._defer(path, rr.Boxes2D, (out.boxes, None, cam, None), _build_track_boxes2d)
         self._log_cost(paths.COST_BEV, state.bev_cost, state.bev_matched)
         self._log_cost(paths.COST_RV, state.rv_cost, state.rv_matched)
         self._log_matches_rv(state)
-        self._keep_match_costs(out.frame_id, state)
+        if self.keep_match_costs:
+            self._keep_match_costs(out.frame_id, state)
         self._state = None
         self.columns.end_frame()
 
@@ -333,10 +337,11 @@ class RerunObserver:
                 self._cost_shown[path] = False
             return
         self._cost_shown[path] = True
-        self._defer(path, rr.Image, cost, _build_cost_image)
-        self._defer(f"{path}/{paths.COST_LABELS}", rr.Points2D, cost, _build_cost_labels)
+        shown = _CostRows(cost, _comparable_rows(cost))
+        self._defer(path, rr.Image, shown, _build_cost_image)
+        self._defer(f"{path}/{paths.COST_LABELS}", rr.Points2D, shown, _build_cost_labels)
         self._defer(
-            f"{path}/{paths.COST_MATCHED}", rr.Boxes2D, (cost, matched), _build_cost_matched
+            f"{path}/{paths.COST_MATCHED}", rr.Boxes2D, (shown, matched), _build_cost_matched
         )
 
     def _log_matches_rv(self, state: _FrameState) -> None:
@@ -458,6 +463,11 @@ def _hidden(rows: int) -> dict[str, list[Any]]:
     return {"show_labels": [False] * rows}
 
 
+def _wire(rows: int, *, labels: bool) -> dict[str, list[Any]]:
+    """Boxes as wireframes (a filled box hides the ones inside it: track in detection in GT)."""
+    return {"show_labels": [labels] * rows, "fill_mode": ["MajorWireframe"] * rows}
+
+
 def _lengths(parts: Sequence[Any]) -> IntArray:
     return np.array([len(p) for p in parts], dtype=np.int64)
 
@@ -470,7 +480,7 @@ def _build_gt(parts: list[Boxes]) -> Built:
     boxes = Boxes.concat(parts)
     labels = [f"gt {i}" for i in boxes.track_id.tolist()]
     fields = boxes3d_fields(boxes, colors=solid(GT_RGB, len(boxes)), labels=labels, radius=0.02)
-    return fields, _lengths(parts), _hidden(len(parts))
+    return fields, _lengths(parts), _wire(len(parts), labels=False)
 
 
 def _frame_rows(lengths: IntArray) -> IntArray:
@@ -492,7 +502,7 @@ def _build_detections_raw(parts: list[tuple[Boxes, np.ndarray]]) -> Built:
     return (
         boxes3d_fields(boxes, colors=colors, labels=labels, radius=0.015),
         lengths,
-        _hidden(len(parts)),
+        _wire(len(parts), labels=False),
     )
 
 
@@ -509,7 +519,7 @@ def _build_detections_kept(parts: list[tuple[Boxes, np.ndarray]]) -> Built:
     fields = boxes3d_fields(
         boxes, colors=solid(DETECTION_KEPT_RGB, len(boxes)), labels=labels, radius=0.03
     )
-    return fields, lengths, _hidden(len(parts))
+    return fields, lengths, _wire(len(parts), labels=False)
 
 
 def _build_predicted(parts: list[tuple[IntArray, Boxes]]) -> Built:
@@ -518,7 +528,7 @@ def _build_predicted(parts: list[tuple[IntArray, Boxes]]) -> Built:
     fields = boxes3d_fields(
         boxes, colors=track_colors_u32(ids), labels=[str(i) for i in ids.tolist()], radius=0.015
     )
-    return fields, _lengths([i for i, _ in parts]), _hidden(len(parts))
+    return fields, _lengths([i for i, _ in parts]), _wire(len(parts), labels=False)
 
 
 def _build_updated(outputs: list[TrackOutput]) -> Built:
@@ -529,7 +539,7 @@ def _build_updated(outputs: list[TrackOutput]) -> Built:
     fields = boxes3d_fields(
         boxes, colors=track_colors_u32(ids), labels=[str(i) for i in ids.tolist()], radius=radius
     )
-    return fields, _lengths(outputs), {"show_labels": [True] * len(outputs)}
+    return fields, _lengths(outputs), _wire(len(outputs), labels=True)
 
 
 def _build_velocity(outputs: list[TrackOutput]) -> Built:
@@ -544,12 +554,20 @@ def _build_velocity(outputs: list[TrackOutput]) -> Built:
     return fields, _lengths(outputs), {}
 
 
+#: One-slot cache of :func:`_project` (key: identities of the rows' objects, alive while the
+#: buffer holds them).
+_LAST_PROJECTION: list[Any] = []
+
+
 def _project(
     parts: Sequence[tuple[Boxes, np.ndarray | None, Camera]],
 ) -> tuple[Boxes, FloatArray, FloatArray, np.ndarray, IntArray, np.ndarray]:
     """Concatenate (boxes, row mask or None, camera) rows and project every selected box into
     its row's camera. Returns the boxes, segments, 2D boxes, visibility, the row of each box and
     its image size."""
+    key = tuple((id(b), id(mask), id(c)) for b, mask, c in parts)
+    if _LAST_PROJECTION and _LAST_PROJECTION[0] == key:
+        return tuple(_LAST_PROJECTION[1])
     boxes = Boxes.concat([b for b, _, _ in parts])
     frame_of_box = np.repeat(np.arange(len(parts)), _lengths([b for b, _, _ in parts]))
     if any(mask is not None for _, mask, _ in parts):
@@ -560,7 +578,11 @@ def _project(
     m = np.stack([c.image_from_world for _, _, c in parts])[frame_of_box]
     size = np.array([[c.width_px, c.height_px] for _, _, c in parts]).reshape(-1, 2)[frame_of_box]
     seg, xyxy, visible = project_boxes_batched(boxes.xyz, boxes.lwh, boxes.yaw, m, size)
-    return boxes, seg, xyxy, visible, frame_of_box, size
+    result = (boxes, seg, xyxy, visible, frame_of_box, size)
+    # the tracks' wireframes and 2D boxes are built one after the other from the same rows
+    # (keeping ``parts`` alive keeps the ids in the key from being reused by new objects)
+    _LAST_PROJECTION[:] = [key, result, parts]
+    return result
 
 
 def _build_wireframes(parts: list[tuple[Boxes, Any, Camera, Any]]) -> Built:
@@ -581,8 +603,9 @@ def _build_wireframes(parts: list[tuple[Boxes, Any, Camera, Any]]) -> Built:
     return fields, np.bincount(frame_of_box[box_rows], minlength=len(parts)), {}
 
 
-def _build_track_boxes2d(parts: list[tuple[Boxes, Camera]]) -> Built:
-    boxes, _, xyxy, visible, frame_of_box, _ = _project([(b, None, c) for b, c in parts])
+def _build_track_boxes2d(parts: list[tuple[Boxes, Any, Camera, Any]]) -> Built:
+    """The tracks' projected 2D boxes (same payload, and projection, as their wireframes)."""
+    boxes, _, xyxy, visible, frame_of_box, _ = _project([(b, m, c) for b, m, c, _ in parts])
     ids = boxes.track_id[visible]
     fields = boxes2d_fields(
         xyxy[visible],
@@ -649,32 +672,53 @@ def _build_unmatched_detections(parts: list[tuple[IntArray, FloatArray]]) -> Bui
 
 
 def _comparable_rows(c: CostComputed) -> IntArray:
-    """Rows (tracks) with at least one comparable detection: the others are all +inf (another
-    category, beyond the gate) and would bury the informative rows (KITTI keeps lost tracks
-    for 30 frames, so ~90 rows against ~15 detections)."""
+    """The rows (tracks) worth showing: those with a feasible detection (cost within the row's
+    threshold). The others cannot match anything this frame, and there are many: KITTI keeps
+    lost tracks for 30 frames, so ~50-90 rows against ~15 detections would bury the few that
+    compete. Without any feasible pair, the rows with any comparable (finite) cost."""
+    with np.errstate(invalid="ignore"):
+        feasible = (c.cost <= np.asarray(c.max_cost_per_row)[:, None]).any(axis=1)
+    if feasible.any():
+        return np.flatnonzero(feasible)
     return np.flatnonzero(np.isfinite(c.cost).any(axis=1))
 
 
-def _build_cost_image(parts: list[CostComputed]) -> Built:
-    """One RGB pixel per cell (rows tracks, columns detections); see :func:`cost_colors`."""
-    buffers, formats = [], []
-    for c in parts:
-        rows = _comparable_rows(c)
-        m, n = len(rows), c.cost.shape[1]
-        rgb = cost_colors(c.cost[rows], np.asarray(c.max_cost_per_row)[rows, None])
-        buffers.append(rgb.tobytes())
-        formats.append(
-            rr.components.ImageFormat(width=n, height=m, color_model="RGB", channel_datatype="U8")
-        )
+@dataclass(frozen=True, slots=True)
+class _CostRows:
+    """A stage's cost matrix and the rows of it that are shown."""
+
+    event: CostComputed
+    rows: IntArray
+
+
+def _build_cost_image(parts: list[_CostRows]) -> Built:
+    """One RGB pixel per cell (rows tracks, columns detections); see :func:`cost_colors`.
+
+    One colour pass over the cells of all rows at once (per-matrix numpy calls dominate)."""
+    shapes = [(len(p.rows), p.event.cost.shape[1]) for p in parts]
+    costs = np.concatenate([p.event.cost[p.rows].ravel() for p in parts])
+    limits = np.concatenate(
+        [
+            np.repeat(np.asarray(p.event.max_cost_per_row)[p.rows], n)
+            for p, (_, n) in zip(parts, shapes, strict=True)
+        ]
+    )
+    flat = cost_colors(costs, limits)  # (cells, 3)
+    ends = np.cumsum([m * n for m, n in shapes])
+    buffers = [chunk.tobytes() for chunk in np.split(flat, ends[:-1])]
+    formats = [
+        rr.components.ImageFormat(width=n, height=m, color_model="RGB", channel_datatype="U8")
+        for m, n in shapes
+    ]
     return {}, np.zeros(len(parts), np.int64), {"buffer": buffers, "format": formats}
 
 
-def _build_cost_labels(parts: list[CostComputed]) -> Built:
-    """Row ids "T<track>" left of the matrix, column ids "d<detection row>" above it, and the
-    value of every cell that passes its row's threshold."""
+def _build_cost_labels(parts: list[_CostRows]) -> Built:
+    """Row ids "T<track>" left of the matrix, column ids "d<detection row>" above it, the
+    value of every cell that passes its row's threshold, and how many rows are not shown."""
     positions, labels, colors, lengths = [], [], [], []
-    for c in parts:
-        kept = _comparable_rows(c)
+    for part in parts:
+        c, kept = part.event, part.rows
         cost, max_cost, ids = c.cost[kept], c.max_cost_per_row[kept], c.track_ids[kept]
         m, n = cost.shape
         # values only where a match was allowed: dark red cells (over the threshold) say enough,
@@ -689,15 +733,20 @@ def _build_cost_labels(parts: list[CostComputed]) -> Built:
             np.column_stack([np.arange(n) + 0.5, np.full(n, -0.8)]),
             np.column_stack([k + 0.5, r + 0.5]),
         ]
+        hidden = len(c.track_ids) - m
+        positions.append(np.array([[n / 2.0, m + 0.8]] if hidden else np.zeros((0, 2))))
+        # order: row ids, column ids, cell values, then the note on hidden rows
         labels += [f"T{i}" for i in ids.tolist()]
         labels += [f"d{i}" for i in c.det_rows.tolist()]
         labels += [f"{v:.2f}" for v in values.tolist()]
+        labels += [f"+{hidden} tracks without a feasible detection"] if hidden else []
         colors += [
             track_colors_u32(ids),
             solid(DETECTION_KEPT_RGB, n),
             solid((255, 255, 255), len(values)),
+            solid((160, 160, 160), 1 if hidden else 0),
         ]
-        lengths.append(m + n + len(r))
+        lengths.append(m + n + len(r) + (1 if hidden else 0))
     total = int(sum(lengths))
     fields = {
         "positions": np.concatenate(positions).astype(np.float32),
@@ -708,15 +757,16 @@ def _build_cost_labels(parts: list[CostComputed]) -> Built:
     return fields, np.array(lengths), {"show_labels": [True] * len(parts)}
 
 
-def _build_cost_matched(parts: list[tuple[CostComputed, Matched | None]]) -> Built:
+def _build_cost_matched(parts: list[tuple[_CostRows, Matched | None]]) -> Built:
     """White outlines of the accepted cells."""
     centres, lengths = [], []
-    for c, matched in parts:
+    for shown, matched in parts:
+        c = shown.event
         if matched is None:
             centres.append(np.zeros((0, 2)))
             lengths.append(0)
             continue
-        rows = _positions(c.track_ids[_comparable_rows(c)], matched.track_ids)
+        rows = _positions(c.track_ids[shown.rows], matched.track_ids)
         cols = _positions(c.det_rows, matched.det_rows)
         centres.append(np.column_stack([cols, rows]) + 0.5)
         lengths.append(len(rows))

@@ -48,7 +48,10 @@ VELOCITY_Y: Final = "velocity_y"
 HEADING: Final = "heading"
 GT_PREFIX: Final = "gt_"  # tracks/<id>/gt_speed ... : the matched GT's curve
 SERIES: Final = (SPEED, VELOCITY_X, VELOCITY_Y, HEADING)
-EVENTS: Final = "events"  # TextLog: lifecycle, ID switches, fragmentations
+EVENTS: Final = "events"  # TextLog (WARN): ID switches and fragmentations against the GT
+# Lifecycle lines (born, lost, re-acquired, deleted) go one level down: mixed with the WARN rows
+# in one entity, the 0.41 viewer showed the last lifecycle row with a WARN level.
+EVENTS_LIFECYCLE: Final = "events/lifecycle"
 ID_SWITCH_MARKERS: Final = "events/id_switches"  # Points3D at the objects concerned
 SUMMARY: Final = "summary"  # static TextDocument
 SHOT_INDEX: Final = "summary/index"  # static AnyValues: frames worth a screenshot

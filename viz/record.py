@@ -42,7 +42,7 @@ from tracker.motion_metrics import gt_velocity_central
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.archetypes import ID_SWITCH_RGB, annotation_context, pack_rgb, track_colors_u32
-from viz.columns import arrow_column, set_frame_time, time_columns
+from viz.columns import ColumnBuffer, arrow_column, time_columns
 from viz.layout import debug_blueprint
 from viz.observer import RerunObserver
 
@@ -75,7 +75,7 @@ class LagSample:
     gt_id: int
     track_speed_mps: float
     gt_speed_mps: float
-    delay_secs: float | None = None  # VDE delay of the GT object (None: no VDE candidate)
+    delay_secs: float | None = None  # curve shift of the GT object (None: no candidate object)
 
     @property
     def error_mps(self) -> float:
@@ -84,6 +84,8 @@ class LagSample:
 
 @dataclass
 class RecordResult:
+    """What :func:`record_scene` did: the tracker's outputs, timings and the GT analysis."""
+
     scene: str
     path: Path | None
     outputs: list[TrackOutput]
@@ -150,11 +152,12 @@ def record_scene(
     ----------
     frames : the scene's detection frames, in time order.
     config : the resolved tracker configuration.
-    gt_frames : ground truth of the same scene (ID switches, GT boxes and velocity curves).
+    gt_frames : ground truth of the same scene (GT boxes, velocity curves, and the ID switches
+        by BEV IoU when there are no KITTI labels).
     path : the ``.rrd`` to write (streamed). Ignored when ``rec`` is given.
     rec : an existing stream (live viewer, web viewer); the caller owns and closes it.
-    labels_dir : a KITTI ``label_02`` folder: when it has ``<scene>.txt``, ID switches and the
-        static metrics come from TrackEval's KITTI protocol; otherwise BEV IoU on ``gt_frames``.
+    labels_dir : a KITTI ``label_02`` folder: when it has ``<scene>.txt``, the ID switches and
+        the static metrics come from TrackEval's KITTI protocol (also without ``gt_frames``).
     images : camera name -> folder of ``<frame_id:06d>.png`` images.
     input_description : free text for the summary (input files, frame range).
     motion_metrics : call ``tracker.motion_eval.evaluate_motion`` when it is importable.
@@ -176,12 +179,16 @@ def record_scene(
     rec.log("/", annotation_context(), static=True)
 
     gt_by_frame = {f.frame_id: f for f in gt_frames} if gt_frames else None
+    label_file = Path(labels_dir) / f"{scene}.txt" if labels_dir else None
+    if label_file is not None and not (label_file.is_file() and camera_names):
+        label_file = None
     observer = RerunObserver(
         rec,
         gt=gt_by_frame,
         images=images,
-        flush_rows=8 if live else 256,
-        flush_secs=0.25 if live else 2.0,
+        flush_rows=8 if live else 512,
+        flush_secs=0.25 if live else 4.0,
+        keep_match_costs=bool(gt_frames) or label_file is not None,
     )
     scene_result = run_scene(frames, config, observer=observer)
     t_track, c_track = time.perf_counter(), time.process_time()
@@ -197,27 +204,25 @@ def record_scene(
     )
 
     gt_index = _GtIndex(gt_frames) if gt_frames else None
-    if gt_frames:
-        label_file = Path(labels_dir) / f"{scene}.txt" if labels_dir else None
-        with tempfile.TemporaryDirectory(prefix="mctrack-record-") as tmp:
-            if label_file is not None and label_file.is_file() and camera_names:
-                label_file = _labels_for_frames(label_file, frames, Path(tmp))
-                classes = [c for c in config.categories if c in KITTI_EVAL_CLASSES]
-                result.id_evaluation = kitti_id_events(
-                    outputs, frames, label_file, classes=classes, camera_name=camera_names[0]
-                )
-                result.kitti_metrics = _kitti_metrics(
-                    outputs, frames, label_file, classes, camera_names[0], Path(tmp)
-                )
-            else:
-                result.id_evaluation = bev_id_events(
-                    outputs, gt_frames, categories=list(config.categories)
-                )
-        if motion_metrics:
-            result.motion_markdown = _motion_metrics(frames, gt_frames, outputs, config)
+    with tempfile.TemporaryDirectory(prefix="mctrack-record-") as tmp:
+        if label_file is not None:
+            label_file = _labels_for_frames(label_file, frames, Path(tmp))
+            classes = [c for c in config.categories if c in KITTI_EVAL_CLASSES]
+            result.id_evaluation = kitti_id_events(
+                outputs, frames, label_file, classes=classes, camera_name=camera_names[0]
+            )
+            result.kitti_metrics = _kitti_metrics(
+                outputs, frames, label_file, classes, camera_names[0], Path(tmp)
+            )
+        elif gt_frames:
+            result.id_evaluation = bev_id_events(
+                outputs, gt_frames, categories=list(config.categories)
+            )
+    if gt_frames and motion_metrics:
+        result.motion_markdown = _motion_metrics(frames, gt_frames, outputs, config)
     t_eval, c_eval = time.perf_counter(), time.process_time()
 
-    times = _frame_times(observer.frame_times, outputs)
+    times = _frame_times(outputs, gt_frames)
     result.lag, n_series = _log_velocity_series(rec, outputs, times, result.id_evaluation, gt_index)
     if result.id_evaluation is not None:
         _log_id_events(rec, result.id_evaluation, outputs, times, gt_index, observer)
@@ -373,10 +378,12 @@ def _motion_metrics(
 # post-run logging
 
 
-def _frame_times(seen: Mapping[int, float], outputs: Sequence[TrackOutput]) -> dict[int, float]:
-    times = dict(seen)
-    for o in outputs:
-        times.setdefault(o.frame_id, o.time_secs)
+def _frame_times(
+    outputs: Sequence[TrackOutput], gt_frames: Sequence[Frame] | None
+) -> dict[int, float]:
+    """frame id -> time: the tracker outputs one row per frame, with its time."""
+    times = {f.frame_id: f.timestamp_secs for f in gt_frames or ()}
+    times.update({o.frame_id: o.time_secs for o in outputs})
     return times
 
 
@@ -586,15 +593,16 @@ def _log_id_events(
     gt: _GtIndex | None,
     observer: RerunObserver,
 ) -> None:
-    """WARN TextLogs at each event's frame, and 3D markers at each ID switch for a few frames."""
+    """WARN TextLogs at each event's frame, and 3D markers at each ID switch for a few frames.
+
+    Sent as columns like every per-frame row (one ``ColumnBuffer``, one call per entity)."""
     by_frame = {o.frame_id: o for o in outputs}
+    buffer = ColumnBuffer(rec, max_rows=1 << 30, max_secs=float("inf"))
     markers: dict[int, list[tuple[np.ndarray, str]]] = {}
     for e in evaluation.events:
-        set_frame_time(rec, e.frame_id, times.get(e.frame_id, np.nan))
-        rec.log(
-            paths.EVENTS,
-            rr.TextLog(event_text(e, observer), level=rr.TextLogLevel.WARN),
-        )
+        time_secs = times.get(e.frame_id, np.nan)
+        text = event_text(e, observer)
+        buffer.add(paths.EVENTS, rr.TextLog, e.frame_id, time_secs, 1, text=[text], level=["WARN"])
         if e.kind is not IdEventKind.ID_SWITCH:
             continue
         xyz = _event_position(e, by_frame.get(e.frame_id), gt)
@@ -604,24 +612,26 @@ def _log_id_events(
         for f in range(e.frame_id, e.frame_id + MARKER_HOLD_FRAMES):
             markers.setdefault(f, []).append((xyz, label))
     shown = False
-    frames_with_time = sorted(times)
-    for f in frames_with_time:
+    for f in sorted(times):
         items = markers.get(f)
         if items is None and not shown:
             continue
-        set_frame_time(rec, f, times[f])
-        items = items or []
-        rec.log(
+        items = items or []  # an empty row ends the marker's hold
+        n = len(items)
+        buffer.add(
             paths.ID_SWITCH_MARKERS,
-            rr.Points3D(
-                np.array([p for p, _ in items], dtype=np.float32).reshape(-1, 3),
-                radii=0.8,
-                colors=ID_SWITCH_RGB,
-                labels=[lbl for _, lbl in items],
-                show_labels=True,
-            ),
+            rr.Points3D,
+            f,
+            times[f],
+            n,
+            mono={"show_labels": [True]},
+            positions=np.array([p for p, _ in items], dtype=np.float32).reshape(-1, 3),
+            radii=np.full(n, 0.8, np.float32),
+            colors=np.full(n, pack_rgb(ID_SWITCH_RGB), np.uint32),
+            labels=[lbl for _, lbl in items],
         )
         shown = bool(items)
+    buffer.flush()
 
 
 def _event_position(

@@ -63,8 +63,9 @@ def renderer_available() -> tuple[bool, str]:
     if ctypes.util.find_library("vulkan") is None:
         return False, f"the Vulkan loader (libvulkan) is not installed ({INSTALL_HINT})"
     env = os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES")
-    icds = [p for p in env.split(os.pathsep) if os.path.isfile(p)] if env else []
-    if not icds:
+    if env:  # the loader then looks nowhere else
+        icds = [p for p in env.split(os.pathsep) if os.path.isfile(p)]
+    else:
         icds = [p for pattern in _ICD_GLOBS for p in glob.glob(pattern)]
     if not icds:
         return False, f"no Vulkan driver (ICD) is installed ({INSTALL_HINT})"
