@@ -7,6 +7,8 @@ noise, detector velocity and some rows without velocity:
 - ``fast``: the tracker's path, :func:`tracker.kalman.motion_predict` + ``motion_update`` (CV);
 - ``fast CA``: the same with the paper's constant-acceleration pose model;
 - ``3 filters``: the reference layout, ``pose_*`` + ``size_*`` + ``heading_*`` (generic matmul).
+- ``tracker``, ``tracker CA``: what the tracker runs on KITTI: one ``dt`` for the whole frame,
+  positions and sizes without velocity, then the heading with θ_vel (``motion_update`` twice).
 """
 
 from __future__ import annotations
@@ -98,6 +100,33 @@ def _three_filters_frame(n: int, rng: np.random.Generator) -> Callable[[], None]
     return frame
 
 
+def _tracker_frame(model: kf.MotionModel, n: int, rng: np.random.Generator) -> Callable[[], None]:
+    pose = kf.DiagonalNoise(
+        p0_diag=[1.0] * (2 * model.order), q_diag=[0.5] * (2 * model.order), r_diag=[0.1, 0.1]
+    )
+    noise = kf.motion_noise(pose=pose, size=SIZE, heading=HEADING, model=model)
+    det = _detections(rng, n)
+    x0, p0 = kf.motion_init(
+        xy=det["xy"], lw=det["lw"], yaw_rad=det["yaw_rad"], p0_diag=noise.p0_diag
+    )
+    q = np.broadcast_to(noise.q_diag, x0.shape)
+    moving = rng.uniform(size=n) < 0.5
+
+    def frame() -> None:
+        x, P = kf.motion_predict(x0, p0, dt_secs=0.1, q_diag=q, dt_nominal_secs=0.1)
+        x, P = kf.motion_update(x, P, xy=det["xy"], lw=det["lw"], r_diag=noise.r_diag)
+        kf.motion_update(
+            x,
+            P,
+            yaw_det_rad=det["yaw_rad"],
+            yaw_vel_rad=det["yaw_rad"],
+            yaw_vel_valid=moving,
+            r_diag=noise.r_diag,
+        )
+
+    return frame
+
+
 def _micros(fn: Callable[[], None], number: int = 50, repeat: int = 200) -> float:
     """Best-of-``repeat`` mean time of one call, µs: many short windows, as the minimum is the
     least noisy estimate on a shared machine."""
@@ -107,12 +136,18 @@ def _micros(fn: Callable[[], None], number: int = 50, repeat: int = 200) -> floa
 def main() -> None:
     rng = np.random.default_rng(0)
     print("µs per frame (predict + update of pose, size and heading for all B tracks)")
-    print(f"{'B':>5} {'fast':>9} {'fast CA':>9} {'3 filters':>10}")
+    header = ("B", "fast", "fast CA", "3 filters", "tracker", "tracker CA")
+    print(" ".join(f"{h:>10}" for h in header))
     for n in (10, 20, 50, 200):
         fast = _micros(_fast_frame(kf.MotionModel.CV, n, rng))
         fast_ca = _micros(_fast_frame(kf.MotionModel.CA, n, rng))
         three = _micros(_three_filters_frame(n, rng))
-        print(f"{n:>5} {fast:>9.1f} {fast_ca:>9.1f} {three:>10.1f}")
+        tracker = _micros(_tracker_frame(kf.MotionModel.CV, n, rng))
+        tracker_ca = _micros(_tracker_frame(kf.MotionModel.CA, n, rng))
+        print(
+            f"{n:>10}"
+            + "".join(f" {v:>10.1f}" for v in (fast, fast_ca, three, tracker, tracker_ca))
+        )
 
 
 if __name__ == "__main__":

@@ -6,7 +6,14 @@ import numpy as np
 import pytest
 
 from tracker.boxes import Boxes
-from tracker.camera import box_wireframes_image, in_front, project_boxes, project_points
+from tracker.camera import (
+    NEAR_PLANE_M,
+    _clipped_edges_px,
+    box_wireframes_image,
+    in_front,
+    project_boxes,
+    project_points,
+)
 from tracker.frame import Camera
 from tracker.geometry import corners_3d
 
@@ -97,6 +104,25 @@ def test_fully_in_front_equals_corner_min_max(camera: Camera) -> None:
     expected = np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
     np.testing.assert_allclose(raw[visible], expected[visible])
     assert visible.sum() > n // 2
+
+
+def test_fast_path_equals_edge_clipping_bit_for_bit(camera: Camera) -> None:
+    """Boxes with every corner in front skip the edge clipping: the very same numbers."""
+    rng = np.random.default_rng(1)
+    n = 40
+    xyz = np.column_stack([rng.uniform(-3, 60, n), rng.uniform(-20, 20, n), rng.uniform(-2, 2, n)])
+    lwh = rng.uniform(0.5, 6.0, (n, 3))
+    yaw = rng.uniform(-np.pi, np.pi, n)
+    corners = corners_3d(xyz, lwh, yaw)
+    ends = _clipped_edges_px(corners, camera, NEAR_PLANE_M).reshape(n, -1, 2)
+    lo = np.where(np.isnan(ends), np.inf, ends).min(axis=1)
+    hi = np.where(np.isnan(ends), -np.inf, ends).max(axis=1)
+    in_front = (project_points(corners.reshape(-1, 3), camera)[1] >= NEAR_PLANE_M).reshape(n, 8)
+    assert in_front.all(axis=1).sum() > n // 2 and not in_front.all()  # both paths are taken
+    for rows in (np.flatnonzero(in_front.all(axis=1)), np.arange(n)):
+        raw, visible = project_boxes((xyz[rows], lwh[rows], yaw[rows]), camera, clip_to_image=False)
+        expected = np.concatenate([lo[rows], hi[rows]], axis=1)
+        np.testing.assert_array_equal(raw[visible], expected[visible])
 
 
 def test_empty(camera: Camera) -> None:

@@ -584,3 +584,124 @@ def test_motion_batched_equals_per_row() -> None:
         )
         np.testing.assert_allclose(xb[i], xi[0], rtol=1e-14, atol=1e-15)
         np.testing.assert_allclose(Pb[i], Pi[0], rtol=1e-14, atol=1e-15)
+
+
+# ---------------------------------------------------------------------------------------------
+# Fast-path variants the tracker uses: one shared dt, position-only (KITTI) measurements,
+# θ_vel fused with θ_det, and the pose/size axes updated before the heading
+# ---------------------------------------------------------------------------------------------
+
+
+def _kitti_like(model: kf.MotionModel, n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    k = model.order
+    pose = kf.DiagonalNoise(
+        p0_diag=rng.uniform(0.5, 5, 2 * k), q_diag=rng.uniform(0.1, 2, 2 * k), r_diag=[0.2, 0.3]
+    )
+    noise = kf.motion_noise(pose=pose, size=SIZE, heading=HEADING, model=model)
+    xy, lw, yaw = rng.normal(size=(n, 2)), rng.uniform(1, 4, (n, 2)), rng.uniform(-3.1, 3.1, n)
+    x, P = kf.motion_init(xy=xy, lw=lw, yaw_rad=yaw, p0_diag=noise.p0_diag)
+    three = (
+        kf.pose_init(xy, p0_diag=pose.p0_diag, n_state=2 * k),
+        kf.size_init(lw, p0_diag=SIZE.p0_diag),
+        kf.heading_init(yaw, p0_diag=HEADING.p0_diag),
+    )
+    return rng, pose, noise, (x, P), three
+
+
+@pytest.mark.parametrize("model", [kf.MotionModel.CV, kf.MotionModel.CA])
+def test_position_only_updates_and_fused_heading_equal_the_three_filters(
+    model: kf.MotionModel,
+) -> None:
+    n = 9
+    rng, pose, noise, (x, P), ((px, pP), (sx, sP), (hx, hP)) = _kitti_like(model, n, 21)
+    for step in range(10):
+        dt = 0.1  # one elapsed time for every row, as in a tracker frame
+        x, P = kf.motion_predict(x, P, dt_secs=dt, q_diag=noise.q_diag, dt_nominal_secs=0.1)
+        common = {"dt_secs": np.full(n, dt), "dt_nominal_secs": 0.1}
+        px, pP = kf.pose_predict(px, pP, q_diag=pose.q_diag, **common)
+        sx, sP = kf.size_predict(sx, sP, q_diag=SIZE.q_diag, **common)
+        hx, hP = kf.heading_predict(hx, hP, q_diag=HEADING.q_diag, **common)
+        z_xy, z_lw = rng.normal(size=(n, 2)) + 0.3 * step, rng.uniform(1, 4, (n, 2))
+        z_yaw, yaw_vel = rng.uniform(-np.pi, np.pi, n), rng.uniform(-np.pi, np.pi, n)
+        moving = rng.uniform(size=n) < (0.5 if step % 3 else 0.0)  # some steps: nobody moves
+        # the tracker's order: pose and size first, then the heading with θ_vel
+        x, P = kf.motion_update(x, P, xy=z_xy, lw=z_lw, r_diag=noise.r_diag)
+        x, P = kf.motion_update(
+            x,
+            P,
+            yaw_det_rad=z_yaw,
+            yaw_vel_rad=yaw_vel,
+            yaw_vel_valid=moving,
+            r_diag=noise.r_diag,
+            align_yaw_det=step % 2 == 0,
+        )
+        px, pP = kf.pose_update(px, pP, xy=z_xy, r_diag=pose.r_diag)
+        sx, sP = kf.size_update(sx, sP, lw=z_lw, r_diag=SIZE.r_diag)
+        yaw_det = kf.align_heading(z_yaw, hx[:, 0]) if step % 2 == 0 else z_yaw
+        hx, hP = kf.heading_update(
+            hx, hP, yaw_det_rad=yaw_det, yaw_vel_rad=yaw_vel, yaw_vel_valid=moving,
+            r_diag=HEADING.r_diag,
+        )  # fmt: skip
+        tol = {"rtol": 1e-9, "atol": 1e-11}
+        np.testing.assert_allclose(kf.motion_xy(x), px[:, :2], **tol)
+        np.testing.assert_allclose(kf.motion_velocity_xy(x), px[:, 2:4], **tol)
+        np.testing.assert_allclose(kf.motion_lw(x), sx[:, :2], **tol)
+        np.testing.assert_allclose(wrap_angle(kf.motion_yaw_rad(x) - hx[:, 0]), 0.0, atol=1e-11)
+        np.testing.assert_allclose(P[:, kf.Axis.X], pP[:, 0::2, 0::2], **tol)
+        np.testing.assert_allclose(P[:, kf.Axis.YAW, :2, :2], hP, **tol)
+        np.testing.assert_array_equal(P, P.mT)
+        assert np.all(np.linalg.eigvalsh(P) >= -1e-12)
+
+
+@pytest.mark.parametrize("model", [kf.MotionModel.CV, kf.MotionModel.CA])
+def test_shared_dt_predict_equals_per_row_predict(model: kf.MotionModel) -> None:
+    _, _, noise, (x, P), _ = _kitti_like(model, 6, 22)
+    x, P = kf.motion_update(x, P, xy=np.ones((6, 2)), lw=np.full((6, 2), 2.0), r_diag=noise.r_diag)
+    q = np.broadcast_to(noise.q_diag, x.shape)
+    shared = kf.motion_predict(x, P, dt_secs=0.25, q_diag=q, dt_nominal_secs=0.1)
+    per_row = kf.motion_predict(x, P, dt_secs=np.full(6, 0.25), q_diag=q, dt_nominal_secs=0.1)
+    np.testing.assert_allclose(shared[0], per_row[0], rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(shared[1], per_row[1], rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(shared[1], shared[1].mT)
+    assert np.all(np.abs(kf.motion_yaw_rad(shared[0])) <= np.pi)
+
+
+@pytest.mark.parametrize("with_velocity", [False, True])
+def test_axis_groups_updated_apart_equal_one_update(with_velocity: bool) -> None:
+    """The axes are independent: (xy, lw) then yaw, or xy then (lw, yaw), equal all at once."""
+    rng = np.random.default_rng(23)
+    n = 8
+    noise = kf.motion_noise(pose=NUSC_POSE, size=SIZE, heading=HEADING, model=kf.MotionModel.CV)
+    x, P = kf.motion_init(
+        xy=rng.normal(size=(n, 2)), lw=rng.uniform(1, 4, (n, 2)), yaw_rad=rng.normal(size=n),
+        p0_diag=noise.p0_diag,
+    )  # fmt: skip
+    meas = {
+        "xy": rng.normal(size=(n, 2)),
+        "lw": rng.uniform(1, 4, (n, 2)),
+        "yaw_det_rad": rng.uniform(-3, 3, n),
+        "velocity_xy": rng.normal(size=(n, 2)) if with_velocity else None,
+        "yaw_vel_rad": rng.uniform(-3, 3, n),
+        "yaw_vel_valid": rng.uniform(size=n) < 0.5,
+    }
+    together = kf.motion_update(x, P, r_diag=noise.r_diag, **meas)
+    first = {k: meas[k] for k in ("xy", "lw", "velocity_xy")}
+    second = {k: meas[k] for k in ("yaw_det_rad", "yaw_vel_rad", "yaw_vel_valid")}
+    apart = kf.motion_update(
+        *kf.motion_update(x, P, r_diag=noise.r_diag, **first), r_diag=noise.r_diag, **second
+    )
+    other = kf.motion_update(
+        *kf.motion_update(
+            x, P, r_diag=noise.r_diag, xy=meas["xy"], velocity_xy=meas["velocity_xy"]
+        ),
+        r_diag=noise.r_diag,
+        lw=meas["lw"],
+        **second,
+    )
+    for got in (apart, other):
+        np.testing.assert_allclose(got[0], together[0], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(got[1], together[1], rtol=1e-12, atol=1e-12)
+    untouched = kf.motion_update(x, P, r_diag=noise.r_diag, xy=meas["xy"])
+    np.testing.assert_array_equal(untouched[0][:, kf.Axis.LENGTH :], x[:, kf.Axis.LENGTH :])
+    np.testing.assert_array_equal(untouched[1][:, kf.Axis.LENGTH :], P[:, kf.Axis.LENGTH :])

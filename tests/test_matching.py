@@ -73,7 +73,38 @@ def test_matches_empty_and_layout() -> None:
         m.pairs[0, 0] = 5  # read-only
 
 
+def test_matches_subset_keeps_layout_and_frees_dropped_pairs() -> None:
+    m = Matches.from_pairs([3, 0, 1], [0, 4, 2], np.arange(20.0).reshape(4, 5))
+    kept = m.subset(np.array([True, False, True]))  # drops (1, 2)
+    np.testing.assert_array_equal(kept.pairs, [[0, 4], [3, 0]])
+    np.testing.assert_array_equal(kept.costs, [4.0, 15.0])
+    np.testing.assert_array_equal(kept.unmatched_rows, [1, 2])
+    np.testing.assert_array_equal(kept.unmatched_cols, [1, 2, 3])
+    none = m.subset(np.zeros(3, dtype=bool))
+    assert len(none) == 0 and none.pairs.shape == (0, 2)
+    np.testing.assert_array_equal(none.unmatched_rows, np.arange(4))
+    np.testing.assert_array_equal(none.unmatched_cols, np.arange(5))
+    with pytest.raises(ValueError):
+        kept.unmatched_cols[0] = 7  # read-only
+
+
 # --- Hungarian ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_hungarian_fast_paths_equal_lapjv_on_tiny_sparse_problems(seed) -> None:
+    """Frames with 0, 1 or only uncontested feasible pairs skip the solver: same answer."""
+    rng = np.random.default_rng(300 + seed)
+    m, n = rng.integers(0, 7, 2)
+    cost = np.where(rng.random((m, n)) < 0.25, rng.uniform(0.0, 2.0, (m, n)), INF)
+    thr = 1.4
+    matches = hungarian(cost, max_cost_per_row=np.full(m, thr))
+    assert pair_set(matches) == lapjv_extended(cost, thr)
+    assert np.all(np.diff(matches.rows) > 0)
+    every_row = np.sort(np.r_[matches.rows, matches.unmatched_rows])
+    every_col = np.sort(np.r_[matches.cols, matches.unmatched_cols])
+    np.testing.assert_array_equal(every_row, np.arange(m))
+    np.testing.assert_array_equal(every_col, np.arange(n))
 
 
 def test_hungarian_lapjv_example_is_not_assign_then_threshold() -> None:

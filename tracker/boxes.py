@@ -123,8 +123,7 @@ class Boxes:
         but still read-only. Validation happens where data enters (``__init__``/``create``)."""
         out = object.__new__(cls)
         for name, arr in values.items():
-            if arr.flags.writeable:
-                arr.flags.writeable = False
+            arr.setflags(write=False)
             object.__setattr__(out, name, arr)
         return out
 
@@ -145,9 +144,8 @@ class Boxes:
 
     def __getitem__(self, index: Any) -> Boxes:
         """Rows selected by a boolean mask or an index array (a new batch; rows keep order)."""
-        index = np.asarray(index)
-        if index.ndim == 0:
-            index = index.reshape(1)
+        if not isinstance(index, np.ndarray) or index.ndim == 0:
+            index = np.asarray(index).reshape(-1) if np.ndim(index) == 0 else np.asarray(index)
         return Boxes._trusted({name: getattr(self, name)[index] for name in _FIELDS})
 
     def replace(self, **changes: Any) -> Boxes:

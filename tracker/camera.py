@@ -74,9 +74,15 @@ def _corners_world(boxes: Boxes | tuple[Any, Any, Any]) -> FloatArray:
     return corners_3d(xyz, lwh, yaw)
 
 
-def _clipped_edges_px(corners_world: FloatArray, camera: Camera, near_m: float) -> FloatArray:
-    """(N, 12, 2, 2) pixel end points of each box edge clipped to ``w >= near_m``; NaN if behind."""
-    h = _homogeneous_image(corners_world, camera)  # (N, 8, 3)
+def _clipped_edges_px(
+    corners_world: FloatArray, camera: Camera, near_m: float, h: FloatArray | None = None
+) -> FloatArray:
+    """(N, 12, 2, 2) pixel end points of each box edge clipped to ``w >= near_m``; NaN if behind.
+
+    ``h`` : the corners' homogeneous image coordinates when already computed.
+    """
+    if h is None:
+        h = _homogeneous_image(corners_world, camera)  # (N, 8, 3)
     a, b = h[:, _EDGE_START], h[:, _EDGE_END]  # (N, 12, 3)
     w_a, w_b = a[..., 2], b[..., 2]
     front_a, front_b = w_a >= near_m, w_b >= near_m
@@ -124,16 +130,26 @@ def project_boxes(
     n = len(corners)
     if n == 0:
         return np.zeros((0, 4)), np.zeros(0, dtype=bool)
-    ends_px = _clipped_edges_px(corners, camera, near_m).reshape(n, -1, 2)  # (N, 24, 2)
-    any_front = ~np.isnan(ends_px[..., 0]).all(axis=1)
-    lo = np.where(np.isnan(ends_px), np.inf, ends_px).min(axis=1)  # (N, 2)
-    hi = np.where(np.isnan(ends_px), -np.inf, ends_px).max(axis=1)
-    xyxy_raw = np.concatenate([lo, hi], axis=1)
+    h = _homogeneous_image(corners, camera)  # (N, 8, 3)
+    if (h[..., 2] >= near_m).all():
+        # Every corner in front of the near plane (the usual case): no edge is clipped, and the
+        # clipped edges' end points below would be exactly these 8 corners.
+        uv_px = h[..., :2] / h[..., 2:3]
+        lo, hi = uv_px.min(axis=1), uv_px.max(axis=1)  # (N, 2)
+        any_front = np.ones(n, dtype=bool)
+    else:
+        ends_px = _clipped_edges_px(corners, camera, near_m, h).reshape(n, -1, 2)  # (N, 24, 2)
+        any_front = ~np.isnan(ends_px[..., 0]).all(axis=1)
+        lo = np.where(np.isnan(ends_px), np.inf, ends_px).min(axis=1)  # (N, 2)
+        hi = np.where(np.isnan(ends_px), -np.inf, ends_px).max(axis=1)
     max_xy = np.array([camera.width_px - 1, camera.height_px - 1], dtype=np.float64)
     lo_clip = np.clip(lo, 0.0, max_xy)
     hi_clip = np.clip(hi, 0.0, max_xy)
     visible = any_front & (hi_clip > lo_clip).all(axis=1)
-    xyxy_image = np.concatenate([lo_clip, hi_clip], axis=1) if clip_to_image else xyxy_raw
+    if clip_to_image:
+        xyxy_image = np.concatenate([lo_clip, hi_clip], axis=1)
+    else:
+        xyxy_image = np.concatenate([lo, hi], axis=1)
     xyxy_image[~visible] = np.nan
     return xyxy_image, visible
 

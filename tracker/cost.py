@@ -13,10 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
 from tracker.boxes import Boxes, FloatArray, IntArray
-from tracker.geometry import corners_bev, intersection_area_bev, min_area_rect_bev
+from tracker.geometry import bev_pair_geometry
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,12 +41,27 @@ class RoGdiouTerms:
         m = self.iou.shape[0]
         w1_rows = np.broadcast_to(np.asarray(w1, dtype=np.float64), (m,))[:, None]
         w2_rows = np.broadcast_to(np.asarray(w2, dtype=np.float64), (m,))[:, None]
-        similarity = self.iou.copy()  # Ro_GDIoU = IoU - w1·(C - U)/C - w2·c²/d²
-        if np.any(w1_rows):
-            similarity -= w1_rows * self.enclosure
-        if np.any(w2_rows):
-            similarity -= w2_rows * self.distance
-        return _finite_or_neg_inf(similarity)
+        return _finite_or_neg_inf(
+            _combine(self.iou, self.enclosure, self.distance, w1_rows, w2_rows)
+        )
+
+
+def _combine(
+    iou: FloatArray, enclosure: FloatArray, distance: FloatArray, w1: FloatArray, w2: FloatArray
+) -> FloatArray:
+    """Ro_GDIoU = IoU - w1·(C - U)/C - w2·c²/d² (a zero weight's term is skipped)."""
+    similarity = iou.copy()
+    if w1.any():
+        similarity -= w1 * enclosure
+    if w2.any():
+        similarity -= w2 * distance
+    return similarity
+
+
+def _per_row(weight: ArrayLike, m: int) -> FloatArray:
+    """A scalar or (M,) weight as an (M,) array."""
+    w = np.asarray(weight, dtype=np.float64)
+    return w if w.shape == (m,) else np.broadcast_to(w, (m,))
 
 
 def _finite_or_neg_inf(similarity: FloatArray) -> FloatArray:
@@ -62,16 +77,16 @@ def _pairs(m: int, n: int, mask: ArrayLike | None) -> tuple[IntArray, IntArray]:
     if mask_arr.shape != (m, n):
         raise ValueError(f"mask: expected shape {(m, n)}, got {mask_arr.shape}")
     rows, cols = np.nonzero(mask_arr)
-    return rows.astype(np.int64), cols.astype(np.int64)
+    return rows.astype(np.int64, copy=False), cols.astype(np.int64, copy=False)
 
 
 def _scatter(
-    values: FloatArray, rows: IntArray, cols: IntArray, shape: tuple[int, int]
+    values: FloatArray, rows: IntArray, cols: IntArray, shape: tuple[int, int], fill: float
 ) -> FloatArray:
-    """(M, N) array holding ``values`` at the computed pairs and NaN elsewhere."""
+    """(M, N) array holding ``values`` at the computed pairs and ``fill`` elsewhere."""
     if len(values) == shape[0] * shape[1]:  # every pair, in row-major order (see _pairs)
         return values.reshape(shape)
-    out = np.full(shape, np.nan)
+    out = np.full(shape, fill)
     out[rows, cols] = values
     return out
 
@@ -79,63 +94,69 @@ def _scatter(
 def _bev_terms(
     a: Boxes, b: Boxes, mask: ArrayLike | None, *, with_enclosure: bool
 ) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
-    """IoU, and optionally (C - U)/C and c²/d², as (M, N) arrays (NaN outside ``mask``).
+    """IoU, and optionally (C - U)/C and c²/d², as (M, N) arrays (NaN outside ``mask``)."""
+    shape = (len(a), len(b))
+    rows, cols = _pairs(*shape, mask)
+    if len(rows) == 0:  # nothing requested: every term is NaN
+        return (
+            np.full(shape, np.nan),
+            np.full(shape, np.nan) if with_enclosure else None,
+            np.full(shape, np.nan) if with_enclosure else None,
+        )
+    iou, enclosure, distance = _bev_pair_terms(
+        bev_array(a), bev_array(b), rows, cols, with_enclosure=with_enclosure
+    )
+    if enclosure is None or distance is None:
+        return _scatter(iou, rows, cols, shape, np.nan), None, None
+    return (
+        _scatter(iou, rows, cols, shape, np.nan),
+        _scatter(enclosure, rows, cols, shape, np.nan),
+        _scatter(distance, rows, cols, shape, np.nan),
+    )
+
+
+def _bev_pair_terms(
+    bev_a: FloatArray, bev_b: FloatArray, rows: IntArray, cols: IntArray, *, with_enclosure: bool
+) -> tuple[FloatArray, FloatArray | None, FloatArray | None]:
+    """IoU, and optionally (C - U)/C and c²/d², of the pairs (rows[p], cols[p]) of (M, 5) and
+    (N, 5) BEV boxes [x, y, l, w, yaw], each (P,).
 
     The single code path behind every BEV similarity: all terms are computed on the flat list
     of requested pairs, and the intersection only on pairs whose circumscribed circles overlap.
+    A pair with a non-finite position, size or heading gets NaN in every term.
     """
-    shape = (len(a), len(b))
-    rows, cols = _pairs(*shape, mask)
-    xy_a, xy_b = a.xyz[:, :2], b.xyz[:, :2]
-    lw_a, lw_b = a.lwh[:, :2], b.lwh[:, :2]
-
-    # c² = (x1 - x2)² + (y1 - y2)²
-    dx = xy_b[cols, 0] - xy_a[rows, 0]
-    dy = xy_b[cols, 1] - xy_a[rows, 1]
-    centre_dist_sq = dx * dx + dy * dy
-
-    # Cheap pre-gate: beyond the sum of half-diagonals the boxes cannot overlap, I = 0 exactly.
-    half_diag_a = 0.5 * np.hypot(lw_a[:, 0], lw_a[:, 1])
-    half_diag_b = 0.5 * np.hypot(lw_b[:, 0], lw_b[:, 1])
-    close = centre_dist_sq < (half_diag_a[rows] + half_diag_b[cols]) ** 2
-    # Corners once per box (one call for both sets), gathered per pair below.
-    corners = corners_bev(
-        np.concatenate([xy_a, xy_b]), np.concatenate([lw_a, lw_b]), np.concatenate([a.yaw, b.yaw])
+    inter, enclosing_area, diag_sq, centre_dist_sq = bev_pair_geometry(
+        bev_a, bev_b, rows, cols, with_enclosing=with_enclosure
     )
-    corners_a, corners_b = corners[: len(a)], corners[len(a) :]
-    inter = np.zeros(len(rows))
-    inter[close] = intersection_area_bev(corners_a[rows[close]], corners_b[cols[close]])
-
     # U = l_a·w_a + l_b·w_b - I (areas from the dimensions, as the reference)
-    area_a, area_b = lw_a[:, 0] * lw_a[:, 1], lw_b[:, 0] * lw_b[:, 1]
+    area_a, area_b = bev_a[:, 2] * bev_a[:, 3], bev_b[:, 2] * bev_b[:, 3]
     union = area_a[rows] + area_b[cols] - inter
+    # Degenerate boxes: no union, an empty enclosure or a zero diagonal give 0, not a division.
+    iou = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
     # A box with a non-finite position, size or heading is missing: every term is NaN.
-    missing = ~(_finite_bev(a)[rows] & _finite_bev(b)[cols])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        iou = np.where(union > 0, inter / union, 0.0)
+    missing = np.isnan(inter)
+    any_missing = missing.any()
+    if any_missing:
         iou[missing] = np.nan
-        if not with_enclosure:
-            return _scatter(iou, rows, cols, shape), None, None
-        enclosing_area, diag_sq = min_area_rect_bev(corners_a[rows], corners_b[cols])
-        # Degenerate (point-like) boxes: an empty enclosure or zero diagonal adds no penalty.
-        enclosure = np.where(enclosing_area > 0, (enclosing_area - union) / enclosing_area, 0.0)
-        distance = np.where(diag_sq > 0, centre_dist_sq / diag_sq, 0.0)
-    enclosure[missing] = np.nan
-    distance[missing] = np.nan
-    return (
-        _scatter(iou, rows, cols, shape),
-        _scatter(enclosure, rows, cols, shape),
-        _scatter(distance, rows, cols, shape),
+    if not with_enclosure:
+        return iou, None, None
+    # IoU − w1 (C − U)/C − w2 c²/d²
+    enclosure = np.divide(
+        enclosing_area - union,
+        enclosing_area,
+        out=np.zeros_like(inter),
+        where=enclosing_area > 0,
     )
+    distance = np.divide(centre_dist_sq, diag_sq, out=np.zeros_like(inter), where=diag_sq > 0)
+    if any_missing:
+        enclosure[missing] = np.nan
+        distance[missing] = np.nan
+    return iou, enclosure, distance
 
 
-def _finite_bev(boxes: Boxes) -> NDArray[np.bool_]:
-    """(N,) whether a box's BEV geometry (x, y, l, w, yaw) is all finite."""
-    return (
-        np.isfinite(boxes.xyz[:, :2]).all(axis=1)
-        & np.isfinite(boxes.lwh[:, :2]).all(axis=1)
-        & np.isfinite(boxes.yaw)
-    )
+def bev_array(boxes: Boxes) -> FloatArray:
+    """(N, 5) BEV boxes [x, y, l, w, yaw] (the layout of :func:`ro_gdiou_bev_arrays`)."""
+    return np.concatenate((boxes.xyz[:, :2], boxes.lwh[:, :2], boxes.yaw[:, None]), axis=1)
 
 
 def ro_gdiou_terms_bev(a: Boxes, b: Boxes, *, mask: ArrayLike | None = None) -> RoGdiouTerms:
@@ -184,7 +205,41 @@ def ro_gdiou_bev(
     -------
     (M, N) similarity in (-(w1 + w2), 1]; -inf outside ``mask`` or for boxes with NaN fields.
     """
-    return ro_gdiou_terms_bev(a, b, mask=mask).combine(w1=w1, w2=w2)
+    return ro_gdiou_bev_arrays(bev_array(a), bev_array(b), w1=w1, w2=w2, mask=mask)
+
+
+def ro_gdiou_bev_arrays(
+    bev_a: FloatArray,
+    bev_b: FloatArray,
+    *,
+    w1: ArrayLike,
+    w2: ArrayLike,
+    mask: ArrayLike | None = None,
+) -> FloatArray:
+    """:func:`ro_gdiou_bev` of BEV boxes given as arrays (the tracker's predictions are rows of
+    its filter state, so it skips building a :class:`~tracker.boxes.Boxes` for them).
+
+    Parameters
+    ----------
+    bev_a : (M, 5), bev_b : (N, 5)
+        BEV boxes [x, y, l, w, yaw], metres and radians.
+    w1, w2, mask : as :func:`ro_gdiou_bev`.
+
+    Returns
+    -------
+    (M, N) similarity, as :func:`ro_gdiou_bev`.
+    """
+    shape = (len(bev_a), len(bev_b))
+    rows, cols = _pairs(*shape, mask)
+    if len(rows) == 0:
+        return np.full(shape, -np.inf)
+    iou, enclosure, distance = _bev_pair_terms(bev_a, bev_b, rows, cols, with_enclosure=True)
+    assert enclosure is not None and distance is not None
+    w1_rows, w2_rows = _per_row(w1, shape[0]), _per_row(w2, shape[0])
+    # per pair, then scattered once: the values of ro_gdiou_terms_bev(...).combine(...) (a
+    # weight that is 0 on every paired row subtracts 0 · finite term there, so skipping is exact)
+    similarity = _combine(iou, enclosure, distance, w1_rows[rows], w2_rows[rows])
+    return _scatter(_finite_or_neg_inf(similarity), rows, cols, shape, -np.inf)
 
 
 def giou_bev(a: Boxes, b: Boxes, *, mask: ArrayLike | None = None) -> FloatArray:
@@ -266,10 +321,12 @@ def back_predict(dets: Boxes, dt_secs: float) -> Boxes:
 __all__ = [
     "RoGdiouTerms",
     "back_predict",
+    "bev_array",
     "diou_bev",
     "giou_bev",
     "iou_bev",
     "ro_gdiou_bev",
+    "ro_gdiou_bev_arrays",
     "ro_gdiou_terms_bev",
     "sdiou_image",
 ]

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import functools
+import os
 from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from tracker.boxes import FloatArray
+from tracker.boxes import FloatArray, IntArray
 
 TWO_PI = 2.0 * np.pi
 
@@ -15,6 +17,8 @@ TWO_PI = 2.0 * np.pi
 def wrap_angle(angle_rad: ArrayLike) -> FloatArray:
     """Wrap angles to (-pi, pi]. Angles already in range are returned bit-for-bit unchanged."""
     a = np.asarray(angle_rad, dtype=np.float64)
+    if a.size == 0 or np.abs(a).max() < np.pi:  # inside the range, the usual case (NaN: not)
+        return a.copy()
     wrapped = np.mod(a + np.pi, TWO_PI) - np.pi  # in [-pi, pi)
     wrapped = np.where(wrapped <= -np.pi, wrapped + TWO_PI, wrapped)
     return np.where((a > np.pi) | (a <= -np.pi), wrapped, a)
@@ -24,21 +28,19 @@ def corners_bev(xy: ArrayLike, lw: ArrayLike, yaw_rad: ArrayLike) -> FloatArray:
     """(N, 4, 2) BEV corners, counter-clockwise: front-left, rear-left, rear-right, front-right."""
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     lw = np.asarray(lw, dtype=np.float64).reshape(-1, 2)
-    yaw = np.asarray(yaw_rad, dtype=np.float64).reshape(-1)
-    half_l, half_w = lw[:, 0:1] / 2.0, lw[:, 1:2] / 2.0
-    local = np.stack(
-        [
-            np.hstack([half_l, half_w]),
-            np.hstack([-half_l, half_w]),
-            np.hstack([-half_l, -half_w]),
-            np.hstack([half_l, -half_w]),
-        ],
-        axis=1,
-    )  # (N, 4, 2)
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    x = local[..., 0] * c - local[..., 1] * s
-    y = local[..., 0] * s + local[..., 1] * c
-    return np.stack([x, y], axis=-1) + xy[:, None, :]
+    yaw = np.asarray(yaw_rad, dtype=np.float64).reshape(-1, 1)
+    # local corners (±l/2, ±w/2) in the box frame (a sign flip is exact), then rotated
+    local_x = (lw[:, 0:1] / 2.0) * _CORNER_SIGN_L  # (N, 4)
+    local_y = (lw[:, 1:2] / 2.0) * _CORNER_SIGN_W
+    c, s = np.cos(yaw), np.sin(yaw)
+    corners = np.empty((len(xy), 4, 2))
+    corners[..., 0] = local_x * c - local_y * s + xy[:, 0:1]
+    corners[..., 1] = local_x * s + local_y * c + xy[:, 1:2]
+    return corners
+
+
+_CORNER_SIGN_L = np.array([1.0, -1.0, -1.0, 1.0])
+_CORNER_SIGN_W = np.array([1.0, 1.0, -1.0, -1.0])
 
 
 def corners_3d(xyz: ArrayLike, lwh: ArrayLike, yaw_rad: ArrayLike) -> FloatArray:
@@ -46,11 +48,13 @@ def corners_3d(xyz: ArrayLike, lwh: ArrayLike, yaw_rad: ArrayLike) -> FloatArray
     xyz = np.asarray(xyz, dtype=np.float64).reshape(-1, 3)
     lwh = np.asarray(lwh, dtype=np.float64).reshape(-1, 3)
     bev = corners_bev(xyz[:, :2], lwh[:, :2], yaw_rad)  # (N, 4, 2)
-    z_bottom = (xyz[:, 2] - lwh[:, 2] / 2.0)[:, None, None]
-    z_top = (xyz[:, 2] + lwh[:, 2] / 2.0)[:, None, None]
-    bottom = np.concatenate([bev, np.broadcast_to(z_bottom, (len(xyz), 4, 1))], axis=-1)
-    top = np.concatenate([bev, np.broadcast_to(z_top, (len(xyz), 4, 1))], axis=-1)
-    return np.concatenate([bottom, top], axis=1)
+    half_h = lwh[:, 2:3] / 2.0
+    corners = np.empty((len(xyz), 8, 3))
+    corners[:, :4, :2] = bev
+    corners[:, 4:, :2] = bev
+    corners[:, :4, 2] = xyz[:, 2:3] - half_h
+    corners[:, 4:, 2] = xyz[:, 2:3] + half_h
+    return corners
 
 
 #: The 12 edges of a box from :func:`corners_3d`, as index pairs (for wireframes).
@@ -357,3 +361,108 @@ def min_area_rect_bev(corners_a: ArrayLike, corners_b: ArrayLike) -> tuple[Float
     """
     area, diag_sq = _chunked(_min_area_rect, corners_a, corners_b, n_outputs=2)
     return area, diag_sq
+
+
+# --- Pairs given by index: the BEV costs' entry point ------------------------------------------
+
+
+def bev_pair_geometry(
+    boxes_a: FloatArray,
+    boxes_b: FloatArray,
+    rows: IntArray,
+    cols: IntArray,
+    *,
+    with_enclosing: bool = True,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The BEV geometry of the pairs ``(boxes_a[rows[p]], boxes_b[cols[p]])``.
+
+    What every BEV cost needs, in one call over the flat list of pairs it scores: the
+    intersection area (computed only where the circumscribed circles overlap, else 0 exactly),
+    the minimum-area rectangle enclosing both boxes and its squared diagonal
+    (:func:`min_area_rect_bev`), and the squared centre distance. Runs the compiled kernel of
+    :mod:`tracker.geometry_numba` when numba is installed (and the environment variable
+    ``MCTRACK_NUMBA`` is not ``0``), else :func:`bev_pair_geometry_numpy`; both agree to float64
+    rounding.
+
+    Parameters
+    ----------
+    boxes_a : (M, 5) and boxes_b : (N, 5)
+        BEV boxes ``[x, y, l, w, yaw]`` (metres, radians).
+    rows, cols : (P,) int64
+        The pairs.
+    with_enclosing : compute the enclosing rectangle (else its two outputs are NaN).
+
+    Returns
+    -------
+    intersection : (P,) m².
+    enclosing_area : (P,) m².
+    diag_sq : (P,) m², the enclosing rectangle's squared diagonal.
+    centre_dist_sq : (P,) m².
+    A pair with a non-finite x, y, l, w or yaw (a missing box) is NaN in every output.
+    """
+    kernel = _geometry_kernel()
+    if kernel is not None:
+        return kernel(  # type: ignore[no-any-return]
+            np.ascontiguousarray(boxes_a, dtype=np.float64),
+            np.ascontiguousarray(boxes_b, dtype=np.float64),
+            np.ascontiguousarray(rows, dtype=np.int64),
+            np.ascontiguousarray(cols, dtype=np.int64),
+            with_enclosing,
+        )
+    return bev_pair_geometry_numpy(boxes_a, boxes_b, rows, cols, with_enclosing=with_enclosing)
+
+
+def bev_pair_geometry_numpy(
+    boxes_a: FloatArray,
+    boxes_b: FloatArray,
+    rows: IntArray,
+    cols: IntArray,
+    *,
+    with_enclosing: bool = True,
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`bev_pair_geometry` in numpy: the fallback and the compiled kernel's reference."""
+    a = np.asarray(boxes_a, dtype=np.float64).reshape(-1, 5)
+    b = np.asarray(boxes_b, dtype=np.float64).reshape(-1, 5)
+    # c² = (x1 - x2)² + (y1 - y2)²
+    dx = b[cols, 0] - a[rows, 0]
+    dy = b[cols, 1] - a[rows, 1]
+    centre_dist_sq = dx * dx + dy * dy
+    # beyond the sum of half-diagonals the boxes cannot overlap: I = 0 exactly
+    half_diag_a = 0.5 * np.hypot(a[:, 2], a[:, 3])
+    half_diag_b = 0.5 * np.hypot(b[:, 2], b[:, 3])
+    close = centre_dist_sq < (half_diag_a[rows] + half_diag_b[cols]) ** 2
+    with np.errstate(invalid="ignore"):  # a missing box's corners are NaN: reported below
+        corners_a = corners_bev(a[:, :2], a[:, 2:4], a[:, 4])
+        corners_b = corners_bev(b[:, :2], b[:, 2:4], b[:, 4])
+    inter = np.zeros(len(rows))
+    if close.any():
+        inter[close] = intersection_area_bev(corners_a[rows[close]], corners_b[cols[close]])
+    if with_enclosing:
+        enclosing_area, diag_sq = min_area_rect_bev(corners_a[rows], corners_b[cols])
+    else:
+        enclosing_area, diag_sq = np.full(len(rows), np.nan), np.full(len(rows), np.nan)
+    missing = ~(np.isfinite(a).all(axis=1)[rows] & np.isfinite(b).all(axis=1)[cols])
+    for out in (inter, enclosing_area, diag_sq, centre_dist_sq):
+        out[missing] = np.nan
+    return inter, enclosing_area, diag_sq, centre_dist_sq
+
+
+@functools.cache
+def _geometry_kernel() -> Callable[..., tuple[FloatArray, ...]] | None:
+    """The compiled kernel, loaded (or compiled and cached on disk) once; None without numba."""
+    if os.environ.get("MCTRACK_NUMBA", "1") == "0":
+        return None
+    try:
+        from tracker.geometry_numba import bev_pair_geometry_kernel
+    except ImportError:
+        return None
+    # compile (first run on this machine) or load from numba's cache now, not on first use
+    none = np.zeros(0, dtype=np.int64)
+    bev_pair_geometry_kernel(np.zeros((0, 5)), np.zeros((0, 5)), none, none, True)
+    return bev_pair_geometry_kernel  # type: ignore[no-any-return]
+
+
+def prepare_kernels() -> None:
+    """Load the compiled geometry kernel now (the tracker calls this at construction, so the
+    one-time JIT load never lands inside a timed frame)."""
+    _geometry_kernel()

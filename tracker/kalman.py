@@ -14,10 +14,16 @@ Three layers, all pure functions:
    diagonal P0 / Q / R (always the case in the configs) and axis-separable F and H, the five
    axes x, y, l, w, θ never correlate, so the joint covariance is exactly block diagonal with one
    ``k × k`` block per axis (``k = 2`` for CV, ``3`` for CA). Storing ``x (B, 5, k)`` and
-   ``P (B, 5, k, k)`` is therefore lossless. For CV the 2 × 2 algebra is written in closed form
-   on ``(B, 5)`` component arrays: one predict + update of all three filters is about 2× faster
-   than layer (2) at B = 20 and 4–5× at B = 200 (``bench/bench_kalman.py``), because numpy's
-   stacked matmul / LAPACK pay per tiny matrix. ``tests/test_kalman.py`` checks it against (2).
+   ``P (B, 5, k, k)`` is therefore lossless. The tracker's problems are tiny (a few tracks), so
+   the cost is the number of numpy calls, not arithmetic, and each case takes the fewest:
+   a predict with one ``dt`` for every row (a frame) is two matrix products over the stacked
+   blocks (``vec(F P Fᵀ)`` by ``F ⊗ F``); an update where only values are measured (positions,
+   sizes, θ_det: KITTI) is the rank-one Joseph form for any k, and θ_vel joins it as one
+   inverse-variance fused observation of θ (the same posterior); measured velocities use the
+   2 × 2 closed form (CV) or layer (1) (CA). ``bench/bench_kalman.py`` times each against
+   layer (2); ``tests/test_kalman.py`` checks every case against (2). Axis groups whose
+   measurement is absent are left as predicted, so the tracker updates the heading after the
+   pose when it needs the updated velocity.
 
 Conventions
 -----------
@@ -44,6 +50,7 @@ Differences from the reference code (mctrack_reference.md §2.7, §6)
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum, IntEnum
@@ -51,8 +58,8 @@ from enum import Enum, IntEnum
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from tracker.boxes import FloatArray
-from tracker.geometry import TWO_PI
+from tracker.boxes import FloatArray, IntArray
+from tracker.geometry import wrap_angle
 
 BoolArray = NDArray[np.bool_]
 Gaussian = tuple[FloatArray, FloatArray]  # (x, P)
@@ -92,10 +99,8 @@ class Axis(IntEnum):
 N_AXES = len(Axis)
 
 
-def _wrap(angle_rad: FloatArray) -> FloatArray:
-    """Wrap to (-pi, pi]: :func:`tracker.geometry.wrap_angle` in 4 ufunc calls (hot path)."""
-    wrapped = np.pi - np.mod(np.pi - angle_rad, TWO_PI)  # (-pi, pi], or -pi after rounding
-    return np.where(wrapped == -np.pi, np.pi, wrapped)
+#: Wrap to (-pi, pi]; angles already in range (the usual case) are kept bit for bit, cheaply.
+_wrap = wrap_angle
 
 
 # ---------------------------------------------------------------------------------------------
@@ -702,8 +707,9 @@ def motion_predict(
 
     Parameters
     ----------
-    x : (B, 5, k), P : (B, 5, k, k) (k = 2: CV, closed form; k = 3: CA, generic).
-    dt_secs : (B,) elapsed seconds per track (may differ per row).
+    x : (B, 5, k), P : (B, 5, k, k) (k = 2: CV, k = 3: CA).
+    dt_secs : (B,) elapsed seconds per track (may differ per row), or one value for all rows
+        (a tracker frame: then ``F`` is shared and the whole batch is two matrix products).
     q_diag : (5, k) or (B, 5, k) variances per nominal step (:func:`process_noise`).
     dt_nominal_secs : the config's frame period, seconds.
 
@@ -711,8 +717,11 @@ def motion_predict(
     -------
     x : (B, 5, k) with the yaw wrapped to (-pi, pi], P : (B, 5, k, k).
     """
-    dt = np.asarray(dt_secs, dtype=np.float64).reshape(-1, 1)  # (B, 1) broadcasts over axes
+    dt = np.asarray(dt_secs, dtype=np.float64)
     q = np.asarray(q_diag, dtype=np.float64)
+    if dt.size == 1:
+        return _predict_shared_dt(x, P, dt.item(), q, dt_nominal_secs)
+    dt = dt.reshape(-1, 1)  # (B, 1) broadcasts over axes
     if x.shape[-1] != 2:
         Q = diagonal_covariance(q * (dt / dt_nominal_secs)[..., None])
         F = axis_transition(dt, model=MotionModel.CA)
@@ -731,14 +740,61 @@ def motion_predict(
     return _pack_cv(new_value, rate, n00, n01, n11)
 
 
+def _predict_shared_dt(
+    x: FloatArray, P: FloatArray, dt: float, q: FloatArray, dt_nominal_secs: float
+) -> Gaussian:
+    """:func:`motion_predict` when every row advances by the same ``dt``.
+
+    Every axis block uses one F, so x = F x is one product of the stacked states with Fᵀ, and
+    P = F P Fᵀ one product of the stacked vec(P) with F ⊗ F (only the upper triangle's columns,
+    mirrored, so P stays exactly symmetric).
+    """
+    k = x.shape[-1]
+    f_t, kron_upper = _shared_transition(dt, k)
+    n = x.shape[0] * N_AXES
+    x_new = (x.reshape(n, k) @ f_t).reshape(x.shape)  # x = F x
+    upper = P.reshape(n, k * k) @ kron_upper  # F P Fᵀ, upper triangle
+    # + Q = diag(q)·dt/dt_nominal
+    if q.shape != x.shape:
+        q = np.broadcast_to(q, x.shape)
+    upper[:, _UPPER_DIAGONAL[k]] += q.reshape(n, k) * (dt / dt_nominal_secs)
+    x_new[:, Axis.YAW, 0] = _wrap(x_new[:, Axis.YAW, 0])
+    return x_new, upper[:, _UPPER_OF[k]].reshape(P.shape)
+
+
+def _upper_layout(k: int) -> tuple[IntArray, IntArray, IntArray, IntArray]:
+    """Row/column of the k(k+1)/2 upper-triangle entries, the position of each of the k² entries
+    in that list ((i, j) and (j, i) share one), and the positions of the diagonal."""
+    rows, cols = np.triu_indices(k)
+    position = np.empty((k, k), dtype=np.int64)
+    position[rows, cols] = position[cols, rows] = np.arange(len(rows))
+    return rows, cols, position.reshape(-1), position[np.arange(k), np.arange(k)]
+
+
+_UPPER = {k: _upper_layout(k) for k in (2, 3)}
+_UPPER_OF = {k: layout[2] for k, layout in _UPPER.items()}
+_UPPER_DIAGONAL = {k: layout[3] for k, layout in _UPPER.items()}
+
+
+@functools.lru_cache(maxsize=32)
+def _shared_transition(dt: float, k: int) -> tuple[FloatArray, FloatArray]:
+    """Fᵀ (k, k) and the (k², k(k+1)/2) matrix mapping vec(P) to the upper triangle of F P Fᵀ:
+    entry (i, j) is Σ_ab F[i, a] P[a, b] F[j, b]."""
+    d1, d2 = _AXIS_D[k]
+    F = np.eye(k) + dt * d1 + (dt * dt) * d2
+    rows, cols = _UPPER[k][:2]
+    kron_upper = np.einsum("ia,jb->abij", F, F).reshape(k * k, k, k)[:, rows, cols]
+    return np.ascontiguousarray(F.T), np.ascontiguousarray(kron_upper)
+
+
 def motion_update(
     x: FloatArray,
     P: FloatArray,
     *,
-    xy: ArrayLike,
-    lw: ArrayLike,
-    yaw_det_rad: ArrayLike,
     r_diag: ArrayLike,
+    xy: ArrayLike | None = None,
+    lw: ArrayLike | None = None,
+    yaw_det_rad: ArrayLike | None = None,
     velocity_xy: ArrayLike | None = None,
     velocity_valid: ArrayLike | None = None,
     yaw_vel_rad: ArrayLike | None = None,
@@ -748,15 +804,18 @@ def motion_update(
     """Update the pose, size and heading filters of every row with its matched detection.
 
     Equals :func:`pose_update`, :func:`size_update` and :func:`heading_update` together. Pass
-    only the matched rows (``x[rows]``); unmatched tracks are just predicted.
+    only the matched rows (``x[rows]``); unmatched tracks are just predicted. The axes are
+    independent, so a group whose measurement is None (``xy``, ``lw`` or ``yaw_det_rad``) keeps
+    its predicted state exactly: the tracker updates the pose and size first and the heading
+    afterwards, with θ_vel from the *updated* velocity.
 
     Parameters
     ----------
     x : (B, 5, k), P : (B, 5, k, k) predicted states.
-    xy : (B, 2) measured centres, metres.
-    lw : (B, 2) measured length and width, metres.
-    yaw_det_rad : (B,) detector yaw.
     r_diag : (5, 2) or (B, 5, 2) variances (:func:`motion_noise`).
+    xy : (B, 2) measured centres, metres, or None (x and y not updated).
+    lw : (B, 2) measured length and width, metres, or None (size not updated).
+    yaw_det_rad : (B,) detector yaw, or None (heading not updated).
     velocity_xy : (B, 2) detector velocity, m/s, or None (not measured).
     velocity_valid : (B,) bool; default: rows with a finite velocity.
     yaw_vel_rad : (B,) θ_vel (:func:`velocity_heading`), or None (not measured).
@@ -769,58 +828,165 @@ def motion_update(
     -------
     x : (B, 5, k) with the yaw wrapped to (-pi, pi], P : (B, 5, k, k).
     """
-    z0, z1, m1 = _motion_measurement(
-        xy, lw, yaw_det_rad, velocity_xy, velocity_valid, yaw_vel_rad, yaw_vel_valid
-    )
-    r = np.asarray(r_diag, dtype=np.float64)
-    if x.shape[-1] != 2:
-        if align_yaw_det:
-            z0[:, Axis.YAW] = align_heading(z0[:, Axis.YAW], x[:, Axis.YAW, 0])
-        z = np.stack([z0, z1], axis=-1)
-        mask = np.stack([np.ones_like(m1), m1], axis=-1)
-        H = _AXIS_H[x.shape[-1]]
-        x_new, P_new = update(
-            x, P, z, H, diagonal_covariance(r), mask=mask, innovation_wrap=_YAW_WRAP
+    measured = (xy is not None, lw is not None, yaw_det_rad is not None)
+    if not any(measured):
+        return x.copy(), P.copy()
+    axes, yaw = _AXES_OF[measured]  # yaw: column of the yaw axis among the updated ones
+    z0, z1, m1, with_velocity = _motion_measurement(
+        measured, len(x), xy, lw, yaw_det_rad, velocity_xy, velocity_valid, yaw_vel_rad,
+        yaw_vel_valid,
+    )  # fmt: skip
+    r = np.asarray(r_diag, dtype=np.float64)[..., axes, :]
+    x_sub, P_sub = x[:, axes], P[:, axes]
+    if m1 is None or not m1.any():
+        y0 = _innovation_values(z0, x_sub[..., 0], yaw, align_yaw_det)
+        x_sub, P_sub = _value_update(x_sub, P_sub, y0, r[..., 0], yaw)
+    elif not with_velocity:
+        # Only θ_vel is second: θ_det and θ_vel both observe θ with independent noise, which is
+        # one observation with the inverse-variance fused innovation (the same posterior).
+        assert yaw is not None
+        y0 = _innovation_values(z0, x_sub[..., 0], yaw, align_yaw_det)
+        y1 = _wrap(z1 - x_sub[..., 0])  # zero weight outside the masked-in yaw entries
+        r0, r1 = r[..., 0], r[..., 1]
+        y_fused = np.where(m1, (r1 * y0 + r0 * y1) / (r0 + r1), y0)
+        r_fused = np.where(m1, (r0 * r1) / (r0 + r1), r0)
+        x_sub, P_sub = _value_update(x_sub, P_sub, y_fused, r_fused, yaw)
+    elif x.shape[-1] == 2:
+        x_sub, P_sub = _cv_axes_update(
+            x_sub, P_sub, z0, z1, m1, r[..., 0], r[..., 1],
+            axes=axes, yaw=yaw, align_yaw_det=align_yaw_det,
+        )  # fmt: skip
+    else:
+        x_sub, P_sub = _generic_axes_update(
+            x, x_sub, P_sub, z0, z1, m1, r, axes=axes, yaw=yaw, align_yaw_det=align_yaw_det
         )
-        x_new[:, Axis.YAW, 0] = _wrap(x_new[:, Axis.YAW, 0])
-        return x_new, P_new
-    return _cv_axes_update(x, P, z0, z1, m1, r[..., 0], r[..., 1], align_yaw_det=align_yaw_det)
+    if axes is _ALL_AXES:
+        return x_sub, P_sub
+    x_new, P_new = x.copy(), P.copy()
+    x_new[:, axes], P_new[:, axes] = x_sub, P_sub
+    return x_new, P_new
+
+
+_ALL_AXES = slice(0, N_AXES)
+#: For each (xy, lw, yaw) combination measured: the axes updated, and the yaw axis' column
+#: among them (None when the heading is not updated).
+_AXES_OF: dict[tuple[bool, bool, bool], tuple[slice | IntArray, int | None]] = {
+    (True, True, True): (_ALL_AXES, Axis.YAW),
+    (True, True, False): (slice(Axis.X, Axis.WIDTH + 1), None),
+    (False, True, True): (slice(Axis.LENGTH, N_AXES), 2),
+    (True, False, False): (slice(Axis.X, Axis.Y + 1), None),
+    (False, True, False): (slice(Axis.LENGTH, Axis.WIDTH + 1), None),
+    (False, False, True): (slice(Axis.YAW, N_AXES), 0),
+    (True, False, True): (np.array([Axis.X, Axis.Y, Axis.YAW]), 2),
+}
+
+
+def _value_update(
+    x: FloatArray, P: FloatArray, y0: FloatArray, r0: FloatArray, yaw: int | None
+) -> Gaussian:
+    """Update of axes whose value alone is measured, H = [1, 0(, 0)], any k; y0 = z0 − value.
+
+    Joseph form from rank-one terms: with P₀ = H P (P's first row), (I − K H) P = P − K P₀, and
+    right-multiplying by (I − K H)ᵀ subtracts its first column times Kᵀ. Symmetrised, as
+    :func:`update`.
+    """
+    s = P[..., 0, 0] + r0  # S = H P Hᵀ + R
+    gain = P[..., 0, :] / s[..., None]  # K = P Hᵀ S⁻¹
+    x_new = x + gain * y0[..., None]  # x = x + K y
+    if yaw is not None:
+        x_new[:, yaw, 0] = _wrap(x_new[:, yaw, 0])
+    # P = (I − K H) P (I − K H)ᵀ + K R Kᵀ
+    a_p = P - gain[..., :, None] * P[..., None, 0, :]
+    P_new = a_p - a_p[..., :, :1] * gain[..., None, :]
+    P_new += (r0[..., None, None] * gain[..., :, None]) * gain[..., None, :]
+    return x_new, 0.5 * (P_new + P_new.mT)
+
+
+def _generic_axes_update(
+    x: FloatArray,
+    x_sub: FloatArray,
+    P_sub: FloatArray,
+    z0: FloatArray,
+    z1: FloatArray,
+    m1: BoolArray,
+    r: FloatArray,
+    *,
+    axes: slice | IntArray,
+    yaw: int | None,
+    align_yaw_det: bool,
+) -> Gaussian:
+    """Two measurements per axis by the generic :func:`update` (masked, wrapped): CA velocity."""
+    if align_yaw_det and yaw is not None:
+        z0[:, yaw] = align_heading(z0[:, yaw], x[:, Axis.YAW, 0])
+    z = np.stack([z0, z1], axis=-1)
+    mask = np.stack([np.ones_like(m1), m1], axis=-1)
+    H = _AXIS_H[x.shape[-1]][axes]
+    x_new, P_new = update(
+        x_sub, P_sub, z, H, diagonal_covariance(r), mask=mask, innovation_wrap=_YAW_WRAP[axes]
+    )
+    if yaw is not None:
+        x_new[:, yaw, 0] = _wrap(x_new[:, yaw, 0])
+    return x_new, P_new
+
+
+def _innovation_values(
+    z0: FloatArray, value: FloatArray, yaw: int | None, align_yaw_det: bool
+) -> FloatArray:
+    """y0 = z0 − value, the yaw column wrapped to (-pi, pi] (or taken mod pi when aligning)."""
+    y0 = z0 - value
+    if yaw is not None:
+        if align_yaw_det:  # θ_det is an axis (mod pi): innovation in (-pi/2, pi/2]
+            y0[:, yaw] = 0.5 * np.pi - np.mod(0.5 * np.pi - y0[:, yaw], np.pi)
+        else:
+            y0[:, yaw] = _wrap(y0[:, yaw])
+    return y0
 
 
 def _motion_measurement(
-    xy: ArrayLike,
-    lw: ArrayLike,
-    yaw_det_rad: ArrayLike,
+    measured: tuple[bool, bool, bool],
+    n_rows: int,
+    xy: ArrayLike | None,
+    lw: ArrayLike | None,
+    yaw_det_rad: ArrayLike | None,
     velocity_xy: ArrayLike | None,
     velocity_valid: ArrayLike | None,
     yaw_vel_rad: ArrayLike | None,
     yaw_vel_valid: ArrayLike | None,
-) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Per-axis measurements: z0 (B, 5) of the values, z1 (B, 5) second slot, m1 (B, 5) its mask."""
-    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
-    n_rows = len(xy)
-    z0 = np.empty((n_rows, N_AXES))
-    z0[:, Axis.X : Axis.Y + 1] = xy
-    z0[:, Axis.LENGTH : Axis.WIDTH + 1] = np.asarray(lw, dtype=np.float64).reshape(-1, 2)
-    z0[:, Axis.YAW] = np.asarray(yaw_det_rad, dtype=np.float64).reshape(-1)
-    z1 = np.zeros((n_rows, N_AXES))
-    m1 = np.zeros((n_rows, N_AXES), dtype=bool)
-    if velocity_xy is not None:
+) -> tuple[FloatArray, FloatArray | None, BoolArray | None, bool]:
+    """Measurements of the updated axes (in axis order): z0 (B, A) of the values, z1 (B, A)
+    second slots with their mask m1 (None, None when no second slot is measured at all), and
+    whether the velocity is among them."""
+    has_xy, has_lw, has_yaw = measured
+    values = []
+    if has_xy:
+        values.append(np.asarray(xy, dtype=np.float64).reshape(-1, 2))
+    if has_lw:
+        values.append(np.asarray(lw, dtype=np.float64).reshape(-1, 2))
+    if has_yaw:
+        values.append(np.asarray(yaw_det_rad, dtype=np.float64).reshape(-1, 1))
+    z0 = np.concatenate(values, axis=1) if len(values) > 1 else values[0].copy()
+    with_velocity = has_xy and velocity_xy is not None
+    with_yaw_vel = has_yaw and yaw_vel_rad is not None
+    if not (with_velocity or with_yaw_vel):
+        return z0, None, None, False
+    z1 = np.zeros((n_rows, z0.shape[1]))
+    m1 = np.zeros((n_rows, z0.shape[1]), dtype=bool)
+    if with_velocity:  # x and y are the first two columns
         v = np.asarray(velocity_xy, dtype=np.float64).reshape(-1, 2)
-        z1[:, Axis.X : Axis.Y + 1] = v
-        valid = np.isfinite(v).all(-1) if velocity_valid is None else np.asarray(velocity_valid)
-        m1[:, Axis.X : Axis.Y + 1] = valid[:, None]
-    if yaw_vel_rad is not None:
+        z1[:, :2] = v
+        valid = np.isfinite(v).all(-1) if velocity_valid is None else velocity_valid
+        m1[:, :2] = np.asarray(valid)[:, None]
+    if with_yaw_vel:  # yaw is the last column
         yaw_vel = np.asarray(yaw_vel_rad, dtype=np.float64).reshape(-1)
-        z1[:, Axis.YAW] = yaw_vel
-        m1[:, Axis.YAW] = np.isfinite(yaw_vel) if yaw_vel_valid is None else yaw_vel_valid
-    return z0, z1, m1
+        z1[:, -1] = yaw_vel
+        m1[:, -1] = np.isfinite(yaw_vel) if yaw_vel_valid is None else yaw_vel_valid
+    return z0, z1, m1, with_velocity
 
 
 def _pack_cv(
     value: FloatArray, rate: FloatArray, p00: FloatArray, p01: FloatArray, p11: FloatArray
 ) -> Gaussian:
-    """(B, 5) components -> x (B, 5, 2), P (B, 5, 2, 2)."""
+    """(B, A) components -> x (B, A, 2), P (B, A, 2, 2)."""
     x = np.empty((*value.shape, 2))
     x[..., 0], x[..., 1] = value, rate
     P = np.empty((*p00.shape, 2, 2))
@@ -837,9 +1003,13 @@ def _cv_axes_update(
     r0: FloatArray,
     r1: FloatArray,
     *,
+    axes: slice | IntArray,
+    yaw: int | None,
     align_yaw_det: bool,
 ) -> Gaussian:
-    """Closed-form CV update of 5 axes, H = [[1, 0], [c, 1 − c]] (c = 1 on yaw), diagonal R.
+    """Closed-form CV update of the axes ``x[:, axes]`` with two measurements,
+    H = [[1, 0], [c, 1 − c]] (c = 1 on yaw), diagonal R; ``yaw`` is the column of the yaw axis
+    among them (None: not updated).
 
     The second measurement is masked exactly where ``m1`` is False (zero H row, zero innovation,
     unit S entry: see :func:`update`). ``S`` is 2 × 2 SPD (``S ⪰ R ≻ 0``) and is solved by
@@ -848,19 +1018,17 @@ def _cv_axes_update(
     value, rate = x[..., 0], x[..., 1]
     p00, p01, p11 = P[..., 0, 0], P[..., 0, 1], P[..., 1, 1]
     # y = z − H x; the yaw innovations are wrapped to (-pi, pi]
-    y0 = z0 - value
-    y1 = np.where(m1, z1 - np.where(_IS_YAW, value, rate), 0.0)
-    if align_yaw_det:  # θ_det is an axis (mod pi): innovation in (-pi/2, pi/2]
-        y0[:, Axis.YAW] = 0.5 * np.pi - np.mod(0.5 * np.pi - y0[:, Axis.YAW], np.pi)
-    else:
-        y0[:, Axis.YAW] = _wrap(y0[:, Axis.YAW])
-    y1[:, Axis.YAW] = _wrap(y1[:, Axis.YAW])
+    y0 = _innovation_values(z0, value, yaw, align_yaw_det)
+    is_yaw, yaw_c, rate_c = _IS_YAW[axes], _YAW_C[axes], _RATE_C[axes]
+    y1 = np.where(m1, z1 - np.where(is_yaw, value, rate), 0.0)
+    if yaw is not None:
+        y1[:, yaw] = _wrap(y1[:, yaw])
     # P Hᵀ = [[p00, g0], [p01, g1]] with g = P h1ᵀ (zero where z1 is masked)
-    g0 = np.where(m1, np.where(_IS_YAW, p00, p01), 0.0)
-    g1 = np.where(m1, np.where(_IS_YAW, p01, p11), 0.0)
+    g0 = np.where(m1, np.where(is_yaw, p00, p01), 0.0)
+    g1 = np.where(m1, np.where(is_yaw, p01, p11), 0.0)
     # S = H P Hᵀ + R = [[p00 + r0, g0], [g0, h1·g + r1]] (1 in place of h1·g + r1 where masked)
     s00 = p00 + r0
-    s11 = np.where(m1, np.where(_IS_YAW, g0, g1) + r1, 1.0)
+    s11 = np.where(m1, np.where(is_yaw, g0, g1) + r1, 1.0)
     inv_det = 1.0 / (s00 * s11 - g0 * g0)
     # K = P Hᵀ S⁻¹ by Cramer's rule (s01 = g0):
     # K[:, 0] = (P h0ᵀ s11 − g s01) / det, K[:, 1] = (g s00 − P h0ᵀ s01) / det
@@ -871,12 +1039,13 @@ def _cv_axes_update(
     # x = x + K y
     new_value = value + k00 * y0 + k01 * y1
     new_rate = rate + k10 * y0 + k11 * y1
-    new_value[:, Axis.YAW] = _wrap(new_value[:, Axis.YAW])
+    if yaw is not None:
+        new_value[:, yaw] = _wrap(new_value[:, yaw])
     # P = A P Aᵀ + K R Kᵀ with A = I − K H (Joseph); A = [[a00, a01], [a10, a11]]
-    a00 = 1.0 - k00 - k01 * _YAW_C
-    a01 = -k01 * _RATE_C
-    a10 = -k10 - k11 * _YAW_C
-    a11 = 1.0 - k11 * _RATE_C
+    a00 = 1.0 - k00 - k01 * yaw_c
+    a01 = -k01 * rate_c
+    a10 = -k10 - k11 * yaw_c
+    a11 = 1.0 - k11 * rate_c
     t00 = a00 * p00 + a01 * p01  # T = A P
     t01 = a00 * p01 + a01 * p11
     t10 = a10 * p00 + a11 * p01

@@ -54,12 +54,11 @@ class Matches:
     @classmethod
     def empty(cls, m: int, n: int) -> Matches:
         """No pair: every one of ``m`` rows and ``n`` columns is unmatched."""
-        none = np.zeros(0, dtype=np.int64)
-        return cls(
-            pairs=_readonly(none.reshape(0, 2), np.int64),
-            costs=_readonly(none, np.float64),
-            unmatched_rows=_readonly(np.arange(m), np.int64),
-            unmatched_cols=_readonly(np.arange(n), np.int64),
+        return cls._trusted(
+            np.zeros((0, 2), dtype=np.int64),
+            np.zeros(0),
+            np.arange(m, dtype=np.int64),
+            np.arange(n, dtype=np.int64),
         )
 
     @classmethod
@@ -67,14 +66,39 @@ class Matches:
         """Matches for parallel ``rows``/``cols`` index arrays into the (M, N) ``cost``."""
         rows = np.asarray(rows, dtype=np.int64)
         cols = np.asarray(cols, dtype=np.int64)
-        order = np.argsort(rows, kind="stable")
-        rows, cols = rows[order], cols[order]
+        if len(rows) > 1:
+            order = np.argsort(rows, kind="stable")
+            rows, cols = rows[order], cols[order]
+        return cls._sorted(rows, cols, cost)
+
+    @classmethod
+    def _sorted(cls, rows: IntArray, cols: IntArray, cost: FloatArray) -> Matches:
+        """Internal :meth:`from_pairs` for int64 ``rows`` already sorted (and ours to keep)."""
         m, n = cost.shape
-        return cls(
-            pairs=_readonly(np.stack([rows, cols], axis=1).reshape(-1, 2), np.int64),
-            costs=_readonly(cost[rows, cols], np.float64),
-            unmatched_rows=_readonly(np.setdiff1d(np.arange(m), rows), np.int64),
-            unmatched_cols=_readonly(np.setdiff1d(np.arange(n), cols), np.int64),
+        pairs = np.empty((len(rows), 2), dtype=np.int64)
+        pairs[:, 0], pairs[:, 1] = rows, cols
+        return cls._trusted(pairs, cost[rows, cols], _complement(rows, m), _complement(cols, n))
+
+    @classmethod
+    def _trusted(
+        cls, pairs: IntArray, costs: FloatArray, unmatched_rows: IntArray, unmatched_cols: IntArray
+    ) -> Matches:
+        """Internal: Matches from fresh arrays we own (made read-only here, not copied)."""
+        for array in (pairs, costs, unmatched_rows, unmatched_cols):
+            array.flags.writeable = False
+        return cls(pairs, costs, unmatched_rows, unmatched_cols)
+
+    def subset(self, keep: ArrayLike) -> Matches:
+        """The pairs where ``keep`` (K,) is True; the rows and columns of the others become
+        unmatched."""
+        n_rows = len(self.unmatched_rows) + len(self.pairs)
+        n_cols = len(self.unmatched_cols) + len(self.pairs)
+        pairs = self.pairs[keep]
+        return Matches._trusted(
+            pairs,
+            self.costs[keep],
+            _complement(pairs[:, 0], n_rows),
+            _complement(pairs[:, 1], n_cols),
         )
 
     def __len__(self) -> int:
@@ -89,13 +113,22 @@ class Matches:
         return self.pairs[:, 1]
 
 
+def _complement(index: IntArray, size: int) -> IntArray:
+    """Sorted ``arange(size)`` without ``index`` (``np.setdiff1d``, without its sorts)."""
+    free = np.ones(size, dtype=bool)
+    free[index] = False
+    return np.flatnonzero(free)
+
+
 def _prepare(cost: ArrayLike, max_cost_per_row: ArrayLike) -> tuple[FloatArray, FloatArray]:
     cost_arr = np.asarray(cost, dtype=np.float64)
     if cost_arr.ndim != 2:
         raise ValueError(f"cost: expected an (M, N) matrix, got shape {cost_arr.shape}")
     m = cost_arr.shape[0]
     threshold = np.asarray(max_cost_per_row, dtype=np.float64)
-    if threshold.shape not in ((), (m,)):
+    if threshold.shape == (m,):
+        return cost_arr, threshold
+    if threshold.shape != ():
         raise ValueError(f"max_cost_per_row: expected shape ({m},), got {threshold.shape}")
     return cost_arr, np.broadcast_to(threshold, (m,))
 
@@ -135,15 +168,17 @@ def hungarian(cost: ArrayLike, *, max_cost_per_row: ArrayLike) -> Matches:
     rows, cols = np.nonzero(_feasible(cost_arr, threshold))  # rows/cols without one: unmatched
     if len(rows) == 0:
         return Matches.empty(m, n)
+    if len(rows) == 1:  # one feasible pair: matched
+        return Matches._sorted(rows, cols, cost_arr)
+    # A pair whose row and column have no other feasible pair is a component of its own, and
+    # matched (the usual case in tracking: a track with one nearby detection). No solver needed.
+    row_count, col_count = np.bincount(rows, minlength=m), np.bincount(cols, minlength=n)
+    if row_count.max() == 1 and col_count.max() == 1:  # every pair alone: no contest at all
+        return Matches._sorted(rows, cols, cost_arr)  # np.nonzero lists rows in order
+    alone = (row_count[rows] == 1) & (col_count[cols] == 1)
     # maximise Σ_matched gain, gain = thr_row - cost >= 0 (lapjv's objective), + a tie bonus
     gain = threshold[rows] - cost_arr[rows, cols]
     gain += _TIE_BONUS_REL * max(1.0, float(gain.max()))
-
-    # A pair whose row and column have no other feasible pair is a component of its own, and
-    # matched (the usual case in tracking: a track with one nearby detection). No solver needed.
-    alone = (np.bincount(rows, minlength=m)[rows] == 1) & (
-        np.bincount(cols, minlength=n)[cols] == 1
-    )
     matched_rows, matched_cols = [rows[alone]], [cols[alone]]
     rows, cols, gain = rows[~alone], cols[~alone], gain[~alone]
     if len(rows) > _SPLIT_MIN_PAIRS:

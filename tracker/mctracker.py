@@ -29,7 +29,14 @@ from tracker.config import (
     TrackerConfig,
     TrackingMode,
 )
-from tracker.cost import back_predict, iou_bev, ro_gdiou_bev, sdiou_image
+from tracker.cost import (
+    back_predict,
+    bev_array,
+    iou_bev,
+    ro_gdiou_bev,
+    ro_gdiou_bev_arrays,
+    sdiou_image,
+)
 from tracker.errors import InputError
 from tracker.events import (
     CostComputed,
@@ -46,12 +53,19 @@ from tracker.events import (
     TrackStatus,
 )
 from tracker.frame import Frame
-from tracker.geometry import wrap_angle
+from tracker.geometry import prepare_kernels, wrap_angle
+from tracker.kalman import Axis
 from tracker.matching import Matches, greedy, hungarian
-from tracker.track import POSE_DIM, TrackTable
+from tracker.track import TrackTable
 
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
 HEADING_FLIP_VOTES = 3  # consecutive detections disagreeing by > 90° that flip a static track
+# TrackStatus values as plain ints: comparing an int8 array with an IntEnum member is slower
+_TENTATIVE, _CONFIRMED = int(TrackStatus.TENTATIVE), int(TrackStatus.CONFIRMED)
+_COASTING, _LOST = int(TrackStatus.COASTING), int(TrackStatus.LOST)
+# lookups by status: output (confirmed, coasting), re-acquired on a hit (coasting, lost)
+_IS_OUTPUT = np.isin(np.arange(len(TrackStatus)), [_CONFIRMED, _COASTING])
+_IS_REACQUIRED = np.isin(np.arange(len(TrackStatus)), [_COASTING, _LOST])
 
 
 class _PerCategory:
@@ -68,6 +82,7 @@ class _PerCategory:
             return np.array([get(c) for c in cfgs], dtype=np.float64)
 
         self.score_min = arr(lambda c: c.score_min)
+        self.score_min_tracked = np.where(self.tracked, self.score_min, np.inf)
         self.birth_score_min = arr(lambda c: max(c.score_min, c.birth_score_min))
         self.nms_iou_max = arr(lambda c: c.nms_iou_max)
         weights = {
@@ -91,34 +106,55 @@ class _PerCategory:
         self.rv_cost_max = arr(lambda c: c.rv.cost_max)
         self.rv_yaw_gate = np.deg2rad(arr(lambda c: c.rv.yaw_gate_deg))
         self.rv_distance_gate = arr(lambda c: c.rv.distance_gate_m)
+        # the stage-2 shortcut's gates, wider by 1 µm and 1 nrad than the real gate's
+        self.rv_distance_gate_sq_loose = (self.rv_distance_gate + 1e-6) ** 2
+        self.rv_yaw_gate_loose = self.rv_yaw_gate + 1e-9
+        self.rv_gate_within_bev_gate = bool(
+            np.all(self.rv_distance_gate[self.tracked] < self.gate_m[self.tracked] * (1 - 1e-9))
+        )
         self.min_hits = arr(lambda c: c.lifecycle.min_hits)
         self.confirm_score = arr(lambda c: c.lifecycle.confirm_score)
         self.max_misses_tentative = arr(lambda c: c.lifecycle.max_misses_tentative)
         self.max_misses_output = arr(lambda c: c.lifecycle.max_misses_output)
         self.max_misses = arr(lambda c: c.lifecycle.max_misses)
+        # the five lifecycle thresholds per category, gathered once per frame
+        self.lifecycle = np.column_stack(
+            [
+                self.min_hits,
+                self.confirm_score,
+                self.max_misses_output,
+                self.max_misses,
+                self.max_misses_tentative,
+            ]
+        )
         self.measure_velocity = np.array([c.pose.measure_velocity for c in cfgs])
-        self.is_ca = np.array([c.pose.motion is MotionModel.CA for c in cfgs])
-        self.pose_p0, self.pose_q, self.pose_r = self._pose_noise(cfgs)
-        self.size_p0 = np.array([c.size.p for c in cfgs], dtype=np.float64)
-        self.size_q = np.array([c.size.q for c in cfgs], dtype=np.float64)
-        self.size_r = np.array([c.size.r for c in cfgs], dtype=np.float64)
-        self.head_p0 = np.array([c.heading.noise.p for c in cfgs], dtype=np.float64)
-        self.head_q = np.array([c.heading.noise.q for c in cfgs], dtype=np.float64)
-        self.head_r = np.array([c.heading.noise.r for c in cfgs], dtype=np.float64)
         self.head_min_speed = arr(lambda c: c.heading.min_speed_mps)
+        # Whole-config switches, so the per-frame path skips work no tracked category needs.
+        tracked = self.tracked
+        self.any_measure_velocity = bool(np.any(self.measure_velocity[tracked]))
+        self.any_back_prediction = bool(np.any(self.alpha[tracked] < 1))
+        self.all_forward = bool(np.all(self.alpha[tracked] >= 1))
+        # CA (k = 3) for every track as soon as one tracked category uses it: CV is CA with a
+        # zero acceleration variance (exact), so one table holds both.
+        any_ca = any(cfgs[i].pose.motion is MotionModel.CA for i in np.flatnonzero(tracked))
+        self.motion_model = kalman.MotionModel.CA if any_ca else kalman.MotionModel.CV
+        noise = kalman.DiagonalNoise.stack([self._motion_noise(c) for c in cfgs])
+        self.motion_p0, self.motion_q, self.motion_r = noise.p0_diag, noise.q_diag, noise.r_diag
 
-    @staticmethod
-    def _pose_noise(cfgs: list[CategoryConfig]) -> tuple[FloatArray, FloatArray, FloatArray]:
-        """6-state P0/Q for every category; CV = CA with zero acceleration variance (exact)."""
-        p0 = np.zeros((len(cfgs), POSE_DIM))
-        q = np.zeros((len(cfgs), POSE_DIM))
-        r = np.ones((len(cfgs), 4))
-        for i, c in enumerate(cfgs):
-            noise = c.pose.ca if c.pose.motion is MotionModel.CA else c.pose.cv
-            k = len(noise.p)
-            p0[i, :k], q[i, :k] = noise.p, noise.q
-            r[i, : len(noise.r)] = noise.r
-        return p0, q, r
+    def _motion_noise(self, c: CategoryConfig) -> kalman.DiagonalNoise:
+        """Per-axis P0/Q/R (5, k) of one category for the tracker's motion model."""
+        k = self.motion_model.order
+        pose = c.pose.ca if c.pose.motion is MotionModel.CA else c.pose.cv
+        p0, q = np.zeros(2 * k), np.zeros(2 * k)  # a CV pose in a CA table: no acceleration
+        p0[: len(pose.p)], q[: len(pose.q)] = pose.p, pose.q
+        return kalman.motion_noise(
+            pose=kalman.DiagonalNoise(p0_diag=p0, q_diag=q, r_diag=pose.r),
+            size=kalman.DiagonalNoise(p0_diag=c.size.p, q_diag=c.size.q, r_diag=c.size.r),
+            heading=kalman.DiagonalNoise(
+                p0_diag=c.heading.noise.p, q_diag=c.heading.noise.q, r_diag=c.heading.noise.r
+            ),
+            model=self.motion_model,
+        )
 
 
 class MCTracker:
@@ -134,10 +170,11 @@ class MCTracker:
         self.config = config
         self.observer = observer
         self._cat = _PerCategory(config)
+        prepare_kernels()  # one-time JIT load here, never inside a frame
         self.reset()
 
     def reset(self) -> None:
-        self._tracks = TrackTable.empty()
+        self._tracks = TrackTable.empty(order=self._cat.motion_model.order)
         self._next_id = 0
         self._last_time: float | None = None
         self._last_frame_id: int | None = None
@@ -155,42 +192,45 @@ class MCTracker:
         prev_boxes = self._tracks.boxes() if self._needs_back_prediction() else None
         self._predict(dt)
         tracks = self._tracks
-        pred_boxes = tracks.boxes() if len(tracks) else Boxes.empty()
         if obs:
+            pred_boxes = tracks.boxes() if len(tracks) else Boxes.empty()
             obs(Predicted(tracks.track_id, pred_boxes, tracks.status))
 
-        det_for_track = np.full(len(tracks), -1, dtype=np.int64)
-        stage_of_track = np.zeros(len(tracks), dtype=np.int8)
-
         # stage 1: BEV plane, Ro_GDIoU cost, Hungarian
+        bev_mask = None
         if len(tracks) and len(dets):
-            cost = self._bev_cost(pred_boxes, prev_boxes, dets, dt)
+            cost, bev_mask = self._bev_cost(prev_boxes, dets, dt)
             max_cost = self._cat.bev_cost_max[tracks.category]
             m1 = hungarian(cost, max_cost_per_row=max_cost)
             if obs:
                 obs(CostComputed(Stage.BEV, cost, tracks.track_id, kept_rows, max_cost))
         else:
             m1 = Matches.empty(len(tracks), len(dets))
-        det_for_track[m1.pairs[:, 0]] = m1.pairs[:, 1]
-        stage_of_track[m1.pairs[:, 0]] = 1
         if obs:
             obs(_matched(Stage.BEV, m1, tracks.track_id, kept_rows))
+        # matched track rows (sorted), their detections and stages
+        matched, matched_dets, stage = m1.rows, m1.cols, np.ones(len(m1), dtype=np.int8)
         unmatched_dets = m1.unmatched_cols
 
         # stage 2: image plane, SDIoU, greedy
         if self.config.rv_matching and len(m1.unmatched_rows) and len(unmatched_dets):
             rows, cols = m1.unmatched_rows, unmatched_dets
-            m2, consumed = self._rv_stage(frame, pred_boxes, dets, rows, cols, kept_rows)
-            det_for_track[rows[m2.pairs[:, 0]]] = cols[m2.pairs[:, 1]]
-            stage_of_track[rows[m2.pairs[:, 0]]] = 2
-            unmatched_dets = np.setdiff1d(cols, cols[consumed])
+            m2, consumed = self._rv_stage(frame, dets, rows, cols, kept_rows, bev_mask)
+            if len(m2):
+                matched = np.concatenate([matched, rows[m2.rows]])
+                order = np.argsort(matched, kind="stable")
+                matched = matched[order]
+                matched_dets = np.concatenate([matched_dets, cols[m2.cols]])[order]
+                stage = np.concatenate([stage, np.full(len(m2), 2, dtype=np.int8)])[order]
+            if len(consumed):
+                unmatched_dets = _without(cols, consumed)
 
-        matched = np.flatnonzero(det_for_track >= 0)
-        self._update(matched, dets[det_for_track[matched]])
+        self._update(matched, dets, matched_dets)
         tracks.matched_det = np.full(len(tracks), -1, dtype=np.int64)
-        tracks.matched_det[matched] = kept_rows[det_for_track[matched]]
-        tracks.matched_stage = stage_of_track
-        born = self._birth(dets[unmatched_dets], kept_rows[unmatched_dets])
+        tracks.matched_det[matched] = kept_rows[matched_dets]
+        tracks.matched_stage = np.zeros(len(tracks), dtype=np.int8)
+        tracks.matched_stage[matched] = stage
+        born = self._birth(dets, unmatched_dets, kept_rows)
         changes = self._lifecycle(matched, born)
         if obs:
             obs(changes)
@@ -227,60 +267,60 @@ class MCTracker:
         """Category filter, score threshold (strict >), optional class-aware BEV NMS."""
         boxes = frame.boxes
         cat = self._cat
-        reason = np.full(len(boxes), DropReason.KEPT, dtype=np.int8)
-        tracked = cat.tracked[boxes.category] if len(boxes) else np.zeros(0, dtype=bool)
-        reason[~tracked] = DropReason.CATEGORY
-        low = tracked & ~(boxes.score > cat.score_min[np.where(tracked, boxes.category, 0)])
-        reason[low] = DropReason.SCORE
-        kept = np.flatnonzero(reason == DropReason.KEPT)
-        if self.config.nms and len(kept) > 1:
-            suppressed = _nms_suppressed(boxes[kept], cat.nms_iou_max)
-            reason[kept[suppressed]] = DropReason.NMS
-            kept = kept[~suppressed]
+        # strict >: NaN scores are dropped, and untracked categories (threshold +inf) too
+        candidates = kept = np.nonzero(boxes.score > cat.score_min_tracked[boxes.category])[0]
+        suppressed = None
+        if self.config.nms and len(candidates) > 1:
+            suppressed = _nms_suppressed(boxes[candidates], cat.nms_iou_max)
+            kept = candidates[~suppressed]
         if self.observer:
+            tracked = cat.tracked[boxes.category]
+            above = boxes.score > cat.score_min[boxes.category]
+            reason = np.full(len(boxes), DropReason.KEPT, dtype=np.int8)
+            reason[~tracked] = DropReason.CATEGORY
+            reason[tracked & ~above] = DropReason.SCORE
+            if suppressed is not None:
+                reason[candidates[suppressed]] = DropReason.NMS
             self.observer(DetectionsFiltered(frame, reason, kept))
-        return boxes[kept], kept
+        # all kept (common with few detections): the frame's own read-only batch, no copy
+        return (boxes if len(kept) == len(boxes) else boxes[kept]), kept
 
     def _needs_back_prediction(self) -> bool:
-        return bool(len(self._tracks)) and bool(np.any(self._cat.alpha[self._tracks.category] < 1))
+        return self._cat.any_back_prediction and bool(
+            len(self._tracks) and np.any(self._cat.alpha[self._tracks.category] < 1)
+        )
 
     def _predict(self, dt: float) -> None:
-        """Advance every track's three filters by the real elapsed time (misses included)."""
+        """Advance every track's filters by the real elapsed time (misses included)."""
         tr = self._tracks
         if not len(tr):
             return
-        cat, dts, nominal = self._cat, np.full(len(tr), dt), self.config.nominal_dt_secs
-        tr.pose_x, tr.pose_P = kalman.pose_predict(
-            tr.pose_x,
-            tr.pose_P,
-            dt_secs=dts,
-            q_diag=cat.pose_q[tr.category],
-            dt_nominal_secs=nominal,
-        )
-        tr.size_x, tr.size_P = kalman.size_predict(
-            tr.size_x,
-            tr.size_P,
-            dt_secs=dts,
-            q_diag=cat.size_q[tr.category],
-            dt_nominal_secs=nominal,
-        )
-        tr.head_x, tr.head_P = kalman.heading_predict(
-            tr.head_x,
-            tr.head_P,
-            dt_secs=dts,
-            q_diag=cat.head_q[tr.category],
-            dt_nominal_secs=nominal,
+        tr.motion_x, tr.motion_P = kalman.motion_predict(
+            tr.motion_x,
+            tr.motion_P,
+            dt_secs=dt,
+            q_diag=self._cat.motion_q[tr.category],
+            dt_nominal_secs=self.config.nominal_dt_secs,
         )
         tr.age += 1
 
-    def _bev_cost(self, pred: Boxes, prev: Boxes | None, dets: Boxes, dt: float) -> FloatArray:
-        """(T, D) cost = 1 - similarity; +inf across categories and beyond the distance gate."""
+    def _bev_cost(
+        self, prev: Boxes | None, dets: Boxes, dt: float
+    ) -> tuple[FloatArray, np.ndarray]:
+        """(T, D) cost = 1 - similarity of the predicted tracks; +inf across categories and
+        beyond the distance gate. Also returns the (T, D) mask of the pairs scored."""
         tr, cat = self._tracks, self._cat
+        bev = tr.motion_x[:, :, 0]  # (T, 5) predicted x, y, l, w, yaw: the BEV boxes
         same = tr.category[:, None] == dets.category[None, :]
-        delta = pred.xyz[:, None, :2] - dets.xyz[None, :, :2]
+        delta = bev[:, None, :2] - dets.xyz[None, :, :2]
         near = np.einsum("tdk,tdk->td", delta, delta) < cat.gate_m[tr.category][:, None] ** 2
         mask = same & near
         w1, w2 = cat.w1[tr.category], cat.w2[tr.category]
+        if cat.all_forward:
+            # Predict cost state for every category: the similarity is -inf outside mask
+            sim = ro_gdiou_bev_arrays(bev, bev_array(dets), w1=w1, w2=w2, mask=mask)
+            return 1.0 - sim, mask
+        pred = tr.boxes()
         alpha = cat.alpha[tr.category]
         sim = np.full(mask.shape, -np.inf)
         if np.any(alpha > 0):
@@ -293,67 +333,79 @@ class MCTracker:
                 prev, back_predict(dets, dt), w1=w1, w2=w2, mask=mask & (alpha < 1)[:, None]
             )
             a = alpha[:, None]
-            sim = np.where(a >= 1, sim, np.where(a <= 0, back, a * sim + (1 - a) * back))
+            with np.errstate(invalid="ignore"):  # 0 · -inf where a = 0: not selected
+                sim = np.where(a >= 1, sim, np.where(a <= 0, back, a * sim + (1 - a) * back))
         with np.errstate(invalid="ignore"):
-            return np.where(mask, 1.0 - sim, np.inf)
+            return np.where(mask, 1.0 - sim, np.inf), mask
 
     def _rv_stage(
         self,
         frame: Frame,
-        pred: Boxes,
         dets: Boxes,
         rows: IntArray,
         cols: IntArray,
         kept_rows: IntArray,
+        bev_mask: np.ndarray | None = None,
     ) -> tuple[Matches, IntArray]:
         """Stage 2 on the leftovers of stage 1: SDIoU of 2D boxes, greedy, yaw/distance gate.
 
         Returns the accepted matches (indices into ``rows``/``cols``) and the indices into
         ``cols`` of detections consumed by the stage (accepted, plus gated ones in reference
-        mode, which drops them as the original code does).
+        mode, which drops them as the original code does). ``bev_mask`` is stage 1's mask of
+        the pairs it scored.
         """
         tr, cat, reference = self._tracks, self._cat, self.config.rv_reference
-        sub_dets = dets[cols]
+        shortcut = not reference and self.observer is None
+        # Shortcut (exact): when the gate below can accept no pair, whatever the costs, nothing
+        # is matched or consumed. Most frames' leftovers are far apart or of other classes: a
+        # pair outside stage 1's mask is of another class or farther (in BEV, so in 3D) than
+        # the BEV gate, which is wider than this stage's.
+        if (
+            shortcut
+            and cat.rv_gate_within_bev_gate
+            and bev_mask is not None
+            and not bev_mask[rows][:, cols].any()
+        ):
+            return Matches.empty(len(rows), len(cols)), _EMPTY_INT
+        if shortcut and not self._rv_gate_passable(rows, dets, cols):
+            return Matches.empty(len(rows), len(cols)), _EMPTY_INT
+        pred = tr.boxes(rows)  # the predicted boxes of the tracks in ``rows``
+        track_category = pred.category
+        det_camera, det_xyxy = dets.camera[cols], dets.xyxy_image[cols]
         track_xyxy = np.full((len(rows), 4), np.nan)
         track_cam = np.full(len(rows), -1, dtype=np.int64)
         cost = np.full((len(rows), len(cols)), np.inf)
-        same = tr.category[rows][:, None] == sub_dets.category[None, :]
+        same = track_category[:, None] == dets.category[cols][None, :]
         if reference:
             # the reference compares the detector's 2D box of the track's last detection
             track_xyxy, track_cam = tr.last_xyxy[rows], tr.last_camera[rows]
-            for c in np.unique(sub_dets.camera[sub_dets.camera >= 0]):
-                r, d = track_cam == c, sub_dets.camera == c
-                cost[np.ix_(r, d)] = 1.0 - sdiou_image(track_xyxy[r], sub_dets.xyxy_image[d])
+            for c in _cameras_of(det_camera):
+                r, d = track_cam == c, det_camera == c
+                cost[np.ix_(r, d)] = 1.0 - sdiou_image(track_xyxy[r], det_xyxy[d])
         else:
             # the paper: project the track's predicted 3D box into the detection's camera
-            for c in np.unique(sub_dets.camera[sub_dets.camera >= 0]):
-                xyxy, visible = project_boxes(pred[rows], frame.cameras[c])
-                d = sub_dets.camera == c
+            for c in _cameras_of(det_camera):
+                xyxy, visible = project_boxes(pred, frame.cameras[c])
+                d = det_camera == c
                 take = visible & (track_cam < 0)
                 track_xyxy[take], track_cam[take] = xyxy[take], c
-                block = 1.0 - sdiou_image(xyxy[visible], sub_dets.xyxy_image[d])
+                block = 1.0 - sdiou_image(xyxy[visible], det_xyxy[d])
                 cost[np.ix_(visible, d)] = block
         cost = np.where(same, cost, np.inf)
-        max_cost = cat.rv_cost_max[tr.category[rows]]
-        m = greedy(cost, max_cost_per_row=max_cost, order=self.config.greedy_order.value)
+        max_cost = cat.rv_cost_max[track_category]
+        m = greedy(cost, max_cost_per_row=max_cost, order=self.config.greedy_order)
 
         # gate: heading within yaw_gate and centres within distance_gate of the track
-        t_rows, d_cols = rows[m.pairs[:, 0]], m.pairs[:, 1]
+        t_rows, d_cols = rows[m.pairs[:, 0]], cols[m.pairs[:, 1]]
         if reference:
             track_yaw, track_xyz = tr.last_det_yaw[t_rows], tr.last_det_xyz[t_rows]
         else:
-            track_yaw, track_xyz = pred.yaw[t_rows], pred.xyz[t_rows]
-        yaw_gap = np.abs(wrap_angle(track_yaw - sub_dets.yaw[d_cols]))
-        dist = np.linalg.norm(track_xyz - sub_dets.xyz[d_cols], axis=1)
-        ok = (yaw_gap <= cat.rv_yaw_gate[tr.category[t_rows]]) & (
-            dist <= cat.rv_distance_gate[tr.category[t_rows]]
-        )
-        accepted = Matches(
-            pairs=m.pairs[ok],
-            costs=m.costs[ok],
-            unmatched_rows=np.setdiff1d(np.arange(len(rows)), m.pairs[ok, 0]),
-            unmatched_cols=np.setdiff1d(np.arange(len(cols)), m.pairs[ok, 1]),
-        )
+            track_yaw, track_xyz = pred.yaw[m.pairs[:, 0]], pred.xyz[m.pairs[:, 0]]
+        yaw_gap = np.abs(wrap_angle(track_yaw - dets.yaw[d_cols]))
+        dist = np.linalg.norm(track_xyz - dets.xyz[d_cols], axis=1)
+        t_category = tr.category[t_rows]
+        ok = (yaw_gap <= cat.rv_yaw_gate[t_category]) & (dist <= cat.rv_distance_gate[t_category])
+        accepted = m.subset(ok)
         consumed = m.pairs[:, 1] if reference else accepted.pairs[:, 1]
         if self.observer:
             self.observer(
@@ -371,166 +423,232 @@ class MCTracker:
                 Matched(
                     Stage.RV,
                     tr.track_id[t_rows[ok]],
-                    kept_rows[cols[d_cols[ok]]],
+                    kept_rows[d_cols[ok]],
                     m.costs[ok],
                     tr.track_id[t_rows[~ok]],
-                    kept_rows[cols[d_cols[~ok]]],
+                    kept_rows[d_cols[~ok]],
                 )
             )
         return accepted, consumed
 
-    def _update(self, idx: IntArray, dets: Boxes) -> None:
-        """Kalman updates of the matched tracks (position, size, heading from both sources)."""
+    def _rv_gate_passable(self, rows: IntArray, dets: Boxes, cols: IntArray) -> bool:
+        """Whether any (track ``rows``, detection ``cols``) pair of one category passes the
+        stage-2 yaw and distance gate (on the predicted boxes).
+
+        Conservative by a hair (1 µm, 1 nrad) so that rounding can never skip a real match.
+        """
+        tr, cat = self._tracks, self._cat
+        category = tr.category[rows]
+        same = category[:, None] == dets.category[cols][None, :]
+        if not same.any():
+            return False
+        delta = tr.xyz(rows)[:, None, :] - dets.xyz[cols][None, :, :]
+        gate_sq = cat.rv_distance_gate_sq_loose[category][:, None]
+        near = np.einsum("tdk,tdk->td", delta, delta) <= gate_sq
+        near &= same
+        if not near.any():
+            return False
+        yaw = tr.motion_x[rows, Axis.YAW, 0]
+        yaw_gap = np.abs(wrap_angle(yaw[:, None] - dets.yaw[cols][None, :]))
+        near &= yaw_gap <= cat.rv_yaw_gate_loose[category][:, None]
+        return bool(near.any())
+
+    def _update(self, idx: IntArray, dets: Boxes, det_rows: IntArray) -> None:
+        """Kalman updates of tracks ``idx`` with detections ``det_rows`` (position, size, and
+        heading from both sources)."""
         if not len(idx):
             return
         tr, cat = self._tracks, self._cat
         c = tr.category[idx]
-        vel = np.where(cat.measure_velocity[c][:, None], dets.velocity, np.nan)
-        pose_x, pose_P = kalman.pose_update(
-            tr.pose_x[idx],
-            tr.pose_P[idx],
-            xy=dets.xyz[:, :2],
-            r_diag=cat.pose_r[c],
-            velocity_xy=vel,
-        )
-        size_x, size_P = kalman.size_update(
-            tr.size_x[idx], tr.size_P[idx], lw=dets.lwh[:, :2], r_diag=cat.size_r[c]
-        )
-        # heading from perception and from velocity (paper §3.3). Detections carry a 180°
+        xyz, lwh, det_yaw = dets.xyz[det_rows], dets.lwh[det_rows], dets.yaw[det_rows]
+        score = dets.score[det_rows]
+        r_diag = cat.motion_r[c]
+        vel = None
+        if cat.any_measure_velocity:
+            vel = np.where(cat.measure_velocity[c][:, None], dets.velocity[det_rows], np.nan)
+        # Heading from perception and from velocity (paper §3.3). Detections carry a 180°
         # ambiguity, so the sign of the heading is decided first: by the direction of travel
         # when the object clearly moves (speed above its threshold and 3 sigma of its
-        # estimate), else by the detector's majority (a run of disagreeing detections flips
-        # the state). The detection's yaw is then aligned to that heading and both update θ.
-        head_x = tr.head_x[idx].copy()
-        yaw_vel = np.arctan2(pose_x[:, 3], pose_x[:, 2])
-        speed = np.hypot(pose_x[:, 2], pose_x[:, 3])
-        speed_sigma = np.sqrt(pose_P[:, 2, 2] + pose_P[:, 3, 3])
-        moving = (speed > cat.head_min_speed[c]) & (speed > 3.0 * speed_sigma)
-        disagree = np.abs(wrap_angle(dets.yaw - head_x[:, 0])) > np.pi / 2
-        votes = np.where(disagree, tr.heading_votes[idx] + 1, 0)
-        flip_by_votes = ~moving & (votes >= HEADING_FLIP_VOTES)
-        head_x[:, 0] = np.where(moving, kalman.align_heading(head_x[:, 0], yaw_vel), head_x[:, 0])
-        head_x[:, 0] = np.where(flip_by_votes, wrap_angle(head_x[:, 0] + np.pi), head_x[:, 0])
-        tr.heading_votes[idx] = np.where(flip_by_votes | moving, 0, votes)
-        yaw_det = kalman.align_heading(dets.yaw, head_x[:, 0])
-        head_x, head_P = kalman.heading_update(
-            head_x,
-            tr.head_P[idx],
+        # *updated* estimate), else by the detector's majority (a run of disagreeing detections
+        # flips the state). The detection's yaw is then aligned to that heading and both update
+        # θ. The axes are independent, so all are updated at once with the heading kept as
+        # predicted, the usual outcome (no row moving or flipping); otherwise the heading axis
+        # is redone from its prediction.
+        x_pred, P_pred = tr.motion_x[idx], tr.motion_P[idx]
+        heading = x_pred[:, Axis.YAW, 0].copy()  # predicted θ
+        disagree = np.abs(wrap_angle(det_yaw - heading)) > np.pi / 2
+        # = kalman.align_heading(det_yaw, heading), whose test is ``disagree``
+        yaw_det = wrap_angle(np.where(disagree, det_yaw + np.pi, det_yaw))
+        x, P = kalman.motion_update(
+            x_pred,
+            P_pred,
+            xy=xyz[:, :2],
+            lw=lwh[:, :2],
             yaw_det_rad=yaw_det,
-            yaw_vel_rad=yaw_vel,
-            r_diag=cat.head_r[c],
-            yaw_vel_valid=moving,
+            r_diag=r_diag,
+            velocity_xy=vel,
         )
-        tr.pose_x[idx], tr.pose_P[idx] = pose_x, pose_P
-        tr.size_x[idx], tr.size_P[idx] = size_x, size_P
-        tr.head_x[idx], tr.head_P[idx] = head_x, head_P
-        tr.z[idx], tr.height[idx] = dets.xyz[:, 2], dets.lwh[:, 2]
-        tr.score[idx] = dets.score
-        tr.logit_sum[idx] += _logit(dets.score)
-        tr.last_xyxy[idx], tr.last_camera[idx] = dets.xyxy_image, dets.camera
-        tr.last_det_xyz[idx], tr.last_det_lwh[idx] = dets.xyz, dets.lwh
-        tr.last_det_yaw[idx] = dets.yaw
+        vx, vy = x[:, Axis.X, 1], x[:, Axis.Y, 1]
+        speed = np.hypot(vx, vy)
+        speed_sigma = np.sqrt(P[:, Axis.X, 1, 1] + P[:, Axis.Y, 1, 1])
+        # speed above its threshold and above 3 sigma (one comparison with the larger)
+        moving = speed > np.maximum(cat.head_min_speed[c], 3.0 * speed_sigma)
+        votes = (tr.heading_votes[idx] + 1) * disagree  # consecutive disagreements (else 0)
+        flip_by_votes = ~moving & (votes >= HEADING_FLIP_VOTES)
+        if (moving | flip_by_votes).any():
+            any_moving, any_flip = moving.any(), flip_by_votes.any()
+            yaw_vel = np.arctan2(vy, vx)
+            if any_moving:
+                heading[moving] = kalman.align_heading(heading[moving], yaw_vel[moving])
+            if any_flip:
+                heading[flip_by_votes] = wrap_angle(heading[flip_by_votes] + np.pi)
+            votes[flip_by_votes | moving] = 0
+            x[:, Axis.YAW], P[:, Axis.YAW] = x_pred[:, Axis.YAW], P_pred[:, Axis.YAW]
+            x[:, Axis.YAW, 0] = heading
+            x, P = kalman.motion_update(
+                x,
+                P,
+                yaw_det_rad=kalman.align_heading(det_yaw, heading),
+                yaw_vel_rad=yaw_vel if any_moving else None,  # (None: masked on every row)
+                yaw_vel_valid=moving,
+                r_diag=r_diag,
+            )
+        tr.heading_votes[idx] = votes
+        tr.motion_x[idx], tr.motion_P[idx] = x, P
+        tr.score[idx] = score
+        tr.last_xyxy[idx], tr.last_camera[idx] = dets.xyxy_image[det_rows], dets.camera[det_rows]
+        tr.last_det_xyz[idx], tr.last_det_lwh[idx] = xyz, lwh
+        tr.last_det_yaw[idx] = det_yaw
         tr.hits[idx] += 1
 
-    def _birth(self, dets: Boxes, det_rows: IntArray) -> IntArray:
-        """New tracks from unmatched detections scoring above the birth threshold."""
+    def _birth(self, dets: Boxes, det_index: IntArray, kept_rows: IntArray) -> IntArray:
+        """New tracks from unmatched detections ``det_index`` scoring above the birth threshold."""
         cat = self._cat
-        strong = dets.score > cat.birth_score_min[dets.category]
-        dets, det_rows = dets[strong], det_rows[strong]
-        n = len(dets)
+        det_index = det_index[dets.score[det_index] > cat.birth_score_min[dets.category[det_index]]]
+        n = len(det_index)
         if not n:
             return _EMPTY_INT
-        c = dets.category
-        new = TrackTable.empty()
-        new.track_id = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
-        self._next_id += n
-        new.category = c.copy()
-        new.status = np.full(n, TrackStatus.TENTATIVE, dtype=np.int8)
-        new.hits = np.ones(n, dtype=np.int64)
-        new.misses = np.zeros(n, dtype=np.int64)
-        new.age = np.zeros(n, dtype=np.int64)
-        vel = np.where(cat.measure_velocity[c][:, None], dets.velocity, 0.0)
-        new.pose_x, _ = kalman.pose_init(
-            dets.xyz[:, :2], p0_diag=cat.pose_p0[0], velocity_xy=vel, n_state=POSE_DIM
+        c = dets.category[det_index]
+        xyz, lwh, yaw = dets.xyz[det_index], dets.lwh[det_index], dets.yaw[det_index]
+        score = dets.score[det_index]
+        vel = None  # (no measured velocity: the filters start at rest)
+        if cat.any_measure_velocity:
+            vel = np.where(cat.measure_velocity[c][:, None], dets.velocity[det_index], 0.0)
+        motion_x, motion_P = kalman.motion_init(
+            xy=xyz[:, :2], lw=lwh[:, :2], yaw_rad=yaw, p0_diag=cat.motion_p0[c], velocity_xy=vel
         )
-        new.pose_P = _diag(cat.pose_p0[c])
-        new.size_x, _ = kalman.size_init(dets.lwh[:, :2], p0_diag=cat.size_p0[0])
-        new.size_P = _diag(cat.size_p0[c])
-        new.head_x, _ = kalman.heading_init(dets.yaw, p0_diag=cat.head_p0[0])
-        new.head_P = _diag(cat.head_p0[c])
-        new.z, new.height = dets.xyz[:, 2].copy(), dets.lwh[:, 2].copy()
-        new.score = dets.score.copy()
-        new.logit_sum = _logit(dets.score)
-        new.last_xyxy, new.last_camera = dets.xyxy_image.copy(), dets.camera.copy()
-        new.last_det_xyz, new.last_det_lwh = dets.xyz.copy(), dets.lwh.copy()
-        new.last_det_yaw = dets.yaw.copy()
-        new.heading_votes = np.zeros(n, dtype=np.int64)
-        new.matched_det = det_rows.copy()
-        new.matched_stage = np.zeros(n, dtype=np.int8)
+        track_id = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
+        self._next_id += n
+        zeros = np.zeros(n, dtype=np.int64)
+        new = TrackTable(
+            track_id=track_id,
+            category=c,
+            status=np.full(n, TrackStatus.TENTATIVE, dtype=np.int8),
+            hits=np.ones(n, dtype=np.int64),
+            misses=zeros,
+            age=zeros,
+            motion_x=motion_x,
+            motion_P=motion_P,
+            score=score,
+            last_xyxy=dets.xyxy_image[det_index],
+            last_camera=dets.camera[det_index],
+            last_det_xyz=xyz,
+            last_det_lwh=lwh,
+            last_det_yaw=yaw,
+            heading_votes=zeros,
+            matched_det=kept_rows[det_index],
+            matched_stage=np.zeros(n, dtype=np.int8),
+        )  # every array is fresh or only read: append() copies them into the table
         self._tracks = self._tracks.append(new)
-        return new.track_id
+        return track_id
 
-    def _lifecycle(self, matched: IntArray, born: IntArray) -> LifecycleChanged:
-        """Per-category birth/confirm/coast/lose/delete rules (paper §3.4)."""
+    def _lifecycle(self, matched: IntArray, born: IntArray) -> LifecycleChanged | None:
+        """Per-category birth/confirm/coast/lose/delete rules (paper §3.4).
+
+        Returns the changes as an event when there is an observer (else None: not built).
+        """
         tr, cat = self._tracks, self._cat
         n_old = len(tr) - len(born)
         hit = np.zeros(len(tr), dtype=bool)
         hit[matched] = True
         hit[n_old:] = True  # a birth is its own first hit
-        tr.misses[hit] = 0
-        tr.misses[~hit] += 1
-        c = tr.category
-        old_status = tr.status.copy()
-        tentative = old_status == TrackStatus.TENTATIVE
-        confirm = (
-            hit & tentative & ((tr.hits >= cat.min_hits[c]) | (tr.score >= cat.confirm_score[c]))
-        )
-        reacquire = hit & ((old_status == TrackStatus.COASTING) | (old_status == TrackStatus.LOST))
-        status = tr.status
-        status[confirm | reacquire] = TrackStatus.CONFIRMED
-        live = ~tentative & ~hit
-        status[live & (tr.misses >= 1)] = TrackStatus.COASTING
-        status[live & (tr.misses > cat.max_misses_output[c])] = TrackStatus.LOST
-        dead = (live & (tr.misses > cat.max_misses[c])) | (
-            tentative & ~hit & (tr.misses > cat.max_misses_tentative[c])
-        )
-        lost = (status == TrackStatus.LOST) & (old_status != TrackStatus.LOST) & ~dead
-        change = LifecycleChanged(
-            born=born,
-            confirmed=tr.track_id[confirm],
-            lost=tr.track_id[lost],
-            reacquired=tr.track_id[reacquire & (old_status == TrackStatus.LOST)],
-            deleted=tr.track_id[dead],
-        )
+        misses = np.where(hit, 0, tr.misses + 1)
+        tr.misses = misses
+        min_hits, confirm_score, max_output, max_live, max_tentative = cat.lifecycle[tr.category].T
+        old_status = tr.status
+        status = old_status.copy()
+        tentative = old_status == _TENTATIVE
+        confirm = hit & tentative & ((tr.hits >= min_hits) | (tr.score >= confirm_score))
+        reacquire = hit & _IS_REACQUIRED[old_status]
+        status[confirm | reacquire] = _CONFIRMED
+        missed = ~hit
+        live = ~tentative & missed  # missed this frame: misses >= 1
+        status[live] = _COASTING
+        status[live & (misses > max_output)] = _LOST
+        dead = (live & (misses > max_live)) | (tentative & missed & (misses > max_tentative))
+        tr.status = status
+        change = None
+        if self.observer:
+            lost = (status == _LOST) & (old_status != _LOST) & ~dead
+            change = LifecycleChanged(
+                born=born,
+                confirmed=tr.track_id[confirm],
+                lost=tr.track_id[lost],
+                reacquired=tr.track_id[reacquire & (old_status == _LOST)],
+                deleted=tr.track_id[dead],
+            )
         if dead.any():
             self._tracks = tr.select(~dead)
         return change
 
     def _output(self, frame: Frame, time_secs: float) -> TrackOutput:
         tr = self._tracks
-        out = (tr.status == TrackStatus.CONFIRMED) | (tr.status == TrackStatus.COASTING)
+        out = _IS_OUTPUT[tr.status]  # confirmed or coasting
         if self.config.mode is TrackingMode.OFFLINE:
             # offline post-processing decides per whole track (it knows the future), so it also
             # gets the detections of tracks not confirmed yet
-            out |= (tr.status == TrackStatus.TENTATIVE) & (tr.matched_det >= 0)
-        boxes = tr.boxes()[out]
+            out |= (tr.status == _TENTATIVE) & (tr.matched_det >= 0)
+        rows = np.flatnonzero(out)
+        boxes = tr.boxes(rows)
+        det_row = tr.matched_det[rows]
         if self.config.output_geometry is OutputGeometry.DETECTION:
-            hit = tr.matched_det[out] >= 0
+            hit = det_row >= 0
             boxes = boxes.replace(
-                xyz=np.where(hit[:, None], tr.last_det_xyz[out], boxes.xyz),
-                lwh=np.where(hit[:, None], tr.last_det_lwh[out], boxes.lwh),
-                yaw=np.where(hit, kalman.align_heading(tr.last_det_yaw[out], boxes.yaw), boxes.yaw),
+                xyz=np.where(hit[:, None], tr.last_det_xyz[rows], boxes.xyz),
+                lwh=np.where(hit[:, None], tr.last_det_lwh[rows], boxes.lwh),
+                yaw=np.where(
+                    hit, kalman.align_heading(tr.last_det_yaw[rows], boxes.yaw), boxes.yaw
+                ),
             )
         return TrackOutput(
             scene=frame.scene,
             frame_id=frame.frame_id,
             time_secs=time_secs,
             boxes=boxes,
-            acceleration=tr.pose_x[out, 4:6].copy(),
-            status=tr.status[out].copy(),
-            det_row=tr.matched_det[out].copy(),
-            stage=tr.matched_stage[out].copy(),
+            acceleration=kalman.motion_acceleration_xy(tr.motion_x[rows]),
+            status=tr.status[rows],
+            det_row=det_row,
+            stage=tr.matched_stage[rows],
         )
+
+
+def _without(index: IntArray, positions: IntArray) -> IntArray:
+    """``index`` without the entries at ``positions`` (order kept; setdiff1d for sorted unique
+    ``index``, without its sort)."""
+    keep = np.ones(len(index), dtype=bool)
+    keep[positions] = False
+    return index[keep]
+
+
+def _cameras_of(camera: IntArray) -> list[int]:
+    """Sorted distinct camera indices >= 0 (``np.unique`` with a shortcut for one camera)."""
+    present = camera[camera >= 0]
+    if not len(present):
+        return []
+    first = int(present[0])
+    if (present == first).all():
+        return [first]
+    return np.unique(present).tolist()
 
 
 def _matched(stage: Stage, m: Matches, track_ids: IntArray, kept_rows: IntArray) -> Matched:
@@ -542,19 +660,6 @@ def _matched(stage: Stage, m: Matches, track_ids: IntArray, kept_rows: IntArray)
         _EMPTY_INT,
         _EMPTY_INT,
     )
-
-
-def _diag(diags: FloatArray) -> FloatArray:
-    """(B, n) diagonals -> (B, n, n) diagonal matrices."""
-    out = np.zeros((*diags.shape, diags.shape[-1]))
-    idx = np.arange(diags.shape[-1])
-    out[:, idx, idx] = diags
-    return out
-
-
-def _logit(p: FloatArray) -> FloatArray:
-    p = np.clip(p, 1e-6, 1 - 1e-6)
-    return np.log(p / (1 - p))
 
 
 def _nms_suppressed(boxes: Boxes, iou_max_per_category: FloatArray) -> np.ndarray:

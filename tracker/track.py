@@ -1,8 +1,12 @@
 """The live tracks, stored as one structure of arrays (rows = tracks).
 
-Keeping every track's three filters stacked lets one numpy call predict or update all of them;
+Keeping every track's filters stacked lets one numpy call predict or update all of them;
 per-track objects would cost a Python loop per stage and cap the tracker far below 1500 frames/s.
 Rows are kept sorted by ``track_id`` (births get increasing ids and are appended).
+
+The pose, size and heading filters are stored per axis (:mod:`tracker.kalman` fast path):
+``motion_x (T, 5, k)``, ``motion_P (T, 5, k, k)`` for the axes x, y, l, w, θ, with k = 2
+([value, rate], constant velocity) or 3 (with acceleration, when a category uses CA).
 """
 
 from __future__ import annotations
@@ -13,8 +17,7 @@ from typing import Any
 import numpy as np
 
 from tracker.boxes import Boxes, FloatArray, IntArray
-
-POSE_DIM = 6  # [x, y, vx, vy, ax, ay]; constant velocity = zero acceleration variance
+from tracker.kalman import N_AXES, Axis
 
 
 @dataclass(slots=True)
@@ -25,27 +28,21 @@ class TrackTable:
     hits: IntArray  # (T,) matched detections so far
     misses: IntArray  # (T,) consecutive misses
     age: IntArray  # (T,) frames since birth
-    pose_x: FloatArray  # (T, 6)
-    pose_P: FloatArray  # (T, 6, 6)
-    size_x: FloatArray  # (T, 4) [l, w, vl, vw]
-    size_P: FloatArray  # (T, 4, 4)
-    head_x: FloatArray  # (T, 2) [theta, omega]
-    head_P: FloatArray  # (T, 2, 2)
-    z: FloatArray  # (T,) centre height of the last detection
-    height: FloatArray  # (T,) box height of the last detection
+    motion_x: FloatArray  # (T, 5, k) axes x, y, l, w, θ: [value, rate(, acceleration)]
+    motion_P: FloatArray  # (T, 5, k, k)
     score: FloatArray  # (T,) last detection score
-    logit_sum: FloatArray  # (T,) sum of detection logits (offline track score)
     last_xyxy: FloatArray  # (T, 4) last detection's 2D box (reference RV stage)
     last_camera: IntArray  # (T,)
-    last_det_xyz: FloatArray  # (T, 3) last detection's centre (reference RV gate)
-    last_det_lwh: FloatArray  # (T, 3)
+    last_det_xyz: FloatArray  # (T, 3) last detection's centre (its z is the track's z)
+    last_det_lwh: FloatArray  # (T, 3) (its height is the track's height)
     last_det_yaw: FloatArray  # (T,)
     heading_votes: IntArray  # (T,) consecutive detections whose yaw disagrees by > 90°
     matched_det: IntArray  # (T,) this frame's matched detection row (-1: none)
     matched_stage: np.ndarray  # (T,) int8: 1 BEV, 2 RV, 0 none (births: 0)
 
     @classmethod
-    def empty(cls) -> TrackTable:
+    def empty(cls, *, order: int = 2) -> TrackTable:
+        """No track; ``order`` k is the number of states per filter axis (2 CV, 3 CA)."""
         shapes: dict[str, tuple[tuple[int, ...], Any]] = {
             "track_id": ((0,), np.int64),
             "category": ((0,), np.int64),
@@ -53,16 +50,9 @@ class TrackTable:
             "hits": ((0,), np.int64),
             "misses": ((0,), np.int64),
             "age": ((0,), np.int64),
-            "pose_x": ((0, POSE_DIM), np.float64),
-            "pose_P": ((0, POSE_DIM, POSE_DIM), np.float64),
-            "size_x": ((0, 4), np.float64),
-            "size_P": ((0, 4, 4), np.float64),
-            "head_x": ((0, 2), np.float64),
-            "head_P": ((0, 2, 2), np.float64),
-            "z": ((0,), np.float64),
-            "height": ((0,), np.float64),
+            "motion_x": ((0, N_AXES, order), np.float64),
+            "motion_P": ((0, N_AXES, order, order), np.float64),
             "score": ((0,), np.float64),
-            "logit_sum": ((0,), np.float64),
             "last_xyxy": ((0, 4), np.float64),
             "last_camera": ((0,), np.int64),
             "last_det_xyz": ((0, 3), np.float64),
@@ -78,32 +68,54 @@ class TrackTable:
         return len(self.track_id)
 
     def select(self, index: Any) -> TrackTable:
-        return TrackTable(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+        return TrackTable(*[getattr(self, name)[index] for name in _FIELDS])
 
     def append(self, other: TrackTable) -> TrackTable:
         if len(other) == 0:
             return self
         return TrackTable(
-            **{
-                f.name: np.concatenate([getattr(self, f.name), getattr(other, f.name)])
-                for f in fields(self)
-            }
+            *[np.concatenate([getattr(self, name), getattr(other, name)]) for name in _FIELDS]
         )
 
-    def boxes(self) -> Boxes:
-        """The tracks' current (filtered or predicted) boxes, with ids and velocities."""
+    def xyz(self, rows: IntArray) -> FloatArray:
+        """(R, 3) current box centres of the tracks ``rows`` (filtered x, y; detection z)."""
+        xyz = np.empty((len(rows), 3))
+        xyz[:, :2] = self.motion_x[rows, Axis.X : Axis.Y + 1, 0]
+        xyz[:, 2] = self.last_det_xyz[rows, 2]
+        return xyz
+
+    def boxes(self, rows: IntArray | None = None) -> Boxes:
+        """The tracks' current (filtered or predicted) boxes, with ids and velocities.
+
+        ``rows`` selects tracks (default: all), as ``boxes()[rows]`` would, without the copy.
+        """
+        x = self.motion_x if rows is None else self.motion_x[rows]
+        n = len(x)
+        xyz, lwh = np.empty((n, 3)), np.empty((n, 3))
+        xyz[:, :2] = x[:, Axis.X : Axis.Y + 1, 0]
+        lwh[:, :2] = x[:, Axis.LENGTH : Axis.WIDTH + 1, 0]
+        if rows is None:
+            xyz[:, 2], lwh[:, 2] = self.last_det_xyz[:, 2], self.last_det_lwh[:, 2]
+            score, category = self.score.copy(), self.category.copy()
+            xyxy, camera = self.last_xyxy.copy(), self.last_camera.copy()
+            track_id = self.track_id.copy()
+        else:
+            xyz[:, 2], lwh[:, 2] = self.last_det_xyz[rows, 2], self.last_det_lwh[rows, 2]
+            score, category = self.score[rows], self.category[rows]
+            xyxy, camera = self.last_xyxy[rows], self.last_camera[rows]
+            track_id = self.track_id[rows]
         return Boxes._trusted(
             {
-                "xyz": np.column_stack([self.pose_x[:, 0], self.pose_x[:, 1], self.z]),
-                "lwh": np.column_stack([self.size_x[:, 0], self.size_x[:, 1], self.height]),
-                "yaw": self.head_x[:, 0].copy(),
-                "velocity": self.pose_x[:, 2:4].copy(),
-                "score": self.score.copy(),
-                "category": self.category.copy(),
-                "xyxy_image": self.last_xyxy.copy(),
-                "camera": self.last_camera.copy(),
-                "track_id": self.track_id.copy(),
-                "score_raw": np.full(len(self), np.nan),
+                "xyz": xyz,
+                "lwh": lwh,
+                "yaw": x[:, Axis.YAW, 0].copy(),
+                "velocity": x[:, Axis.X : Axis.Y + 1, 1].copy(),
+                "score": score,
+                "category": category,
+                "xyxy_image": xyxy,
+                "camera": camera,
+                "track_id": track_id,
+                "score_raw": np.full(n, np.nan),
             }
         )
 

@@ -1,0 +1,83 @@
+"""The tracker's fast paths change nothing: stage-2 shortcut, compiled geometry, Kalman variant.
+
+Each fast path has a slow twin that is still used elsewhere: an observer disables the stage-2
+shortcut, ``_geometry_kernel`` returning None selects the numpy geometry.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tracker import geometry
+from tracker.baseversion import read_baseversion
+from tracker.config import load_config
+from tracker.events import ListObserver, TrackOutput
+from tracker.pipeline import run_scene
+from tracker.synthetic import synthetic_scene
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+
+
+@pytest.fixture(scope="module")
+def sample_frames():
+    if not SAMPLE.is_dir():
+        pytest.skip("sample_data/kitti-0001 missing")
+    return read_baseversion(SAMPLE / "detections.json.gz")["0001"]
+
+
+def assert_same_tracking(a: list[TrackOutput], b: list[TrackOutput], *, exact: bool) -> None:
+    assert len(a) == len(b)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.boxes.track_id, y.boxes.track_id)
+        np.testing.assert_array_equal(x.status, y.status)
+        np.testing.assert_array_equal(x.det_row, y.det_row)
+        np.testing.assert_array_equal(x.stage, y.stage)
+        if exact:
+            assert x.boxes.equals(y.boxes)
+            np.testing.assert_array_equal(x.acceleration, y.acceleration)
+        else:
+            for field in ("xyz", "lwh", "yaw", "velocity", "score"):
+                np.testing.assert_allclose(
+                    getattr(x.boxes, field), getattr(y.boxes, field), rtol=1e-9, atol=1e-9
+                )
+
+
+@pytest.mark.parametrize("config_name", ["kitti", "kitti_reference"])
+def test_stage2_shortcut_equals_the_full_stage(sample_frames, config_name: str) -> None:
+    """Without an observer, stage 2 is skipped when its gate can accept no pair."""
+    cfg = load_config(config_name)
+    plain = run_scene(sample_frames, cfg).outputs
+    observed = run_scene(sample_frames, cfg, observer=ListObserver()).outputs
+    assert_same_tracking(plain, observed, exact=True)
+    assert sum(int((o.stage == 2).sum()) for o in plain) > 0  # stage 2 did match something
+
+
+def test_compiled_geometry_equals_numpy_in_the_tracker(sample_frames, monkeypatch) -> None:
+    cfg = load_config("kitti")
+    compiled = run_scene(sample_frames, cfg).outputs
+    monkeypatch.setattr(geometry, "_geometry_kernel", lambda: None)
+    fallback = run_scene(sample_frames, cfg).outputs
+    assert_same_tracking(compiled, fallback, exact=False)
+
+
+@pytest.mark.parametrize("motion", ["cv", "ca"])
+def test_dense_synthetic_scene_both_pose_models(motion: str, monkeypatch) -> None:
+    """50 objects per frame, CV and CA tables (k = 2 and 3): the fast paths change nothing."""
+    dets, _ = synthetic_scene(num_objects=50, num_frames=30, seed=5)
+    per_category = {"score_min": 0.5, "birth_score_min": 0.6, "pose": {"motion": motion}}
+    cfg = load_config(
+        "kitti",
+        overrides={
+            "categories": ["car", "pedestrian"],
+            "category": {"car": per_category, "pedestrian": per_category},
+        },
+    )
+    plain = run_scene(dets, cfg).outputs
+    assert len(plain[-1]) >= 40  # the scene is tracked
+    observed = run_scene(dets, cfg, observer=ListObserver()).outputs
+    assert_same_tracking(plain, observed, exact=True)
+    monkeypatch.setattr(geometry, "_geometry_kernel", lambda: None)
+    assert_same_tracking(plain, run_scene(dets, cfg).outputs, exact=False)
