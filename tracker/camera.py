@@ -83,6 +83,16 @@ def _clipped_edges_px(
     """
     if h is None:
         h = _homogeneous_image(corners_world, camera)  # (N, 8, 3)
+    return clip_edges_px(h, near_m=near_m)
+
+
+def clip_edges_px(h: FloatArray, *, near_m: float = NEAR_PLANE_M) -> FloatArray:
+    """Box edges from the 8 corners' homogeneous image coordinates ``h (N, 8, 3)``, clipped to
+    ``w >= near_m`` before the perspective division: ``(N, 12, 2, 2)`` pixels, NaN if behind.
+
+    Shared by :func:`project_boxes` (one camera) and the visualiser's batched projection (a
+    camera per box): only ``h`` depends on the camera.
+    """
     a, b = h[:, _EDGE_START], h[:, _EDGE_END]  # (N, 12, 3)
     w_a, w_b = a[..., 2], b[..., 2]
     front_a, front_b = w_a >= near_m, w_b >= near_m

@@ -14,11 +14,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tracker.boxes import FloatArray
-from tracker.camera import NEAR_PLANE_M
-from tracker.geometry import BOX_EDGES, corners_3d
-
-_EDGE_START = np.array([a for a, _ in BOX_EDGES], dtype=np.int64)
-_EDGE_END = np.array([b for _, b in BOX_EDGES], dtype=np.int64)
+from tracker.camera import NEAR_PLANE_M, clip_edges_px
+from tracker.geometry import corners_3d
 
 
 def project_boxes_batched(
@@ -50,19 +47,7 @@ def project_boxes_batched(
     corners = corners_3d(xyz, lwh, yaw_rad)  # (N, 8, 3)
     m = np.asarray(image_from_world, dtype=np.float64)
     h = np.einsum("nij,nkj->nki", m[:, :, :3], corners) + m[:, None, :, 3]  # (N, 8, 3)
-    a, b = h[:, _EDGE_START], h[:, _EDGE_END]  # (N, 12, 3)
-    w_a, w_b = a[..., 2], b[..., 2]
-    front_a, front_b = w_a >= near_m, w_b >= near_m
-    # the image map is linear in homogeneous coordinates: the near-plane crossing interpolates
-    crosses = front_a != front_b
-    t = np.where(crosses, (near_m - w_a) / np.where(crosses, w_b - w_a, 1.0), 0.0)
-    crossing = a + t[..., None] * (b - a)
-    a = np.where(front_a[..., None], a, crossing)
-    b = np.where(front_b[..., None], b, crossing)
-    ends = np.stack([a, b], axis=2)  # (N, 12, 2, 3)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        seg = ends[..., :2] / ends[..., 2:3]
-    seg[~(front_a | front_b)] = np.nan
+    seg = clip_edges_px(h, near_m=near_m)  # the same clipping as tracker.camera
 
     pts = seg.reshape(n, -1, 2)
     missing = np.isnan(pts)
