@@ -11,8 +11,11 @@ state, and the filtered acceleration in the output.
 
 from __future__ import annotations
 
+import functools
 import math
+import os
 from collections.abc import Callable
+from types import ModuleType
 
 import numpy as np
 
@@ -68,6 +71,19 @@ _IS_OUTPUT = np.isin(np.arange(len(TrackStatus)), [_CONFIRMED, _COASTING])
 _IS_REACQUIRED = np.isin(np.arange(len(TrackStatus)), [_COASTING, _LOST])
 
 
+@functools.cache
+def frame_kernels() -> ModuleType | None:
+    """The compiled per-frame kernels (:mod:`tracker.mctracker_numba`), loaded once; None
+    without numba or with ``MCTRACK_NUMBA=0`` (then every stage runs its numpy code)."""
+    if os.environ.get("MCTRACK_NUMBA", "1") == "0":
+        return None
+    try:
+        from tracker import mctracker_numba
+    except ImportError:
+        return None
+    return mctracker_numba
+
+
 class _PerCategory:
     """Config values as arrays indexed by global category id (vectorised lookups)."""
 
@@ -103,6 +119,7 @@ class _PerCategory:
         )
         self.bev_cost_max = arr(lambda c: c.bev.cost_max)
         self.gate_m = arr(lambda c: c.bev.gate_distance_m)
+        self.gate_sq = self.gate_m**2
         self.rv_cost_max = arr(lambda c: c.rv.cost_max)
         self.rv_yaw_gate = np.deg2rad(arr(lambda c: c.rv.yaw_gate_deg))
         self.rv_distance_gate = arr(lambda c: c.rv.distance_gate_m)
@@ -164,13 +181,20 @@ class MCTracker:
     ----------
     config : the resolved configuration (:func:`tracker.config.load_config`).
     observer : called with one event per stage (:mod:`tracker.events`); None costs nothing.
+    compiled : run the stages that have one through their compiled kernel
+        (:mod:`tracker.mctracker_numba`) when numba is available; False: numpy only (the
+        reference the kernels are tested against).
     """
 
-    def __init__(self, config: TrackerConfig, *, observer: Observer | None = None) -> None:
+    def __init__(
+        self, config: TrackerConfig, *, observer: Observer | None = None, compiled: bool = True
+    ) -> None:
         self.config = config
         self.observer = observer
         self._cat = _PerCategory(config)
-        prepare_kernels()  # one-time JIT load here, never inside a frame
+        # one-time JIT loads here, never inside a frame
+        self._kernels = frame_kernels() if compiled else None
+        prepare_kernels()
         self.reset()
 
     def reset(self) -> None:
@@ -201,7 +225,7 @@ class MCTracker:
         if len(tracks) and len(dets):
             cost, bev_mask = self._bev_cost(prev_boxes, dets, dt)
             max_cost = self._cat.bev_cost_max[tracks.category]
-            m1 = hungarian(cost, max_cost_per_row=max_cost)
+            m1 = self._assign(cost, max_cost)
             if obs:
                 obs(CostComputed(Stage.BEV, cost, tracks.track_id, kept_rows, max_cost))
         else:
@@ -295,6 +319,13 @@ class MCTracker:
         tr = self._tracks
         if not len(tr):
             return
+        if self._kernels is not None:
+            tau = dt / self.config.nominal_dt_secs
+            tr.motion_x, tr.motion_P = self._kernels.motion_predict_kernel(
+                tr.motion_x, tr.motion_P, tr.category, self._cat.motion_q, dt, tau
+            )
+            tr.age += 1
+            return
         tr.motion_x, tr.motion_P = kalman.motion_predict(
             tr.motion_x,
             tr.motion_P,
@@ -311,6 +342,11 @@ class MCTracker:
         beyond the distance gate. Also returns the (T, D) mask of the pairs scored."""
         tr, cat = self._tracks, self._cat
         bev = tr.motion_x[:, :, 0]  # (T, 5) predicted x, y, l, w, yaw: the BEV boxes
+        if cat.all_forward and self._kernels is not None:
+            cost, mask = self._kernels.bev_cost_kernel(
+                bev, tr.category, bev_array(dets), dets.category, cat.gate_sq, cat.w1, cat.w2
+            )
+            return cost, mask
         same = tr.category[:, None] == dets.category[None, :]
         delta = bev[:, None, :2] - dets.xyz[None, :, :2]
         near = np.einsum("tdk,tdk->td", delta, delta) < cat.gate_m[tr.category][:, None] ** 2
@@ -337,6 +373,14 @@ class MCTracker:
                 sim = np.where(a >= 1, sim, np.where(a <= 0, back, a * sim + (1 - a) * back))
         with np.errstate(invalid="ignore"):
             return np.where(mask, 1.0 - sim, np.inf), mask
+
+    def _assign(self, cost: FloatArray, max_cost: FloatArray) -> Matches:
+        """Stage 1's Hungarian assignment (a compiled shortcut when no pair is contested)."""
+        if self._kernels is not None:
+            pairs, costs, rows, cols, solved = self._kernels.isolated_pairs_kernel(cost, max_cost)
+            if solved:
+                return Matches._trusted(pairs, costs, rows, cols)
+        return hungarian(cost, max_cost_per_row=max_cost)
 
     def _rv_stage(
         self,
@@ -461,7 +505,14 @@ class MCTracker:
         tr, cat = self._tracks, self._cat
         c = tr.category[idx]
         xyz, lwh, det_yaw = dets.xyz[det_rows], dets.lwh[det_rows], dets.yaw[det_rows]
-        score = dets.score[det_rows]
+        if self._kernels is not None and not cat.any_measure_velocity:
+            # the code below, compiled (value measurements only)
+            self._kernels.motion_update_kernel(
+                tr.motion_x, tr.motion_P, tr.heading_votes, idx, c, xyz[:, :2], lwh[:, :2],
+                det_yaw, cat.motion_r, cat.head_min_speed, HEADING_FLIP_VOTES,
+            )  # fmt: skip
+            self._record_hits(idx, dets, det_rows, xyz, lwh)
+            return
         r_diag = cat.motion_r[c]
         vel = None
         if cat.any_measure_velocity:
@@ -515,10 +566,17 @@ class MCTracker:
             )
         tr.heading_votes[idx] = votes
         tr.motion_x[idx], tr.motion_P[idx] = x, P
-        tr.score[idx] = score
+        self._record_hits(idx, dets, det_rows, xyz, lwh)
+
+    def _record_hits(
+        self, idx: IntArray, dets: Boxes, det_rows: IntArray, xyz: FloatArray, lwh: FloatArray
+    ) -> None:
+        """The matched detections' own fields kept on their tracks, and the hit counts."""
+        tr = self._tracks
+        tr.score[idx] = dets.score[det_rows]
         tr.last_xyxy[idx], tr.last_camera[idx] = dets.xyxy_image[det_rows], dets.camera[det_rows]
         tr.last_det_xyz[idx], tr.last_det_lwh[idx] = xyz, lwh
-        tr.last_det_yaw[idx] = det_yaw
+        tr.last_det_yaw[idx] = dets.yaw[det_rows]
         tr.hits[idx] += 1
 
     def _birth(self, dets: Boxes, det_index: IntArray, kept_rows: IntArray) -> IntArray:
@@ -572,6 +630,8 @@ class MCTracker:
         hit = np.zeros(len(tr), dtype=bool)
         hit[matched] = True
         hit[n_old:] = True  # a birth is its own first hit
+        if self._kernels is not None:
+            return self._lifecycle_compiled(hit, born)
         misses = np.where(hit, 0, tr.misses + 1)
         tr.misses = misses
         min_hits, confirm_score, max_output, max_live, max_tentative = cat.lifecycle[tr.category].T
@@ -595,6 +655,27 @@ class MCTracker:
                 confirmed=tr.track_id[confirm],
                 lost=tr.track_id[lost],
                 reacquired=tr.track_id[reacquire & (old_status == _LOST)],
+                deleted=tr.track_id[dead],
+            )
+        if dead.any():
+            self._tracks = tr.select(~dead)
+        return change
+
+    def _lifecycle_compiled(self, hit: np.ndarray, born: IntArray) -> LifecycleChanged | None:
+        """:meth:`_lifecycle` after its hit mask, by the compiled kernel (same rules)."""
+        tr, k = self._tracks, self._kernels
+        assert k is not None
+        tr.status, tr.misses, flags = k.lifecycle_kernel(
+            tr.status, tr.hits, tr.misses, tr.score, tr.category, hit, self._cat.lifecycle
+        )
+        dead = (flags & k.DEAD) != 0
+        change = None
+        if self.observer:
+            change = LifecycleChanged(
+                born=born,
+                confirmed=tr.track_id[(flags & k.CONFIRMED_NOW) != 0],
+                lost=tr.track_id[(flags & k.LOST_NOW) != 0],
+                reacquired=tr.track_id[(flags & k.REACQUIRED_FROM_LOST) != 0],
                 deleted=tr.track_id[dead],
             )
         if dead.any():

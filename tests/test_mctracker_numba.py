@@ -1,0 +1,269 @@
+"""The compiled per-frame kernels (tracker/mctracker_numba.py) equal the numpy stages they
+replace: on random inputs stage by stage (including the rare branches: heading flips, moving
+objects, contested assignments, NaN boxes), and over whole scenes."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tracker import kalman, mctracker
+from tracker.baseversion import read_baseversion
+from tracker.boxes import Boxes
+from tracker.config import load_config
+from tracker.cost import ro_gdiou_bev_arrays
+from tracker.events import LifecycleChanged, ListObserver, TrackStatus
+from tracker.matching import hungarian
+from tracker.mctracker import MCTracker, frame_kernels
+from tracker.pipeline import run_scene
+from tracker.synthetic import synthetic_scene
+from tracker.track import TrackTable
+
+from .test_mctracker_fast_paths import assert_same_tracking
+
+SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+
+LIVE_STATUSES = [
+    TrackStatus.TENTATIVE,
+    TrackStatus.CONFIRMED,
+    TrackStatus.COASTING,
+    TrackStatus.LOST,
+]
+kernels = frame_kernels()
+pytestmark = pytest.mark.skipif(kernels is None, reason="numba not installed (numpy path only)")
+
+
+def random_spd(rng: np.random.Generator, shape: tuple[int, ...], k: int) -> np.ndarray:
+    a = rng.normal(size=(*shape, k, k))
+    return a @ np.swapaxes(a, -1, -2) + 0.1 * np.eye(k)
+
+
+def random_table(rng: np.random.Generator, n: int, k: int) -> TrackTable:
+    """n tracks with random filter states: some fast (moving), some slow, some with votes."""
+    table = TrackTable.empty(order=k)
+    x = rng.normal(size=(n, 5, k))
+    x[:, :2, 0] *= 20
+    x[:, 2:4, 0] = rng.uniform(0.5, 5, size=(n, 2))
+    x[:, 4, 0] = rng.uniform(-np.pi, np.pi, n)
+    x[: n // 2, :2, 1] *= 10  # clearly moving
+    P = random_spd(rng, (n, 5), k) * 0.01
+    zeros = np.zeros(n, dtype=np.int64)
+    return dataclasses.replace(
+        table,
+        track_id=np.arange(n, dtype=np.int64),
+        category=rng.integers(0, 3, n),
+        status=rng.choice(np.array(LIVE_STATUSES, dtype=np.int8), n),
+        hits=rng.integers(1, 5, n),
+        misses=rng.integers(0, 4, n),
+        age=zeros,
+        motion_x=x,
+        motion_P=P,
+        score=rng.uniform(0, 1, n),
+        last_xyxy=np.zeros((n, 4)),
+        last_camera=zeros - 1,
+        last_det_xyz=np.zeros((n, 3)),
+        last_det_lwh=np.ones((n, 3)),
+        last_det_yaw=np.zeros(n),
+        heading_votes=rng.integers(0, 3, n),
+        matched_det=zeros - 1,
+        matched_stage=np.zeros(n, dtype=np.int8),
+    )
+
+
+def copy_table(table: TrackTable) -> TrackTable:
+    return TrackTable(*[np.array(getattr(table, f.name)) for f in dataclasses.fields(table)])
+
+
+def assert_tables_close(a: TrackTable, b: TrackTable) -> None:
+    for f in dataclasses.fields(a):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        if x.dtype.kind == "f":
+            np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-12, err_msg=f.name)
+        else:
+            np.testing.assert_array_equal(x, y, err_msg=f.name)
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_predict_kernel_equals_numpy(k: int) -> None:
+    rng = np.random.default_rng(k)
+    n, dt = 40, 0.137
+    x = rng.normal(size=(n, 5, k)) * 3  # yaw values beyond ±pi: wrapped
+    P = random_spd(rng, (n, 5), k)
+    category = rng.integers(0, 3, n)
+    q = rng.uniform(0, 1, size=(3, 5, k))
+    want_x, want_P = kalman.motion_predict(
+        x, P, dt_secs=dt, q_diag=q[category], dt_nominal_secs=0.1
+    )
+    got_x, got_P = kernels.motion_predict_kernel(x, P, category, q, dt, dt / 0.1)
+    np.testing.assert_allclose(got_x, want_x, rtol=1e-13, atol=1e-13)
+    np.testing.assert_allclose(got_P, want_P, rtol=1e-13, atol=1e-13)
+    assert np.all(np.abs(got_x[:, 4, 0]) <= np.pi)
+    np.testing.assert_array_equal(got_P, np.swapaxes(got_P, -1, -2))  # exactly symmetric
+
+
+def test_bev_cost_kernel_equals_numpy() -> None:
+    rng = np.random.default_rng(3)
+    n_tracks, n_dets = 30, 25
+    tracks = np.column_stack(
+        [rng.uniform(0, 15, (n_tracks, 2)), rng.uniform(0.5, 5, (n_tracks, 2)),
+         rng.uniform(-np.pi, np.pi, n_tracks)]
+    )  # fmt: skip
+    dets = np.column_stack(
+        [rng.uniform(0, 15, (n_dets, 2)), rng.uniform(0.5, 5, (n_dets, 2)),
+         rng.uniform(-np.pi, np.pi, n_dets)]
+    )  # fmt: skip
+    dets[3] = tracks[2]  # identical boxes
+    tracks[5, 3] = np.nan  # a missing size: scored (inside the gate) but +inf
+    dets[7, 4] = np.nan
+    track_cat, det_cat = rng.integers(0, 3, n_tracks), rng.integers(0, 3, n_dets)
+    det_cat[3] = track_cat[2]
+    gate = np.array([6.0, 3.0, 4.0])
+    w1, w2 = np.array([1.0, 0.0, 0.5]), np.array([1.0, 1.0, 0.0])  # a zero weight each
+    cost, mask = kernels.bev_cost_kernel(tracks, track_cat, dets, det_cat, gate**2, w1, w2)
+
+    delta = tracks[:, None, :2] - dets[None, :, :2]
+    near = np.einsum("tdk,tdk->td", delta, delta) < gate[track_cat][:, None] ** 2
+    want_mask = (track_cat[:, None] == det_cat[None, :]) & near
+    sim = ro_gdiou_bev_arrays(tracks, dets, w1=w1[track_cat], w2=w2[track_cat], mask=want_mask)
+    np.testing.assert_array_equal(mask, want_mask)
+    assert 20 < mask.sum() < mask.size / 2  # both gated and scored pairs
+    np.testing.assert_allclose(cost, 1.0 - sim, rtol=1e-12, atol=1e-12)
+    assert cost[2, 3] == pytest.approx(0.0, abs=1e-12)
+    assert np.isinf(cost[5]).all() and np.isinf(cost[:, 7]).all()
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_update_kernel_equals_numpy(k: int) -> None:
+    """Every branch of the heading logic: aligned, moving, flipped by votes, plain."""
+    rng = np.random.default_rng(10 + k)
+    cfg = load_config("kitti", overrides={"categories": ["car", "pedestrian", "cyclist"]})
+    compiled, plain = MCTracker(cfg), MCTracker(cfg, compiled=False)
+    assert compiled._kernels is not None and plain._kernels is None
+    table = random_table(rng, 60, k)
+    table.heading_votes[:] = 2  # the next disagreement flips a static track
+    idx = np.sort(rng.choice(60, 45, replace=False))
+    yaw = table.motion_x[idx, 4, 0] + rng.normal(0, 0.1, len(idx))
+    yaw[::3] += np.pi  # disagree by ~180°
+    dets = Boxes.create(
+        xyz=np.column_stack([table.motion_x[idx, :2, 0], np.zeros(len(idx))])
+        + rng.normal(0, 0.3, (len(idx), 3)),
+        lwh=np.column_stack([table.motion_x[idx, 2:4, 0] + 0.2, np.ones(len(idx))]),
+        yaw=(yaw + np.pi) % (2 * np.pi) - np.pi,
+        category=table.category[idx],
+        score=rng.uniform(0, 1, len(idx)),
+    )
+    det_rows = rng.permutation(len(idx))
+    dets = dets[np.argsort(det_rows)]  # detection det_rows[j] belongs to track idx[j]
+    compiled._tracks, plain._tracks = copy_table(table), copy_table(table)
+    compiled._update(idx, dets, det_rows)
+    plain._update(idx, dets, det_rows)
+    assert_tables_close(compiled._tracks, plain._tracks)
+    # the rare branches did run
+    flipped = (table.heading_votes[idx] == 2) & (compiled._tracks.heading_votes[idx] == 0)
+    assert flipped.sum() >= 3
+    assert (compiled._tracks.heading_votes[idx] == 3).sum() == 0
+    untouched = np.setdiff1d(np.arange(60), idx)
+    np.testing.assert_array_equal(compiled._tracks.motion_x[untouched], table.motion_x[untouched])
+
+
+def test_isolated_pairs_kernel_equals_hungarian() -> None:
+    rng = np.random.default_rng(7)
+    solved_seen = contested_seen = 0
+    for trial in range(300):
+        m, n = rng.integers(0, 7), rng.integers(0, 7)
+        cost = rng.uniform(0, 2, (m, n))
+        cost[rng.uniform(size=(m, n)) < 0.7] = np.inf
+        if trial % 10 == 0 and m and n:
+            cost[0, 0] = np.nan
+        threshold = rng.uniform(0.5, 1.5, m)
+        pairs, costs, rows, cols, solved = kernels.isolated_pairs_kernel(cost, threshold)
+        if not solved:
+            contested_seen += 1
+            assert len(pairs) == len(rows) == len(cols) == 0
+            continue
+        solved_seen += 1
+        want = hungarian(cost, max_cost_per_row=threshold)
+        np.testing.assert_array_equal(pairs, want.pairs)
+        np.testing.assert_array_equal(costs, want.costs)
+        np.testing.assert_array_equal(rows, want.unmatched_rows)
+        np.testing.assert_array_equal(cols, want.unmatched_cols)
+    assert solved_seen > 100 and contested_seen > 20
+
+
+def test_lifecycle_kernel_equals_numpy() -> None:
+    rng = np.random.default_rng(11)
+    cfg = load_config("kitti", overrides={"categories": ["car", "pedestrian", "cyclist"]})
+    for _ in range(20):
+        compiled, plain = (
+            MCTracker(cfg, observer=lambda e: None),
+            MCTracker(cfg, observer=lambda e: None, compiled=False),
+        )
+        table = random_table(rng, 50, 3)
+        table.misses[:] = rng.integers(0, 25, 50)
+        n_born = int(rng.integers(0, 4))
+        born = table.track_id[50 - n_born :]
+        matched = np.sort(rng.choice(50 - n_born, 20, replace=False))
+        compiled._tracks, plain._tracks = copy_table(table), copy_table(table)
+        got, want = compiled._lifecycle(matched, born), plain._lifecycle(matched, born)
+        assert isinstance(got, LifecycleChanged) and isinstance(want, LifecycleChanged)
+        for field in ("born", "confirmed", "lost", "reacquired", "deleted"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(want, field), field)
+        assert_tables_close(compiled._tracks, plain._tracks)
+
+
+@pytest.fixture(scope="module")
+def sample_frames():
+    if not SAMPLE.is_dir():
+        pytest.skip("sample_data/kitti-0001 missing")
+    return read_baseversion(SAMPLE / "detections.json.gz")["0001"]
+
+
+def _numpy_only(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(mctracker, "frame_kernels", lambda: None)
+
+
+@pytest.mark.parametrize("config_name", ["kitti", "kitti_offline"])
+def test_compiled_tracker_equals_numpy_on_the_sample(
+    sample_frames, config_name: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    cfg = load_config(config_name, overrides={"categories": ["car", "pedestrian", "cyclist"]})
+    compiled = run_scene(sample_frames, cfg).outputs
+    observed = ListObserver()
+    compiled_observed = run_scene(sample_frames, cfg, observer=observed).outputs
+    _numpy_only(monkeypatch)
+    assert_same_tracking(compiled, run_scene(sample_frames, cfg).outputs, exact=False)
+    assert_same_tracking(compiled, compiled_observed, exact=True)
+    assert any(isinstance(e, LifecycleChanged) and len(e.deleted) for e in observed.events)
+
+
+@pytest.mark.parametrize("motion", ["cv", "ca"])
+def test_compiled_tracker_equals_numpy_dense(motion: str, monkeypatch) -> None:
+    dets, _ = synthetic_scene(num_objects=50, num_frames=30, seed=9)
+    per_category = {"score_min": 0.5, "birth_score_min": 0.6, "pose": {"motion": motion}}
+    cfg = load_config(
+        "kitti",
+        overrides={
+            "categories": ["car", "pedestrian"],
+            "category": {"car": per_category, "pedestrian": per_category},
+        },
+    )
+    compiled = run_scene(dets, cfg).outputs
+    assert len(compiled[-1]) >= 40
+    _numpy_only(monkeypatch)
+    assert_same_tracking(compiled, run_scene(dets, cfg).outputs, exact=False)
+
+
+def test_numba_switch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """MCTRACK_NUMBA=0 selects the numpy stages."""
+    monkeypatch.setenv("MCTRACK_NUMBA", "0")
+    frame_kernels.cache_clear()
+    try:
+        assert frame_kernels() is None
+        assert MCTracker(load_config("kitti"))._kernels is None
+    finally:
+        monkeypatch.delenv("MCTRACK_NUMBA")
+        frame_kernels.cache_clear()
+    assert frame_kernels() is not None
