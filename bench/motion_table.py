@@ -149,10 +149,7 @@ def control_metrics(
     from tracker.motion_metrics import motion_metrics
     from tracker.pipeline import run_scene
 
-    # config_to_dict's layout -> config_from_dict's (derived fields dropped)
-    raw = {k: v for k, v in summary["config"].items() if k not in ("category_ids", "source")}
-    raw["category"] = raw.pop("per_category", {})
-    config = config_from_dict(raw, source=f"{summary_source(summary)} config")
+    config = config_from_dict(summary["config"], source=f"{summary_source(summary)} config")
     dets, gt = convert_kitti(
         kitti_root,
         seqs=summary["sequences"],

@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
 
-from tracker.config import CostKind, CostState, config_to_dict, load_config
+from tracker.config import (
+    BUILTIN,
+    CostKind,
+    CostState,
+    config_from_dict,
+    config_to_dict,
+    load_config,
+)
 from tracker.errors import InputError
 
 
@@ -15,7 +23,17 @@ def test_builtin_configs_load(name: str) -> None:
     cfg = load_config(name)
     assert cfg.dataset == name
     assert set(cfg.per_category) == set(cfg.categories)
-    assert config_to_dict(cfg)["per_category"]["car"]["bev"]["cost"] == "ro_gdiou"
+    assert config_to_dict(cfg)["category"]["car"]["bev"]["cost"] == "ro_gdiou"
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN))
+def test_config_to_dict_reloads_to_the_same_config(name: str) -> None:
+    """A run's summary (config_to_dict, through JSON) loads back into the config it ran."""
+    cfg = load_config(name)
+    raw = json.loads(json.dumps(config_to_dict(cfg)))
+    assert config_from_dict(raw, source=cfg.source) == cfg
+    changed = load_config(name, overrides={"category": {"car": {"score_min": 0.123}}})
+    assert config_from_dict(json.loads(json.dumps(config_to_dict(changed)))) != cfg
 
 
 def test_kitti_reference_values() -> None:

@@ -329,7 +329,20 @@ def _coerce(tp: Any, value: Any, dotted: str, source: str, base: Any = None) -> 
 
 
 def config_to_dict(cfg: Any) -> Any:
-    """Resolved config as plain data (for summaries and the recording's config document)."""
+    """Resolved config as plain data (for summaries and the recording's config document).
+
+    A :class:`TrackerConfig` gives the layout :func:`config_from_dict` reads (its categories
+    under ``category``, every value resolved, no ``defaults``), so a run's summary reloads into
+    the same config.
+    """
+    if isinstance(cfg, TrackerConfig):
+        out = {
+            f.name: config_to_dict(getattr(cfg, f.name))
+            for f in fields(cfg)
+            if f.name not in ("per_category", "category_ids")  # (category_ids is derived)
+        }
+        out["category"] = config_to_dict(cfg.per_category)
+        return out
     if is_dataclass(cfg):
         return {f.name: config_to_dict(getattr(cfg, f.name)) for f in fields(cfg)}
     if isinstance(cfg, enum.Enum):
