@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from tracker.config import load_config
+from tracker.fileio import write_text_atomic
 from tracker.pipeline import run_scene
 from tracker.synthetic import synthetic_scene
 
@@ -88,5 +89,5 @@ def run(args: argparse.Namespace) -> int:
     results["peak_rss_mb"] = _peak_rss_mb()
     print(f"peak RSS: {results['peak_rss_mb']} MB")
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=2))
+        write_text_atomic(args.json, [json.dumps(results, indent=2)])
     return 0

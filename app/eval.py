@@ -129,7 +129,7 @@ def evaluate_tracks(
             "",
         ]
     out.mkdir(parents=True, exist_ok=True)
-    (out / "eval.json").write_text(json.dumps(result, indent=2, allow_nan=False))
+    write_text_atomic(out / "eval.json", [json.dumps(result, indent=2, allow_nan=False)])
     write_text_atomic(out / "eval.md", ["\n".join(md) + "\n"])
     return result
 
@@ -245,7 +245,7 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
             f"![velocity]({MOTION_PLOT})",
             "",
         ]
-    (out / "eval.json").write_text(json.dumps(result, indent=2, allow_nan=False))
+    write_text_atomic(out / "eval.json", [json.dumps(result, indent=2, allow_nan=False)])
     write_text_atomic(out / "eval.md", ["\n".join(md) + "\n"])
     overall = result["static"]["overall"]
     print(

@@ -13,6 +13,7 @@ from typing import Any
 from tqdm import tqdm
 
 from tracker.config import BUILTIN, config_to_dict, load_config
+from tracker.fileio import write_text_atomic
 from tracker.pipeline import SceneResult, run_scene
 from tracker.writers import write_kitti_sequence, write_tracks_file
 
@@ -184,7 +185,7 @@ def run_kitti(
     if motion:
         summary["motion"] = _motion(detections, gt, results, classes, out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
     return summary
 
 
@@ -196,7 +197,6 @@ def _motion(
     out: Path,
 ) -> dict[str, Any] | str:
     """Motion metrics of the run, and ``out/motion.md`` with the velocity-curve PNG."""
-    from tracker.fileio import write_text_atomic
     from tracker.motion_eval import evaluate_motion, motion_markdown
 
     missing = sorted(s for s in detections if gt is None or s not in gt)

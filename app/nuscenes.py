@@ -16,6 +16,7 @@ from tqdm import tqdm
 from tracker.config import TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
+from tracker.fileio import write_text_atomic
 from tracker.frame import Frame
 
 
@@ -179,7 +180,7 @@ def run_nuscenes(
         )
     if motion:
         summary["motion"] = _motion(det_scenes, conv.gt, outputs, config.categories, out)
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False))
+    write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
     return summary
 
 

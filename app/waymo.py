@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from tracker.config import config_to_dict, load_config
 from tracker.events import TrackOutput
+from tracker.fileio import write_text_atomic
 
 
 def _csv(text: str) -> list[str]:
@@ -104,5 +105,5 @@ def run_waymo(
         summary["motion"] = evaluate_motion(
             conv.detections, conv.gt, outputs, classes=["car", "pedestrian", "cyclist"]
         )
-    (out / "summary.json").write_text(json.dumps(summary, indent=2, allow_nan=False))
+    write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
     return summary

@@ -155,6 +155,23 @@ def test_observer_does_not_change_results() -> None:
 
 
 @pytest.mark.skipif(not SAMPLE.is_dir(), reason="sample_data/kitti-0001 missing")
+def test_output_acceleration_ca_estimated_cv_absent() -> None:
+    """Car (CA, the KITTI config) accelerating at 2 m/s² along x: its filtered acceleration
+    converges to it; a pedestrian tracked with CV has no acceleration state: NaN, not 0."""
+    cv_ped = {"pedestrian": {"pose": {"motion": "cv"}}}
+    cfg = load_config("kitti", overrides={"categories": ["car", "pedestrian"], "category": cv_ped})
+    assert cfg.per_category["car"].pose.motion.value == "ca"
+    tracker = MCTracker(cfg)
+    for i in range(40):
+        t = 0.1 * i
+        xs = [5.0 * t + t * t, 50.0 + t]
+        out = tracker.step(frame(i, xs, cats=[CAR, PED], scores=[0.99, 0.99]))
+    assert list(out.boxes.category) == [CAR, PED]
+    np.testing.assert_allclose(out.acceleration[0], [2.0, 0.0], atol=0.3)
+    np.testing.assert_allclose(out.boxes.velocity[0], [5.0 + 2 * 3.9, 0.0], atol=0.3)
+    assert np.isnan(out.acceleration[1]).all()
+
+
 def test_sample_sequence_regression() -> None:
     """Track count and ID switches on the bundled sequence, against committed numbers."""
     from tracker.kitti_eval import evaluate_kitti

@@ -112,7 +112,8 @@ class TrackOutput:
     """The tracker's output for one frame, rows sorted by track id.
 
     ``boxes`` holds filtered position (``xyz``), size, heading (``yaw``), velocity, score,
-    category and ``track_id``; ``acceleration`` (K, 2) m/s²; ``status`` (K,) TrackStatus;
+    category and ``track_id``; ``acceleration`` (K, 2) m/s² (NaN for a category tracked with
+    the constant-velocity model, which has none); ``status`` (K,) TrackStatus;
     ``det_row`` (K,) the detection row matched this frame (-1 when coasting or interpolated);
     ``stage`` (K,) 1 = BEV, 2 = RV, 0 = none.
     """

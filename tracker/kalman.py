@@ -1067,9 +1067,9 @@ def motion_velocity_xy(x: FloatArray) -> FloatArray:
 
 
 def motion_acceleration_xy(x: FloatArray) -> FloatArray:
-    """(B, 2) acceleration [ax, ay], m/s² (CA only; zeros for CV)."""
+    """(B, 2) acceleration [ax, ay], m/s² (CA only; NaN for CV, which has none)."""
     if x.shape[-1] < 3:
-        return np.zeros((len(x), 2))
+        return np.full((len(x), 2), np.nan)
     return x[:, Axis.X : Axis.Y + 1, 2]
 
 

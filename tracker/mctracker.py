@@ -153,7 +153,10 @@ class _PerCategory:
         self.all_forward = bool(np.all(self.alpha[tracked] >= 1))
         # CA (k = 3) for every track as soon as one tracked category uses it: CV is CA with a
         # zero acceleration variance (exact), so one table holds both.
-        any_ca = any(cfgs[i].pose.motion is MotionModel.CA for i in np.flatnonzero(tracked))
+        # acceleration is estimated (CA) or absent (CV: reported as NaN, not as a fake 0)
+        self.has_acceleration = np.array([c.pose.motion is MotionModel.CA for c in cfgs])
+        self.any_cv = not bool(np.all(self.has_acceleration[tracked]))
+        any_ca = bool(np.any(self.has_acceleration[tracked]))
         self.motion_model = kalman.MotionModel.CA if any_ca else kalman.MotionModel.CV
         noise = kalman.DiagonalNoise.stack([self._motion_noise(c) for c in cfgs])
         self.motion_p0, self.motion_q, self.motion_r = noise.p0_diag, noise.q_diag, noise.r_diag
@@ -701,12 +704,16 @@ class MCTracker:
                     hit, kalman.align_heading(tr.last_det_yaw[rows], boxes.yaw), boxes.yaw
                 ),
             )
+        acceleration = kalman.motion_acceleration_xy(tr.motion_x[rows])
+        if self._cat.any_cv:
+            cv = ~self._cat.has_acceleration[boxes.category]
+            acceleration = np.where(cv[:, None], np.nan, acceleration)
         return TrackOutput(
             scene=frame.scene,
             frame_id=frame.frame_id,
             time_secs=time_secs,
             boxes=boxes,
-            acceleration=kalman.motion_acceleration_xy(tr.motion_x[rows]),
+            acceleration=acceleration,
             status=tr.status[rows],
             det_row=det_row,
             stage=tr.matched_stage[rows],
