@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import sys
 import time
 from pathlib import Path
@@ -12,6 +11,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from app.bench import peak_rss_mb
 from tracker.config import BUILTIN, config_to_dict, load_config
 from tracker.fileio import write_text_atomic
 from tracker.pipeline import SceneResult, run_scene
@@ -167,7 +167,7 @@ def run_kitti(
         "tracker_seconds": round(tracker_secs, 4),
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
         "convert_seconds": round(convert_secs, 3),
-        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
+        "peak_rss_mb": peak_rss_mb(),
         "config": config_to_dict(config),
     }
     if evaluate:

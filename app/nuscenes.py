@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import sys
 import time
 from pathlib import Path
@@ -13,6 +12,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from app.bench import peak_rss_mb
 from tracker.config import TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
@@ -162,7 +162,7 @@ def run_nuscenes(
         "tracker_seconds": round(tracker_secs, 4),
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
         "convert_seconds": round(convert_secs, 3),
-        "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
+        "peak_rss_mb": peak_rss_mb(),
         "skipped_detections": dict(sorted(conv.skipped_detections.items())),
         "config": config_to_dict(config),
     }

@@ -166,7 +166,7 @@ def main() -> int:
             "## Speed",
             "",
             "`mctrack bench` (tracker only: conversion and writing are outside the timed region;"
-            " best of 3 runs; 2-core machine, no GPU):",
+            " best of 5 runs; 2-core machine, no GPU):",
             "",
             "```",
             speed_text,
