@@ -1,4 +1,5 @@
-"""The tracker's fast paths change nothing: stage-2 shortcut, compiled geometry, Kalman variant.
+"""The tracker's fast paths change nothing: stage-2 shortcut, compiled geometry and stages,
+Kalman variant.
 
 Each fast path has a slow twin that is still used elsewhere: an observer disables the stage-2
 shortcut, ``_geometry_kernel`` returning None selects the numpy geometry.
@@ -11,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tracker import geometry
+from tracker import geometry, mctracker
 from tracker.baseversion import read_baseversion
 from tracker.config import load_config
 from tracker.events import ListObserver, TrackOutput
@@ -79,5 +80,7 @@ def test_dense_synthetic_scene_both_pose_models(motion: str, monkeypatch) -> Non
     assert len(plain[-1]) >= 40  # the scene is tracked
     observed = run_scene(dets, cfg, observer=ListObserver()).outputs
     assert_same_tracking(plain, observed, exact=True)
-    monkeypatch.setattr(geometry, "_geometry_kernel", lambda: None)
+    monkeypatch.setattr(mctracker, "frame_kernels", lambda: None)  # numpy stages
+    assert_same_tracking(plain, run_scene(dets, cfg).outputs, exact=False)
+    monkeypatch.setattr(geometry, "_geometry_kernel", lambda: None)  # and numpy geometry
     assert_same_tracking(plain, run_scene(dets, cfg).outputs, exact=False)

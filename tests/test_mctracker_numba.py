@@ -19,7 +19,6 @@ from tracker.events import LifecycleChanged, ListObserver, TrackStatus
 from tracker.matching import hungarian
 from tracker.mctracker import MCTracker, frame_kernels
 from tracker.pipeline import run_scene
-from tracker.synthetic import synthetic_scene
 from tracker.track import TrackTable
 
 from .test_mctracker_fast_paths import assert_same_tracking
@@ -237,23 +236,6 @@ def test_compiled_tracker_equals_numpy_on_the_sample(
     assert_same_tracking(compiled, run_scene(sample_frames, cfg).outputs, exact=False)
     assert_same_tracking(compiled, compiled_observed, exact=True)
     assert any(isinstance(e, LifecycleChanged) and len(e.deleted) for e in observed.events)
-
-
-@pytest.mark.parametrize("motion", ["cv", "ca"])
-def test_compiled_tracker_equals_numpy_dense(motion: str, monkeypatch) -> None:
-    dets, _ = synthetic_scene(num_objects=50, num_frames=30, seed=9)
-    per_category = {"score_min": 0.5, "birth_score_min": 0.6, "pose": {"motion": motion}}
-    cfg = load_config(
-        "kitti",
-        overrides={
-            "categories": ["car", "pedestrian"],
-            "category": {"car": per_category, "pedestrian": per_category},
-        },
-    )
-    compiled = run_scene(dets, cfg).outputs
-    assert len(compiled[-1]) >= 40
-    _numpy_only(monkeypatch)
-    assert_same_tracking(compiled, run_scene(dets, cfg).outputs, exact=False)
 
 
 def test_numba_switch(monkeypatch: pytest.MonkeyPatch) -> None:
