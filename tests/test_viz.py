@@ -193,6 +193,30 @@ def test_velocity_series_equal_the_output(rrd: Path, result: RecordResult) -> No
         np.testing.assert_allclose(got, values, rtol=1e-12, atol=1e-12)
 
 
+def test_acceleration_series_for_ca_tracks_only(rrd: Path, tmp_path: Path) -> None:
+    """The filtered acceleration is logged per track when its motion model has one (CA, the
+    tuned KITTI config); the reference config's CV tracks get no acceleration curve."""
+    assert not any(p.endswith("/" + paths.ACCELERATION_X) for p in entity_paths(rrd))
+    det, _ = sample_frames()
+    out = record_scene(det[:60], load_config("kitti"), None, tmp_path / "ca.rrd")
+    track = max(
+        {t for o in out.outputs for t in o.boxes.track_id.tolist()},
+        key=lambda t: (sum(int((o.boxes.track_id == t).sum()) for o in out.outputs), -t),
+    )
+    rows = [
+        (o.frame_id, o.acceleration[o.boxes.track_id == track][0])
+        for o in out.outputs
+        if (o.boxes.track_id == track).any()
+    ]
+    acc = np.array([a for _, a in rows])
+    assert np.isfinite(acc).all() and np.abs(acc).max() > 0
+    for series, values in ((paths.ACCELERATION_X, acc[:, 0]), (paths.ACCELERATION_Y, acc[:, 1])):
+        table = entity_table(tmp_path / "ca.rrd", paths.track_series(track, series))
+        assert table[paths.FRAME].to_pylist() == [f for f, _ in rows]
+        got = pc.list_flatten(table["Scalars:scalars"]).to_numpy()
+        np.testing.assert_allclose(got, values, rtol=1e-12, atol=1e-12)
+
+
 def test_recorded_id_events_equal_trackeval(rrd: Path, result: RecordResult) -> None:
     """The WARN events in the recording are as many as TrackEval's IDSW and Frag."""
     table = entity_table(rrd, paths.EVENTS)

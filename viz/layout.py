@@ -48,6 +48,15 @@ def _xy_view(track_ids: Sequence[int], name: str) -> rrb.TimeSeriesView:
     return rrb.TimeSeriesView(origin=paths.entity(paths.TRACKS), contents=contents, name=name)
 
 
+def _acceleration_view(track_ids: Sequence[int], name: str) -> rrb.TimeSeriesView:
+    contents = [
+        paths.entity(paths.track_series(t, s))
+        for t in track_ids
+        for s in (paths.ACCELERATION_X, paths.ACCELERATION_Y)
+    ]
+    return rrb.TimeSeriesView(origin=paths.entity(paths.TRACKS), contents=contents, name=name)
+
+
 def _heading_view(track_ids: Sequence[int], name: str) -> rrb.TimeSeriesView:
     contents = [
         paths.entity(paths.track_series(t, p + paths.HEADING))
@@ -129,6 +138,7 @@ def debug_blueprint(
             _speed_view(lag_track_ids, f"{VIEW_SPEED_LAG}: {label} (largest lag)"),
             _xy_view(lag_track_ids, f"vx, vy vs GT: {label}"),
             _heading_view(lag_track_ids, f"heading vs GT: {label}"),
+            _acceleration_view(lag_track_ids, f"ax, ay: {label}"),
         ]
     if switch_track_ids:
         label = " / ".join(f"T{t}" for t in switch_track_ids)

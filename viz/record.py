@@ -420,7 +420,8 @@ def _log_velocity_series(
     evaluation: IdEvaluation | None,
     gt: _GtIndex | None,
 ) -> tuple[LagSample | None, int]:
-    """tracks/<id>/{speed, velocity_x, velocity_y, heading} and the matched GT's curves.
+    """tracks/<id>/{speed, velocity_x, velocity_y, heading, acceleration_x, acceleration_y}
+    and the matched GT's curves (no GT acceleration).
 
     Returns the largest lag and the number of tracks given curves.
     """
@@ -446,6 +447,7 @@ def _log_velocity_series(
         gt_row[has] = gt.rows(frame_ids[has], gt_id[has])
 
     speed = np.hypot(boxes.velocity[:, 0], boxes.velocity[:, 1])
+    acceleration = np.concatenate([o.acceleration for o in outputs])
     ids = boxes.track_id
     order = np.lexsort((frame_ids, ids))
     bounds = np.flatnonzero(np.r_[True, ids[order][1:] != ids[order][:-1], True])
@@ -466,6 +468,9 @@ def _log_velocity_series(
             paths.VELOCITY_Y: boxes.velocity[rows, 1],
             paths.HEADING: boxes.yaw[rows],
         }
+        acc = acceleration[rows]
+        if np.isfinite(acc).all():  # (a constant-velocity track has none: NaN)
+            values[paths.ACCELERATION_X], values[paths.ACCELERATION_Y] = acc[:, 0], acc[:, 1]
         for series, v in values.items():
             _send_series(
                 rec, paths.track_series(tid, series), f"T{tid} {series}", color, indexes, v
