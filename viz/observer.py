@@ -10,6 +10,7 @@ an empty row (or a Clear), so scrubbing never shows a stale box from an earlier 
 
 from __future__ import annotations
 
+import functools
 import os
 from collections import deque
 from collections.abc import Mapping, Sequence
@@ -647,28 +648,31 @@ def _build_matches_bev(parts: list[tuple[FloatArray, FloatArray, FloatArray]]) -
     return fields, _lengths([c for _, c, _ in parts]), _hidden(len(parts))
 
 
-def _build_unmatched_tracks(parts: list[tuple[IntArray, FloatArray]]) -> Built:
+def _build_unmatched(
+    parts: list[tuple[IntArray, FloatArray]],
+    *,
+    prefix: str,
+    radius: float,
+    rgb: tuple[int, int, int],
+) -> Built:
+    """Points for the unmatched tracks (``prefix`` "T") or detections ("d") of each frame."""
     ids = np.concatenate([i for i, _ in parts])
     n = len(ids)
     fields = {
         "positions": np.concatenate([x for _, x in parts]).astype(np.float32).reshape(-1, 3),
-        "radii": np.full(n, 0.35, np.float32),
-        "colors": solid(UNMATCHED_TRACK_RGB, n),
-        "labels": [f"T{i} unmatched" for i in ids.tolist()],
+        "radii": np.full(n, radius, np.float32),
+        "colors": solid(rgb, n),
+        "labels": [f"{prefix}{i} unmatched" for i in ids.tolist()],
     }
     return fields, _lengths([i for i, _ in parts]), _hidden(len(parts))
 
 
-def _build_unmatched_detections(parts: list[tuple[IntArray, FloatArray]]) -> Built:
-    rows = np.concatenate([r for r, _ in parts])
-    n = len(rows)
-    fields = {
-        "positions": np.concatenate([x for _, x in parts]).astype(np.float32).reshape(-1, 3),
-        "radii": np.full(n, 0.3, np.float32),
-        "colors": solid(UNMATCHED_DETECTION_RGB, n),
-        "labels": [f"d{i} unmatched" for i in rows.tolist()],
-    }
-    return fields, _lengths([r for r, _ in parts]), _hidden(len(parts))
+_build_unmatched_tracks = functools.partial(
+    _build_unmatched, prefix="T", radius=0.35, rgb=UNMATCHED_TRACK_RGB
+)
+_build_unmatched_detections = functools.partial(
+    _build_unmatched, prefix="d", radius=0.3, rgb=UNMATCHED_DETECTION_RGB
+)
 
 
 def _comparable_rows(c: CostComputed) -> IntArray:
