@@ -22,8 +22,6 @@ from tracker.events import TrackOutput
 from tracker.fileio import write_text_atomic
 from tracker.frame import Frame
 
-MOTION_PLOT = "motion_velocity.png"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
@@ -103,7 +101,7 @@ def evaluate_tracks(
 ) -> dict[str, Any]:
     """Static and/or motion metrics of tracker output; writes ``out/eval.json`` and
     ``out/eval.md`` and returns the JSON content."""
-    from tracker.motion_eval import evaluate_motion, motion_markdown
+    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     result: dict[str, Any] = {"tracks_scenes": sorted(outputs), "classes": list(classes)}
     md = ["# Evaluation", ""]
@@ -123,11 +121,7 @@ def evaluate_tracks(
         result["motion"] = evaluate_motion(
             dets, gt, outputs, classes=classes, plot_path=out / MOTION_PLOT
         )
-        md += [
-            motion_markdown(result["motion"], heading_level=2),
-            f"![velocity]({MOTION_PLOT})",
-            "",
-        ]
+        md += motion_report_lines(result["motion"])
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "eval.json", [json.dumps(result, indent=2, allow_nan=False)])
     write_text_atomic(out / "eval.md", ["\n".join(md) + "\n"])
@@ -230,7 +224,7 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
     )
     md.append(nuscenes_markdown(result["static"]))
     if args.motion and motion_inputs is not None:
-        from tracker.motion_eval import evaluate_motion, motion_markdown
+        from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
         if args.gt is None:
             raise InputError("--motion needs --gt (the GT BaseVersion of `mctrack nuscenes`)")
@@ -240,11 +234,7 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
         result["motion"] = evaluate_motion(
             dets, gt, motion_inputs, classes=classes, plot_path=out / MOTION_PLOT
         )
-        md += [
-            motion_markdown(result["motion"], heading_level=2),
-            f"![velocity]({MOTION_PLOT})",
-            "",
-        ]
+        md += motion_report_lines(result["motion"])
     write_text_atomic(out / "eval.json", [json.dumps(result, indent=2, allow_nan=False)])
     write_text_atomic(out / "eval.md", ["\n".join(md) + "\n"])
     overall = result["static"]["overall"]

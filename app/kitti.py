@@ -197,21 +197,21 @@ def _motion(
     out: Path,
 ) -> dict[str, Any] | str:
     """Motion metrics of the run, and ``out/motion.md`` with the velocity-curve PNG."""
-    from tracker.motion_eval import evaluate_motion, motion_markdown
+    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     missing = sorted(s for s in detections if gt is None or s not in gt)
     if gt is None or missing:
         return f"skipped: no labels for {missing}"
-    plot = "motion_velocity.png"
     motion = evaluate_motion(
         detections,
         gt,
         {s: r.outputs for s, r in results.items()},
         classes=classes,
-        plot_path=out / plot,
+        plot_path=out / MOTION_PLOT,
     )
-    text = "\n".join(["# Motion metrics", "", motion_markdown(motion, heading_level=2)])
-    write_text_atomic(out / "motion.md", [f"{text}\n![velocity curves]({plot})\n"])
+    write_text_atomic(
+        out / "motion.md", ["\n".join(["# Motion metrics", "", *motion_report_lines(motion)])]
+    )
     return motion
 
 

@@ -193,16 +193,18 @@ def _motion(
 ) -> dict[str, Any] | str:
     from tracker.baseversion import write_baseversion
     from tracker.fileio import write_text_atomic
-    from tracker.motion_eval import evaluate_motion, motion_markdown
+    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     if gt is None:
         return "skipped: no annotations (test split)"
     gt = {s: gt[s] for s in det_scenes}
     write_baseversion(out / "gt.json", gt)
-    plot = "motion_velocity.png"
-    result = evaluate_motion(det_scenes, gt, outputs, classes=list(classes), plot_path=out / plot)
-    text = "\n".join(["# Motion metrics", "", motion_markdown(result, heading_level=2)])
-    write_text_atomic(out / "motion.md", [f"{text}\n![velocity curves]({plot})\n"])
+    result = evaluate_motion(
+        det_scenes, gt, outputs, classes=list(classes), plot_path=out / MOTION_PLOT
+    )
+    write_text_atomic(
+        out / "motion.md", ["\n".join(["# Motion metrics", "", *motion_report_lines(result)])]
+    )
     return result
 
 

@@ -800,6 +800,16 @@ def _fmt(value: Any, digits: int) -> str:
     return f"{value:.{digits}f}"
 
 
+#: File name of the velocity-curve plot, written next to the report that embeds it.
+MOTION_PLOT = "motion_velocity.png"
+
+
+def motion_report_lines(result: Mapping[str, Any]) -> list[str]:
+    """The motion section of a run's report: the metric tables, then the embedded plot
+    (``plot_path=out / MOTION_PLOT`` given to :func:`evaluate_motion`)."""
+    return [motion_markdown(result, heading_level=2), f"![velocity curves]({MOTION_PLOT})", ""]
+
+
 def motion_markdown(result: Mapping[str, Any], *, heading_level: int = 3) -> str:
     """Markdown tables of an :func:`evaluate_motion` result: estimator × metric per class, then
     the box errors. An absent estimator's row says why instead of showing numbers."""
