@@ -10,10 +10,9 @@ Layout: ``OUT/{vehicle,pedestrian,cyclist}/<segment>.npz``, each with
 * ``timestamps``: (F,) frame timestamps in µs.
 
 Frames without a track keep an empty list, so every segment file has one entry per frame of
-``ts_info``. The ragged per-frame lists are pickled object arrays (``np.load(...,
-allow_pickle=True)``), exactly what the reference's ``pred_bin.py`` (from ImmortalTracker) reads:
-it turns these files into the ``pred.bin`` protobuf of the Waymo tracking benchmark (moving each
-box back to the vehicle frame with ``ego_info``). That step needs TensorFlow and the
+``ts_info``. The ragged per-frame lists are pickled object arrays, exactly what the reference's
+``pred_bin.py`` (from ImmortalTracker) reads (we read them back with a numpy-only unpickler): it turns these files into the ``pred.bin``
+protobuf of the Waymo tracking benchmark (moving each box back to the vehicle frame with ``ego_info``). That step needs TensorFlow and the
 ``waymo-open-dataset`` package, which this project does not depend on (docs/nuscenes_waymo.md).
 """
 
@@ -28,7 +27,7 @@ import numpy as np
 
 from tracker.categories import CATEGORIES
 from tracker.events import TrackOutput, TrackStatus
-from tracker.fileio import write_bytes_atomic
+from tracker.fileio import load_npz, write_bytes_atomic
 from tracker.frame import Frame
 
 #: Our category → the Waymo result folder (the benchmark's object types).
@@ -102,7 +101,7 @@ def write_waymo_results(
 
 def read_waymo_results(path: str | Path) -> tuple[list[list[int]], list[np.ndarray]]:
     """``(ids, bboxes)`` per frame of one result file (rows ``[x, y, z, o, l, w, h, s]``)."""
-    with np.load(Path(path), allow_pickle=True) as npz:
+    with load_npz(Path(path), "Waymo result") as npz:  # numpy-only unpickler: no code runs
         ids = [list(map(int, row)) for row in npz["ids"]]
         bboxes = [np.asarray(row, dtype=np.float64).reshape(-1, 8) for row in npz["bboxes"]]
     return ids, bboxes
