@@ -11,8 +11,9 @@ Layout: ``OUT/{vehicle,pedestrian,cyclist}/<segment>.npz``, each with
 
 Frames without a track keep an empty list, so every segment file has one entry per frame of
 ``ts_info``. The ragged per-frame lists are pickled object arrays, exactly what the reference's
-``pred_bin.py`` (from ImmortalTracker) reads (we read them back with a numpy-only unpickler): it turns these files into the ``pred.bin``
-protobuf of the Waymo tracking benchmark (moving each box back to the vehicle frame with ``ego_info``). That step needs TensorFlow and the
+``pred_bin.py`` (from ImmortalTracker) reads (we read them back with a numpy-only unpickler): it
+turns these files into the ``pred.bin`` protobuf of the Waymo tracking benchmark (moving each box
+back to the vehicle frame with ``ego_info``). That step needs TensorFlow and the
 ``waymo-open-dataset`` package, which this project does not depend on (docs/nuscenes_waymo.md).
 """
 
