@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from app.bench import peak_rss_mb
 from tracker.config import BUILTIN, config_to_dict, load_config
-from tracker.fileio import write_text_atomic
+from tracker.fileio import path_in, write_text_atomic
 from tracker.pipeline import SceneResult, run_scene
 from tracker.writers import write_kitti_sequence, write_tracks_file
 
@@ -140,19 +140,19 @@ def run_kitti(
         from viz.record import record_scene
 
         for seq, frames in detections.items():
-            labels_ok = label_dir if (label_dir / f"{seq}.txt").is_file() else None
+            labels_ok = label_dir if path_in(label_dir, seq, ".txt").is_file() else None
             record_scene(
                 frames,
                 config,
                 (gt or {}).get(seq),
-                record / f"{seq}.rrd",
+                path_in(record, seq, ".rrd"),
                 labels_dir=labels_ok,
                 motion_metrics=False,
             )
 
     data_dir = out / "data"
     for seq, frames in detections.items():
-        write_kitti_sequence(data_dir / f"{seq}.txt", results[seq].outputs, frames)
+        write_kitti_sequence(path_in(data_dir, seq, ".txt"), results[seq].outputs, frames)
     write_tracks_file(
         out / "tracks.json", {s: (detections[s], results[s].outputs) for s in detections}
     )

@@ -16,7 +16,7 @@ from app.bench import peak_rss_mb
 from tracker.config import TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
-from tracker.fileio import write_text_atomic
+from tracker.fileio import path_in, write_text_atomic
 from tracker.frame import Frame
 
 
@@ -129,7 +129,7 @@ def run_nuscenes(
                 from viz.record import record_scene
 
                 gt_frames = conv.gt.get(name) if conv.gt else None
-                path = out / "recordings" / f"{name}.rrd"
+                path = path_in(out / "recordings", name, ".rrd")
                 result = record_scene(frames, config, gt_frames, path)
                 outputs[name], seconds = result.outputs, result.tracker_seconds
                 recordings.append(str(path))

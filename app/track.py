@@ -9,6 +9,7 @@ from pathlib import Path
 from tracker.baseversion import LoadReport, read_baseversion
 from tracker.config import load_config
 from tracker.errors import InputError
+from tracker.fileio import path_in
 from tracker.frame import Frame
 from tracker.pipeline import run_scene
 from tracker.writers import write_kitti_sequence, write_tracks_file
@@ -63,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     write_tracks_file(out / "tracks.json", {s: (scenes[s], results[s].outputs) for s in scenes})
     if args.kitti_results:
         for s, frames in scenes.items():
-            write_kitti_sequence(out / "data" / f"{s}.txt", results[s].outputs, frames)
+            write_kitti_sequence(path_in(out / "data", s, ".txt"), results[s].outputs, frames)
     frames = sum(len(f) for f in scenes.values())
     secs = sum(r.tracker_seconds for r in results.values())
     ids = {(s, int(t)) for s, r in results.items() for o in r.outputs for t in o.boxes.track_id}

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from tracker.errors import InputError
+from tracker.fileio import safe_filename
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,9 +66,9 @@ def _images(specs: list[str], input_path: Path, first_camera: str | None) -> dic
 
 def _save_path(save: str | None, scene: str, many: bool) -> Path:
     if save is None:
-        return Path(f"mctrack_{scene}.rrd")
+        return Path(f"mctrack_{safe_filename(scene)}.rrd")  # scene names are input data
     path = Path(save)
-    return path.with_name(f"{path.stem}_{scene}{path.suffix}") if many else path
+    return path.with_name(f"{path.stem}_{safe_filename(scene)}{path.suffix}") if many else path
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,6 +8,7 @@ to that folder. Input: ``.npz`` files are read without unrestricted pickle (:fun
 from __future__ import annotations
 
 import gzip
+import hashlib
 import io
 import json
 import os
@@ -189,3 +190,47 @@ def load_npz(path: str | Path, what: str = "npz") -> SafeNpz:
     except Exception as exc:  # a malformed pickle stream can raise almost anything
         raise InputError(f"{path}: unreadable {what} file ({type(exc).__name__})") from None
     return SafeNpz(arrays)
+
+
+# ---------------------------------------------------------------------------------------------
+# file names from input data
+
+_SAFE_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_.")
+_MAX_NAME_BYTES = 200  # below the usual 255-byte file-name limit, room for a suffix
+
+
+def safe_filename(name: str) -> str:
+    """A file name (one path component) for an input-data name, e.g. a scene.
+
+    Injective and reversible: characters outside ``[A-Za-z0-9._-]`` (and ``%``) become ``%XX``
+    of their UTF-8 bytes, as does a leading dot, so ``..``, ``/abs``, ``a/b``, NUL and hidden
+    names cannot leave or hide in the folder. Lone surrogates are escaped too. Overlong
+    results are cut and suffixed with a hash of the name. Safe names (``0001``, ``scene-0103``,
+    Waymo segment stems) are unchanged.
+    """
+    data = name.encode("utf-8", "surrogatepass")
+    out: list[str] = []
+    for i, byte in enumerate(data):
+        char = chr(byte)
+        if char in _SAFE_CHARS and not (i == 0 and char == "."):
+            out.append(char)
+        else:
+            out.append(f"%{byte:02X}")
+    text = "".join(out) or "%"  # the empty name: a bare % is never the escape of another
+    if len(text) > _MAX_NAME_BYTES:
+        text = text[:150] + "~" + hashlib.sha256(data).hexdigest()[:16]
+    return text
+
+
+def name_is_escaped(name: str) -> bool:
+    """True when :func:`safe_filename` changes the name (``mctrack validate`` reports these)."""
+    return safe_filename(name) != name
+
+
+def path_in(folder: str | Path, name: str, suffix: str = "") -> Path:
+    """``folder / (safe_filename(name) + suffix)``, checked to stay inside ``folder``."""
+    folder = Path(folder)
+    path = folder / (safe_filename(name) + suffix)
+    if path.resolve().parent != folder.resolve():  # cannot happen after escaping: a guard
+        raise InputError(f"name {name!r}: would leave the output folder {folder}")
+    return path

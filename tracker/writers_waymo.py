@@ -28,7 +28,7 @@ import numpy as np
 
 from tracker.categories import CATEGORIES
 from tracker.events import TrackOutput, TrackStatus
-from tracker.fileio import load_npz, write_bytes_atomic
+from tracker.fileio import load_npz, path_in, write_bytes_atomic
 from tracker.frame import Frame
 
 #: Our category → the Waymo result folder (the benchmark's object types).
@@ -96,7 +96,8 @@ def write_waymo_results(
                 velos=_ragged(velos),
                 timestamps=timestamps,
             )
-            write_bytes_atomic(out_dir / result_type / f"{segment}.npz", buffer.getvalue())
+            path = path_in(out_dir / result_type, segment, ".npz")  # names are input data
+            write_bytes_atomic(path, buffer.getvalue())
     return written
 
 
