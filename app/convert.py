@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from tracker.errors import InputError
+from tracker.fileio import check_output_file, check_output_folder
 from tracker.frame import Frame
 
 
@@ -185,6 +186,13 @@ def _run_waymo(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run ``mctrack convert``; returns the exit code (2 for bad or missing input)."""
     try:
+        # the output is checked before the (long) conversion
+        if args.dataset == "kitti":
+            check_output_folder(args.out)
+        else:
+            check_output_file(args.out)
+            if getattr(args, "gt_out", None) is not None:
+                check_output_file(args.gt_out, "--gt-out")
         if args.dataset == "kitti":
             return _run_kitti(args)
         if args.dataset == "nuscenes":

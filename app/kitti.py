@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from app.bench import peak_rss_mb
 from tracker.config import BUILTIN, config_to_dict, load_config
-from tracker.fileio import path_in, write_text_atomic
+from tracker.fileio import check_output_folder, path_in, write_text_atomic
 from tracker.pipeline import SceneResult, run_scene
 from tracker.writers import write_kitti_sequence, write_tracks_file
 
@@ -66,6 +66,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)  # before any work: a bad --out fails in a second, not at the end
+    if args.record:
+        check_output_folder(args.record, "--record")
     summary = run_kitti(
         kitti_root=Path(args.kitti_root),
         seqs=[s.strip() for s in args.seqs.split(",") if s.strip()],

@@ -16,7 +16,7 @@ from app.bench import peak_rss_mb
 from tracker.config import TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
-from tracker.fileio import path_in, write_text_atomic
+from tracker.fileio import check_output_folder, path_in, write_text_atomic
 from tracker.frame import Frame
 
 
@@ -48,6 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)  # before any work
     summary = run_nuscenes(
         dataroot=Path(args.dataroot),
         version=args.version,

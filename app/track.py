@@ -9,7 +9,7 @@ from pathlib import Path
 from tracker.baseversion import LoadReport, read_baseversion
 from tracker.config import load_config
 from tracker.errors import InputError
-from tracker.fileio import path_in
+from tracker.fileio import check_output_folder, path_in
 from tracker.frame import Frame
 from tracker.pipeline import run_scene
 from tracker.writers import write_kitti_sequence, write_tracks_file
@@ -52,6 +52,7 @@ def select_scenes(
 
 
 def run(args: argparse.Namespace) -> int:
+    out = check_output_folder(args.out)  # before any work: exists as a file, not writable
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     report = LoadReport()

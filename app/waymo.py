@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from tracker.config import config_to_dict, load_config
 from tracker.events import TrackOutput
-from tracker.fileio import write_text_atomic
+from tracker.fileio import check_output_folder, write_text_atomic
 
 
 def _csv(text: str) -> list[str]:
@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)  # before any work
     summary = run_waymo(
         data_root=Path(args.data_root),
         detections=Path(args.detections),

@@ -234,3 +234,27 @@ def path_in(folder: str | Path, name: str, suffix: str = "") -> Path:
     if path.resolve().parent != folder.resolve():  # cannot happen after escaping: a guard
         raise InputError(f"name {name!r}: would leave the output folder {folder}")
     return path
+
+
+def check_output_folder(folder: str | Path, option: str = "--out") -> Path:
+    """Create ``folder`` if needed and prove it writable, before any work (InputError if not)."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{option} {folder}: exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".mctrack-probe.", suffix=TEMP_SUFFIX)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise InputError(f"{option} {folder}: not writable ({exc.strerror or exc})") from None
+    return folder
+
+
+def check_output_file(path: str | Path, option: str = "--out") -> Path:
+    """An output *file* path: not a folder, and its folder writable (checked before any work)."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{option} {path}: is a folder, expected a file name")
+    check_output_folder(path.parent, option)
+    return path

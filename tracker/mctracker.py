@@ -11,6 +11,7 @@ state, and the filtered acceleration in the output.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import os
@@ -258,9 +259,10 @@ class MCTracker:
         tracks.matched_stage = np.zeros(len(tracks), dtype=np.int8)
         tracks.matched_stage[matched] = stage
         born = self._birth(dets, unmatched_dets, kept_rows)
+        born_rows = self._tracks.matched_det[len(self._tracks) - len(born) :]  # appended last
         changes = self._lifecycle(matched, born)
         if obs:
-            obs(changes)
+            obs(dataclasses.replace(changes, born_det_rows=born_rows))
         output = self._output(frame, time_secs)
         if obs:
             obs(FrameFinished(output))
@@ -402,7 +404,9 @@ class MCTracker:
         the pairs it scored.
         """
         tr, cat, reference = self._tracks, self._cat, self.config.rv_reference
-        shortcut = not reference and self.observer is None
+        # an observer that only counts (tracker.fates) does not need the costs of empty stages
+        obs = self.observer
+        shortcut = not reference and (obs is None or not getattr(obs, "wants_rv_costs", True))
         # Shortcut (exact): when the gate below can accept no pair, whatever the costs, nothing
         # is matched or consumed. Most frames' leftovers are far apart or of other classes: a
         # pair outside stage 1's mask is of another class or farther (in BEV, so in 3D) than
