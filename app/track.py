@@ -4,12 +4,14 @@ files included) and write the tracks file (BaseVersion + filtered velocity/accel
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+import json
+from collections import Counter
 
 from tracker.baseversion import LoadReport, read_baseversion
 from tracker.config import load_config
 from tracker.errors import InputError
-from tracker.fileio import check_output_folder, path_in
+from tracker.fates import FateCounter, format_fates
+from tracker.fileio import check_output_folder, output_manifest, path_in, write_text_atomic
 from tracker.frame import Frame
 from tracker.pipeline import run_scene
 from tracker.writers import write_kitti_sequence, write_tracks_file
@@ -51,8 +53,21 @@ def select_scenes(
     return {s: f[frames] for s, f in scenes.items()}
 
 
+def check_camera_models(path: str, scenes: dict[str, list[Frame]], camera: str) -> None:
+    """KITTI result files need each frame's camera model: refuse before tracking, not after."""
+    for scene, frames in scenes.items():
+        for frame in frames:
+            if frame.camera_index(camera) < 0:
+                raise InputError(
+                    f"{path}: scene {scene!r}, frame_id {frame.frame_id}: --kitti-results needs "
+                    f"a {camera} camera model (transform_matrix.cameras_transform_matrix)"
+                )
+
+
 def run(args: argparse.Namespace) -> int:
     out = check_output_folder(args.out)  # before any work: exists as a file, not writable
+    summary_path = out / "summary.json"
+    summary_path.unlink(missing_ok=True)  # written last: its absence marks a run cut short
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     report = LoadReport()
@@ -60,19 +75,48 @@ def run(args: argparse.Namespace) -> int:
         args.input, fallback_frame_rate_hz=config.frame_rate_hz, report=report
     )
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames))
-    out = Path(args.out)
-    results = {s: run_scene(f, config) for s, f in scenes.items()}
-    write_tracks_file(out / "tracks.json", {s: (scenes[s], results[s].outputs) for s in scenes})
+    if args.kitti_results:
+        check_camera_models(args.input, scenes, "CAM_FRONT")
+    fates = FateCounter(rv_gate_consumes=config.rv_reference)
+    results = {s: run_scene(f, config, observer=fates) for s, f in scenes.items()}
+    written = [out / "tracks.json"]
+    write_tracks_file(written[0], {s: (scenes[s], results[s].outputs) for s in scenes})
     if args.kitti_results:
         for s, frames in scenes.items():
-            write_kitti_sequence(path_in(out / "data", s, ".txt"), results[s].outputs, frames)
+            written.append(path_in(out / "data", s, ".txt"))
+            write_kitti_sequence(written[-1], results[s].outputs, frames)
     frames = sum(len(f) for f in scenes.values())
     secs = sum(r.tracker_seconds for r in results.values())
     ids = {(s, int(t)) for s, r in results.items() for o in r.outputs for t in o.boxes.track_id}
+    fate_summary = fates.summary(report.skipped_categories)
+    removed = [r for res in results.values() for r in res.removed_offline]
+    summary = {
+        "input": str(args.input),
+        "config": args.config,
+        "mode": config.mode.value,
+        "scenes": len(scenes),
+        "frames": frames,
+        "tracks": len(ids),
+        "detection_fates": fate_summary,
+        "offline_removed": {
+            "tracks": len(removed),
+            "detections": sum(r.detections for r in removed),
+            "per_reason": dict(sorted(Counter(r.reason for r in removed).items())),
+        },
+        "outputs": output_manifest(out, written),
+        "complete": True,
+    }
+    write_text_atomic(summary_path, [json.dumps(summary, indent=2, allow_nan=False)])
     print(
         f"{len(scenes)} scenes, {frames} frames, {len(ids)} tracks, "
         f"{frames / secs if secs else 0:.0f} frames/s -> {out / 'tracks.json'}"
     )
+    print(format_fates(fate_summary))
+    if removed:
+        print(
+            f"offline post-processing removed {len(removed)} tracks "
+            f"({summary['offline_removed']['detections']} detections)"
+        )
     if report.boxes_skipped:
         print(
             f"skipped {report.boxes_skipped} boxes of unknown categories: "

@@ -61,14 +61,18 @@ _FROM_DROP = {
 class FateCounter:
     """Counts detections per fate and category over any number of frames and scenes.
 
-    Use as (or inside) the tracker's observer; ``summary()`` gives the counts. Raises
+    Use as (or inside) the tracker's observer; ``summary()`` gives the counts. Pass
+    ``rv_gate_consumes=config.rv_reference``. Raises
     RuntimeError if a frame's detections do not each get exactly one fate (a tracker change
     that emits fewer events would otherwise lose detections silently).
     """
 
     wants_rv_costs = False  # the tracker may skip an image-plane stage that cannot match
 
-    def __init__(self) -> None:
+    def __init__(self, *, rv_gate_consumes: bool = False) -> None:
+        # reference mode (config.rv_reference) drops detections of gated image-plane pairs;
+        # otherwise they go back to the pool and only the birth score can leave them unused
+        self.rv_gate_consumes = rv_gate_consumes
         self.counts: Counter[tuple[str, str]] = Counter()  # (fate, category) -> detections
         self.detections = 0
         self._fate: np.ndarray | None = None
@@ -94,7 +98,7 @@ class FateCounter:
             f = Fate.MATCHED_BEV if event.stage is Stage.BEV else Fate.MATCHED_RV
             self._fate[event.det_rows] = f
             self._track_dets.update(event.track_ids.tolist())
-            if event.stage is Stage.RV:
+            if event.stage is Stage.RV and self.rv_gate_consumes:
                 self._rv_rejected = event.rejected_det_rows
         elif isinstance(event, LifecycleChanged) and self._fate is not None:
             self._fate[event.born_det_rows] = Fate.BORN

@@ -258,3 +258,12 @@ def check_output_file(path: str | Path, option: str = "--out") -> Path:
         raise InputError(f"{option} {path}: is a folder, expected a file name")
     check_output_folder(path.parent, option)
     return path
+
+
+def output_manifest(folder: str | Path, paths: list[Path]) -> list[dict[str, Any]]:
+    """``[{"path": relative path, "bytes": size}]`` of written outputs, for a summary written
+    last: a run cut short has no summary, and a file not matching its listed size is stale."""
+    folder = Path(folder)
+    return [
+        {"path": p.relative_to(folder).as_posix(), "bytes": p.stat().st_size} for p in sorted(paths)
+    ]
