@@ -13,6 +13,7 @@ from tqdm import tqdm
 
 from app.bench import peak_rss_mb
 from tracker.config import BUILTIN, config_to_dict, load_config
+from tracker.fates import FateCounter
 from tracker.fileio import check_output_folder, path_in, write_text_atomic
 from tracker.pipeline import SceneResult, run_scene
 from tracker.writers import write_kitti_sequence, write_tracks_file
@@ -132,10 +133,11 @@ def run_kitti(
 
     results: dict[str, SceneResult] = {}
     total_frames = sum(len(f) for f in detections.values())
+    fates = FateCounter(rv_gate_consumes=config.rv_reference)
     with tqdm(total=total_frames, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
         for seq, frames in detections.items():
             bar.set_description(f"seq {seq}")
-            results[seq] = run_scene(frames, config)
+            results[seq] = run_scene(frames, config, observer=fates)
             bar.update(len(frames))
     tracker_secs = sum(r.tracker_seconds for r in results.values())
     label_dir = labels or kitti_root / "training" / "label_02"
@@ -171,10 +173,12 @@ def run_kitti(
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
         "convert_seconds": round(convert_secs, 3),
         "peak_rss_mb": peak_rss_mb(),
+        "detection_fates": fates.summary(),
+        "offline_removed_tracks": sum(len(r.removed_offline) for r in results.values()),
         "config": config_to_dict(config),
     }
     if evaluate:
-        missing = [s for s in detections if not (label_dir / f"{s}.txt").is_file()]
+        missing = [s for s in detections if not path_in(label_dir, s, ".txt").is_file()]
         if missing:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
         else:

@@ -25,20 +25,44 @@ import numpy as np
 from tracker.errors import InputError
 
 TEMP_SUFFIX = ".tmp"
-# a temp file older than this is from a dead run (a live write takes well under a minute)
-STALE_TEMP_SECS = 600.0
+# Temp names are ``.<name>.<pid>.<random>.tmp``: a temp of a process that no longer runs is
+# stranded (killed run) and removed by the next write to the folder; one of a live process
+# (another run writing there now) is kept unless older than this.
+STALE_TEMP_SECS = 3600.0
+
+
+def temp_name(path: Path) -> str:
+    """The prefix of a temporary file for ``path`` (same folder, hidden, with our pid)."""
+    return f".{path.name}.{os.getpid()}."
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True  # exists (another user's) or unparseable: keep it
+    return True
 
 
 def remove_stale_temps(folder: str | Path, *, older_than_secs: float = STALE_TEMP_SECS) -> int:
-    """Delete ``.<name>.*.tmp`` files a killed run left in ``folder``; returns how many."""
+    """Delete temporary files a killed run left in ``folder``; returns how many."""
     folder = Path(folder)
     if not folder.is_dir():
         return 0
     now = time.time()
     removed = 0
     for p in folder.glob(f".*{TEMP_SUFFIX}"):
+        parts = p.name.rsplit(".", 3)  # ['.<name>', '<pid>', '<random>', 'tmp']
+        pid = int(parts[1]) if len(parts) == 4 and parts[1].isdigit() else None
         try:
-            if p.is_file() and now - p.stat().st_mtime > older_than_secs:
+            if not p.is_file():
+                continue
+            dead = pid is not None and not _pid_alive(pid)
+            if dead or now - p.stat().st_mtime > older_than_secs:
                 p.unlink()
                 removed += 1
         except OSError:
@@ -64,7 +88,7 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(path.parent)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMP_SUFFIX)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_name(path), suffix=TEMP_SUFFIX)
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -258,6 +282,15 @@ def check_output_file(path: str | Path, option: str = "--out") -> Path:
         raise InputError(f"{option} {path}: is a folder, expected a file name")
     check_output_folder(path.parent, option)
     return path
+
+
+def finish_temp(tmp: Path, path: Path) -> None:
+    """Rename a completed temporary file (streamed by someone else, e.g. a recording) into
+    place, after an fsync; the name appears only when the file is complete."""
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
 
 
 def output_manifest(folder: str | Path, paths: list[Path]) -> list[dict[str, Any]]:
