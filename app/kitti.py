@@ -70,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)  # before any work: a bad --out fails in a second, not at the end
     if args.record:
         check_output_folder(args.record, "--record")
+    (Path(args.out) / "summary.json").unlink(missing_ok=True)  # written last: marks completion
     summary = run_kitti(
         kitti_root=Path(args.kitti_root),
         seqs=[s.strip() for s in args.seqs.split(",") if s.strip()],

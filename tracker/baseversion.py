@@ -209,6 +209,10 @@ def validate_baseversion(
     return Validation(errors.messages, errors.count, scenes, report)
 
 
+class _Recorded(InputError):
+    """A frame's errors were already recorded: leave the frame out, add nothing."""
+
+
 class _Errors:
     """limit 0: raise the first error; else record up to ``limit`` messages and count them all."""
 
@@ -300,6 +304,8 @@ def _read_scene(
             frame = _read_frame(scene, raw, at, fallback_rate, report, errors)
             if out:
                 _check_order(out[-1], frame, raw, at)
+        except _Recorded:
+            continue
         except InputError as exc:
             errors.add(str(exc))
             continue
@@ -406,8 +412,10 @@ def _int_field(
 
 
 def _short(value: Any) -> str:
+    """A printable, encodable, bounded repr for error messages (input may hold anything)."""
     text = repr(value)
-    return ascii(text[:60] + "...") if len(text) > 60 else ascii(text)
+    text = text[:60] + "..." if len(text) > 60 else text
+    return text.encode("ascii", "backslashreplace").decode()
 
 
 def _timestamp(value: Any, frame_id: int, fallback_rate: float | None, at: str) -> float:
@@ -534,16 +542,16 @@ def _read_boxes(
         return boxes
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
         pass
-    first: InputError | None = None
+    recorded = False
     for i, b in enumerate(bboxes):
         try:
             _check_box(b, f"{at}, box {i}")
         except InputError as exc:
-            if first is None:
-                first = exc
-            else:
-                errors.add(str(exc))  # the frame's first error is raised by the caller
-    raise first or InputError(f"{at}: invalid boxes")  # a guard: _check_box names the field
+            errors.add(str(exc))  # raises the first when not collecting
+            recorded = True
+    if recorded:
+        raise _Recorded(f"{at}: invalid boxes")  # the frame is left out; errors are recorded
+    raise InputError(f"{at}: invalid boxes")  # a guard: the fast path refused, the check did not
 
 
 _NUMBER_TYPES = {int, float}
