@@ -16,6 +16,7 @@ from app.bench import peak_rss_mb
 from tracker.config import TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
+from tracker.fates import FateCounter, add_summaries
 from tracker.fileio import check_output_folder, path_in, write_text_atomic
 from tracker.frame import Frame
 
@@ -122,6 +123,8 @@ def run_nuscenes(
     outputs: dict[str, list[TrackOutput]] = {}
     tracker_secs = 0.0
     recordings: list[str] = []
+    fates = FateCounter(rv_gate_consumes=config.rv_reference)
+    recorded_fates: dict[str, Any] = {}
     total_frames = sum(len(f) for f in det_scenes.values())
     with tqdm(total=total_frames, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
         for name, frames in det_scenes.items():
@@ -134,8 +137,9 @@ def run_nuscenes(
                 result = record_scene(frames, config, gt_frames, path)
                 outputs[name], seconds = result.outputs, result.tracker_seconds
                 recordings.append(str(path))
+                recorded_fates = add_summaries(recorded_fates, result.fates)
             else:
-                scene_result = run_scene(frames, config)
+                scene_result = run_scene(frames, config, observer=fates)
                 outputs[name], seconds = scene_result.outputs, scene_result.tracker_seconds
             tracker_secs += seconds
             bar.update(len(frames))
@@ -165,6 +169,7 @@ def run_nuscenes(
         "convert_seconds": round(convert_secs, 3),
         "peak_rss_mb": peak_rss_mb(),
         "skipped_detections": dict(sorted(conv.skipped_detections.items())),
+        "detection_fates": recorded_fates if record else fates.summary(),
         "config": config_to_dict(config),
     }
     if recordings:

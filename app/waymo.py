@@ -16,6 +16,7 @@ from tqdm import tqdm
 
 from tracker.config import config_to_dict, load_config
 from tracker.events import TrackOutput
+from tracker.fates import FateCounter
 from tracker.fileio import check_output_folder, write_text_atomic
 
 
@@ -79,9 +80,10 @@ def run_waymo(
     outputs: dict[str, list[TrackOutput]] = {}
     seconds = 0.0
     frames = sum(len(f) for f in conv.detections.values())
+    fates = FateCounter(rv_gate_consumes=config.rv_reference)
     with tqdm(total=frames, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
         for name, scene_frames in conv.detections.items():
-            result = run_scene(scene_frames, config)
+            result = run_scene(scene_frames, config, observer=fates)
             outputs[name], seconds = result.outputs, seconds + result.tracker_seconds
             bar.update(len(scene_frames))
     results = {s: (conv.detections[s], outputs[s]) for s in conv.detections}
@@ -96,6 +98,7 @@ def run_waymo(
         "tracker_seconds": round(seconds, 4),
         "tracker_fps": round(frames / seconds, 1) if seconds > 0 else None,
         "skipped_types": {str(k): v for k, v in sorted(conv.skipped_types.items())},
+        "detection_fates": fates.summary(),
         "config": config_to_dict(config),
     }
     if motion and conv.gt is not None:

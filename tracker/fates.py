@@ -154,6 +154,17 @@ class FateCounter:
         }
 
 
+def add_summaries(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    """The summary of two disjoint runs (e.g. per-scene recordings): counts added key by key."""
+    out: dict[str, Any] = dict(a)
+    for key, value in b.items():
+        if isinstance(value, dict):
+            out[key] = add_summaries(a.get(key, {}), value)
+        else:
+            out[key] = a.get(key, 0) + value
+    return out
+
+
 def format_fates(summary: dict[str, Any]) -> str:
     """One line for ``mctrack track``: the counts per fate (zeros left out)."""
     parts = [f"{name} {n}" for name, n in summary["per_fate"].items() if n]
