@@ -145,7 +145,10 @@ def edited_documents(draw: st.DrawFn) -> dict[str, Any]:
     """A valid document with one hostile edit at any location (replace, delete, add)."""
     doc = copy.deepcopy(draw(documents()))
     for _ in range(draw(st.integers(1, 2))):
-        where = draw(st.sampled_from(_locations(doc)[1:]))
+        locations = _locations(doc)[1:]
+        if not locations:  # the first edit emptied the document
+            break
+        where = draw(st.sampled_from(locations))
         parent: Any = doc
         for key in where[:-1]:
             parent = parent[key]
