@@ -169,7 +169,9 @@ def test_unusable_scene_names_are_refused(tmp_path: Path, name: str, problem: st
     assert result.error_count == 1 and problem in result.errors[0]
 
 
-def test_track_writes_hostile_scene_names_inside_out(tmp_path: Path) -> None:
+def test_track_writes_hostile_scene_names_inside_out(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     names = ["../../escaped", "/tmp/abs_escape_15", "a/b", ".."]
     path = write_text(tmp_path, json.dumps({n: [frame(0), frame(1)] for n in names}))
     out = tmp_path / "deep" / "out"
@@ -178,6 +180,10 @@ def test_track_writes_hostile_scene_names_inside_out(tmp_path: Path) -> None:
     assert written and all(out in p.parents for p in written)
     assert len(list((out / "data").iterdir())) == len(names)
     assert not Path("/tmp/abs_escape_15.txt").exists()
+    assert main(["validate", str(path)]) == 0
+    assert "scene '../../escaped' is written to files as '%2E.%2F..%2Fescaped'" in (
+        capsys.readouterr().out
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert {o["path"] for o in summary["outputs"]} == {
         p.relative_to(out).as_posix() for p in written if p.name != "summary.json"

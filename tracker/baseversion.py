@@ -24,7 +24,7 @@ import numpy as np
 from tracker.boxes import Boxes, FloatArray
 from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
-from tracker.fileio import write_json_atomic
+from tracker.fileio import name_is_escaped, safe_filename, write_json_atomic
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
 
@@ -817,4 +817,7 @@ def summarize(scenes: Scenes, report: LoadReport | None = None) -> dict[str, Any
     }
     if report is not None and report.boxes_skipped:
         out["skipped_unknown_categories"] = dict(sorted(report.skipped_categories.items()))
+    escaped = {s: safe_filename(s) for s in scenes if name_is_escaped(s)}
+    if escaped:  # path separators, "..", a leading dot...: written under an escaped file name
+        out["scene_names_escaped_in_file_names"] = escaped
     return out
