@@ -24,6 +24,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "app.calibrate",
         "fit a detector's score calibration profile (raw score -> P(true positive)) on labels",
     ),
+    "tune": (
+        "app.tune",
+        "cross-validated search of one class's settings over detectors (Optuna)",
+    ),
     "bench": ("app.bench", "tracker speed benchmark (frames/s, ms/frame, peak memory)"),
     "eval": ("app.eval", "evaluate a tracks file: KITTI static metrics and motion metrics"),
     "view": ("app.view", "run the tracker with the Rerun visual debugger (file, viewer or web)"),
