@@ -12,8 +12,8 @@ import time
 from pathlib import Path
 
 from tracker.errors import InputError
-from tracker.fileio import check_output_file, check_output_folder
 from tracker.frame import Frame
+from tracker.io.fileio import check_output_file, check_output_folder
 
 
 def _csv(text: str) -> list[str]:
@@ -36,7 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--detections", type=Path, default=None, help="detections folder (overrides --detector)"
     )
     kitti.add_argument(
-        "--detections-layout", default="auto", choices=["auto", "ab3dmot", "kitti_object"]
+        "--detections-layout",
+        default="auto",
+        choices=["auto", "ab3dmot", "kitti_tracking", "kitti_object"],
     )
     kitti.add_argument(
         "--poses",
@@ -110,8 +112,8 @@ def _summary(name: str, scenes: dict[str, list[Frame]]) -> str:
 
 
 def _run_kitti(args: argparse.Namespace) -> int:
-    from tracker.baseversion import write_baseversion
-    from tracker.convert.kitti import convert_kitti
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.convert.kitti import convert_kitti
 
     start = time.perf_counter()
     poses = None if str(args.poses).lower() == "none" else args.poses
@@ -141,8 +143,8 @@ def _run_kitti(args: argparse.Namespace) -> int:
 
 
 def _run_nuscenes(args: argparse.Namespace) -> int:
-    from tracker.baseversion import write_baseversion
-    from tracker.convert.nuscenes import convert_nuscenes
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.convert.nuscenes import convert_nuscenes
 
     start = time.perf_counter()
     conv = convert_nuscenes(
@@ -165,8 +167,8 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
 
 
 def _run_waymo(args: argparse.Namespace) -> int:
-    from tracker.baseversion import write_baseversion
-    from tracker.convert.waymo import convert_waymo
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.convert.waymo import convert_waymo
 
     if args.gt_out is not None and args.gt is None:
         raise InputError("--gt-out needs --gt (the ground-truth npz folder)")

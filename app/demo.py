@@ -11,7 +11,7 @@ import argparse
 from pathlib import Path
 
 from tracker.errors import InputError
-from tracker.fileio import check_output_folder
+from tracker.io.fileio import check_output_folder
 
 SAMPLE_DIR = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
 
@@ -24,8 +24,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.track import parse_frame_range
-    from tracker.baseversion import read_baseversion
     from tracker.config import load_config
+    from tracker.io.baseversion import read_baseversion
     from viz.record import record_scene
 
     sample = Path(args.sample)

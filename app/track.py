@@ -5,22 +5,34 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from collections import Counter
 
-from tracker.baseversion import LoadReport, read_baseversion
-from tracker.config import load_config
+import numpy as np
+
+from tracker.calibration import calibrate_frames, load_profile
+from tracker.config import ScoreSource, TrackerConfig, load_config
 from tracker.errors import InputError
 from tracker.fates import FateCounter, format_fates
-from tracker.fileio import check_output_folder, output_manifest, path_in, write_text_atomic
 from tracker.frame import Frame
+from tracker.io.baseversion import LoadReport, read_baseversion
+from tracker.io.fileio import check_output_folder, output_manifest, path_in, write_text_atomic
+from tracker.io.writers import write_kitti_sequence, write_tracks_file
 from tracker.pipeline import run_scene
-from tracker.writers import write_kitti_sequence, write_tracks_file
+
+LOG = logging.getLogger("mctrack.track")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="BaseVersion detections JSON")
     parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
     parser.add_argument("--mode", choices=["online", "offline"], default=None)
+    parser.add_argument(
+        "--profile",
+        default=None,
+        help="score calibration profile (`mctrack calibrate`, or tracker/profiles/*.toml) applied "
+        "to each box's detection_score_raw; default: detection_score as given",
+    )
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
     parser.add_argument(
@@ -64,6 +76,25 @@ def check_camera_models(path: str, scenes: dict[str, list[Frame]], camera: str) 
                 )
 
 
+def _calibrated(
+    scenes: dict[str, list[Frame]], config: TrackerConfig, profile: str | None, source: str
+) -> dict[str, list[Frame]]:
+    """Scores recomputed by ``profile`` from the raw scores; without one, as given (with a
+    warning when the config's thresholds expect calibrated scores)."""
+    if profile is None:
+        if config.scores is ScoreSource.PROFILE:
+            LOG.warning(
+                "no --profile: detection_score is used as given; the %s config's thresholds "
+                "expect calibrated probabilities (see `mctrack calibrate`)",
+                config.source,
+            )
+        return scenes
+    if not any(np.isfinite(f.boxes.score_raw).any() for fr in scenes.values() for f in fr):
+        raise InputError(f"{source}: --profile maps detection_score_raw, but no box has one")
+    loaded = load_profile(profile)
+    return {s: calibrate_frames(f, loaded) for s, f in scenes.items()}
+
+
 def run(args: argparse.Namespace) -> int:
     out = check_output_folder(args.out)  # before any work: exists as a file, not writable
     summary_path = out / "summary.json"
@@ -75,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
         args.input, fallback_frame_rate_hz=config.frame_rate_hz, report=report
     )
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames))
+    scenes = _calibrated(scenes, config, args.profile, args.input)
     if args.kitti_results:
         check_camera_models(args.input, scenes, "CAM_FRONT")
     fates = FateCounter(rv_gate_consumes=config.rv_reference)

@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from tracker.errors import InputError
-from tracker.fileio import safe_filename
+from tracker.io.fileio import safe_filename
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,8 +75,8 @@ def run(args: argparse.Namespace) -> int:
     import rerun as rr
 
     from app.track import parse_frame_range, select_scenes
-    from tracker.baseversion import read_baseversion
     from tracker.config import load_config
+    from tracker.io.baseversion import read_baseversion
     from viz.layout import debug_blueprint
     from viz.record import new_recording, record_scene
 

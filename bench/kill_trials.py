@@ -51,7 +51,7 @@ def _kill_after(args: list[str], secs: float) -> bool:
 
 
 def _inspect(out: Path) -> dict[str, object]:
-    from tracker.baseversion import read_baseversion
+    from tracker.io.baseversion import read_baseversion
 
     files = sorted(p for p in out.rglob("*") if p.is_file())
     temps = [p for p in files if p.name.startswith(".")]

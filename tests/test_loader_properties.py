@@ -27,14 +27,14 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from tracker.baseversion import read_baseversion, validate_baseversion
 from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.fates import FateCounter
 from tracker.frame import Frame
+from tracker.io.baseversion import read_baseversion, validate_baseversion
+from tracker.io.writers import write_kitti_sequence, write_tracks_file
 from tracker.mctracker import MCTracker
 from tracker.pipeline import SceneResult
-from tracker.writers import write_kitti_sequence, write_tracks_file
 
 FAST = settings(
     max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow], database=None

@@ -13,7 +13,7 @@ Fates, in the order a detection meets them:
 * ``unused_below_birth``: kept, matched no track and scored too low to start one.
 
 Unknown categories are skipped by the loader before the tracker sees them
-(:class:`tracker.baseversion.LoadReport`); :meth:`FateCounter.summary` reports them beside.
+(:class:`tracker.io.baseversion.LoadReport`); :meth:`FateCounter.summary` reports them beside.
 Separately, ``in_unconfirmed_tracks`` counts matched/born detections whose track was never
 confirmed by the end of the scene (they are not in the online output).
 """

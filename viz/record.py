@@ -29,11 +29,7 @@ import rerun as rr
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.config import TrackerConfig, config_to_dict
-from tracker.events import TrackOutput
-from tracker.fates import FateCounter, Tee
-from tracker.fileio import finish_temp, remove_stale_temps, temp_name
-from tracker.frame import Frame
-from tracker.id_switches import (
+from tracker.eval.id_switches import (
     IdEvaluation,
     IdEvent,
     IdEventKind,
@@ -41,7 +37,11 @@ from tracker.id_switches import (
     kitti_id_events,
     kitti_num_timesteps,
 )
-from tracker.motion_metrics import gt_velocity_central
+from tracker.eval.motion_metrics import gt_velocity_central
+from tracker.events import TrackOutput
+from tracker.fates import FateCounter, Tee
+from tracker.frame import Frame
+from tracker.io.fileio import finish_temp, remove_stale_temps, temp_name
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.archetypes import ID_SWITCH_RGB, annotation_context, pack_rgb, track_colors_u32
@@ -165,7 +165,7 @@ def record_scene(
         the static metrics come from TrackEval's KITTI protocol (also without ``gt_frames``).
     images : camera name -> folder of ``<frame_id:06d>.png`` images.
     input_description : free text for the summary (input files, frame range).
-    motion_metrics : call ``tracker.motion_eval.evaluate_motion`` when it is importable.
+    motion_metrics : call ``tracker.eval.motion_eval.evaluate_motion`` when it is importable.
     live : a viewer watches while it runs: send rows every few frames instead of every few
         hundred (slightly more overhead, no visible lag).
 
@@ -353,8 +353,8 @@ def _kitti_metrics(
     camera_name: str,
     tmp: Path,
 ) -> dict[str, dict[str, float]]:
-    from tracker.kitti_eval import evaluate_kitti
-    from tracker.writers import write_kitti_sequence
+    from tracker.eval.kitti import evaluate_kitti
+    from tracker.io.writers import write_kitti_sequence
 
     seq = label_file.stem
     result_dir = tmp / "results"
@@ -374,9 +374,9 @@ def _motion_metrics(
     outputs: Sequence[TrackOutput],
     config: TrackerConfig,
 ) -> str:
-    """Motion metrics from ``tracker.motion_eval`` (written separately) when it is there."""
+    """Motion metrics from ``tracker.eval.motion_eval`` (written separately) when it is there."""
     try:
-        from tracker.motion_eval import evaluate_motion, motion_markdown
+        from tracker.eval.motion_eval import evaluate_motion, motion_markdown
     except ImportError:
         return "motion metrics: not available"
     scene = frames[0].scene
@@ -539,7 +539,7 @@ def find_velocity_lag(samples: Sequence[tuple[np.ndarray, ...]]) -> LagSample | 
     :data:`LAG_SMOOTH_SAMPLES` samples so that a single noisy detection does not win. Without any
     such object: the largest trailing gap of any moving object (``delay_secs`` None).
     """
-    from tracker.motion_metrics import static_gt_mask
+    from tracker.eval.motion_metrics import static_gt_mask
 
     if not samples:
         return None

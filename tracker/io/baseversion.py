@@ -24,9 +24,9 @@ import numpy as np
 from tracker.boxes import Boxes, FloatArray
 from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
-from tracker.fileio import name_is_escaped, safe_filename, write_json_atomic
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
+from tracker.io.fileio import name_is_escaped, safe_filename, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -275,7 +275,7 @@ def scene_name_problem(name: str) -> str | None:
     """Why a scene name cannot be used at all (None when it can).
 
     Names with path separators, ``..`` or a leading dot are usable: file names built from them
-    are escaped by :func:`tracker.fileio.safe_filename`. Empty names, NUL, control characters,
+    are escaped by :func:`tracker.io.fileio.safe_filename`. Empty names, NUL, control characters,
     lone surrogates and overlong names are refused.
     """
     if not name:

@@ -50,10 +50,10 @@ import numpy as np
 
 from tracker.boxes import Boxes, FloatArray
 from tracker.categories import category_index
-from tracker.convert.nuscenes import assign_cameras
 from tracker.errors import InputError
-from tracker.fileio import SafeNpz, load_npz
 from tracker.frame import Camera, Frame
+from tracker.io.convert.nuscenes import assign_cameras
+from tracker.io.fileio import SafeNpz, load_npz
 
 log = logging.getLogger(__name__)
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from tracker.fileio import path_in
+from tracker.io.fileio import path_in
 
 SUPPORTED_CLASSES = ("car", "pedestrian", "cyclist")
 
