@@ -28,6 +28,10 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
         "app.tune",
         "cross-validated search of one class's settings over detectors (Optuna)",
     ),
+    "robustness": (
+        "app.robustness",
+        "HOTA per class under seeded detection noise (drops, jitter, false positives)",
+    ),
     "bench": ("app.bench", "tracker speed benchmark (frames/s, ms/frame, peak memory)"),
     "eval": ("app.eval", "evaluate a tracks file: KITTI static metrics and motion metrics"),
     "view": ("app.view", "run the tracker with the Rerun visual debugger (file, viewer or web)"),
