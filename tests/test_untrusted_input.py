@@ -291,6 +291,19 @@ def test_validate_collects_every_error_up_to_the_cap(tmp_path: Path) -> None:
     assert "frame index 0, box 2: field 'global_yaw'" in result.errors[1]
 
 
+def test_frames_losing_their_camera_model_track_and_write(tmp_path: Path) -> None:
+    """Found by the slow property suite: a track keeps the camera index of the frame it was
+    last matched in; a later frame without camera models must still be written."""
+    seen = box(bbox_image={"camera_type": "CAM_FRONT", "x1y1x2y2": [500, 150, 700, 250]})
+    frames = [frame(i, boxes=[seen]) for i in range(4)]
+    frames.append(frame(4, boxes=[], transform_matrix=None))  # the track coasts here
+    path = write_text(tmp_path, json.dumps({"s": frames}))
+    assert validate_baseversion(path).ok
+    assert main(["track", str(path), "--out", str(tmp_path / "o")]) == 0
+    written = read_baseversion(tmp_path / "o" / "tracks.json")["s"]
+    assert len(written[4].boxes) == 1 and written[4].boxes.camera[0] == -1
+
+
 # ---------------------------------------------------------------------------------------------
 # --out checked before any work
 

@@ -739,7 +739,9 @@ def frame_to_dict(frame: Frame) -> dict[str, Any]:
             "global_velocity": b.velocity[i].tolist(),
             "global_acceleration": [0.0, 0.0],
             "bbox_image": {
-                "camera_type": names[b.camera[i]] if b.camera[i] >= 0 else None,
+                # a track's camera comes from the frame of its last detection: this frame
+                # may have fewer cameras (cameras are per frame in the input)
+                "camera_type": names[b.camera[i]] if 0 <= b.camera[i] < len(names) else None,
                 "x1y1x2y2": None if np.isnan(b.xyxy_image[i]).any() else b.xyxy_image[i].tolist(),
             },
         }
