@@ -404,3 +404,12 @@ def test_pickle_is_not_used_on_input_paths() -> None:
         assert "allow_pickle=True" not in text, py
         assert "pickle.load(" not in text and "pickle.loads(" not in text, py
     assert pickle  # the test module itself builds the malicious payload
+
+
+def test_view_save_renames_a_complete_recording(tmp_path: Path) -> None:
+    pytest.importorskip("rerun")
+    path = tmp_path / "rec" / "x.rrd"
+    args = ["view", str(SAMPLE), "--frames", "0:5", "--save", str(path), "--no-motion"]
+    assert main(args) == 0
+    assert [p.name for p in path.parent.iterdir()] == ["x.rrd"]  # no temporary file left
+    assert path.stat().st_size > 10_000

@@ -117,6 +117,15 @@ class RecordResult:
         return sorted({int(i) for o in self.outputs for i in o.boxes.track_id})
 
 
+def partial_path(path: Path) -> Path:
+    """Where to stream a recording meant for ``path``: a hidden temporary name in the same
+    folder, renamed by :func:`tracker.io.fileio.finish_temp` when complete (a killed run leaves
+    no footer-less file under the real name; the next run removes the temporary one)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(path.parent)
+    return path.parent / f"{temp_name(path)}{uuid.uuid4().hex[:8]}.tmp"
+
+
 def new_recording(
     scene: str,
     *,
@@ -182,10 +191,7 @@ def record_scene(
     if rec is None:
         # stream to a hidden temporary name, renamed when complete: a killed run leaves no
         # footer-less file under the real name (and the next write to the folder removes it)
-        if path is not None:
-            Path(path).parent.mkdir(parents=True, exist_ok=True)
-            remove_stale_temps(Path(path).parent)
-            partial = Path(path).parent / f"{temp_name(Path(path))}{uuid.uuid4().hex[:8]}.tmp"
+        partial = None if path is None else partial_path(Path(path))
         rec = new_recording(scene, path=partial)
     rec.log(paths.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("/", annotation_context(), static=True)
