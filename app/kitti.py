@@ -4,18 +4,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
+from app import scenes
 from app.bench import peak_rss_mb
-from tracker.config import BUILTIN, config_to_dict, load_config
-from tracker.fileio import write_text_atomic
-from tracker.pipeline import SceneResult, run_scene
-from tracker.writers import write_kitti_sequence, write_tracks_file
+from app.scenes import SceneRecord
+from tracker.config import BUILTIN, TrackerConfig, config_to_dict, load_config
+from tracker.events import TrackOutput
+from tracker.fileio import write_bytes_atomic, write_text_atomic
+from tracker.frame import Frame
+from tracker.pipeline import run_scene
+from tracker.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
 
 VALIDATION_SEQS = (
     "0001",
@@ -63,6 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--record", default=None, help="one Rerun recording per sequence in DIR")
     parser.add_argument("--out", required=True, help="output folder")
+    scenes.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -79,9 +82,68 @@ def run(args: argparse.Namespace) -> int:
         motion=args.motion,
         record=Path(args.record) if args.record else None,
         out=Path(args.out),
+        parallel=scenes.from_args(args),
     )
     _print_summary(summary)
-    return 0
+    return scenes.print_failures("kitti", summary["failed"])
+
+
+@dataclass(frozen=True, slots=True)
+class KittiSceneJob:
+    """One KITTI sequence as a task: convert it (by path), track it, write its files."""
+
+    kitti_root: Path
+    detector: str
+    poses: str | None
+    classes: tuple[str, ...]
+    config: TrackerConfig
+    out: Path
+    label_dir: Path
+    with_gt: bool
+    keep: bool  # send the frames and outputs back (the motion metrics need them)
+    record: Path | None
+
+    def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
+        from tracker.convert.kitti import convert_kitti
+
+        t0 = time.perf_counter()
+        detections, gt = convert_kitti(
+            self.kitti_root,
+            seqs=[scene],
+            detector=self.detector,
+            poses=self.poses,
+            classes=self.classes,
+            with_gt=self.with_gt,
+        )
+        convert_secs = time.perf_counter() - t0
+        ((seq, frames),) = detections.items()  # the sequence's normalised name ("14" -> "0014")
+        gt_frames = (gt or {}).get(seq)
+        result = run_scene(frames, self.config)
+        write_kitti_sequence(self.out / "data" / f"{seq}.txt", result.outputs, frames)
+        write_bytes_atomic(
+            scenes.part_path(self.out, index, "json"),
+            tracks_scene_json(seq, frames, result.outputs),
+        )
+        if self.record is not None:  # outside the timed tracker region
+            from viz.record import record_scene
+
+            labels_ok = self.label_dir if (self.label_dir / f"{seq}.txt").is_file() else None
+            record_scene(
+                frames,
+                self.config,
+                gt_frames,
+                self.record / f"{seq}.rrd",
+                labels_dir=labels_ok,
+                motion_metrics=False,
+            )
+        return SceneRecord(
+            index,
+            seq,
+            frames=len(frames),
+            tracker_seconds=result.tracker_seconds,
+            info={"convert_seconds": convert_secs},
+            kept=(frames, gt_frames, result.outputs) if self.keep else None,
+        )
 
 
 def run_kitti(
@@ -100,15 +162,20 @@ def run_kitti(
     out: Path,
     config_overrides: dict[str, Any] | None = None,
     quiet: bool = False,
+    parallel: scenes.Parallelism = scenes.SEQUENTIAL,
 ) -> dict[str, Any]:
     """The end-to-end KITTI job; returns (and writes) ``out/summary.json``.
+
+    Each sequence is one task (:mod:`app.scenes`: sequential, ``parallel.workers`` processes or
+    Ray): it converts, tracks and writes ``out/data/<seq>.txt``; ``out/tracks.json`` is
+    assembled from the tasks' parts in sequence order and the evaluation runs once at the end,
+    when every sequence succeeded. A sequence whose input is bad fails alone
+    (``summary["failed"]``).
 
     With ``motion`` the labels are converted too and the motion metrics
     (:func:`tracker.motion_eval.evaluate_motion`) go to ``summary["motion"]``, ``out/motion.md``
     and ``out/motion_velocity.png``.
     """
-    from tracker.convert.kitti import convert_kitti
-
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
     if mode == "offline" and f"{config_name}_offline" in BUILTIN:
@@ -116,74 +183,64 @@ def run_kitti(
     if mode:
         overrides["mode"] = mode
     config = load_config(config_name, overrides=overrides)
-    t0 = time.perf_counter()
-    detections, gt = convert_kitti(
-        kitti_root,
-        seqs=seqs,
+    label_dir = labels or kitti_root / "training" / "label_02"
+    job = KittiSceneJob(
+        kitti_root=kitti_root,
         detector=detector,
         poses=poses,
-        classes=classes,
+        classes=tuple(classes),
+        config=config,
+        out=out,
+        label_dir=label_dir,
         with_gt=motion or record is not None,
+        keep=motion,
+        record=record,
     )
-    convert_secs = time.perf_counter() - t0
-
-    results: dict[str, SceneResult] = {}
-    total_frames = sum(len(f) for f in detections.values())
-    with tqdm(total=total_frames, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
-        for seq, frames in detections.items():
-            bar.set_description(f"seq {seq}")
-            results[seq] = run_scene(frames, config)
-            bar.update(len(frames))
-    tracker_secs = sum(r.tracker_seconds for r in results.values())
-    label_dir = labels or kitti_root / "training" / "label_02"
-    if record is not None:  # outside the timed tracker region
-        from viz.record import record_scene
-
-        for seq, frames in detections.items():
-            labels_ok = label_dir if (label_dir / f"{seq}.txt").is_file() else None
-            record_scene(
-                frames,
-                config,
-                (gt or {}).get(seq),
-                record / f"{seq}.rrd",
-                labels_dir=labels_ok,
-                motion_metrics=False,
-            )
-
+    t0 = time.perf_counter()
+    records = scenes.run_scenes(job, seqs, parallel=parallel, quiet=quiet)
+    wall_secs = time.perf_counter() - t0
+    ok = [r for r in records if r.error is None]
     data_dir = out / "data"
-    for seq, frames in detections.items():
-        write_kitti_sequence(data_dir / f"{seq}.txt", results[seq].outputs, frames)
-    write_tracks_file(
-        out / "tracks.json", {s: (detections[s], results[s].outputs) for s in detections}
+    write_tracks_parts(
+        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
     )
+    scenes.remove_parts(out)
 
+    total_frames = sum(r.frames for r in ok)
+    tracker_secs = sum(r.tracker_seconds for r in ok)
     summary: dict[str, Any] = {
         "dataset": "kitti",
         "detector": detector,
-        "sequences": list(detections),
+        "sequences": [r.scene for r in records],
         "mode": config.mode.value,
         "classes": classes,
         "frames": total_frames,
         "tracker_seconds": round(tracker_secs, 4),
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
-        "convert_seconds": round(convert_secs, 3),
+        "convert_seconds": round(sum(r.info.get("convert_seconds", 0.0) for r in ok), 3),
         "peak_rss_mb": peak_rss_mb(),
+        **scenes.summary_fields(records, parallel, wall_secs),
         "config": config_to_dict(config),
     }
     if evaluate:
-        missing = [s for s in detections if not (label_dir / f"{s}.txt").is_file()]
-        if missing:
+        missing = [r.scene for r in ok if not (label_dir / f"{r.scene}.txt").is_file()]
+        if summary["failed"]:
+            summary["evaluation"] = f"skipped: sequences failed: {list(summary['failed'])}"
+        elif missing:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
         else:
             from tracker.kitti_eval import evaluate_kitti
 
-            lengths = {s: len(detections[s]) for s in detections}
+            lengths = {r.scene: r.frames for r in ok}
             summary["metrics"] = evaluate_kitti(
                 label_dir=label_dir, result_dir=data_dir, seq_lengths=lengths, classes=classes
             )
             summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
     if motion:
-        summary["motion"] = _motion(detections, gt, results, classes, out)
+        detections = {r.scene: r.kept[0] for r in ok}
+        gt = {r.scene: r.kept[1] for r in ok if r.kept[1] is not None}
+        outputs = {r.scene: r.kept[2] for r in ok}
+        summary["motion"] = _motion(detections, gt or None, outputs, classes, out)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
     return summary
@@ -192,7 +249,7 @@ def run_kitti(
 def _motion(
     detections: dict[str, Any],
     gt: dict[str, Any] | None,
-    results: dict[str, SceneResult],
+    outputs: dict[str, list[TrackOutput]],
     classes: list[str],
     out: Path,
 ) -> dict[str, Any] | str:
@@ -205,7 +262,7 @@ def _motion(
     motion = evaluate_motion(
         detections,
         gt,
-        {s: r.outputs for s, r in results.items()},
+        outputs,
         classes=classes,
         plot_path=out / MOTION_PLOT,
     )
