@@ -178,9 +178,10 @@ def _run_pool(
     """A local process pool; when a worker dies the pool breaks, and the scenes not done run
     again in a new pool."""
     # forkserver: workers fork from a clean server process, not from this one (which may hold
-    # threads, e.g. the progress bar's); the preload pays the imports once.
+    # threads, e.g. the progress bar's); its preload pays the imports and the loading of the
+    # compiled kernels once, not once per worker.
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload(["app.scenes", "tracker.pipeline"])
+    context.set_forkserver_preload(["app.scenes", "app.pool_preload"])
     pending = {i: (i, s, f) for i, s, f in items}
     for attempt in range(MAX_RETRIES + 1):
         try:

@@ -48,11 +48,11 @@ def _copy_seq(kit: Path, new: str, n_frames: int) -> None:
 
 @pytest.fixture(scope="module")
 def small_kit(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A three-sequence kit made from the sample: 0001 (447 frames), 0002 (150), 0003 (300)."""
+    """A three-sequence kit made from the sample: 0001 (447 frames), 0002 (60), 0003 (120)."""
     kit = tmp_path_factory.mktemp("kit")
     shutil.copytree(SAMPLE_KIT, kit, dirs_exist_ok=True)
-    _copy_seq(kit, "0002", 150)
-    _copy_seq(kit, "0003", 300)
+    _copy_seq(kit, "0002", 60)
+    _copy_seq(kit, "0003", 120)
     return kit
 
 
@@ -130,7 +130,7 @@ def test_workers_give_the_sequential_files_and_metrics(
     seq = json.loads((sequential / "summary.json").read_text())
     assert par["metrics"] == seq["metrics"]  # the evaluation ran once, on the same files
     assert par["sequences"] == seq["sequences"] == ["0001", "0002", "0003"]
-    assert (par["frames"], par["failed"]) == (447 + 150 + 300, {})
+    assert (par["frames"], par["failed"]) == (447 + 60 + 120, {})
     assert par["parallel"]["backend"] == "processes"
     assert seq["parallel"]["backend"] == "sequential"
 
@@ -237,14 +237,24 @@ def test_workers_must_be_positive(capsys: pytest.CaptureFixture[str]) -> None:
     assert "--workers: must be at least 1" in capsys.readouterr().err
 
 
-def test_all_21_kitti_sequences_with_2_workers(kitti_root: Path, tmp_path: Path) -> None:
-    seqs = ",".join(f"{i:04d}" for i in range(21))
-    for name, extra in (("seq", ()), ("par", ("--workers", "2"))):
-        argv = ["--no-eval", *extra]
-        assert _kitti(kitti_root, tmp_path / name, *argv, seqs=seqs) == 0
-    par = _files(tmp_path / "par")
-    assert par == _files(tmp_path / "seq")
-    assert len(par) == 22
+KITTI21 = ",".join(f"{i:04d}" for i in range(21))
+
+
+@pytest.fixture(scope="module")
+def kitti21_sequential(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sequential run on the 21 training sequences (10 have no labels: no evaluation)."""
+    out = tmp_path_factory.mktemp("kitti21")
+    assert _kitti(kitti_root, out, "--no-eval", seqs=KITTI21) == 0
+    return out
+
+
+def test_all_21_kitti_sequences_with_2_workers(
+    kitti_root: Path, kitti21_sequential: Path, tmp_path: Path
+) -> None:
+    assert _kitti(kitti_root, tmp_path, "--no-eval", "--workers", "2", seqs=KITTI21) == 0
+    files = _files(tmp_path)
+    assert files == _files(kitti21_sequential)
+    assert len(files) == 22
 
 
 # ---- Ray (optional extra) ------------------------------------------------------------------
@@ -303,15 +313,16 @@ def test_ray_retries_a_task_whose_worker_died(
     assert _files(out) == _files(sequential)
 
 
-def test_ray_on_all_21_kitti_sequences(local_ray: Any, kitti_root: Path, tmp_path: Path) -> None:
-    seqs = [f"{i:04d}" for i in range(21)]
-    kwargs: dict[str, Any] = {
-        "kitti_root": kitti_root,
-        "seqs": seqs,
-        "classes": ["car", "pedestrian", "cyclist"],
-        "evaluate": False,
-        "quiet": True,
-    }
-    run_kitti(out=tmp_path / "seq", **kwargs)
-    run_kitti(out=tmp_path / "ray", parallel=scenes.Parallelism(ray="auto"), **kwargs)
-    assert _files(tmp_path / "ray") == _files(tmp_path / "seq")
+def test_ray_on_all_21_kitti_sequences(
+    local_ray: Any, kitti_root: Path, kitti21_sequential: Path, tmp_path: Path
+) -> None:
+    run_kitti(
+        kitti_root=kitti_root,
+        seqs=KITTI21.split(","),
+        classes=["car", "pedestrian", "cyclist"],
+        evaluate=False,
+        quiet=True,
+        out=tmp_path,
+        parallel=scenes.Parallelism(ray="auto"),
+    )
+    assert _files(tmp_path) == _files(kitti21_sequential)
