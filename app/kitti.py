@@ -10,28 +10,16 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.bench import peak_rss_mb
+from app.common import peak_rss_mb
 from app.scenes import SceneRecord
 from tracker.config import BUILTIN, TrackerConfig, config_to_dict, load_config
 from tracker.events import TrackOutput
-from tracker.fileio import write_bytes_atomic, write_text_atomic
 from tracker.frame import Frame
+from tracker.io.convert.kitti import VALIDATION_SEQS
+from tracker.io.fileio import write_bytes_atomic, write_text_atomic
+from tracker.io.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
 from tracker.pipeline import run_scene
-from tracker.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
 
-VALIDATION_SEQS = (
-    "0001",
-    "0006",
-    "0008",
-    "0010",
-    "0012",
-    "0013",
-    "0014",
-    "0015",
-    "0016",
-    "0018",
-    "0019",
-)
 DEFAULT_KITTI_ROOT = "../shared/data/kitti/tracking"
 
 
@@ -104,7 +92,7 @@ class KittiSceneJob:
     record: Path | None
 
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
-        from tracker.convert.kitti import convert_kitti
+        from tracker.io.convert.kitti import convert_kitti
 
         t0 = time.perf_counter()
         detections, gt = convert_kitti(
@@ -173,8 +161,8 @@ def run_kitti(
     (``summary["failed"]``).
 
     With ``motion`` the labels are converted too and the motion metrics
-    (:func:`tracker.motion_eval.evaluate_motion`) go to ``summary["motion"]``, ``out/motion.md``
-    and ``out/motion_velocity.png``.
+    (:func:`tracker.eval.motion_eval.evaluate_motion`) go to ``summary["motion"]``,
+    ``out/motion.md`` and ``out/motion_velocity.png``.
     """
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
@@ -229,7 +217,7 @@ def run_kitti(
         elif missing:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
         else:
-            from tracker.kitti_eval import evaluate_kitti
+            from tracker.eval.kitti import evaluate_kitti
 
             lengths = {r.scene: r.frames for r in ok}
             summary["metrics"] = evaluate_kitti(
@@ -254,7 +242,7 @@ def _motion(
     out: Path,
 ) -> dict[str, Any] | str:
     """Motion metrics of the run, and ``out/motion.md`` with the velocity-curve PNG."""
-    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     missing = sorted(s for s in detections if gt is None or s not in gt)
     if gt is None or missing:

@@ -11,13 +11,13 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.bench import peak_rss_mb
+from app.common import peak_rss_mb
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
-from tracker.fileio import compact_json, write_bytes_atomic, write_text_atomic
 from tracker.frame import Frame
+from tracker.io.fileio import compact_json, write_bytes_atomic, write_text_atomic
 
 
 @dataclass(frozen=True, slots=True)
@@ -35,9 +35,9 @@ class NuscenesSceneJob:
         self, index: int, scene: str, data: tuple[list[Frame], list[Frame] | None] | None
     ) -> SceneRecord:
         """``data``: the scene's detection frames and (for the recording) ground truth."""
+        from tracker.io.nuscenes_writer import nuscenes_results
+        from tracker.io.writers import tracks_scene_json
         from tracker.pipeline import run_scene
-        from tracker.writers import tracks_scene_json
-        from tracker.writers_nuscenes import nuscenes_results
 
         if data is None:
             raise ValueError("NuscenesSceneJob needs the scene's frames")
@@ -144,10 +144,10 @@ def run_nuscenes(
     ``motion`` also ``out/gt.json``, ``out/motion.md`` and the velocity PNG, and with ``record``
     one ``.rrd`` per scene in ``out/recordings/``.
     """
-    from tracker.convert.nuscenes import convert_nuscenes, load_nuscenes
-    from tracker.nuscenes_eval import evaluate_nuscenes, load_results_with_devkit
-    from tracker.writers import write_tracks_parts
-    from tracker.writers_nuscenes import write_nuscenes_parts
+    from tracker.eval.nuscenes import evaluate_nuscenes, load_results_with_devkit
+    from tracker.io.convert.nuscenes import convert_nuscenes, load_nuscenes
+    from tracker.io.nuscenes_writer import write_nuscenes_parts
+    from tracker.io.writers import write_tracks_parts
 
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     has_gt = not version.endswith("test")
@@ -250,9 +250,9 @@ def _motion(
     classes: tuple[str, ...],
     out: Path,
 ) -> dict[str, Any] | str:
-    from tracker.baseversion import write_baseversion
-    from tracker.fileio import write_text_atomic
-    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.fileio import write_text_atomic
 
     if gt is None:
         return "skipped: no annotations (test split)"

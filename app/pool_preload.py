@@ -5,8 +5,8 @@ compiled kernels there, so every worker forked from it starts warm (a fresh proc
 from __future__ import annotations
 
 from tracker.config import load_config
+from tracker.io.synthetic import synthetic_scene
 from tracker.pipeline import run_scene
-from tracker.synthetic import synthetic_scene
 
 _frames, _ = synthetic_scene(num_objects=4, num_frames=5, seed=0)
 run_scene(_frames, load_config("kitti"))

@@ -9,13 +9,17 @@ from pathlib import Path
 
 from app import scenes
 from app.scenes import SceneRecord
-from tracker.baseversion import LoadReport, read_baseversion
 from tracker.config import TrackerConfig, load_config
 from tracker.errors import InputError
-from tracker.fileio import write_bytes_atomic
 from tracker.frame import Frame
+from tracker.io.baseversion import LoadReport, read_baseversion
+from tracker.io.fileio import write_bytes_atomic
+from tracker.io.writers import (
+    tracks_scene_json,
+    write_kitti_sequence,
+    write_tracks_parts,
+)
 from tracker.pipeline import run_scene
-from tracker.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -18,10 +18,10 @@ from app import scenes
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
-from tracker.fileio import write_bytes_atomic, write_text_atomic
 from tracker.frame import Frame
-from tracker.writers import tracks_scene_json, write_tracks_parts
-from tracker.writers_waymo import RESULT_TYPES
+from tracker.io.fileio import write_bytes_atomic, write_text_atomic
+from tracker.io.waymo_writer import RESULT_TYPES
+from tracker.io.writers import tracks_scene_json, write_tracks_parts
 
 
 def _csv(text: str) -> list[str]:
@@ -71,9 +71,9 @@ class WaymoSceneJob:
     keep: bool  # send the frames and outputs back (the motion metrics need them)
 
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
-        from tracker.convert.waymo import convert_waymo
+        from tracker.io.convert.waymo import convert_waymo
+        from tracker.io.waymo_writer import write_waymo_results
         from tracker.pipeline import run_scene
-        from tracker.writers_waymo import write_waymo_results
 
         conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
         frames = conv.detections[scene]
@@ -161,8 +161,8 @@ def run_waymo(
         "config": config_to_dict(config),
     }
     if motion and gt is not None:
-        from tracker.baseversion import write_baseversion
-        from tracker.motion_eval import evaluate_motion
+        from tracker.eval.motion_eval import evaluate_motion
+        from tracker.io.baseversion import write_baseversion
 
         det_scenes = {r.scene: r.kept[0] for r in ok}
         gt_scenes = {r.scene: r.kept[1] for r in ok}

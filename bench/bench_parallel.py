@@ -24,10 +24,10 @@ from typing import Any
 from app import scenes
 from app.cli import main as mctrack
 from app.kitti import DEFAULT_KITTI_ROOT, run_kitti
-from tracker.baseversion import write_baseversion
 from tracker.config import load_config
+from tracker.io.baseversion import write_baseversion
+from tracker.io.synthetic import synthetic_scene
 from tracker.pipeline import run_scene
-from tracker.synthetic import synthetic_scene
 
 KITTI_SEQS = [f"{i:04d}" for i in range(21)]
 
@@ -120,7 +120,7 @@ def bench_kitti(root: Path, work: Path, has_ray: bool) -> list[dict[str, Any]]:
 
 def bench_kitti_eval(root: Path, work: Path) -> dict[str, Any]:
     """The evaluation's own time (it runs once, after the scenes): the 11 labelled sequences."""
-    from tracker.kitti_eval import evaluate_kitti
+    from tracker.eval.kitti import evaluate_kitti
 
     out = work / "kitti-0"
     val = [s for s in KITTI_SEQS if (root / "training" / "label_02" / f"{s}.txt").is_file()]

@@ -15,12 +15,16 @@ import pytest
 from app import scenes
 from app.cli import main
 from app.kitti import KittiSceneJob, run_kitti
-from tracker.baseversion import write_baseversion
 from tracker.config import load_config
+from tracker.io.baseversion import write_baseversion
+from tracker.io.nuscenes_writer import (
+    nuscenes_results,
+    write_nuscenes_parts,
+    write_nuscenes_results,
+)
+from tracker.io.synthetic import synthetic_scene
+from tracker.io.writers import tracks_scene_json, write_tracks_file, write_tracks_parts
 from tracker.pipeline import run_scene
-from tracker.synthetic import synthetic_scene
-from tracker.writers import tracks_scene_json, write_tracks_file, write_tracks_parts
-from tracker.writers_nuscenes import nuscenes_results, write_nuscenes_parts, write_nuscenes_results
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE_KIT = ROOT / "sample_data" / "kitti-0001" / "raw"

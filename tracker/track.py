@@ -77,6 +77,13 @@ class TrackTable:
             *[np.concatenate([getattr(self, name), getattr(other, name)]) for name in _FIELDS]
         )
 
+    def record_matches(self, rows: IntArray, det_rows: IntArray, stage: np.ndarray) -> None:
+        """This frame's match of each track: detection row (-1 none) and stage (0 none)."""
+        self.matched_det = np.full(len(self), -1, dtype=np.int64)
+        self.matched_det[rows] = det_rows
+        self.matched_stage = np.zeros(len(self), dtype=np.int8)
+        self.matched_stage[rows] = stage
+
     def xyz(self, rows: IntArray) -> FloatArray:
         """(R, 3) current box centres of the tracks ``rows`` (filtered x, y; detection z)."""
         xyz = np.empty((len(rows), 3))
