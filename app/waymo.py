@@ -94,23 +94,6 @@ class WaymoSceneJob:
         )
 
 
-def segment_names(data_root: Path, detections: Path, segments: list[str] | None) -> list[str]:
-    """The segments to run: the given ones, or every detection file (checked up front, so a
-    missing folder is one error, not one per segment)."""
-    if not detections.is_dir():
-        raise InputError(f"{detections}: detections folder not found")
-    for sub in ("ts_info", "ego_info"):
-        if not (data_root / sub).is_dir():
-            raise InputError(f"{data_root / sub}: folder not found (expected {sub}/<segment>)")
-    names = list(segments) if segments else sorted(p.stem for p in detections.glob("*.npz"))
-    if not names:
-        raise InputError(f"{detections}: no <segment>.npz detection files")
-    bad = [n for n in names if Path(n).name != n or n in (".", "..")]
-    if bad:
-        raise InputError(f"--segments: not segment names: {bad}")
-    return names
-
-
 def run_waymo(
     *,
     data_root: Path,
@@ -131,6 +114,8 @@ def run_waymo(
     if motion and gt is None:
         raise InputError("--motion needs --gt (the ground-truth npz folder)")
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
+    from tracker.io.convert.waymo import segment_names
+
     names = segment_names(data_root, detections, segments)
     job = WaymoSceneJob(data_root, detections, gt, config, out, keep=motion)
     t0 = time.perf_counter()

@@ -330,3 +330,25 @@ def test_ray_on_all_21_kitti_sequences(
         parallel=scenes.Parallelism(ray="auto"),
     )
     assert _files(tmp_path) == _files(kitti21_sequential)
+
+
+def test_waymo_segments_with_workers_and_a_segment_that_fails_alone(tmp_path: Path) -> None:
+    from tests.test_waymo import SEGMENT, write_segment
+
+    root = write_segment(tmp_path / "waymo")
+    for copy in ("seg-b", "seg-a", "seg-broken"):
+        for sub, ext in (("ts_info", "json"), ("ego_info", "npz"), ("dets", "npz")):
+            shutil.copy(root / sub / f"{SEGMENT}.{ext}", root / sub / f"{copy}.{ext}")
+    (root / "ts_info" / "seg-broken.json").write_text("[1, 2")  # truncated JSON
+    runs = {}
+    for workers in ("1", "2"):
+        out = tmp_path / f"w{workers}"
+        argv = ["waymo", "--data-root", str(root), "--detections", str(root / "dets")]
+        assert main([*argv, "--workers", workers, "--out", str(out)]) == 2
+        runs[workers] = _files(out)
+        summary = json.loads((out / "summary.json").read_text())
+        assert list(summary["failed"]) == ["seg-broken"]
+        assert summary["segments"] == ["seg-a", "seg-b", SEGMENT]
+    assert runs["1"] == runs["2"]
+    assert "results/vehicle/seg-a.npz" in runs["2"]
+    assert not any("seg-broken" in name for name in runs["2"])
