@@ -110,6 +110,8 @@ def bench_kitti(root: Path, work: Path, has_ray: bool) -> list[dict[str, Any]]:
                 "ray_init_secs": None if init is None else round(init, 2),
                 "tracker_secs": summary["tracker_seconds"],
                 "convert_secs": summary["convert_seconds"],
+                "write_secs": summary["write_seconds"],
+                "task_secs": summary["parallel"]["task_seconds"],
                 "frames": summary["frames"],
                 "identical": digest == reference,
             }
@@ -201,6 +203,9 @@ def main() -> int:
     parser.add_argument("--kitti-root", default=DEFAULT_KITTI_ROOT)
     parser.add_argument("--fleet", type=int, default=1000, help="scenes in the synthetic fleet")
     parser.add_argument("--json", default=None, help="also write the results here")
+    parser.add_argument(
+        "--parts", default="cost,kitti,fleet", help="which figures (comma-separated)"
+    )
     args = parser.parse_args()
     try:
         import ray  # noqa: F401
@@ -213,11 +218,14 @@ def main() -> int:
     results: dict[str, Any] = {"cpus": os.cpu_count(), "load_avg_at_start": os.getloadavg()}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        results["scene_cost"] = bench_scene_cost()
-        if (root / "training" / "calib").is_dir():
+        parts = set(args.parts.split(","))
+        if "cost" in parts:
+            results["scene_cost"] = bench_scene_cost()
+        if "kitti" in parts and (root / "training" / "calib").is_dir():
             results["kitti21"] = bench_kitti(root, work, has_ray)
             results["kitti_eval"] = bench_kitti_eval(root, work)
-        results["fleet"] = bench_fleet(args.fleet, work, has_ray)
+        if "fleet" in parts:
+            results["fleet"] = bench_fleet(args.fleet, work, has_ray)
     results["load_avg_at_end"] = os.getloadavg()
     text = json.dumps(results, indent=2)
     print(text)
