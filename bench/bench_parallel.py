@@ -18,6 +18,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,7 @@ from app import scenes
 from app.cli import main as mctrack
 from app.kitti import DEFAULT_KITTI_ROOT, run_kitti
 from tracker.config import load_config
-from tracker.io.baseversion import write_baseversion
+from tracker.io.baseversion import read_baseversion, write_baseversion
 from tracker.io.synthetic import synthetic_scene
 from tracker.pipeline import run_scene
 
@@ -47,8 +48,12 @@ def _timed(fn: Callable[[], Any]) -> float:
     return time.perf_counter() - start
 
 
-def _with_ray(num_cpus: int, fn: Callable[[], Any]) -> tuple[float, float]:
-    """(seconds to start a local Ray instance, seconds of ``fn`` on it)."""
+def _best(fn: Callable[[], Any], repeat: int) -> float:
+    return min(_timed(fn) for _ in range(repeat))
+
+
+def _with_ray(num_cpus: int, fn: Callable[[], float]) -> tuple[float, float]:
+    """(seconds to start a local Ray instance, ``fn()`` run on it)."""
     import ray
 
     start = time.perf_counter()
@@ -61,7 +66,7 @@ def _with_ray(num_cpus: int, fn: Callable[[], Any]) -> tuple[float, float]:
     )
     init_secs = time.perf_counter() - start
     try:
-        return init_secs, _timed(fn)
+        return init_secs, fn()
     finally:
         ray.shutdown()
 
@@ -79,7 +84,7 @@ def _cases(has_ray: bool) -> list[tuple[str, scenes.Parallelism, int]]:
     return cases
 
 
-def bench_kitti(root: Path, work: Path, has_ray: bool) -> list[dict[str, Any]]:
+def bench_kitti(root: Path, work: Path, has_ray: bool, repeat: int) -> list[dict[str, Any]]:
     rows = []
     reference = None
     for name, parallel, ray_cpus in _cases(has_ray):
@@ -97,9 +102,9 @@ def bench_kitti(root: Path, work: Path, has_ray: bool) -> list[dict[str, Any]]:
 
         init = None
         if ray_cpus:
-            init, wall = _with_ray(ray_cpus, job)
+            init, wall = _with_ray(ray_cpus, lambda job=job: _best(job, repeat))
         else:
-            wall = _timed(job)
+            wall = _best(job, repeat)
         summary = json.loads((out / "summary.json").read_text())
         digest = _digest(out)
         reference = reference or digest
@@ -140,7 +145,7 @@ def bench_kitti_eval(root: Path, work: Path) -> dict[str, Any]:
     return {"sequences": len(val), "frames": sum(lengths.values()), "eval_secs": round(secs, 2)}
 
 
-def bench_fleet(n: int, work: Path, has_ray: bool) -> list[dict[str, Any]]:
+def bench_fleet(n: int, work: Path, has_ray: bool, repeat: int) -> list[dict[str, Any]]:
     """``mctrack track`` on one file of ``n`` short synthetic scenes (20 frames, 10 objects)."""
     fleet = {}
     for i in range(n):
@@ -148,7 +153,9 @@ def bench_fleet(n: int, work: Path, has_ray: bool) -> list[dict[str, Any]]:
         fleet[f"s{i:05d}"] = dets
     path = work / "fleet.json"
     write_baseversion(path, fleet)
-    rows = []
+    read_secs = _timed(lambda: read_baseversion(path))  # the driver's serial part
+    print({"read_fleet_secs": round(read_secs, 2)}, file=sys.stderr)
+    rows: list[dict[str, Any]] = []
     reference = None
     for name, parallel, ray_cpus in _cases(has_ray):
         out = work / f"fleet-{len(rows)}"
@@ -163,9 +170,9 @@ def bench_fleet(n: int, work: Path, has_ray: bool) -> list[dict[str, Any]]:
 
         init = None
         if ray_cpus:
-            init, wall = _with_ray(ray_cpus, job)
+            init, wall = _with_ray(ray_cpus, lambda job=job: _best(job, repeat))
         else:
-            wall = _timed(job)
+            wall = _best(job, repeat)
         digest = _digest(out)
         reference = reference or digest
         rows.append(
@@ -173,10 +180,35 @@ def bench_fleet(n: int, work: Path, has_ray: bool) -> list[dict[str, Any]]:
                 "case": name,
                 "scenes": n,
                 "wall_secs": round(wall, 2),
+                "driver_read_secs": round(read_secs, 2),
                 "ray_init_secs": None if init is None else round(init, 2),
                 "identical": digest == reference,
             }
         )
+        print(rows[-1], file=sys.stderr)
+    return rows
+
+
+@dataclass(frozen=True, slots=True)
+class EmptyJob:
+    """A task that does nothing: what remains of its wall time is the scheduling overhead."""
+
+    def process(self, index: int, scene: str, data: Any) -> scenes.SceneRecord:
+        return scenes.SceneRecord(index, scene)
+
+
+def bench_overhead(n: int, has_ray: bool) -> list[dict[str, Any]]:
+    """Seconds per scene spent on scheduling alone: ``n`` empty tasks (Ray: on a running
+    instance, its start-up not counted; the pool: its start-up counted)."""
+    names = [f"s{i:05d}" for i in range(n)]
+    rows = []
+    for name, parallel, ray_cpus in _cases(has_ray):
+
+        def job(parallel: scenes.Parallelism = parallel) -> None:
+            scenes.run_scenes(EmptyJob(), names, parallel=parallel, quiet=True)
+
+        wall = _with_ray(ray_cpus, lambda job=job: _timed(job))[1] if ray_cpus else _timed(job)
+        rows.append({"case": name, "tasks": n, "ms_per_scene": round(1000 * wall / n, 3)})
         print(rows[-1], file=sys.stderr)
     return rows
 
@@ -203,8 +235,9 @@ def main() -> int:
     parser.add_argument("--kitti-root", default=DEFAULT_KITTI_ROOT)
     parser.add_argument("--fleet", type=int, default=1000, help="scenes in the synthetic fleet")
     parser.add_argument("--json", default=None, help="also write the results here")
+    parser.add_argument("--repeat", type=int, default=1, help="runs per case; the best is kept")
     parser.add_argument(
-        "--parts", default="cost,kitti,fleet", help="which figures (comma-separated)"
+        "--parts", default="cost,overhead,kitti,fleet", help="which figures (comma-separated)"
     )
     args = parser.parse_args()
     try:
@@ -222,10 +255,12 @@ def main() -> int:
         if "cost" in parts:
             results["scene_cost"] = bench_scene_cost()
         if "kitti" in parts and (root / "training" / "calib").is_dir():
-            results["kitti21"] = bench_kitti(root, work, has_ray)
+            results["kitti21"] = bench_kitti(root, work, has_ray, args.repeat)
             results["kitti_eval"] = bench_kitti_eval(root, work)
+        if "overhead" in parts:
+            results["overhead"] = bench_overhead(args.fleet, has_ray)
         if "fleet" in parts:
-            results["fleet"] = bench_fleet(args.fleet, work, has_ray)
+            results["fleet"] = bench_fleet(args.fleet, work, has_ray, args.repeat)
     results["load_avg_at_end"] = os.getloadavg()
     text = json.dumps(results, indent=2)
     print(text)
