@@ -234,6 +234,9 @@ def _run_ray(
         remaining = list(scene_of)
         while remaining:
             finished, remaining = ray.wait(remaining, num_returns=1)
+            if remaining:  # and every other one already done: one call, not one per scene
+                more, remaining = ray.wait(remaining, num_returns=len(remaining), timeout=0)
+                finished += more
             for ref in finished:
                 i, scene = scene_of[ref]
                 try:
