@@ -49,7 +49,8 @@ class SceneRecord:
     scene: str
     frames: int = 0
     tracker_seconds: float = 0.0
-    task_seconds: float = 0.0
+    task_seconds: float = 0.0  # wall time of the whole task
+    cpu_seconds: float = 0.0  # CPU time of the task's process: its work, whatever the load
     error: str | None = None
     info: dict[str, Any] = field(default_factory=dict)  # small per-job counts
     kept: Any = None  # data the caller asked to keep (the motion metrics need the outputs)
@@ -125,13 +126,17 @@ def part_path(out: Path, index: int, suffix: str) -> Path:
 
 def run_task(job: SceneJob, index: int, scene: str, data: Any = None) -> SceneRecord:
     """One scene task; bad input becomes an error record, so the scene fails alone."""
-    start = time.perf_counter()
+    start, cpu_start = time.perf_counter(), time.process_time()
     try:
         record = job.process(index, scene, data)
     except (InputError, OSError) as exc:
         log.debug("scene %s failed", scene, exc_info=True)
-        return SceneRecord(index, scene, error=str(exc), task_seconds=time.perf_counter() - start)
-    return replace(record, task_seconds=time.perf_counter() - start)
+        record = SceneRecord(index, scene, error=str(exc))
+    return replace(
+        record,
+        task_seconds=time.perf_counter() - start,
+        cpu_seconds=time.process_time() - cpu_start,
+    )
 
 
 def run_scenes(
@@ -260,6 +265,7 @@ def summary_fields(
             "ray": parallel.ray,
             "wall_seconds": round(wall_seconds, 3),
             "task_seconds": round(sum(r.task_seconds for r in records), 3),
+            "task_cpu_seconds": round(sum(r.cpu_seconds for r in records), 3),
         },
         "failed": {r.scene: r.error for r in records if r.error is not None},
     }

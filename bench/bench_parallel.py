@@ -117,6 +117,7 @@ def bench_kitti(root: Path, work: Path, has_ray: bool, repeat: int) -> list[dict
                 "convert_secs": summary["convert_seconds"],
                 "write_secs": summary["write_seconds"],
                 "task_secs": summary["parallel"]["task_seconds"],
+                "task_cpu_secs": summary["parallel"]["task_cpu_seconds"],
                 "frames": summary["frames"],
                 "identical": digest == reference,
             }
