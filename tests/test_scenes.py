@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -232,6 +233,17 @@ def test_workers_on_a_basversion_file_and_an_unsafe_scene_name(tmp_path: Path) -
     assert sorted(runs["2"]) == ["data/s1.txt", "data/s2.txt", "tracks.json"]
     assert list(json.loads(runs["2"]["tracks.json"])) == ["s2", "s1"]
     assert not (tmp_path / "escape.txt").exists()
+
+
+def test_ray_without_the_extra_is_a_one_line_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    dets, _ = synthetic_scene(num_objects=3, num_frames=5, seed=0, scene="s")
+    write_baseversion(tmp_path / "in.json", {"s": dets, "t": dets})
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as when not installed
+    assert main(["track", str(tmp_path / "in.json"), "--ray", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install -e '.[ray]'" in err[0], err
 
 
 def test_workers_must_be_positive(capsys: pytest.CaptureFixture[str]) -> None:
