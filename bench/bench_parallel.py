@@ -219,11 +219,13 @@ def bench_scene_cost() -> list[dict[str, Any]]:
     of 2 Hz keyframes, 60 objects) and a Waymo segment (20 s at 10 Hz, 100 objects); best of
     3. CPU seconds do not count the time this process waited for a core on a busy host."""
     rows = []
-    for name, config, frames, objects in (
-        ("nuScenes-sized", "nuscenes", 40, 60),
-        ("Waymo-sized", "waymo", 200, 100),
+    for name, config, frames, objects, rate_hz in (
+        ("nuScenes-sized", "nuscenes", 40, 60, 2.0),
+        ("Waymo-sized", "waymo", 200, 100, 10.0),
     ):
-        dets, _ = synthetic_scene(num_objects=objects, num_frames=frames, seed=7)
+        dets, _ = synthetic_scene(
+            num_objects=objects, num_frames=frames, frame_rate_hz=rate_hz, seed=7
+        )
         cfg = load_config(config)
         run_scene(dets, cfg)  # warm-up (compiled kernels)
         walls, cpus = [], []
