@@ -35,7 +35,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--detections", type=Path, default=None, help="detections folder (overrides --detector)"
     )
     kitti.add_argument(
-        "--detections-layout", default="auto", choices=["auto", "ab3dmot", "kitti_object"]
+        "--detections-layout",
+        default="auto",
+        choices=["auto", "ab3dmot", "kitti_tracking", "kitti_object"],
     )
     kitti.add_argument(
         "--poses",

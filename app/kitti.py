@@ -12,7 +12,8 @@ from typing import Any
 from app import scenes
 from app.common import peak_rss_mb
 from app.scenes import SceneRecord
-from tracker.config import BUILTIN, TrackerConfig, config_to_dict, load_config
+from tracker.calibration import ScoreProfile, calibrate_frames, resolve_profile
+from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
@@ -44,6 +45,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="tracking mode; offline with a built-in config uses <config>_offline",
     )
+    parser.add_argument(
+        "--profile",
+        default=None,
+        help="score calibration profile (TOML from `mctrack calibrate`); default: the one shipped "
+        "for --detector, if any (configs with scores = 'as_given' use none)",
+    )
     parser.add_argument("--poses", default="orbslam3", help="orbslam3, none or a pose folder")
     parser.add_argument("--no-eval", action="store_true", help="skip the evaluation")
     parser.add_argument(
@@ -64,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         mode=args.mode,
         detector=args.detector,
+        profile=Path(args.profile) if args.profile else None,
         labels=Path(args.labels) if args.labels else None,
         poses=None if args.poses == "none" else args.poses,
         evaluate=not args.no_eval,
@@ -90,6 +98,8 @@ class KittiSceneJob:
     with_gt: bool
     keep: bool  # send the frames and outputs back (the motion metrics need them)
     record: Path | None
+    calibrate: bool = False  # recompute the scores from the raw ones (score_source)
+    profile: ScoreProfile | None = None
 
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
         from tracker.io.convert.kitti import convert_kitti
@@ -105,6 +115,8 @@ class KittiSceneJob:
         )
         convert_secs = time.perf_counter() - t0
         ((seq, frames),) = detections.items()  # the sequence's normalised name ("14" -> "0014")
+        if self.calibrate:
+            frames = calibrate_frames(frames, self.profile)
         gt_frames = (gt or {}).get(seq)
         result = run_scene(frames, self.config)
         t1 = time.perf_counter()
@@ -144,6 +156,7 @@ def run_kitti(
     config_name: str | Path = "kitti",
     mode: str | None = None,
     detector: str = "pointrcnn",
+    profile: Path | None = None,
     labels: Path | None = None,
     poses: str | None = "orbslam3",
     evaluate: bool = True,
@@ -174,6 +187,7 @@ def run_kitti(
         overrides["mode"] = mode
     config = load_config(config_name, overrides=overrides)
     label_dir = labels or kitti_root / "training" / "label_02"
+    calibrate, found, calibration = score_source(config, detector, profile)
     job = KittiSceneJob(
         kitti_root=kitti_root,
         detector=detector,
@@ -185,6 +199,8 @@ def run_kitti(
         with_gt=motion or record is not None,
         keep=motion,
         record=record,
+        calibrate=calibrate,
+        profile=found,
     )
     t0 = time.perf_counter()
     records = scenes.run_scenes(job, seqs, parallel=parallel, quiet=quiet)
@@ -207,6 +223,7 @@ def run_kitti(
         "frames": total_frames,
         "tracker_seconds": round(tracker_secs, 4),
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
+        "score_calibration": calibration,
         "convert_seconds": round(sum(r.info["convert_seconds"] for r in ok), 3),
         "write_seconds": round(sum(r.info["write_seconds"] for r in ok), 3),
         "peak_rss_mb": peak_rss_mb(),
@@ -235,6 +252,19 @@ def run_kitti(
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
     return summary
+
+
+def score_source(
+    config: TrackerConfig, detector: str, profile: Path | None
+) -> tuple[bool, ScoreProfile | None, str]:
+    """Whether to recalibrate the scores, with which profile (None: the fallback), and a note of
+    what was used. Resolved once by the driver; each scene task applies it to its own frames."""
+    if config.scores is ScoreSource.AS_GIVEN:
+        return False, None, "none (scores as converted; the config asks for scores = 'as_given')"
+    found = resolve_profile(detector, profile)
+    if found is None:
+        return True, None, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
+    return True, found, f"profile {profile or detector + ' (shipped)'}"
 
 
 def _motion(

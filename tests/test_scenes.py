@@ -15,7 +15,7 @@ import pytest
 
 from app import scenes
 from app.cli import main
-from app.kitti import KittiSceneJob, run_kitti
+from app.kitti import KittiSceneJob, run_kitti, score_source
 from tracker.config import load_config
 from tracker.io.baseversion import write_baseversion
 from tracker.io.nuscenes_writer import (
@@ -181,6 +181,7 @@ class DiesOnce:
 
 def _dies_once_job(kit: Path, out: Path, marker: Path) -> DiesOnce:
     config = load_config("kitti", overrides={"categories": ["car", "pedestrian", "cyclist"]})
+    calibrate, profile, _ = score_source(config, "pointrcnn", None)
     inner = KittiSceneJob(
         kitti_root=kit,
         detector="pointrcnn",
@@ -192,6 +193,8 @@ def _dies_once_job(kit: Path, out: Path, marker: Path) -> DiesOnce:
         with_gt=False,
         keep=False,
         record=None,
+        calibrate=calibrate,
+        profile=profile,
     )
     return DiesOnce(inner, victim="0002", marker=marker)
 

@@ -121,6 +121,8 @@ class _PerCategory:
         self.max_misses_tentative = arr(lambda c: c.lifecycle.max_misses_tentative)
         self.max_misses_output = arr(lambda c: c.lifecycle.max_misses_output)
         self.max_misses = arr(lambda c: c.lifecycle.max_misses)
+        with np.errstate(divide="ignore"):  # confirm_prob 1: an infinite threshold (never)
+            self.confirm_evidence = -np.log1p(-arr(lambda c: c.lifecycle.confirm_prob))
         # the five lifecycle thresholds per category, gathered once per frame
         self.lifecycle = np.column_stack(
             [
@@ -129,6 +131,7 @@ class _PerCategory:
                 self.max_misses_output,
                 self.max_misses,
                 self.max_misses_tentative,
+                self.confirm_evidence,
             ]
         )
         self.measure_velocity = np.array([c.pose.measure_velocity for c in cfgs])
@@ -572,6 +575,7 @@ class MCTracker:
         tr.last_det_xyz[idx], tr.last_det_lwh[idx] = xyz, lwh
         tr.last_det_yaw[idx] = dets.yaw[det_rows]
         tr.hits[idx] += 1
+        tr.evidence[idx] += _evidence(dets.score[det_rows])
 
     def _birth(self, dets: Boxes, det_index: IntArray, kept_rows: IntArray) -> IntArray:
         """New tracks from unmatched detections ``det_index`` scoring above the birth threshold."""
@@ -608,6 +612,7 @@ class MCTracker:
             last_det_lwh=lwh,
             last_det_yaw=yaw,
             heading_votes=zeros,
+            evidence=_evidence(score),
             matched_det=kept_rows[det_index],
             matched_stage=np.zeros(n, dtype=np.int8),
         )  # every array is fresh or only read: append() copies them into the table
@@ -628,11 +633,21 @@ class MCTracker:
             return self._lifecycle_compiled(hit, born)
         misses = np.where(hit, 0, tr.misses + 1)
         tr.misses = misses
-        min_hits, confirm_score, max_output, max_live, max_tentative = cat.lifecycle[tr.category].T
+        min_hits, confirm_score, max_output, max_live, max_tentative, confirm_evidence = (
+            cat.lifecycle[tr.category].T
+        )
         old_status = tr.status
         status = old_status.copy()
         tentative = old_status == _TENTATIVE
-        confirm = hit & tentative & ((tr.hits >= min_hits) | (tr.score >= confirm_score))
+        confirm = (
+            hit
+            & tentative
+            & (
+                (tr.hits >= min_hits)
+                | (tr.score >= confirm_score)
+                | (tr.evidence >= confirm_evidence)
+            )
+        )
         reacquire = hit & _IS_REACQUIRED[old_status]
         status[confirm | reacquire] = _CONFIRMED
         missed = ~hit
@@ -660,7 +675,14 @@ class MCTracker:
         tr, k = self._tracks, self._kernels
         assert k is not None
         tr.status, tr.misses, flags = k.lifecycle_kernel(
-            tr.status, tr.hits, tr.misses, tr.score, tr.category, hit, self._cat.lifecycle
+            tr.status,
+            tr.hits,
+            tr.misses,
+            tr.score,
+            tr.evidence,
+            tr.category,
+            hit,
+            self._cat.lifecycle,
         )
         dead = (flags & k.DEAD) != 0
         change = None
@@ -735,6 +757,12 @@ def _merge_stages(
     dets = np.concatenate([m1.cols, rv_cols[m2.cols]])[order]
     stage = np.concatenate([stage1, np.full(len(m2), 2, dtype=np.int8)])[order]
     return _Association(rows[order], dets, stage, unmatched)
+
+
+def _evidence(score: FloatArray) -> FloatArray:
+    """A hit's contribution -log(1 - p) to its track's evidence (p capped below 1, NaN: 0)."""
+    p = np.nan_to_num(np.clip(score, 0.0, 1.0 - 1e-9), nan=0.0)
+    return -np.log1p(-p)
 
 
 def _without(index: IntArray, positions: IntArray) -> IntArray:

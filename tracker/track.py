@@ -37,6 +37,7 @@ class TrackTable:
     last_det_lwh: FloatArray  # (T, 3) (its height is the track's height)
     last_det_yaw: FloatArray  # (T,)
     heading_votes: IntArray  # (T,) consecutive detections whose yaw disagrees by > 90°
+    evidence: FloatArray  # (T,) sum over hits of -log(1 - score): 1 - exp(-e) = noisy-OR
     matched_det: IntArray  # (T,) this frame's matched detection row (-1: none)
     matched_stage: np.ndarray  # (T,) int8: 1 BEV, 2 RV, 0 none (births: 0)
 
@@ -59,6 +60,7 @@ class TrackTable:
             "last_det_lwh": ((0, 3), np.float64),
             "last_det_yaw": ((0,), np.float64),
             "heading_votes": ((0,), np.int64),
+            "evidence": ((0,), np.float64),
             "matched_det": ((0,), np.int64),
             "matched_stage": ((0,), np.int8),
         }
