@@ -7,17 +7,31 @@ import argparse
 import json
 import logging
 from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
+from app import scenes
+from app.scenes import SceneRecord
 from tracker.calibration import calibrate_frames, load_profile
 from tracker.config import ScoreSource, TrackerConfig, load_config
 from tracker.errors import InputError
-from tracker.fates import FateCounter, format_fates
+from tracker.fates import FateCounter, combine_fates, format_fates
 from tracker.frame import Frame
 from tracker.io.baseversion import LoadReport, read_baseversion
-from tracker.io.fileio import check_output_folder, output_manifest, path_in, write_text_atomic
-from tracker.io.writers import write_kitti_sequence, write_tracks_file
+from tracker.io.fileio import (
+    check_output_folder,
+    output_manifest,
+    path_in,
+    write_bytes_atomic,
+    write_text_atomic,
+)
+from tracker.io.writers import (
+    tracks_scene_json,
+    write_kitti_sequence,
+    write_tracks_parts,
+)
 from tracker.pipeline import run_scene
 
 LOG = logging.getLogger("mctrack.track")
@@ -41,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also write KITTI label_02-style files to OUT/data/<scene>.txt",
     )
     parser.add_argument("--out", required=True, help="output folder")
+    scenes.add_arguments(parser)
 
 
 def parse_frame_range(text: str | None) -> slice:
@@ -63,6 +78,41 @@ def select_scenes(
             raise InputError(f"--scenes: not in the input: {missing}")
         scenes = {s: scenes[s] for s in wanted}
     return {s: f[frames] for s, f in scenes.items()}
+
+
+@dataclass(frozen=True, slots=True)
+class TrackSceneJob:
+    """One scene of a BaseVersion file as a task: track it (its frames are given), write its
+    part of the tracks file and, when asked, its KITTI result file."""
+
+    config: TrackerConfig
+    out: Path
+    kitti_results: bool
+
+    def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
+        if frames is None:
+            raise ValueError("TrackSceneJob needs the scene's frames")
+        fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
+        result = run_scene(frames, self.config, observer=fates)
+        write_bytes_atomic(
+            scenes.part_path(self.out, index, "json"),
+            tracks_scene_json(scene, frames, result.outputs),
+        )
+        if self.kitti_results:
+            # the scene name comes from the input: escaped, it cannot lead outside OUT/data
+            write_kitti_sequence(path_in(self.out / "data", scene, ".txt"), result.outputs, frames)
+        ids = {int(t) for o in result.outputs for t in o.boxes.track_id}
+        return SceneRecord(
+            index,
+            scene,
+            frames=len(frames),
+            tracker_seconds=result.tracker_seconds,
+            info={
+                "tracks": len(ids),
+                "fates": fates.summary(),
+                "offline_removed": [(r.reason, r.detections) for r in result.removed_offline],
+            },
+        )
 
 
 def check_camera_models(path: str, scenes: dict[str, list[Frame]], camera: str) -> None:
@@ -102,45 +152,49 @@ def run(args: argparse.Namespace) -> int:
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     report = LoadReport()
-    scenes = read_baseversion(
+    scene_frames = read_baseversion(
         args.input, fallback_frame_rate_hz=config.frame_rate_hz, report=report
     )
-    scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames))
-    scenes = _calibrated(scenes, config, args.profile, args.input)
+    scene_frames = select_scenes(scene_frames, args.scenes, parse_frame_range(args.frames))
+    scene_frames = _calibrated(scene_frames, config, args.profile, args.input)
     if args.kitti_results:
-        check_camera_models(args.input, scenes, "CAM_FRONT")
-    fates = FateCounter(rv_gate_consumes=config.rv_reference)
-    results = {s: run_scene(f, config, observer=fates) for s, f in scenes.items()}
+        check_camera_models(args.input, scene_frames, "CAM_FRONT")
+    job = TrackSceneJob(config, out, args.kitti_results)
+    parallel = scenes.from_args(args)
+    records = scenes.run_scenes(job, list(scene_frames), inputs=scene_frames, parallel=parallel)
+    ok = [r for r in records if r.error is None]
+    write_tracks_parts(
+        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
+    )
+    scenes.remove_parts(out)
+    frames = sum(r.frames for r in ok)
+    secs = sum(r.tracker_seconds for r in ok)
+    fate_summary = combine_fates([r.info["fates"] for r in ok], report.skipped_categories)
+    removed = [x for r in ok for x in r.info["offline_removed"]]
     written = [out / "tracks.json"]
-    write_tracks_file(written[0], {s: (scenes[s], results[s].outputs) for s in scenes})
     if args.kitti_results:
-        for s, frames in scenes.items():
-            written.append(path_in(out / "data", s, ".txt"))
-            write_kitti_sequence(written[-1], results[s].outputs, frames)
-    frames = sum(len(f) for f in scenes.values())
-    secs = sum(r.tracker_seconds for r in results.values())
-    ids = {(s, int(t)) for s, r in results.items() for o in r.outputs for t in o.boxes.track_id}
-    fate_summary = fates.summary(report.skipped_categories)
-    removed = [r for res in results.values() for r in res.removed_offline]
+        written += [path_in(out / "data", r.scene, ".txt") for r in ok]
+    failed = {r.scene: r.error for r in records if r.error}
     summary = {
         "input": str(args.input),
-        "config": args.config,
+        "config": str(args.config),
         "mode": config.mode.value,
-        "scenes": len(scenes),
+        "scenes": len(ok),
         "frames": frames,
-        "tracks": len(ids),
+        "tracks": sum(r.info["tracks"] for r in ok),
         "detection_fates": fate_summary,
         "offline_removed": {
             "tracks": len(removed),
-            "detections": sum(r.detections for r in removed),
-            "per_reason": dict(sorted(Counter(r.reason for r in removed).items())),
+            "detections": sum(n for _, n in removed),
+            "per_reason": dict(sorted(Counter(reason for reason, _ in removed).items())),
         },
+        "failed_scenes": failed,
         "outputs": output_manifest(out, written),
-        "complete": True,
+        "complete": not failed,
     }
     write_text_atomic(summary_path, [json.dumps(summary, indent=2, allow_nan=False)])
     print(
-        f"{len(scenes)} scenes, {frames} frames, {len(ids)} tracks, "
+        f"{len(ok)} scenes, {frames} frames, {summary['tracks']} tracks, "
         f"{frames / secs if secs else 0:.0f} frames/s -> {out / 'tracks.json'}"
     )
     print(format_fates(fate_summary))
@@ -154,4 +208,4 @@ def run(args: argparse.Namespace) -> int:
             f"skipped {report.boxes_skipped} boxes of unknown categories: "
             f"{dict(report.skipped_categories)}"
         )
-    return 0
+    return scenes.print_failures("track", {r.scene: r.error for r in records if r.error})

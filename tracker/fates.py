@@ -165,6 +165,19 @@ def add_summaries(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def combine_fates(
+    summaries: list[dict[str, Any]], skipped_unknown_categories: Counter[str] | None = None
+) -> dict[str, Any]:
+    """One summary from per-scene ones (scene tasks run apart), with the loader's skips."""
+    out = FateCounter().summary()  # all keys, zero counts
+    for s in summaries:
+        out = add_summaries(out, s)
+    skipped = sum((skipped_unknown_categories or Counter()).values())
+    out["skipped_unknown_category_at_load"] = skipped
+    out["input_boxes"] = out["detections"] + skipped
+    return out
+
+
 def format_fates(summary: dict[str, Any]) -> str:
     """One line for ``mctrack track``: the counts per fate (zeros left out)."""
     parts = [f"{name} {n}" for name, n in summary["per_fate"].items() if n]

@@ -16,7 +16,7 @@ import pickle
 import tempfile
 import time
 import zipfile
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -83,15 +83,19 @@ def _fsync_dir(folder: Path) -> None:
         os.close(fd)
 
 
-def write_bytes_atomic(path: str | Path, data: bytes) -> None:
-    """Write to a temporary file in the same folder, fsync it, then rename it into place."""
+def write_bytes_atomic(path: str | Path, data: bytes | Iterable[bytes]) -> None:
+    """Write to a temporary file in the same folder, fsync it, then rename it into place.
+
+    ``data`` may be an iterable of chunks, so a large file assembled from parts is streamed.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_temps(path.parent)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_name(path), suffix=TEMP_SUFFIX)
     try:
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            for chunk in [data] if isinstance(data, bytes) else data:
+                fh.write(chunk)
             fh.flush()
             os.fsync(fh.fileno())  # the data is on disk before the name points at it
         umask = os.umask(0)
@@ -104,9 +108,14 @@ def write_bytes_atomic(path: str | Path, data: bytes) -> None:
         raise
 
 
+def compact_json(payload: Any) -> bytes:
+    """The encoding of every JSON output file: compact, no NaN."""
+    return json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+
+
 def write_json_atomic(path: str | Path, payload: Any) -> None:
     """Compact JSON; gzip-compressed (reproducibly, mtime 0) when the name ends in .gz."""
-    text = json.dumps(payload, separators=(",", ":"), allow_nan=False).encode()
+    text = compact_json(payload)
     write_bytes_atomic(path, gzip.compress(text, mtime=0) if str(path).endswith(".gz") else text)
 
 
