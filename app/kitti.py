@@ -14,8 +14,8 @@ from app.common import peak_rss_mb
 from app.scenes import SceneRecord
 from tracker.calibration import ScoreProfile, calibrate_frames, resolve_profile
 from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
+from tracker.eval.fates import FateCounter, combine_fates
 from tracker.events import TrackOutput
-from tracker.fates import FateCounter, combine_fates
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic

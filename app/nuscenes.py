@@ -15,8 +15,8 @@ from app.common import peak_rss_mb
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
+from tracker.eval.fates import FateCounter, combine_fates
 from tracker.events import TrackOutput
-from tracker.fates import FateCounter, combine_fates
 from tracker.frame import Frame
 from tracker.io.fileio import (
     check_output_folder,

@@ -17,7 +17,7 @@ from app.scenes import SceneRecord
 from tracker.calibration import calibrate_frames, load_profile
 from tracker.config import ScoreSource, TrackerConfig, load_config
 from tracker.errors import InputError
-from tracker.fates import FateCounter, combine_fates, format_fates
+from tracker.eval.fates import FateCounter, combine_fates, format_fates
 from tracker.frame import Frame
 from tracker.io.baseversion import LoadReport, read_baseversion
 from tracker.io.fileio import (

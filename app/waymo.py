@@ -18,7 +18,7 @@ from app import scenes
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
-from tracker.fates import FateCounter, combine_fates
+from tracker.eval.fates import FateCounter, combine_fates
 from tracker.frame import Frame
 from tracker.io.fileio import check_output_folder, write_bytes_atomic, write_text_atomic
 from tracker.io.waymo_writer import RESULT_TYPES

@@ -29,7 +29,7 @@ from hypothesis import strategies as st
 
 from tracker.config import load_config
 from tracker.errors import InputError
-from tracker.fates import FateCounter
+from tracker.eval.fates import FateCounter
 from tracker.frame import Frame
 from tracker.io.baseversion import read_baseversion, validate_baseversion
 from tracker.io.writers import write_kitti_sequence, write_tracks_file

@@ -20,7 +20,7 @@ import pytest
 from app.cli import main
 from tracker.config import load_config
 from tracker.errors import InputError
-from tracker.fates import FateCounter
+from tracker.eval.fates import FateCounter
 from tracker.io.baseversion import frame_to_dict, read_baseversion, validate_baseversion
 from tracker.io.fileio import (
     load_npz,

@@ -398,7 +398,7 @@ class MCTracker:
         the pairs it scored.
         """
         tr, cat, reference = self._tracks, self._cat, self.config.rv_reference
-        # an observer that only counts (tracker.fates) does not need the costs of empty stages
+        # an observer that only counts (tracker.eval.fates) does not need the costs of empty stages
         obs = self.observer
         shortcut = not reference and (obs is None or not getattr(obs, "wants_rv_costs", True))
         # Shortcut (exact): when the gate below can accept no pair, whatever the costs, nothing

@@ -29,6 +29,7 @@ import rerun as rr
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.config import TrackerConfig, config_to_dict
+from tracker.eval.fates import FateCounter, Tee
 from tracker.eval.id_switches import (
     IdEvaluation,
     IdEvent,
@@ -39,7 +40,6 @@ from tracker.eval.id_switches import (
 )
 from tracker.eval.motion_metrics import gt_velocity_central
 from tracker.events import TrackOutput
-from tracker.fates import FateCounter, Tee
 from tracker.frame import Frame
 from tracker.io.fileio import finish_temp, remove_stale_temps, temp_name
 from tracker.pipeline import run_scene
@@ -104,7 +104,7 @@ class RecordResult:
     seconds: dict[str, float] = field(default_factory=dict)
     #: process CPU seconds per phase (all threads: Rerun compresses and writes in the background)
     cpu_seconds: dict[str, float] = field(default_factory=dict)
-    #: detections per fate and class (tracker.fates.FateCounter.summary)
+    #: detections per fate and class (tracker.eval.fates.FateCounter.summary)
     fates: dict[str, Any] = field(default_factory=dict)
 
     @property
