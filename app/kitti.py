@@ -136,19 +136,6 @@ def run_kitti(
             bar.update(len(frames))
     tracker_secs = sum(r.tracker_seconds for r in results.values())
     label_dir = labels or kitti_root / "training" / "label_02"
-    if record is not None:  # outside the timed tracker region
-        from viz.record import record_scene
-
-        for seq, frames in detections.items():
-            labels_ok = label_dir if (label_dir / f"{seq}.txt").is_file() else None
-            record_scene(
-                frames,
-                config,
-                (gt or {}).get(seq),
-                record / f"{seq}.rrd",
-                labels_dir=labels_ok,
-                motion_metrics=False,
-            )
 
     data_dir = out / "data"
     for seq, frames in detections.items():
@@ -170,6 +157,7 @@ def run_kitti(
         "peak_rss_mb": peak_rss_mb(),
         "config": config_to_dict(config),
     }
+    per_seq: dict[str, dict[str, dict[str, float]]] = {}  # TrackEval per sequence
     if evaluate:
         missing = [s for s in detections if not (label_dir / f"{s}.txt").is_file()]
         if missing:
@@ -179,9 +167,25 @@ def run_kitti(
 
             lengths = {s: len(detections[s]) for s in detections}
             summary["metrics"] = evaluate_kitti(
-                label_dir=label_dir, result_dir=data_dir, seq_lengths=lengths, classes=classes
+                label_dir=label_dir,
+                result_dir=data_dir,
+                seq_lengths=lengths,
+                classes=classes,
+                per_sequence=per_seq,
             )
             summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
+            summary["per_sequence"] = {
+                seq: {c: {k: m[k] for k in ("IDSW", "Frag")} for c, m in per.items()}
+                for seq, per in per_seq.items()
+            }
+    if record is not None:  # outside the timed tracker region, after the evaluation
+        from app.kitti_record import record_sequences
+
+        summary.update(
+            record_sequences(
+                detections, gt, config, record, kitti_root, label_dir, data_dir, per_seq, quiet
+            )
+        )
     if motion:
         summary["motion"] = _motion(detections, gt, results, classes, out)
     out.mkdir(parents=True, exist_ok=True)
@@ -228,6 +232,17 @@ def _print_summary(summary: dict[str, Any]) -> None:
             print(f"{cls:<12}" + "".join(f"{m[c]:>9}" for c in cols))
     elif "evaluation" in summary:
         print(summary["evaluation"])
+    per_seq = summary.get("per_sequence")
+    if per_seq:
+        classes = list(next(iter(per_seq.values())))
+        print(f"{'IDSW/Frag':<10}" + "".join(f"{c:>14}" for c in classes))
+        for seq, per in per_seq.items():
+            cells = [f"{per[c]['IDSW']}/{per[c]['Frag']}" for c in classes]
+            print(f"{seq:<10}" + "".join(f"{x:>14}" for x in cells))
+    for seq, path in summary.get("recordings", {}).items():
+        print(f"recording {seq}: {path}")
+    if "causes_markdown" in summary:
+        print(f"causes of ID switches and fragmentations: {summary['causes_markdown']}")
     motion = summary.get("motion")
     if isinstance(motion, dict):
         cols = ["vae_deg", "vne_mps", "vir_ratio", "vse_mps", "vde_secs", "n_samples"]

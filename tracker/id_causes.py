@@ -50,6 +50,7 @@ from tracker.events import (
     FrameStarted,
     LifecycleChanged,
     Matched,
+    Observer,
     Predicted,
     Stage,
 )
@@ -182,12 +183,12 @@ class StageLog:
             cur.output_ids = event.output.boxes.track_id
 
 
-def tee(*observers: object) -> object:
+def tee(*observers: Observer) -> Observer:
     """One observer calling several (in order)."""
 
     def call(event: Event) -> None:
         for o in observers:
-            o(event)  # type: ignore[operator]
+            o(event)
 
     return call
 

@@ -234,6 +234,7 @@ def kitti_id_events(
     *,
     classes: Sequence[str] = ("car", "pedestrian"),
     camera_name: str = "CAM_FRONT",
+    result_file: str | Path | None = None,
 ) -> IdEvaluation:
     """ID switches and fragmentations of one KITTI sequence, as TrackEval's CLEAR counts them.
 
@@ -243,6 +244,7 @@ def kitti_id_events(
     frames : the sequence's detection frames (for the camera model), in time order.
     label_file : the sequence's ``label_02/<seq>.txt``.
     classes : any of car, pedestrian, cyclist (cyclist as in :mod:`tracker.kitti_eval`).
+    result_file : the KITTI result file of ``outputs`` when already written (saves writing it).
     """
     import trackeval  # heavy import: only when evaluating
 
@@ -259,9 +261,12 @@ def kitti_id_events(
         (gt_root / "evaluate_tracking.seqmap.val").write_text(
             f"{seq} empty 000000 {num_timesteps:06d}\n"
         )
-        write_kitti_sequence(
-            trackers_root / _TRACKER_NAME / "data" / f"{seq}.txt", outputs, frames, camera_name
-        )
+        target = trackers_root / _TRACKER_NAME / "data" / f"{seq}.txt"
+        if result_file is not None:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(result_file, target)
+        else:
+            write_kitti_sequence(target, outputs, frames, camera_name)
         ds_config = {
             "GT_FOLDER": str(gt_root),
             "TRACKERS_FOLDER": str(trackers_root),
