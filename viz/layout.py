@@ -173,7 +173,7 @@ def debug_blueprint(
 
 #: The focused view's eye relative to the event (metres, world z up): behind-left and above,
 #: close enough that a pedestrian's box is legible, far enough for both trails.
-FOCUS_EYE_OFFSET_M = (-9.0, -9.0, 16.0)
+FOCUS_EYE_OFFSET_M = (-6.0, -6.0, 11.0)
 VIEW_FOCUS = "focus "
 VIEW_EXPLAIN = "event"
 #: Everything not part of the event is drawn in this colour in the focused view.
@@ -239,7 +239,7 @@ def focus_blueprint(
             name=f"{VIEW_COST_BEV}: tracks (rows) x detections",
         ),
         _speed_view(ids, "speed [m/s]: " + " / ".join(f"T{t}" for t in ids)),
-        row_shares=[3, 3, 2],
+        row_shares=[5, 3, 2],
     )
     return rrb.Blueprint(
         rrb.Horizontal(left, right, column_shares=[3, 2]),

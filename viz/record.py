@@ -703,7 +703,7 @@ def _log_id_events(
             continue
         label = f"#{k} GT{e.gt_id}: T{e.old_track_id}->T{e.new_track_id}"
         for f in range(e.frame_id, e.frame_id + MARKER_HOLD_FRAMES):
-            markers.setdefault(f, []).append((xyz + np.array([0.0, 0.0, 1.5]), label))
+            markers.setdefault(f, []).append((xyz + np.array([0.0, 0.0, 2.0]), label))
     shown = False
     for f in sorted(times):
         items = markers.get(f)
@@ -719,7 +719,7 @@ def _log_id_events(
             n,
             mono={"show_labels": [True]},
             positions=np.array([p for p, _ in items], dtype=np.float32).reshape(-1, 3),
-            radii=np.full(n, 0.5, np.float32),
+            radii=np.full(n, 0.25, np.float32),
             colors=np.full(n, pack_rgb(ID_SWITCH_RGB), np.uint32),
             labels=[lbl for _, lbl in items],
         )
@@ -813,8 +813,13 @@ def _log_focus(
     if strips:
         rec.log(
             f"{base}/paths",
+            # labels on hover only: the boxes carry the same names at the event
             rr.LineStrips3D(
-                [s.astype(np.float32) for s in strips], colors=colors, radii=0.12, labels=labels
+                [s.astype(np.float32) for s in strips],
+                colors=colors,
+                radii=0.08,
+                labels=labels,
+                show_labels=False,
             ),
             static=True,
         )
