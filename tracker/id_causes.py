@@ -19,8 +19,9 @@ ID switch (GT ``g`` last matched to the old track ``O`` at frame ``lf``, now to 
 4. ``image_plane``: ``N`` got ``g``'s detection in the image-plane (RV) stage.
 5. ``deleted_reborn``: ``O`` was deleted before ``N`` was born (evidence: gap length, and per gap
    frame whether ``g`` had no detection, one below the score threshold, or one outside the gate).
-6. ``duplicate_birth``: ``N`` was born while ``O`` was still alive (evidence: ``O``'s cost to the
-   detection ``N`` was born from and ``O``'s gate: why they were not matched).
+6. ``duplicate_birth``: ``N`` was born (at or after ``lf``) while ``O`` was still alive
+   (evidence: ``O``'s cost to the detection ``N`` was born from and ``O``'s gate: why they were
+   not matched).
 7. ``track_jump``: ``N`` existed before ``g`` was lost and came from elsewhere.
 
 Fragmentation with the same track before and after: the most frequent reason over the gap
@@ -343,8 +344,9 @@ def _classify_switch(e: IdEvent, log: StageLog, gt: _Gt) -> tuple[Cause, dict]:
         return Cause.IMAGE_PLANE, ev
     born = log.born_frame.get(new)
     deleted = log.deleted_frame.get(old)
-    if born is not None and born > e.last_frame_id:
-        # 5./6. a new track since the GT was last tracked: was the old one still there?
+    if born is not None and born >= e.last_frame_id:
+        # 5./6. a new track since the GT was last tracked (or born beside it in that frame): was
+        # the old one still there?
         if deleted is not None and deleted <= born:
             gap = _gap_counts(log, gt, e)
             ev.update({k: gap.get(k, 0) for k in ("no_detection", "below_score", "outside_gate")})

@@ -301,22 +301,21 @@ def take_shots(
             executable_path=_rerun_executable(),
         ) as client,
     ):
-        focus_layouts = {
-            p.event: focus_layout_json(client, recording, index, p.event, Path(tmp), timeout_secs)
-            for p in planned
-            if p.event is not None
-        }
         client.open(str(recording))
         _wait_loaded(client, recording, timeout_secs)
         store = client.get_state().active_recording
-        default_layout = client.get_blueprint(store_id=store).blueprint
-        for shot in planned:
+        location = client.get_location()
+        # default-layout shots first (a focused layout set on the recording stays)
+        for shot in sorted(planned, key=lambda p: p.event is not None):
             if shot.event is not None:
-                client.set_blueprint(focus_layouts[shot.event], store_id=store)
+                focus = focus_layout_json(
+                    client, recording, index, shot.event, Path(tmp), timeout_secs
+                )
+                client.set_location(location)
+                client.set_blueprint(focus, store_id=store)
                 stem = f"event{shot.event}_f{shot.frame:04d}"
                 wanted = views if views is not None else FOCUS_VIEWS
             else:
-                client.set_blueprint(default_layout, store_id=store)
                 stem = f"{shot.reason}_f{shot.frame:04d}"
                 wanted = views if views is not None else VIEWS_BY_REASON.get(shot.reason, ())
             client.set_time(paths.FRAME, sequence=int(shot.frame), play_state="paused")
@@ -402,7 +401,9 @@ def focus_layout_json(
     import rerun as rr
 
     path = tmp / f"focus_e{event}.rrd"
-    rec = rr.RecordingStream(paths.APPLICATION_ID, recording_id=f"focus-e{event}")
+    # an application id of its own: the viewer keeps one active blueprint per application, and
+    # the recording's own must stay untouched
+    rec = rr.RecordingStream(f"{paths.APPLICATION_ID}_focus", recording_id=f"focus-e{event}")
     rec.save(path, default_blueprint=focus_blueprint_for(recording, index, event))
     rec.log("focus_layout", rr.AnyValues(event=[event]), static=True)
     rec.flush()
@@ -411,7 +412,7 @@ def focus_layout_json(
     _wait_loaded(client, path, timeout_secs)
     store = client.get_state().active_recording
     layout_json = client.get_blueprint(store_id=store).blueprint
-    client.close_recordings([store])
+    client.close(store_ids=[store])
     return layout_json
 
 
