@@ -20,6 +20,18 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "kitti": ("app.kitti", "convert, track and evaluate KITTI tracking sequences"),
     "nuscenes": ("app.nuscenes", "convert, track and evaluate nuScenes (official devkit metrics)"),
     "waymo": ("app.waymo", "convert and track Waymo segments, write the per-segment result npz"),
+    "calibrate": (
+        "app.calibrate",
+        "fit a detector's score calibration profile (raw score -> P(true positive)) on labels",
+    ),
+    "tune": (
+        "app.tune",
+        "cross-validated search of one class's settings over detectors (Optuna)",
+    ),
+    "robustness": (
+        "app.robustness",
+        "HOTA per class under seeded detection noise (drops, jitter, false positives)",
+    ),
     "bench": ("app.bench", "tracker speed benchmark (frames/s, ms/frame, peak memory)"),
     "eval": ("app.eval", "evaluate a tracks file: KITTI static metrics and motion metrics"),
     "view": ("app.view", "run the tracker with the Rerun visual debugger (file, viewer or web)"),

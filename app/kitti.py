@@ -11,25 +11,15 @@ from typing import Any
 
 from tqdm import tqdm
 
-from app.bench import peak_rss_mb
-from tracker.config import BUILTIN, config_to_dict, load_config
-from tracker.fileio import write_text_atomic
+from app.common import peak_rss_mb
+from tracker.calibration import calibrate_frames, resolve_profile
+from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
+from tracker.frame import Frame
+from tracker.io.convert.kitti import VALIDATION_SEQS
+from tracker.io.fileio import write_text_atomic
+from tracker.io.writers import write_kitti_sequence, write_tracks_file
 from tracker.pipeline import SceneResult, run_scene
-from tracker.writers import write_kitti_sequence, write_tracks_file
 
-VALIDATION_SEQS = (
-    "0001",
-    "0006",
-    "0008",
-    "0010",
-    "0012",
-    "0013",
-    "0014",
-    "0015",
-    "0016",
-    "0018",
-    "0019",
-)
 DEFAULT_KITTI_ROOT = "../shared/data/kitti/tracking"
 
 
@@ -54,6 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="tracking mode; offline with a built-in config uses <config>_offline",
     )
+    parser.add_argument(
+        "--profile",
+        default=None,
+        help="score calibration profile (TOML from `mctrack calibrate`); default: the one shipped "
+        "for --detector, if any (configs with scores = 'as_given' use none)",
+    )
     parser.add_argument("--poses", default="orbslam3", help="orbslam3, none or a pose folder")
     parser.add_argument("--no-eval", action="store_true", help="skip the evaluation")
     parser.add_argument(
@@ -73,6 +69,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         mode=args.mode,
         detector=args.detector,
+        profile=Path(args.profile) if args.profile else None,
         labels=Path(args.labels) if args.labels else None,
         poses=None if args.poses == "none" else args.poses,
         evaluate=not args.no_eval,
@@ -92,6 +89,7 @@ def run_kitti(
     config_name: str | Path = "kitti",
     mode: str | None = None,
     detector: str = "pointrcnn",
+    profile: Path | None = None,
     labels: Path | None = None,
     poses: str | None = "orbslam3",
     evaluate: bool = True,
@@ -104,10 +102,10 @@ def run_kitti(
     """The end-to-end KITTI job; returns (and writes) ``out/summary.json``.
 
     With ``motion`` the labels are converted too and the motion metrics
-    (:func:`tracker.motion_eval.evaluate_motion`) go to ``summary["motion"]``, ``out/motion.md``
-    and ``out/motion_velocity.png``.
+    (:func:`tracker.eval.motion_eval.evaluate_motion`) go to ``summary["motion"]``,
+    ``out/motion.md`` and ``out/motion_velocity.png``.
     """
-    from tracker.convert.kitti import convert_kitti
+    from tracker.io.convert.kitti import convert_kitti
 
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
@@ -125,6 +123,7 @@ def run_kitti(
         classes=classes,
         with_gt=motion or record is not None,
     )
+    detections, calibration = apply_score_source(detections, config, detector, profile)
     convert_secs = time.perf_counter() - t0
 
     results: dict[str, SceneResult] = {}
@@ -153,6 +152,7 @@ def run_kitti(
         "frames": total_frames,
         "tracker_seconds": round(tracker_secs, 4),
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
+        "score_calibration": calibration,
         "convert_seconds": round(convert_secs, 3),
         "peak_rss_mb": peak_rss_mb(),
         "config": config_to_dict(config),
@@ -163,7 +163,7 @@ def run_kitti(
         if missing:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
         else:
-            from tracker.kitti_eval import evaluate_kitti
+            from tracker.eval.kitti import evaluate_kitti
 
             lengths = {s: len(detections[s]) for s in detections}
             summary["metrics"] = evaluate_kitti(
@@ -193,6 +193,26 @@ def run_kitti(
     return summary
 
 
+def apply_score_source(
+    detections: dict[str, list[Frame]],
+    config: TrackerConfig,
+    detector: str,
+    profile: Path | None,
+) -> tuple[dict[str, list[Frame]], str]:
+    """Scores in the units the config's thresholds expect, and a note of what was used."""
+    if config.scores is ScoreSource.AS_GIVEN:
+        return detections, "none (scores as converted; the config asks for scores = 'as_given')"
+    found = resolve_profile(detector, profile)
+    every = [f for frames in detections.values() for f in frames]
+    calibrated = calibrate_frames(every, found)
+    out, i = {}, 0
+    for seq, frames in detections.items():
+        out[seq], i = calibrated[i : i + len(frames)], i + len(frames)
+    if found is None:
+        return out, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
+    return out, f"profile {profile or detector + ' (shipped)'}"
+
+
 def _motion(
     detections: dict[str, Any],
     gt: dict[str, Any] | None,
@@ -201,7 +221,7 @@ def _motion(
     out: Path,
 ) -> dict[str, Any] | str:
     """Motion metrics of the run, and ``out/motion.md`` with the velocity-curve PNG."""
-    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     missing = sorted(s for s in detections if gt is None or s not in gt)
     if gt is None or missing:

@@ -18,8 +18,8 @@ from tqdm import tqdm
 
 from tracker.config import TrackerConfig
 from tracker.events import Event, FrameStarted
-from tracker.fileio import write_text_atomic
 from tracker.frame import Frame
+from tracker.io.fileio import write_text_atomic
 
 
 def record_sequences(
@@ -35,7 +35,7 @@ def record_sequences(
 ) -> dict[str, Any]:
     """Record every sequence; returns the summary keys "recordings", "recording_seconds" and,
     with labels, "causes" ({seq: {class: {"IDSW"|"Frag": {cause: n}}}}) and "causes_markdown"."""
-    from tracker.id_causes import cause_counts, cause_table_markdown, other_share
+    from tracker.eval.id_causes import cause_counts, cause_table_markdown, other_share
     from viz.record import record_scene
 
     recordings: dict[str, str] = {}
@@ -86,7 +86,7 @@ def record_sequences(
             "",
             f"Sequences {', '.join(causes)}; classes {', '.join(config.categories)}; events "
             "counted by TrackEval's CLEAR (KITTI 2D-box protocol); causes from "
-            "tracker/id_causes.py.",
+            "tracker/eval/id_causes.py.",
             "",
             *cause_table_markdown(causes),
             "",

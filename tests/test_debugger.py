@@ -14,7 +14,7 @@ import pytest
 
 from app.cli import main
 from tests.test_viz import column_at, entity_table, recording
-from tracker.id_causes import Cause
+from tracker.eval.id_causes import Cause
 from viz import layout, paths
 from viz.observer import ego_yaw
 from viz.record import (
@@ -265,7 +265,7 @@ def test_kitti_record_logs_images_where_image_02_exists(kitti_0016) -> None:
 
 
 def test_kitti_record_parked_ego_faces_the_poses_heading(kitti_0016, kitti_root: Path) -> None:
-    from tracker.convert.kitti import convert_kitti
+    from tracker.io.convert.kitti import convert_kitti
 
     _, summary = kitti_0016
     rrd = Path(summary["recordings"]["0016"])

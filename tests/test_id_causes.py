@@ -16,6 +16,16 @@ import pytest
 from tracker.boxes import Boxes
 from tracker.categories import category_index
 from tracker.config import load_config
+from tracker.eval.id_causes import (
+    Cause,
+    StageLog,
+    cause_counts,
+    cause_table_markdown,
+    classify_events,
+    other_share,
+    tee,
+)
+from tracker.eval.id_switches import IdEventKind, bev_id_events
 from tracker.events import (
     CostComputed,
     DetectionsFiltered,
@@ -29,16 +39,6 @@ from tracker.events import (
     TrackOutput,
 )
 from tracker.frame import Frame
-from tracker.id_causes import (
-    Cause,
-    StageLog,
-    cause_counts,
-    cause_table_markdown,
-    classify_events,
-    other_share,
-    tee,
-)
-from tracker.id_switches import IdEventKind, bev_id_events
 from tracker.pipeline import run_scene
 
 CAR = category_index("car")
@@ -307,7 +307,7 @@ def test_fragmentation_of_a_steady_track(gap: F, cause: Cause) -> None:
 
 def test_other_is_a_bucket_for_what_the_log_never_saw() -> None:
     """An event at frames the stage log has no record of cannot be explained: "other"."""
-    from tracker.id_switches import IdEvaluation, IdEvent
+    from tracker.eval.id_switches import IdEvaluation, IdEvent
 
     frag = IdEvent(IdEventKind.FRAGMENTATION, 5, "car", 1, 0, 0, 0.9, 2)
     switch = IdEvent(IdEventKind.ID_SWITCH, 5, "car", 2, 0, 1, 0.9, 4)

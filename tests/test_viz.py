@@ -20,8 +20,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
 
-from tracker.baseversion import read_baseversion
 from tracker.config import load_config
+from tracker.io.baseversion import read_baseversion
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.record import RecordResult, record_scene
@@ -234,9 +234,7 @@ def test_recorded_id_events_equal_trackeval(rrd: Path, result: RecordResult) -> 
     index = entity_table(rrd, paths.SHOT_INDEX, static=True)
     frames = index["id_switch_frames"].to_pylist()[-1]
     assert frames == [e.frame_id for e in result.id_evaluation.id_switches]
-    assert sorted({int(t.split(" ")[2][1:]) for t in switches}) == sorted(
-        set(frames)
-    )
+    assert sorted({int(t.split(" ")[2][1:]) for t in switches}) == sorted(set(frames))
 
 
 def test_id_switch_markers_sit_at_the_objects(rrd: Path, result: RecordResult) -> None:
@@ -322,7 +320,7 @@ def test_recorded_gt_wireframes_are_the_projection(rrd: Path) -> None:
 @pytest.mark.parametrize("with_gt", [False, True])
 def test_synthetic_scene_without_labels(tmp_path: Path, with_gt: bool) -> None:
     """No KITTI labels, no ego pose: the recording still works (BEV-IoU ID switches with GT)."""
-    from tracker.synthetic import synthetic_scene
+    from tracker.io.synthetic import synthetic_scene
 
     det, gt = synthetic_scene(num_objects=6, num_frames=40, seed=3)
     config = load_config("kitti", overrides={"categories": ["car", "pedestrian"]})

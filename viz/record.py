@@ -28,9 +28,7 @@ import rerun as rr
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.config import TrackerConfig, config_to_dict
-from tracker.events import Observer, TrackOutput
-from tracker.frame import Frame
-from tracker.id_causes import (
+from tracker.eval.id_causes import (
     CAUSE_HELP,
     Cause,
     EventCause,
@@ -40,7 +38,7 @@ from tracker.id_causes import (
     classify_events,
     tee,
 )
-from tracker.id_switches import (
+from tracker.eval.id_switches import (
     IdEvaluation,
     IdEvent,
     IdEventKind,
@@ -48,7 +46,9 @@ from tracker.id_switches import (
     kitti_id_events,
     kitti_num_timesteps,
 )
-from tracker.motion_metrics import gt_velocity_central
+from tracker.eval.motion_metrics import gt_velocity_central
+from tracker.events import Observer, TrackOutput
+from tracker.frame import Frame
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.archetypes import (
@@ -217,7 +217,7 @@ def record_scene(
         the static metrics come from TrackEval's KITTI protocol (also without ``gt_frames``).
     images : camera name -> folder of ``<frame_id:06d>.png`` images.
     input_description : free text for the summary (input files, frame range).
-    motion_metrics : call ``tracker.motion_eval.evaluate_motion`` when it is importable.
+    motion_metrics : call ``tracker.eval.motion_eval.evaluate_motion`` when it is importable.
     live : a viewer watches while it runs: send rows every few frames instead of every few
         hundred (slightly more overhead, no visible lag).
     kitti_metrics : this sequence's TrackEval metrics when the caller has them already
@@ -408,8 +408,8 @@ def _kitti_metrics(
     camera_name: str,
     tmp: Path,
 ) -> dict[str, dict[str, float]]:
-    from tracker.kitti_eval import evaluate_kitti
-    from tracker.writers import write_kitti_sequence
+    from tracker.eval.kitti import evaluate_kitti
+    from tracker.io.writers import write_kitti_sequence
 
     seq = label_file.stem
     result_dir = tmp / "results"
@@ -429,9 +429,9 @@ def _motion_metrics(
     outputs: Sequence[TrackOutput],
     config: TrackerConfig,
 ) -> str:
-    """Motion metrics from ``tracker.motion_eval`` (written separately) when it is there."""
+    """Motion metrics from ``tracker.eval.motion_eval`` (written separately) when it is there."""
     try:
-        from tracker.motion_eval import evaluate_motion, motion_markdown
+        from tracker.eval.motion_eval import evaluate_motion, motion_markdown
     except ImportError:
         return "motion metrics: not available"
     scene = frames[0].scene
@@ -588,7 +588,7 @@ def find_velocity_lag(samples: Sequence[tuple[np.ndarray, ...]]) -> LagSample | 
     must explain the gap better than noise does. The reported frame is where the smoothed GT
     speed changes fastest (the lag is plainest there).
     """
-    from tracker.motion_metrics import static_gt_mask
+    from tracker.eval.motion_metrics import static_gt_mask
 
     if not samples:
         return None

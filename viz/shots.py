@@ -115,7 +115,7 @@ def read_shot_index(recording: str | Path) -> ShotIndex:
     def ints(key: str) -> list[int]:
         return [int(v) for v in values.get(key, [])]
 
-    from tracker.id_causes import Cause
+    from tracker.eval.id_causes import Cause
 
     causes = list(Cause)
     lag_frame, lag_track = ints("lag_frame"), ints("lag_track_id")

@@ -1,6 +1,6 @@
 """Why each ID switch and fragmentation happened, from the tracker's own stage events and the GT.
 
-:mod:`tracker.id_switches` says *what* the evaluator counted (frame, GT id, old -> new track).
+:mod:`tracker.eval.id_switches` says *what* the evaluator counted (frame, GT id, old -> new track).
 This module says *why*, from what the tracker did around that moment. :class:`StageLog` is an
 observer that keeps, per frame, references to what the tracker computed anyway (which detections
 were dropped and why, the live tracks, the BEV cost matrix and gates, the accepted pairs and their
@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tracker.boxes import FloatArray, IntArray
+from tracker.eval.id_switches import IdEvaluation, IdEvent, IdEventKind
 from tracker.events import (
     CostComputed,
     DetectionsFiltered,
@@ -56,7 +57,6 @@ from tracker.events import (
     Stage,
 )
 from tracker.frame import Frame
-from tracker.id_switches import IdEvaluation, IdEvent, IdEventKind
 
 #: A detection belongs to a GT box when its centre is within this fraction of the GT's larger
 #: footprint side (at least :data:`MIN_ASSOCIATION_M`): a car 4 m long -> 2 m, a pedestrian 1 m.
