@@ -271,7 +271,14 @@ def test_kitti_record_parked_ego_faces_the_poses_heading(kitti_0016, kitti_root:
     rrd = Path(summary["recordings"]["0016"])
     frames = convert_kitti(kitti_root, seqs=["0016"], classes=["pedestrian"])[0]["0016"]
     table = entity_table(rrd, paths.EGO)
-    q = np.array([row[0] for row in table["Transform3D:quaternion"].to_pylist()])
+    rows = [
+        (f, q[0])
+        for f, q in zip(
+            table[paths.FRAME].to_pylist(), table["Transform3D:quaternion"].to_pylist(), strict=True
+        )
+        if q  # the axes rows of the same entity carry no rotation
+    ]
+    q = np.array([r for _, r in sorted(rows)])
     yaw_rec = 2 * np.arctan2(q[:, 2], q[:, 3])
     yaw_pose = ego_yaw(np.stack([f.world_from_ego for f in frames]))
     assert len(yaw_rec) == len(frames) == 209
