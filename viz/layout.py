@@ -28,13 +28,18 @@ BEV_EYE_POSITION_M = (-16.0, 0.0, 26.0)
 BEV_EYE_TARGET_M = (16.0, 0.0, 0.0)
 
 
-def _speed_view(track_ids: Sequence[int], name: str) -> rrb.TimeSeriesView:
+def _speed_view(
+    track_ids: Sequence[int], name: str, speed_max_mps: float | None = None
+) -> rrb.TimeSeriesView:
     contents = [
         paths.entity(paths.track_series(t, s))
         for t in track_ids
         for s in (paths.SPEED, paths.GT_PREFIX + paths.SPEED)
     ]
-    return rrb.TimeSeriesView(origin=paths.entity(paths.TRACKS), contents=contents, name=name)
+    axis = rrb.ScalarAxis(range=(0.0, speed_max_mps)) if speed_max_mps else None
+    return rrb.TimeSeriesView(
+        origin=paths.entity(paths.TRACKS), contents=contents, name=name, axis_y=axis
+    )
 
 
 def _xy_view(track_ids: Sequence[int], name: str) -> rrb.TimeSeriesView:
@@ -71,6 +76,7 @@ def debug_blueprint(
     *,
     lag_track_ids: Sequence[int] = (),
     switch_track_ids: Sequence[int] = (),
+    lag_speed_max_mps: float | None = None,
 ) -> rrb.Blueprint:
     """The debugging layout.
 
@@ -81,6 +87,7 @@ def debug_blueprint(
     lag_track_ids : tracks whose speed / velocity / heading curves (with their matched GT's) get
         their own views: the largest velocity lag. Known only after the run.
     switch_track_ids : tracks of the first ID switch, compared in one speed view.
+    lag_speed_max_mps : top of the lag speed view's y axis (m/s; None: fit all data).
     """
     # Ego-centric: the view's origin is the ego frame (z up, x = direction of travel), so the
     # eye follows the car at a fixed offset; tracking an entity instead keeps the eye as far
@@ -135,7 +142,9 @@ def debug_blueprint(
     if lag_track_ids:
         label = ", ".join(f"T{t}" for t in lag_track_ids)
         series += [
-            _speed_view(lag_track_ids, f"{VIEW_SPEED_LAG} [m/s]: {label} (largest lag)"),
+            _speed_view(
+                lag_track_ids, f"{VIEW_SPEED_LAG} [m/s]: {label} (largest lag)", lag_speed_max_mps
+            ),
             _xy_view(lag_track_ids, f"vx, vy vs GT [m/s]: {label}"),
             _heading_view(lag_track_ids, f"heading vs GT [rad]: {label}"),
             _acceleration_view(lag_track_ids, f"ax, ay [m/s²]: {label}"),

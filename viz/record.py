@@ -113,6 +113,7 @@ class LagSample:
     speed_change_mps: float = float("nan")  # range of the smoothed GT speed
     mean_gap_before_mps: float = float("nan")  # mean |track - GT| speed, unshifted
     mean_gap_after_mps: float = float("nan")  # the same with the track shifted by the delay
+    speed_max_mps: float = float("nan")  # largest speed of the pair after the warm-up (plot range)
 
     @property
     def error_mps(self) -> float:
@@ -325,6 +326,8 @@ def record_scene(
         debug_blueprint(
             cameras,
             lag_track_ids=[result.lag.track_id] if result.lag else [],
+            # the y axis fits the pair after the warm-up: a birth spike would squash the curves
+            lag_speed_max_mps=1.15 * result.lag.speed_max_mps if result.lag else None,
             switch_track_ids=[e for s in first_switch for e in (s.old_track_id, s.new_track_id)],
         ),
         make_active=True,
@@ -635,6 +638,7 @@ def find_velocity_lag(samples: Sequence[tuple[np.ndarray, ...]]) -> LagSample | 
             speed_change_mps=change,
             mean_gap_before_mps=float(gaps[0]),
             mean_gap_after_mps=float(gaps[shift]),
+            speed_max_mps=float(max(np.max(gt_speed[rows]), np.max(speed[rows]))),
         )
     return found
 
