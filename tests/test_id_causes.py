@@ -137,6 +137,18 @@ def _steady(n: int = 3) -> list[F]:
     return [F(gt={1: A}, dets=[(A, K)], live={0: A}, match={0: (0, Stage.BEV)}, out={0: A})] * n
 
 
+def _two_lanes(**changes) -> F:
+    """GT 1 on lane A tracked by T0, GT 2 on lane B by T1 (``changes`` override fields)."""
+    both = F(
+        gt={1: A, 2: B},
+        dets=[(A, K), (B, K)],
+        live={0: A, 1: B},
+        match={0: (0, Stage.BEV), 1: (1, Stage.BEV)},
+        out={0: A, 1: B},
+    )
+    return F(**{**both.__dict__, **changes})
+
+
 def _switches(causes):
     return [c for c in causes if c.event.kind is IdEventKind.ID_SWITCH]
 
@@ -165,13 +177,7 @@ def test_duplicate_birth_reports_the_gate_cost_that_kept_them_apart() -> None:
 
 
 def test_old_track_took_another_objects_detection() -> None:
-    both = F(
-        gt={1: A, 2: B},
-        dets=[(A, K), (B, K)],
-        live={0: A, 1: B},
-        match={0: (0, Stage.BEV), 1: (1, Stage.BEV)},
-        out={0: A, 1: B},
-    )
+    both = _two_lanes()
     mid = ((A[0] + B[0]) / 2, (A[1] + B[1]) / 2)
     swap = F(
         gt={1: A, 2: B},
@@ -228,15 +234,8 @@ def test_image_plane_stage_gave_the_detection_to_another_track() -> None:
 
 
 def test_an_existing_track_jumps_onto_the_object() -> None:
-    both = F(
-        gt={1: A, 2: B},
-        dets=[(A, K), (B, K)],
-        live={0: A, 1: B},
-        match={0: (0, Stage.BEV), 1: (1, Stage.BEV)},
-        out={0: A, 1: B},
-        born=[],
-    )
-    first = F(**{**both.__dict__, "live": {}, "born": [0, 1]})
+    both = _two_lanes()
+    first = _two_lanes(live={}, born=[0, 1])
     jump = F(
         gt={1: A, 2: B}, dets=[(A, K)], live={0: A, 1: B}, match={1: (0, Stage.BEV)}, out={1: A}
     )
@@ -247,15 +246,9 @@ def test_an_existing_track_jumps_onto_the_object() -> None:
 
 def test_gt_id_changed_under_a_steady_track() -> None:
     # object on lane B is labelled GT 2, then (label error) GT 1, which was on lane A before
-    f01 = F(
-        gt={1: A, 2: B},
-        dets=[(A, K), (B, K)],
-        live={0: A, 1: B},
-        match={0: (0, Stage.BEV), 1: (1, Stage.BEV)},
-        out={0: A, 1: B},
-    )
-    f2 = F(**{**f01.__dict__, "gt": {2: B}})
-    f3 = F(**{**f01.__dict__, "gt": {1: B}})
+    f01 = _two_lanes()
+    f2 = _two_lanes(gt={2: B})
+    f3 = _two_lanes(gt={1: B})
     (sw,) = _switches(_play([f01, f01, f2, f3]))
     assert sw.cause is Cause.GT_ID_CHANGED
     assert sw.evidence["previous_gt"] == 2

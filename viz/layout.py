@@ -170,9 +170,13 @@ def debug_blueprint(
         active_tab=0,
     )
     right = rrb.Vertical(costs, velocity, text, row_shares=[5, 4, 4])
+    return _paused(rrb.Horizontal(left, right, column_shares=[3, 2]))
+
+
+def _paused(root: rrb.Container) -> rrb.Blueprint:
+    """A blueprint paused on the frame timeline, panels collapsed (the views get the room)."""
     return rrb.Blueprint(
-        rrb.Horizontal(left, right, column_shares=[3, 2]),
-        # collapsed: the timeline bar without the stream tree, the views get the room
+        root,
         rrb.TimePanel(timeline=paths.FRAME, play_state="paused", state="collapsed"),
         rrb.SelectionPanel(expanded=False),
         rrb.BlueprintPanel(expanded=False),
@@ -250,13 +254,7 @@ def focus_blueprint(
         _speed_view(ids, "speed [m/s]: " + " / ".join(f"T{t}" for t in ids)),
         row_shares=[5, 3, 2],
     )
-    return rrb.Blueprint(
-        rrb.Horizontal(left, right, column_shares=[3, 2]),
-        rrb.TimePanel(timeline=paths.FRAME, play_state="paused", state="collapsed"),
-        rrb.SelectionPanel(expanded=False),
-        rrb.BlueprintPanel(expanded=False),
-        collapse_panels=False,
-    )
+    return _paused(rrb.Horizontal(left, right, column_shares=[3, 2]))
 
 
 def _dim_boxes() -> object:
