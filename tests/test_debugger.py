@@ -206,11 +206,15 @@ def test_shots_of_an_event_and_a_frame(tmp_path: Path) -> None:
         pytest.skip(f"no software renderer: {why}")
     path, _ = recording()
     index = read_shot_index(path)
-    k = index.event_kinds.index(0)
+    k, k2 = [i for i, kind in enumerate(index.event_kinds) if kind == 0][:2]
     frame = index.event_shot_frames[k]
-    plan = [*plan_shots(index, events=[k]), *plan_shots(index, frame=15)]
+    plan = [*plan_shots(index, events=[k, k2]), *plan_shots(index, frame=15)]
     shots = take_shots(path, tmp_path, plan=plan, settle_secs=1.0)
     names = {s.path.name for s in shots}
+    # each event in its own focused layout (not the previous event's)
+    frame2 = index.event_shot_frames[k2]
+    second = next(s for s in shots if s.path.name == f"event{k2}_f{frame2:04d}_focus.png")
+    assert second.view == f"{layout.VIEW_FOCUS}#{k2}"
     for view in ("viewer", "focus", "event", "camera", "cost_bev"):
         assert f"event{k}_f{frame:04d}_{view}.png" in names
     for view in ("viewer", "bev_3d", "camera", "cost_bev"):

@@ -401,9 +401,12 @@ def focus_layout_json(
     import rerun as rr
 
     path = tmp / f"focus_e{event}.rrd"
-    # an application id of its own: the viewer keeps one active blueprint per application, and
-    # the recording's own must stay untouched
-    rec = rr.RecordingStream(f"{paths.APPLICATION_ID}_focus", recording_id=f"focus-e{event}")
+    # an application id of its own per event: the viewer keeps one active blueprint per
+    # application, so a shared one would return the previous event's layout (and the
+    # recording's own layout must stay untouched)
+    rec = rr.RecordingStream(
+        f"{paths.APPLICATION_ID}_focus_e{event}", recording_id=f"focus-e{event}"
+    )
     rec.save(path, default_blueprint=focus_blueprint_for(recording, index, event))
     rec.log("focus_layout", rr.AnyValues(event=[event]), static=True)
     rec.flush()
