@@ -1,80 +1,75 @@
 """`mctrack kitti --record DIR`: one debug recording per sequence, and the causes of the run's
 ID switches and fragmentations (``DIR/causes.md``, ``summary.json`` "causes").
 
-Runs after the timed tracking and the evaluation of :func:`app.kitti.run_kitti`, so each
-recording reuses that run's KITTI result file and per-sequence TrackEval metrics instead of
-computing them again (see docs/debugger.md, "Recording time").
+:func:`record_sequence` runs inside each sequence's task (:class:`app.kitti.KittiSceneJob`),
+after the timed tracking, and reuses the KITTI result file that task just wrote;
+:func:`recording_summary` gathers the tasks' results into the summary.
 """
 
 from __future__ import annotations
 
-import sys
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
 from tracker.config import TrackerConfig
-from tracker.events import Event, FrameStarted
 from tracker.frame import Frame
 from tracker.io.fileio import write_text_atomic
 
 
-def record_sequences(
-    detections: Mapping[str, Sequence[Frame]],
-    gt: Mapping[str, Sequence[Frame]] | None,
+def record_sequence(
+    frames: Sequence[Frame],
+    gt_frames: Sequence[Frame] | None,
     config: TrackerConfig,
     record_dir: Path,
     kitti_root: Path,
     label_dir: Path,
-    data_dir: Path,
-    metrics_per_seq: Mapping[str, dict[str, dict[str, float]]],
-    quiet: bool = False,
+    result_file: Path,
 ) -> dict[str, Any]:
-    """Record every sequence; returns the summary keys "recordings", "recording_seconds" and,
-    with labels, "causes" ({seq: {class: {"IDSW"|"Frag": {cause: n}}}}) and "causes_markdown"."""
-    from tracker.eval.id_causes import cause_counts, cause_table_markdown, other_share
+    """Record one sequence (its camera images too, where ``image_02/<seq>`` exists).
+
+    Returns plain data for the task's ``info``: "recording" (path), "recording_seconds" (per
+    phase) and, with labels, "causes" ({class: {"IDSW"|"Frag": {cause: n}}})."""
+    from tracker.eval.id_causes import cause_counts
     from viz.record import record_scene
 
-    recordings: dict[str, str] = {}
-    causes: dict[str, Any] = {}
+    seq = frames[0].scene if frames else ""
+    has_labels = (label_dir / f"{seq}.txt").is_file()
+    cameras = frames[0].cameras if frames else ()
+    image_dir = kitti_root / "training" / "image_02" / seq
+    images = {cameras[0].name: image_dir} if cameras and image_dir.is_dir() else None
+    path = record_dir / f"{seq}.rrd"
+    r = record_scene(
+        frames,
+        config,
+        gt_frames,
+        path,
+        labels_dir=label_dir if has_labels else None,
+        images=images,
+        input_description=f"KITTI tracking sequence {seq} ({kitti_root})",
+        motion_metrics=False,
+        result_file=result_file if result_file.is_file() else None,
+    )
+    info: dict[str, Any] = {"recording": str(path), "recording_seconds": dict(r.seconds)}
+    if r.id_evaluation is not None and r.causes:
+        info["causes"] = cause_counts(r.causes)
+    return info
+
+
+def recording_summary(
+    records: Sequence[Any], config: TrackerConfig, record_dir: Path
+) -> dict[str, Any]:
+    """Summary keys "recordings", "recording_seconds" (summed per phase) and, with labels,
+    "causes" (per sequence), "causes_other_share" and "causes_markdown" (``record_dir/causes.md``,
+    the table of :func:`tracker.eval.id_causes.cause_table_markdown`)."""
+    from tracker.eval.id_causes import cause_table_markdown, other_share
+
+    recordings = {r.scene: r.info["recording"] for r in records if "recording" in r.info}
     seconds: Counter[str] = Counter()
-    total = sum(len(f) for f in detections.values())
-    with tqdm(
-        total=total, unit="frame", desc="recording", disable=quiet or None, file=sys.stderr
-    ) as bar:
-
-        def progress(event: Event) -> None:
-            if isinstance(event, FrameStarted):
-                bar.update(1)
-
-        for seq, frames in detections.items():
-            bar.set_description(f"record {seq}")
-            has_labels = (label_dir / f"{seq}.txt").is_file()
-            cameras = frames[0].cameras if frames else ()
-            image_dir = kitti_root / "training" / "image_02" / seq
-            images = {cameras[0].name: image_dir} if cameras and image_dir.is_dir() else None
-            result_file = data_dir / f"{seq}.txt"
-            path = record_dir / f"{seq}.rrd"
-            r = record_scene(
-                frames,
-                config,
-                (gt or {}).get(seq),
-                path,
-                labels_dir=label_dir if has_labels else None,
-                images=images,
-                input_description=f"KITTI tracking sequence {seq} ({kitti_root})",
-                motion_metrics=False,
-                kitti_metrics=metrics_per_seq.get(seq),
-                result_file=result_file if result_file.is_file() else None,
-                progress=progress,
-            )
-            recordings[seq] = str(path)
-            if r.id_evaluation is not None and r.causes:
-                causes[seq] = cause_counts(r.causes)
-            seconds.update(r.seconds)
+    for r in records:
+        seconds.update(r.info.get("recording_seconds", {}))
+    causes = {r.scene: r.info["causes"] for r in records if r.info.get("causes")}
     out: dict[str, Any] = {
         "recordings": recordings,
         "recording_seconds": {k: round(v, 2) for k, v in sorted(seconds.items())},
