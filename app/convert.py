@@ -13,6 +13,7 @@ from pathlib import Path
 
 from tracker.errors import InputError
 from tracker.frame import Frame
+from tracker.io.fileio import check_output_file, check_output_folder
 
 
 def _csv(text: str) -> list[str]:
@@ -187,6 +188,13 @@ def _run_waymo(args: argparse.Namespace) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run ``mctrack convert``; returns the exit code (2 for bad or missing input)."""
     try:
+        # the output is checked before the (long) conversion
+        if args.dataset == "kitti":
+            check_output_folder(args.out)
+        else:
+            check_output_file(args.out)
+            if getattr(args, "gt_out", None) is not None:
+                check_output_file(args.gt_out, "--gt-out")
         if args.dataset == "kitti":
             return _run_kitti(args)
         if args.dataset == "nuscenes":

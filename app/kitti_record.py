@@ -15,7 +15,7 @@ from typing import Any
 
 from tracker.config import TrackerConfig
 from tracker.frame import Frame
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import path_in, write_text_atomic
 
 
 def record_sequence(
@@ -35,11 +35,11 @@ def record_sequence(
     from viz.record import record_scene
 
     seq = frames[0].scene if frames else ""
-    has_labels = (label_dir / f"{seq}.txt").is_file()
+    has_labels = path_in(label_dir, seq, ".txt").is_file()
     cameras = frames[0].cameras if frames else ()
-    image_dir = kitti_root / "training" / "image_02" / seq
+    image_dir = path_in(kitti_root / "training" / "image_02", seq, "")
     images = {cameras[0].name: image_dir} if cameras and image_dir.is_dir() else None
-    path = record_dir / f"{seq}.rrd"
+    path = path_in(record_dir, seq, ".rrd")
     r = record_scene(
         frames,
         config,

@@ -16,8 +16,15 @@ from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
+from tracker.fates import FateCounter, combine_fates
 from tracker.frame import Frame
-from tracker.io.fileio import compact_json, write_bytes_atomic, write_text_atomic
+from tracker.io.fileio import (
+    check_output_folder,
+    compact_json,
+    path_in,
+    write_bytes_atomic,
+    write_text_atomic,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,11 +53,14 @@ class NuscenesSceneJob:
         if self.record:
             from viz.record import record_scene
 
-            path = self.out / "recordings" / f"{scene}.rrd"
+            path = path_in(self.out / "recordings", scene, ".rrd")  # names are input data
             result = record_scene(frames, self.config, gt_frames, path)
             info["recording"] = str(path)
+            info["fates"] = result.fates
         else:
-            result = run_scene(frames, self.config)
+            fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
+            result = run_scene(frames, self.config, observer=fates)
+            info["fates"] = fates.summary()
         outputs = result.outputs
         per_sample = nuscenes_results(
             {scene: (frames, outputs)}, coasting_score=self.coasting_score
@@ -99,6 +109,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)  # before any work
     summary = run_nuscenes(
         dataroot=Path(args.dataroot),
         version=args.version,
@@ -219,6 +230,7 @@ def run_nuscenes(
         "peak_rss_mb": peak_rss_mb(),
         "skipped_detections": dict(sorted(conv.skipped_detections.items())),
         **scenes.summary_fields(records, parallel, wall_secs),
+        "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
         "config": config_to_dict(config),
     }
     if recordings:

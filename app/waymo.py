@@ -18,8 +18,9 @@ from app import scenes
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
+from tracker.fates import FateCounter, combine_fates
 from tracker.frame import Frame
-from tracker.io.fileio import write_bytes_atomic, write_text_atomic
+from tracker.io.fileio import check_output_folder, write_bytes_atomic, write_text_atomic
 from tracker.io.waymo_writer import RESULT_TYPES
 from tracker.io.writers import tracks_scene_json, write_tracks_parts
 
@@ -41,6 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)  # before any work
     summary = run_waymo(
         data_root=Path(args.data_root),
         detections=Path(args.detections),
@@ -77,7 +79,8 @@ class WaymoSceneJob:
 
         conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
         frames = conv.detections[scene]
-        result = run_scene(frames, self.config)
+        fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
+        result = run_scene(frames, self.config, observer=fates)
         written = write_waymo_results(self.out / "results", {scene: (frames, result.outputs)})
         write_bytes_atomic(
             scenes.part_path(self.out, index, "json"),
@@ -89,7 +92,11 @@ class WaymoSceneJob:
             scene,
             frames=len(frames),
             tracker_seconds=result.tracker_seconds,
-            info={"written": written, "skipped_types": dict(conv.skipped_types)},
+            info={
+                "written": written,
+                "skipped_types": dict(conv.skipped_types),
+                "fates": fates.summary(),
+            },
             kept=(frames, gt_frames, result.outputs) if self.keep else None,
         )
 
@@ -143,6 +150,7 @@ def run_waymo(
         "tracker_fps": round(frames / seconds, 1) if seconds > 0 else None,
         "skipped_types": {str(k): v for k, v in sorted(skipped.items())},
         **scenes.summary_fields(records, parallel, wall_secs),
+        "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
         "config": config_to_dict(config),
     }
     if motion and gt is not None:

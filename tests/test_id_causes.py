@@ -23,7 +23,6 @@ from tracker.eval.id_causes import (
     cause_table_markdown,
     classify_events,
     other_share,
-    tee,
 )
 from tracker.eval.id_switches import IdEventKind, bev_id_events
 from tracker.events import (
@@ -38,6 +37,7 @@ from tracker.events import (
     Stage,
     TrackOutput,
 )
+from tracker.fates import Tee
 from tracker.frame import Frame
 from tracker.pipeline import run_scene
 
@@ -335,8 +335,8 @@ def test_the_real_tracker_short_and_long_gaps(gap: range, kinds, cause: Cause) -
     frames, gt = _real_scene(gap)
     log = StageLog()
     seen: list[object] = []
-    outputs = run_scene(frames, config, observer=tee(log, seen.append)).outputs
-    assert seen  # tee calls every observer
+    outputs = run_scene(frames, config, observer=Tee(log, seen.append)).outputs
+    assert seen  # Tee calls every observer
     evaluation = bev_id_events(outputs, gt, categories=["car"])
     causes = classify_events(evaluation, log, gt)
     assert [c.event.kind for c in causes] == kinds

@@ -21,6 +21,7 @@ import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -36,7 +37,6 @@ from tracker.eval.id_causes import (
     cause_counts,
     cause_table_markdown,
     classify_events,
-    tee,
 )
 from tracker.eval.id_switches import (
     IdEvaluation,
@@ -48,7 +48,9 @@ from tracker.eval.id_switches import (
 )
 from tracker.eval.motion_metrics import gt_velocity_central
 from tracker.events import Observer, TrackOutput
+from tracker.fates import FateCounter, Tee
 from tracker.frame import Frame
+from tracker.io.fileio import finish_temp, remove_stale_temps, temp_name
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.archetypes import (
@@ -156,6 +158,8 @@ class RecordResult:
     seconds: dict[str, float] = field(default_factory=dict)
     #: process CPU seconds per phase (all threads: Rerun compresses and writes in the background)
     cpu_seconds: dict[str, float] = field(default_factory=dict)
+    #: detections per fate and class (tracker.fates.FateCounter.summary)
+    fates: dict[str, Any] = field(default_factory=dict)
 
     @property
     def recording_seconds(self) -> float:
@@ -165,6 +169,15 @@ class RecordResult:
     @property
     def track_ids(self) -> list[int]:
         return sorted({int(i) for o in self.outputs for i in o.boxes.track_id})
+
+
+def partial_path(path: Path) -> Path:
+    """Where to stream a recording meant for ``path``: a hidden temporary name in the same
+    folder, renamed by :func:`tracker.io.fileio.finish_temp` when complete (a killed run leaves
+    no footer-less file under the real name; the next run removes the temporary one)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(path.parent)
+    return path.parent / f"{temp_name(path)}{uuid.uuid4().hex[:8]}.tmp"
 
 
 def new_recording(
@@ -235,8 +248,12 @@ def record_scene(
     cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras] if frames else []
     camera_names = [name for name, _, _ in cameras]
     own = rec is None
+    partial: Path | None = None
     if rec is None:
-        rec = new_recording(scene, path=path)
+        # stream to a hidden temporary name, renamed when complete: a killed run leaves no
+        # footer-less file under the real name (and the next write to the folder removes it)
+        partial = None if path is None else partial_path(Path(path))
+        rec = new_recording(scene, path=partial)
     rec.log(paths.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("/", annotation_context(), static=True)
 
@@ -251,10 +268,10 @@ def record_scene(
         flush_rows=8 if live else 512,
         flush_secs=0.25 if live else 4.0,
     )
+    fates = FateCounter(rv_gate_consumes=config.rv_reference)
     # the stage log explains the ID events afterwards (only worth keeping with a GT)
     stages = StageLog() if (gt_frames or label_file is not None) else None
-    observers = [o for o in (observer, stages, progress) if o is not None]
-    scene_result = run_scene(frames, config, observer=tee(*observers))
+    scene_result = run_scene(frames, config, observer=Tee(observer, fates, stages, progress))
     t_track, c_track = time.perf_counter(), time.process_time()
     observer.flush()
     t_flush, c_flush = time.perf_counter(), time.process_time()
@@ -312,6 +329,7 @@ def record_scene(
         "detections_kept": observer.detection_counts["kept"],
         **{f"tracks_{k}": v for k, v in observer.lifecycle_counts.items()},
     }
+    result.fates = fates.summary()
     _log_index(rec, result)
     rec.log(
         paths.SUMMARY,
@@ -336,6 +354,8 @@ def record_scene(
     if own:
         rec.flush()
         rec.disconnect()
+        if partial is not None and path is not None:
+            finish_temp(partial, Path(path))
     end, cpu_end = time.perf_counter(), time.process_time()
     result.total_seconds = end - start
     result.cpu_seconds = {
@@ -969,6 +989,22 @@ def summary_markdown(
     lines += [input_description or "(not given)", ""]
     lines += ["## Counts", "", "| what | count |", "|---|---:|"]
     lines += [f"| {k.replace('_', ' ')} | {v} |" for k, v in result.counts.items()]
+    if result.fates:
+        lines += ["", "## Detection fates", "", "Every input detection has exactly one fate.", ""]
+        classes = sorted({c for d in result.fates["per_fate_and_class"].values() for c in d})
+        lines += ["| fate | total | " + " | ".join(classes) + " |"]
+        lines += ["|---|---:|" + "---:|" * len(classes)]
+        for fate, total in result.fates["per_fate"].items():
+            per = result.fates["per_fate_and_class"].get(fate, {})
+            lines.append(
+                f"| {fate} | {total} | " + " | ".join(str(per.get(c, 0)) for c in classes) + " |"
+            )
+        lines += [
+            f"| **all** | {result.fates['detections']} |" + " |" * len(classes),
+            "",
+            f"{result.fates['in_unconfirmed_tracks']} matched or born detections went into "
+            "tracks never confirmed.",
+        ]
     ev = result.id_evaluation
     lines += ["", "## Static metrics", ""]
     if result.kitti_metrics:

@@ -52,7 +52,6 @@ from tracker.events import (
     FrameStarted,
     LifecycleChanged,
     Matched,
-    Observer,
     Predicted,
     Stage,
 )
@@ -149,6 +148,8 @@ class StageLog:
     Memory: the arrays the tracker made anyway, kept alive (KITTI: ~1 MB per 100 frames, most of
     it the BEV cost matrices)."""
 
+    wants_rv_costs = False  # only the BEV matrix is used (see tracker.fates.Tee)
+
     def __init__(self) -> None:
         self.frames: dict[int, FrameStages] = {}
         self.born_frame: dict[int, int] = {}
@@ -182,16 +183,6 @@ class StageLog:
                 self.deleted_frame[t] = f
         elif isinstance(event, FrameFinished):
             cur.output_ids = event.output.boxes.track_id
-
-
-def tee(*observers: Observer) -> Observer:
-    """One observer calling several (in order)."""
-
-    def call(event: Event) -> None:
-        for o in observers:
-            o(event)
-
-    return call
 
 
 @dataclass(frozen=True, slots=True)
@@ -475,5 +466,4 @@ __all__ = [
     "cause_table_markdown",
     "classify_events",
     "other_share",
-    "tee",
 ]
