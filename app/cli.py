@@ -36,6 +36,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "eval": ("app.eval", "evaluate a tracks file: KITTI static metrics and motion metrics"),
     "view": ("app.view", "run the tracker with the Rerun visual debugger (file, viewer or web)"),
     "shots": ("app.shots", "headless screenshots of a recording at its ID switches and lag"),
+    "inspect": ("app.inspect", "open a recording in the viewer at one ID event, focused"),
 }
 
 

@@ -132,29 +132,32 @@ class KittiSceneJob:
             tracks_scene_json(seq, frames, result.outputs),
         )
         write_secs = time.perf_counter() - t1
+        info: dict[str, Any] = {
+            "convert_seconds": convert_secs,
+            "write_seconds": write_secs,
+            "fates": fates.summary(),
+            "offline_removed_tracks": len(result.removed_offline),
+        }
         if self.record is not None:  # outside the timed tracker region
-            from viz.record import record_scene
+            from app.kitti_record import record_sequence
 
-            labels_ok = self.label_dir if path_in(self.label_dir, seq, ".txt").is_file() else None
-            record_scene(
-                frames,
-                self.config,
-                gt_frames,
-                path_in(self.record, seq, ".rrd"),
-                labels_dir=labels_ok,
-                motion_metrics=False,
+            info.update(
+                record_sequence(
+                    frames,
+                    gt_frames,
+                    self.config,
+                    self.record,
+                    self.kitti_root,
+                    self.label_dir,
+                    path_in(self.out / "data", seq, ".txt"),
+                )
             )
         return SceneRecord(
             index,
             seq,
             frames=len(frames),
             tracker_seconds=result.tracker_seconds,
-            info={
-                "convert_seconds": convert_secs,
-                "write_seconds": write_secs,
-                "fates": fates.summary(),
-                "offline_removed_tracks": len(result.removed_offline),
-            },
+            info=info,
             kept=(frames, gt_frames, result.outputs) if self.keep else None,
         )
 
@@ -253,10 +256,23 @@ def run_kitti(
             from tracker.eval.kitti import evaluate_kitti
 
             lengths = {r.scene: r.frames for r in ok}
+            per_seq: dict[str, dict[str, dict[str, float]]] = {}
             summary["metrics"] = evaluate_kitti(
-                label_dir=label_dir, result_dir=data_dir, seq_lengths=lengths, classes=classes
+                label_dir=label_dir,
+                result_dir=data_dir,
+                seq_lengths=lengths,
+                classes=classes,
+                per_sequence=per_seq,
             )
             summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
+            summary["per_sequence"] = {
+                seq: {c: {k: m[k] for k in ("IDSW", "Frag")} for c, m in per.items()}
+                for seq, per in per_seq.items()
+            }
+    if record is not None:
+        from app.kitti_record import recording_summary
+
+        summary.update(recording_summary(ok, config, record))
     if motion:
         detections = {r.scene: r.kept[0] for r in ok}
         gt = {r.scene: r.kept[1] for r in ok if r.kept[1] is not None}
@@ -319,6 +335,17 @@ def _print_summary(summary: dict[str, Any]) -> None:
             print(f"{cls:<12}" + "".join(f"{m[c]:>9}" for c in cols))
     elif "evaluation" in summary:
         print(summary["evaluation"])
+    per_seq = summary.get("per_sequence")
+    if per_seq:
+        classes = list(next(iter(per_seq.values())))
+        print(f"{'IDSW/Frag':<10}" + "".join(f"{c:>14}" for c in classes))
+        for seq, per in per_seq.items():
+            cells = [f"{per[c]['IDSW']}/{per[c]['Frag']}" for c in classes]
+            print(f"{seq:<10}" + "".join(f"{x:>14}" for x in cells))
+    for seq, path in summary.get("recordings", {}).items():
+        print(f"recording {seq}: {path}")
+    if "causes_markdown" in summary:
+        print(f"causes of ID switches and fragmentations: {summary['causes_markdown']}")
     motion = summary.get("motion")
     if isinstance(motion, dict):
         cols = ["vae_deg", "vne_mps", "vir_ratio", "vse_mps", "vde_secs", "n_samples"]

@@ -1,9 +1,15 @@
 """`mctrack shots RECORDING --out DIR`: headless screenshots of a recording's key views.
 
-At the frames of the first ID switches (the first fragmentations when there are none) and of
-the largest velocity lag, as listed in the recording's ``summary/index``. Needs a Vulkan driver;
-on a machine without GPU, Mesa's software one: ``apt-get install -y mesa-vulkan-drivers
-libvulkan1``. Without it, this says so and exits with status 3.
+What to capture (as listed in the recording's ``summary/index``):
+
+* default: the first 3 ID switches (``--max-events``; the first fragmentations when there are
+  none), each in its focused layout, and the largest velocity lag;
+* ``--event K`` (repeatable) or ``--events all``: those events (``#K`` in the summary), focused;
+* ``--frame F``: one frame in the default layout.
+
+Event and frame shots move to a frame with a camera image when one is at most 3 frames away.
+Needs a Vulkan driver; on a machine without GPU, Mesa's software one: ``apt-get install -y
+mesa-vulkan-drivers libvulkan1``. Without it, this says so and exits with status 3.
 """
 
 from __future__ import annotations
@@ -21,7 +27,15 @@ EXIT_VIEWER_FAILED = 4
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", help="an .rrd written by mctrack view / demo / kitti --record")
     parser.add_argument("--out", required=True, help="folder for the PNG files")
-    parser.add_argument("--events", type=int, default=3, help="ID switches to capture")
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument(
+        "--event", type=int, action="append", help="event #K of the summary (repeatable)"
+    )
+    what.add_argument("--events", choices=["all"], help="every ID switch and fragmentation")
+    what.add_argument("--frame", type=int, help="one frame, in the default layout")
+    parser.add_argument(
+        "--max-events", type=int, default=3, help="ID switches captured by default (3)"
+    )
     parser.add_argument("--settle", type=float, default=2.0, help="seconds to wait per frame")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds to load the file")
 
@@ -32,7 +46,16 @@ def run(args: argparse.Namespace) -> int:
     recording = Path(args.recording)
     if not recording.is_file():
         raise InputError(f"{recording}: file not found")
-    plan = plan_shots(read_shot_index(recording), max_events=args.events)
+    index = read_shot_index(recording)
+    try:
+        plan = plan_shots(
+            index,
+            max_events=args.max_events,
+            events=args.event or args.events,
+            frame=args.frame,
+        )
+    except IndexError as exc:
+        raise InputError(f"{recording}: --event: {exc}") from None
     if not plan:
         print(
             f"{recording}: no ID switches, fragmentations or velocity lag recorded; nothing "
@@ -54,5 +77,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"mctrack shots: the headless viewer failed: {exc}", file=sys.stderr)
         return EXIT_VIEWER_FAILED
     for shot in shots:
-        print(f"{shot.path}  ({shot.reason} at frame {shot.frame}: {shot.view})")
+        what = f"event #{shot.event} " if shot.event is not None else ""
+        print(f"{shot.path}  ({what}{shot.reason} at frame {shot.frame}: {shot.view})")
     return 0

@@ -223,8 +223,9 @@ def test_recorded_id_events_equal_trackeval(rrd: Path, result: RecordResult) -> 
     levels = table["TextLog:level"].to_pylist()
     texts = table["TextLog:text"].to_pylist()
     warn = [t[0] for t, lv in zip(texts, levels, strict=True) if lv and lv[0] == "WARN"]
-    switches = [t for t in warn if t.startswith("ID switch")]
-    frags = [t for t in warn if t.startswith("fragmentation")]
+    # "#K IDSW f<frame> <class> GT<id> T<old>->T<new>: <cause> (evidence)"
+    switches = [t for t in warn if t.split(" ")[1] == "IDSW"]
+    frags = [t for t in warn if t.split(" ")[1] == "Frag"]
     metrics = result.kitti_metrics  # evaluate_kitti (TrackEval's own counting), same frames
     assert len(switches) == sum(m["IDSW"] for m in metrics.values())
     assert len(frags) == sum(m["Frag"] for m in metrics.values())
@@ -233,16 +234,14 @@ def test_recorded_id_events_equal_trackeval(rrd: Path, result: RecordResult) -> 
     index = entity_table(rrd, paths.SHOT_INDEX, static=True)
     frames = index["id_switch_frames"].to_pylist()[-1]
     assert frames == [e.frame_id for e in result.id_evaluation.id_switches]
-    assert sorted({int(t.split("frame ")[1].split(":")[0]) for t in switches}) == sorted(
-        set(frames)
-    )
+    assert sorted({int(t.split(" ")[2][1:]) for t in switches}) == sorted(set(frames))
 
 
 def test_id_switch_markers_sit_at_the_objects(rrd: Path, result: RecordResult) -> None:
     event = result.id_evaluation.id_switches[0]
     table = entity_table(rrd, paths.ID_SWITCH_MARKERS)
     labels = column_at(table, "Points3D:labels", event.frame_id)
-    assert any(f"GT {event.gt_id}" in label for label in labels)
+    assert any(f"GT{event.gt_id}:" in label for label in labels)
     _, gt = sample_frames()
     gt_frame = next(f for f in gt if f.frame_id == event.frame_id)
     xyz = gt_frame.boxes.xyz[gt_frame.boxes.track_id == event.gt_id][0]
@@ -296,7 +295,11 @@ def test_summary_lists_the_switches(rrd: Path, result: RecordResult) -> None:
     text = table["TextDocument:text"].to_pylist()[-1][0]
     assert "## ID switches" in text and "## Config (resolved)" in text
     first = result.id_evaluation.id_switches[0]
-    assert f"| {first.frame_id} | car | {first.gt_id} |" in text
+    k = result.id_evaluation.events.index(first)
+    cause = result.causes[k].cause.value
+    assert f"| {k} | {first.frame_id} | IDSW | car | {first.gt_id} |" in text
+    assert f"T{first.old_track_id} -> T{first.new_track_id} | {cause} |" in text
+    assert "mctrack inspect" in text and "### Causes" in text
     assert "motion metrics: not available" in text  # motion_metrics=False here
 
 

@@ -8,7 +8,14 @@ import pytest
 
 from tests.test_viz import recording
 from viz.layout import VIEW_BEV
-from viz.shots import image_variance, plan_shots, read_shot_index, renderer_available, take_shots
+from viz.shots import (
+    PlannedShot,
+    image_variance,
+    plan_shots,
+    read_shot_index,
+    renderer_available,
+    take_shots,
+)
 
 ARTIFACT_SHOTS = Path(__file__).resolve().parents[1] / "artifacts" / "shots"
 #: A blank (single-colour) view has variance 0; the dark viewer background with a grid and a few
@@ -23,8 +30,9 @@ def test_shot_plan_comes_from_the_recording() -> None:
     assert index.id_switch_frames == switches
     assert result.lag is not None and index.lag_frame == result.lag.frame_id
     plan = plan_shots(index, max_events=2)
-    first = [(f, "id_switch") for f in dict.fromkeys(switches)][:2]
-    assert plan == [*first, (result.lag.frame_id, "lag")]
+    first = [k for k, kind in enumerate(index.event_kinds) if kind == 0][:2]
+    focused = [PlannedShot(index.event_shot_frames[k], "id_switch", k) for k in first]
+    assert plan == [*focused, PlannedShot(result.lag.frame_id, "lag")]
 
 
 def test_screenshot_is_not_blank(tmp_path: Path) -> None:

@@ -29,7 +29,34 @@ _PALETTE = np.array(
         for i in range(_PALETTE_SIZE)
     ]
 )
-PALETTE_U8: Rgb = (_PALETTE * 255).round().astype(np.uint8)
+#: The viewer's dark background, and the WCAG contrast every track colour keeps against it
+#: (4.5 = body text): a saturated blue on black is otherwise unreadable as a label.
+BACKGROUND_RGB = (18, 18, 18)
+MIN_CONTRAST = 4.5
+
+
+def _luminance(rgb01: FloatArray) -> FloatArray:
+    """WCAG relative luminance of (..., 3) sRGB colours in [0, 1]."""
+    lin = np.where(rgb01 <= 0.04045, rgb01 / 12.92, ((rgb01 + 0.055) / 1.055) ** 2.4)
+    return lin @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def contrast_ratio(rgb01: FloatArray, background01: FloatArray) -> FloatArray:
+    """WCAG contrast ratio of (..., 3) colours against one background colour (both in [0, 1])."""
+    return (_luminance(rgb01) + 0.05) / (_luminance(np.asarray(background01)) + 0.05)
+
+
+def _legible(rgb01: FloatArray) -> FloatArray:
+    """Blend each colour towards white just enough to reach :data:`MIN_CONTRAST`."""
+    bg = np.asarray(BACKGROUND_RGB) / 255.0
+    steps = np.linspace(0.0, 1.0, 41)  # blend fractions, smallest first
+    mixed = rgb01[:, None, :] + steps[None, :, None] * (1.0 - rgb01[:, None, :])
+    ok = contrast_ratio(mixed, bg) >= MIN_CONTRAST + 0.05  # margin for rounding to uint8
+    first = np.argmax(ok, axis=1)
+    return mixed[np.arange(len(rgb01)), first]
+
+
+PALETTE_U8: Rgb = (_legible(_PALETTE) * 255).round().astype(np.uint8)
 
 DETECTION_KEPT_RGB = (235, 235, 235)
 DETECTION_DROPPED_RGB = (110, 110, 110)

@@ -28,13 +28,18 @@ BEV_EYE_POSITION_M = (-16.0, 0.0, 26.0)
 BEV_EYE_TARGET_M = (16.0, 0.0, 0.0)
 
 
-def _speed_view(track_ids: Sequence[int], name: str) -> rrb.TimeSeriesView:
+def _speed_view(
+    track_ids: Sequence[int], name: str, speed_max_mps: float | None = None
+) -> rrb.TimeSeriesView:
     contents = [
         paths.entity(paths.track_series(t, s))
         for t in track_ids
         for s in (paths.SPEED, paths.GT_PREFIX + paths.SPEED)
     ]
-    return rrb.TimeSeriesView(origin=paths.entity(paths.TRACKS), contents=contents, name=name)
+    axis = rrb.ScalarAxis(range=(0.0, speed_max_mps)) if speed_max_mps else None
+    return rrb.TimeSeriesView(
+        origin=paths.entity(paths.TRACKS), contents=contents, name=name, axis_y=axis
+    )
 
 
 def _xy_view(track_ids: Sequence[int], name: str) -> rrb.TimeSeriesView:
@@ -71,6 +76,7 @@ def debug_blueprint(
     *,
     lag_track_ids: Sequence[int] = (),
     switch_track_ids: Sequence[int] = (),
+    lag_speed_max_mps: float | None = None,
 ) -> rrb.Blueprint:
     """The debugging layout.
 
@@ -81,6 +87,7 @@ def debug_blueprint(
     lag_track_ids : tracks whose speed / velocity / heading curves (with their matched GT's) get
         their own views: the largest velocity lag. Known only after the run.
     switch_track_ids : tracks of the first ID switch, compared in one speed view.
+    lag_speed_max_mps : top of the lag speed view's y axis (m/s; None: fit all data).
     """
     # Ego-centric: the view's origin is the ego frame (z up, x = direction of travel), so the
     # eye follows the car at a fixed offset; tracking an entity instead keeps the eye as far
@@ -124,7 +131,7 @@ def debug_blueprint(
     )
     all_tracks = rrb.TimeSeriesView(
         origin=paths.entity(paths.TRACKS),
-        name="all tracks (±60 frames)",
+        name="all tracks: speed [m/s], heading [rad] (±60 frames)",
         time_ranges=rrb.VisibleTimeRange(
             paths.FRAME,
             start=rrb.TimeRangeBoundary.cursor_relative(seq=-SERIES_WINDOW_FRAMES),
@@ -135,14 +142,16 @@ def debug_blueprint(
     if lag_track_ids:
         label = ", ".join(f"T{t}" for t in lag_track_ids)
         series += [
-            _speed_view(lag_track_ids, f"{VIEW_SPEED_LAG}: {label} (largest lag)"),
-            _xy_view(lag_track_ids, f"vx, vy vs GT: {label}"),
-            _heading_view(lag_track_ids, f"heading vs GT: {label}"),
-            _acceleration_view(lag_track_ids, f"ax, ay: {label}"),
+            _speed_view(
+                lag_track_ids, f"{VIEW_SPEED_LAG} [m/s]: {label} (largest lag)", lag_speed_max_mps
+            ),
+            _xy_view(lag_track_ids, f"vx, vy vs GT [m/s]: {label}"),
+            _heading_view(lag_track_ids, f"heading vs GT [rad]: {label}"),
+            _acceleration_view(lag_track_ids, f"ax, ay [m/s²]: {label}"),
         ]
     if switch_track_ids:
         label = " / ".join(f"T{t}" for t in switch_track_ids)
-        series.append(_speed_view(switch_track_ids, f"speed: {label} (first ID switch)"))
+        series.append(_speed_view(switch_track_ids, f"speed [m/s]: {label} (first ID switch)"))
     series.append(all_tracks)
     velocity = rrb.Tabs(*series, active_tab=0)
     text = rrb.Tabs(
@@ -161,11 +170,94 @@ def debug_blueprint(
         active_tab=0,
     )
     right = rrb.Vertical(costs, velocity, text, row_shares=[5, 4, 4])
+    return _paused(rrb.Horizontal(left, right, column_shares=[3, 2]))
+
+
+def _paused(root: rrb.Container) -> rrb.Blueprint:
+    """A blueprint paused on the frame timeline, panels collapsed (the views get the room)."""
     return rrb.Blueprint(
-        rrb.Horizontal(left, right, column_shares=[3, 2]),
-        # collapsed: the timeline bar without the stream tree, the views get the room
+        root,
         rrb.TimePanel(timeline=paths.FRAME, play_state="paused", state="collapsed"),
         rrb.SelectionPanel(expanded=False),
         rrb.BlueprintPanel(expanded=False),
         collapse_panels=False,
     )
+
+
+#: The focused view's eye relative to the event (metres, world z up): behind-left and above,
+#: close enough that a pedestrian's box is legible, far enough for both trails.
+FOCUS_EYE_OFFSET_M = (-6.0, -6.0, 11.0)
+VIEW_FOCUS = "focus "
+VIEW_EXPLAIN = "event"
+#: Everything not part of the event is drawn in this colour in the focused view.
+DIM_RGB = (70, 70, 78)
+
+
+def focus_eye(target_xyz: Sequence[float]) -> rrb.EyeControls3D:
+    """Eye looking at ``target_xyz`` from :data:`FOCUS_EYE_OFFSET_M` (z up)."""
+    target = [float(v) for v in target_xyz]
+    position = [t + o for t, o in zip(target, FOCUS_EYE_OFFSET_M, strict=True)]
+    return rrb.EyeControls3D(position=position, look_target=target, eye_up=(0.0, 0.0, 1.0))
+
+
+def focus_blueprint(
+    cameras: Sequence[tuple[str, int, int]],
+    *,
+    event_index: int,
+    target_xyz: Sequence[float],
+    track_ids: Sequence[int],
+) -> rrb.Blueprint:
+    """One ID event, focused: a world-frame 3D view centred on the event with the old/new tracks'
+    trails, the GT path and their three boxes bright (``focus/e<K>``) and everything else dimmed,
+    the camera, the BEV cost matrix, the event's explanation (cause, evidence, the cost rows of
+    both tracks at the deciding frame) and both tracks' speed against their GT."""
+    focus = f"{paths.FOCUS}/e{event_index}"
+    dim = {
+        paths.entity(p): _dim_boxes()
+        for p in (
+            paths.TRACKS_UPDATED,
+            paths.TRACKS_PREDICTED,
+            paths.GT,
+            paths.DETECTIONS_RAW,
+            paths.DETECTIONS_KEPT,
+        )
+    }
+    scene = rrb.Spatial3DView(
+        origin=paths.entity(paths.WORLD),
+        contents=[
+            paths.entity(paths.WORLD) + "/**",
+            "- " + paths.entity(paths.TRACKS_VELOCITY),
+            "- " + paths.entity(paths.MATCHES_BEV) + "/**",
+            paths.entity(focus) + "/**",
+            paths.entity(paths.ID_SWITCH_MARKERS),
+        ],
+        name=f"{VIEW_FOCUS}#{event_index}",
+        eye_controls=focus_eye(target_xyz),
+        overrides=dim,
+    )
+    cams = [
+        rrb.Spatial2DView(
+            origin=paths.entity(paths.camera(name)),
+            name=f"{VIEW_CAMERA}{name}",
+            visual_bounds=rrb.VisualBounds2D(x_range=[0, width], y_range=[0, height]),
+        )
+        for name, width, height in cameras[:1]
+    ]
+    left = rrb.Vertical(scene, *cams, row_shares=[3, 2]) if cams else scene
+    ids = [t for t in track_ids if t >= 0]
+    right = rrb.Vertical(
+        rrb.TextDocumentView(origin=paths.entity(f"{focus}/explain"), name=VIEW_EXPLAIN),
+        rrb.Spatial2DView(
+            origin=paths.entity(paths.COST_BEV),
+            name=f"{VIEW_COST_BEV}: tracks (rows) x detections",
+        ),
+        _speed_view(ids, "speed [m/s]: " + " / ".join(f"T{t}" for t in ids)),
+        row_shares=[5, 3, 2],
+    )
+    return _paused(rrb.Horizontal(left, right, column_shares=[3, 2]))
+
+
+def _dim_boxes() -> object:
+    import rerun as rr
+
+    return rr.Boxes3D.from_fields(colors=[DIM_RGB], show_labels=False)

@@ -71,15 +71,6 @@ _EMPTY_INT = np.zeros(0, dtype=np.int64)
 
 
 @dataclass
-class FrameMatchCosts:
-    """The tracker's accepted pairs of one frame (for explaining ID switches afterwards)."""
-
-    track_ids: IntArray
-    costs: FloatArray
-    stage: np.ndarray  # 1 = BEV, 2 = RV
-
-
-@dataclass
 class _FrameState:
     frame: Frame
     time_secs: float
@@ -104,7 +95,6 @@ class RerunObserver:
     flush_rows, flush_secs : rows are sent after this many frames or seconds (smaller = lower
         latency in a live viewer, a little more overhead; larger = fewer, bigger chunks, whose
         per-chunk bookkeeping in the file sink is what grows with a long recording).
-    keep_match_costs : keep each frame's accepted pairs in :attr:`match_costs`.
     """
 
     def __init__(
@@ -116,13 +106,14 @@ class RerunObserver:
         trail_frames: int = 20,
         flush_rows: int = 512,
         flush_secs: float = 4.0,
-        keep_match_costs: bool = False,
     ) -> None:
         self.rec = rec
         self.gt = gt or {}
         self.trail_frames = trail_frames
         self.columns = ColumnBuffer(rec, max_rows=flush_rows, max_secs=flush_secs)
         self._images = {cam: _list_images(Path(d)) for cam, d in (images or {}).items()}
+        #: frame ids that have a camera image (``mctrack shots`` prefers them)
+        self.image_frames = sorted({f for imgs in self._images.values() for f in imgs})
         self._pinholes: set[str] = set()
         self._image_shown: set[str] = set()
         self._rv_shown = False
@@ -130,12 +121,7 @@ class RerunObserver:
         self._trails: dict[int, deque[tuple[int, np.ndarray]]] = {}
         self._state: _FrameState | None = None
         # kept for the post-run part of the recording (small per frame)
-        #: the tracker's accepted pairs per frame, kept only with ``keep_match_costs`` (they
-        #: explain ID switches afterwards; ~0.1 KB per frame otherwise not worth keeping)
-        self.match_costs: dict[int, FrameMatchCosts] = {}
-        self.keep_match_costs = keep_match_costs
         self.ego_xyz: list[np.ndarray] = []
-        self._ego_yaw_offset: float | None = None
         self.lifecycle_counts = {"born": 0, "lost": 0, "reacquired": 0, "deleted": 0}
         self.detection_counts = {"raw": 0, "kept": 0}
         self._dispatch: dict[type, Any] = {
@@ -188,25 +174,15 @@ class RerunObserver:
                 )
 
     def _build_ego(self, poses: list[FloatArray]) -> Built:
-        """The ego as a z-up frame heading along its direction of travel.
+        """The ego as a z-up frame heading where the pose says the vehicle faces.
 
-        Datasets disagree on the ego axes (KITTI: camera axes, x right; nuScenes: x forward), so
-        the heading is the yaw of the ego's x axis plus a multiple of 90 degrees found once from
-        the motion (the rotation keeps the heading smooth while the ego stands still). The BEV
-        view looks from behind this frame, whatever the dataset.
-        """
+        See :func:`ego_yaw`: the heading comes from the pose's rotation alone, so a parked ego
+        (KITTI 0012/0016/0017) faces the right way from the first frame."""
         pose = np.stack(poses)  # (R, 4, 4)
-        xyz = pose[:, :3, 3]
-        yaw_x = np.arctan2(pose[:, 1, 0], pose[:, 0, 0])
-        if self._ego_yaw_offset is None:
-            step = np.diff(xyz[:, :2], axis=0)
-            moving = np.hypot(step[:, 0], step[:, 1]) > 0.2
-            if moving.any():
-                motion = np.arctan2(step[moving, 1], step[moving, 0])
-                gap = np.angle(np.mean(np.exp(1j * (motion - yaw_x[1:][moving]))))
-                self._ego_yaw_offset = float(np.round(gap / (np.pi / 2)) * (np.pi / 2))
-        yaw = yaw_x + (self._ego_yaw_offset or 0.0)
-        mono = {"translation": xyz.astype(np.float32), "quaternion": quaternions_xyzw(yaw)}
+        mono = {
+            "translation": pose[:, :3, 3].astype(np.float32),
+            "quaternion": quaternions_xyzw(ego_yaw(pose)),
+        }
         return {}, np.zeros(len(poses), np.int64), mono
 
     def _log_camera_static(self, cam: Camera, frame_id: int) -> None:
@@ -317,19 +293,8 @@ class RerunObserver:
         self._log_cost(paths.COST_BEV, state.bev_cost, state.bev_matched)
         self._log_cost(paths.COST_RV, state.rv_cost, state.rv_matched)
         self._log_matches_rv(state)
-        if self.keep_match_costs:
-            self._keep_match_costs(out.frame_id, state)
         self._state = None
         self.columns.end_frame()
-
-    def _keep_match_costs(self, frame_id: int, state: _FrameState) -> None:
-        parts = [(m, s) for m, s in ((state.bev_matched, 1), (state.rv_matched, 2)) if m]
-        if parts:
-            self.match_costs[frame_id] = FrameMatchCosts(
-                np.concatenate([m.track_ids for m, _ in parts]),
-                np.concatenate([m.costs for m, _ in parts]).astype(np.float32),
-                np.concatenate([np.full(len(m.track_ids), s, np.int8) for m, s in parts]),
-            )
 
     def _log_cost(self, path: str, cost: CostComputed | None, matched: Matched | None) -> None:
         """Only non-empty matrices are sent; an empty one clears the previous picture once."""
@@ -339,7 +304,8 @@ class RerunObserver:
                 self._cost_shown[path] = False
             return
         self._cost_shown[path] = True
-        shown = _CostRows(cost, _comparable_rows(cost))
+        rows = _comparable_rows(cost)
+        shown = _CostRows(cost, rows, _comparable_cols(cost, rows))
         self._defer(path, rr.Image, shown, _build_cost_image)
         self._defer(f"{path}/{paths.COST_LABELS}", rr.Points2D, shown, _build_cost_labels)
         self._defer(
@@ -458,6 +424,19 @@ class RerunObserver:
 
 # ---------------------------------------------------------------------------------------------
 # Builders: a list of per-frame payloads -> (fields over all rows, lengths, one-per-row fields)
+
+
+def ego_yaw(world_from_ego: FloatArray) -> FloatArray:
+    """Heading (rad, about world z) of the vehicle for (..., 4, 4) ego poses.
+
+    Datasets disagree on the ego axes: vehicle axes (nuScenes, Waymo: x forward, z up) or camera
+    axes (KITTI's ego is the rectified camera: x right, y down, z forward). The pose tells which:
+    a vehicle frame's z axis is (near) vertical in the z-up world, a camera frame's is not. The
+    forward axis is then x or z, and its direction in the world is the heading."""
+    r = np.asarray(world_from_ego)[..., :3, :3]
+    camera_axes = np.abs(r[..., 2, 2]) < 0.7
+    forward = np.where(camera_axes[..., None], r[..., :, 2], r[..., :, 0])
+    return np.arctan2(forward[..., 1], forward[..., 0])
 
 
 def _hidden(rows: int) -> dict[str, list[Any]]:
@@ -612,7 +591,7 @@ def _build_track_boxes2d(parts: list[tuple[Boxes, Any, Camera, Any]]) -> Built:
     fields = boxes2d_fields(
         xyxy[visible],
         colors=track_colors_u32(ids),
-        labels=[str(i) for i in ids.tolist()],
+        labels=[f"T{i}" for i in ids.tolist()],
         ui_points=0.75,
     )
     return fields, np.bincount(frame_of_box[visible], minlength=len(parts)), {}
@@ -632,7 +611,8 @@ def _build_detection_boxes2d(parts: list[tuple[Boxes, np.ndarray, int]]) -> Buil
         labels=[f"d{i}" for i in rows.tolist()],
         ui_points=1.0,
     )
-    return fields, np.bincount(frame_of_box, minlength=len(parts)), {}
+    # labels on hover only: a detection and its track share a corner, "d5" over "T5" is unreadable
+    return fields, np.bincount(frame_of_box, minlength=len(parts)), _hidden(len(parts))
 
 
 def _build_matches_bev(parts: list[tuple[FloatArray, FloatArray, FloatArray]]) -> Built:
@@ -688,20 +668,41 @@ def _comparable_rows(c: CostComputed) -> IntArray:
     return np.flatnonzero(np.isfinite(c.cost).any(axis=1))
 
 
+#: Up to this many detections every column is shown; beyond, only the columns with a feasible
+#: (or at least comparable) cost in the shown rows, so 30 x 30 stays legible.
+MAX_ALL_COLUMNS = 12
+
+
+def _comparable_cols(c: CostComputed, rows: IntArray) -> IntArray:
+    n = c.cost.shape[1]
+    if n <= MAX_ALL_COLUMNS or not len(rows):
+        return np.arange(n)
+    sub = c.cost[rows]
+    with np.errstate(invalid="ignore"):
+        feasible = (sub <= np.asarray(c.max_cost_per_row)[rows][:, None]).any(axis=0)
+    cols = np.flatnonzero(feasible)
+    return cols if len(cols) else np.flatnonzero(np.isfinite(sub).any(axis=0))
+
+
 @dataclass(frozen=True, slots=True)
 class _CostRows:
-    """A stage's cost matrix and the rows of it that are shown."""
+    """A stage's cost matrix and the rows and columns of it that are shown."""
 
     event: CostComputed
     rows: IntArray
+    cols: IntArray
+
+    @property
+    def shown(self) -> FloatArray:
+        return self.event.cost[np.ix_(self.rows, self.cols)]
 
 
 def _build_cost_image(parts: list[_CostRows]) -> Built:
     """One RGB pixel per cell (rows tracks, columns detections); see :func:`cost_colors`.
 
     One colour pass over the cells of all rows at once (per-matrix numpy calls dominate)."""
-    shapes = [(len(p.rows), p.event.cost.shape[1]) for p in parts]
-    costs = np.concatenate([p.event.cost[p.rows].ravel() for p in parts])
+    shapes = [(len(p.rows), len(p.cols)) for p in parts]
+    costs = np.concatenate([p.shown.ravel() for p in parts])
     limits = np.concatenate(
         [
             np.repeat(np.asarray(p.event.max_cost_per_row)[p.rows], n)
@@ -719,39 +720,52 @@ def _build_cost_image(parts: list[_CostRows]) -> Built:
 
 
 def _build_cost_labels(parts: list[_CostRows]) -> Built:
-    """Row ids "T<track>" left of the matrix, column ids "d<detection row>" above it, the
-    value of every cell that passes its row's threshold, and how many rows are not shown."""
+    """Row ids "T<track>" left of the matrix, column ids "d<detection row>" above it (in two
+    staggered lines when there are many, so they do not run together), cell values, and a
+    note on the rows and columns not shown (above the matrix, where the view never clips)."""
     positions, labels, colors, lengths = [], [], [], []
     for part in parts:
         c, kept = part.event, part.rows
-        cost, max_cost, ids = c.cost[kept], c.max_cost_per_row[kept], c.track_ids[kept]
+        cost, max_cost, ids = part.shown, c.max_cost_per_row[kept], c.track_ids[kept]
         m, n = cost.shape
         # values only where a match was allowed: dark red cells (over the threshold) say enough,
-        # and their numbers would crowd out the ones that decide
+        # and their numbers would crowd out the ones that decide; with many columns only each
+        # row's cheapest (a cell is ~4 characters wide at most)
         with np.errstate(invalid="ignore"):
-            r, k = np.nonzero(cost <= max_cost[:, None])
+            ok = cost <= max_cost[:, None]
+            if n > MAX_ALL_COLUMNS:
+                ok &= cost == np.min(np.where(ok, cost, np.inf), axis=1, initial=np.inf)[:, None]
+        r, k = np.nonzero(ok)
         if len(r) > MAX_CELL_LABELS:
             r, k = r[:0], k[:0]
         values = cost[r, k]
+        stagger = n > 8
+        col_y = np.where(stagger & (np.arange(n) % 2 == 1), -1.7, -0.8)
         positions += [
             np.column_stack([np.full(m, -1.2), np.arange(m) + 0.5]),
-            np.column_stack([np.arange(n) + 0.5, np.full(n, -0.8)]),
+            np.column_stack([np.arange(n) + 0.5, col_y]),
             np.column_stack([k + 0.5, r + 0.5]),
         ]
-        hidden = len(c.track_ids) - m
-        positions.append(np.array([[n / 2.0, m + 0.8]] if hidden else np.zeros((0, 2))))
-        # order: row ids, column ids, cell values, then the note on hidden rows
+        hidden_rows = len(c.track_ids) - m
+        hidden_cols = c.cost.shape[1] - n
+        note = []
+        if hidden_rows:
+            note.append(f"+{hidden_rows} tracks")
+        if hidden_cols:
+            note.append(f"+{hidden_cols} detections")
+        positions.append(np.array([[n / 2.0, -2.8]] if note else np.zeros((0, 2))))
+        # order: row ids, column ids, cell values, then the note on what is not shown
         labels += [f"T{i}" for i in ids.tolist()]
-        labels += [f"d{i}" for i in c.det_rows.tolist()]
+        labels += [f"d{i}" for i in c.det_rows[part.cols].tolist()]
         labels += [f"{v:.2f}" for v in values.tolist()]
-        labels += [f"+{hidden} tracks without a feasible detection"] if hidden else []
+        labels += [" and ".join(note) + " without a feasible pair"] if note else []
         colors += [
             track_colors_u32(ids),
             solid(DETECTION_KEPT_RGB, n),
             solid((255, 255, 255), len(values)),
-            solid((160, 160, 160), 1 if hidden else 0),
+            solid((190, 190, 190), 1 if note else 0),
         ]
-        lengths.append(m + n + len(r) + (1 if hidden else 0))
+        lengths.append(m + n + len(r) + (1 if note else 0))
     total = int(sum(lengths))
     fields = {
         "positions": np.concatenate(positions).astype(np.float32),
@@ -772,7 +786,7 @@ def _build_cost_matched(parts: list[tuple[_CostRows, Matched | None]]) -> Built:
             lengths.append(0)
             continue
         rows = _positions(c.track_ids[shown.rows], matched.track_ids)
-        cols = _positions(c.det_rows, matched.det_rows)
+        cols = _positions(c.det_rows[shown.cols], matched.det_rows)
         centres.append(np.column_stack([cols, rows]) + 0.5)
         lengths.append(len(rows))
     total = int(sum(lengths))

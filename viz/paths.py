@@ -55,6 +55,7 @@ EVENTS: Final = "events"  # TextLog (WARN): ID switches and fragmentations again
 # in one entity, the 0.41 viewer showed the last lifecycle row with a WARN level.
 EVENTS_LIFECYCLE: Final = "events/lifecycle"
 ID_SWITCH_MARKERS: Final = "events/id_switches"  # Points3D at the objects concerned
+FOCUS: Final = "focus"  # focus/e<K>/{paths,boxes,explain}: static, per ID event (focused view)
 SUMMARY: Final = "summary"  # static TextDocument
 SHOT_INDEX: Final = "summary/index"  # static AnyValues: frames worth a screenshot
 

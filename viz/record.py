@@ -30,6 +30,15 @@ import rerun as rr
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.config import TrackerConfig, config_to_dict
 from tracker.eval.fates import FateCounter, Tee
+from tracker.eval.id_causes import (
+    CAUSE_HELP,
+    Cause,
+    EventCause,
+    StageLog,
+    cause_counts,
+    cause_table_markdown,
+    classify_events,
+)
 from tracker.eval.id_switches import (
     IdEvaluation,
     IdEvent,
@@ -39,12 +48,18 @@ from tracker.eval.id_switches import (
     kitti_num_timesteps,
 )
 from tracker.eval.motion_metrics import gt_velocity_central
-from tracker.events import TrackOutput
+from tracker.events import Observer, TrackOutput
 from tracker.frame import Frame
 from tracker.io.fileio import finish_temp, remove_stale_temps, temp_name
 from tracker.pipeline import run_scene
 from viz import paths
-from viz.archetypes import ID_SWITCH_RGB, annotation_context, pack_rgb, track_colors_u32
+from viz.archetypes import (
+    ID_SWITCH_RGB,
+    annotation_context,
+    pack_rgb,
+    quaternions_xyzw,
+    track_colors_u32,
+)
 from viz.columns import ColumnBuffer, arrow_column, time_columns
 from viz.layout import debug_blueprint
 from viz.observer import RerunObserver
@@ -53,15 +68,33 @@ log = logging.getLogger(__name__)
 
 KITTI_EVAL_CLASSES = ("car", "pedestrian", "cyclist")
 #: Output samples at the start of each track left out of the lag search: the filter starts from
-#: zero velocity (KITTI detections carry none), so every birth would otherwise "win".
-LAG_WARMUP_SAMPLES = 5
-#: Velocity-lag search (:func:`find_velocity_lag`).
+#: zero velocity (KITTI detections carry none) and its birth transient (spikes to 13 m/s seen)
+#: is not lag. 10 samples = 1 s at KITTI's 10 Hz.
+LAG_WARMUP_SAMPLES = 10
+#: Velocity-lag search (:func:`find_velocity_lag`): a (track, GT object) pair qualifies with at
+#: least LAG_MIN_SAMPLES samples whose smoothed GT speed (moving average of LAG_SMOOTH_SAMPLES)
+#: changes by at least LAG_MIN_SPEED_CHANGE_MPS and by LAG_NOISE_FACTOR times the GT speed's own
+#: noise (std of GT speed minus its smoothed curve); its lag is the shift of the track's speed
+#: (0..LAG_MAX_SHIFT_SAMPLES) that best matches the GT's, counted only when it reduces the mean
+#: speed gap by at least LAG_MIN_IMPROVEMENT (fraction) over no shift.
 LAG_MIN_SAMPLES = 20
-LAG_MIN_SPEED_RANGE_MPS = 1.0
-LAG_MAX_SHIFT_SAMPLES = 10
-LAG_SMOOTH_SAMPLES = 7
+LAG_SMOOTH_SAMPLES = 5
+LAG_MIN_SPEED_CHANGE_MPS = 1.0
+LAG_NOISE_FACTOR = 3.0
+LAG_MAX_SHIFT_SAMPLES = 15
+LAG_MIN_IMPROVEMENT = 0.2
+LAG_CRITERION = (
+    f"GT speed change >= {LAG_MIN_SPEED_CHANGE_MPS:g} m/s and >= {LAG_NOISE_FACTOR:g}x its "
+    f"noise over >= {LAG_MIN_SAMPLES} samples, first {LAG_WARMUP_SAMPLES} outputs of a track "
+    f"skipped, shift cuts the mean speed gap by >= {LAG_MIN_IMPROVEMENT:.0%}"
+)
 #: How long an ID-switch marker stays in the 3D view after its frame (scrubbing finds it).
 MARKER_HOLD_FRAMES = 5
+#: A picture of an event prefers a frame with a camera image at most this many frames away.
+IMAGE_SEARCH_FRAMES = 3
+#: Frames of track trails and GT path drawn before / after an event in its focused view.
+FOCUS_BEFORE_FRAMES = 20
+FOCUS_AFTER_FRAMES = 10
 GT_SERIES_RGB = (60, 220, 120)
 GT_SERIES_U32 = int(pack_rgb(GT_SERIES_RGB))
 #: Tracks output in fewer frames get no velocity curves: a one- or two-point "curve" shows
@@ -78,11 +111,26 @@ class LagSample:
     gt_id: int
     track_speed_mps: float
     gt_speed_mps: float
-    delay_secs: float | None = None  # curve shift of the GT object (None: no candidate object)
+    delay_secs: float  # how far the track's speed curve trails the GT's
+    speed_change_mps: float = float("nan")  # range of the smoothed GT speed
+    mean_gap_before_mps: float = float("nan")  # mean |track - GT| speed, unshifted
+    mean_gap_after_mps: float = float("nan")  # the same with the track shifted by the delay
+    speed_max_mps: float = float("nan")  # largest speed of the pair after the warm-up (plot range)
 
     @property
     def error_mps(self) -> float:
         return abs(self.track_speed_mps - self.gt_speed_mps)
+
+
+@dataclass(frozen=True, slots=True)
+class EventFocus:
+    """Where ID event ``index`` happened: the focused view's target and its best frame."""
+
+    index: int
+    frame_id: int
+    shot_frame: int  # the event frame, or the nearest one with a camera image nearby
+    xyz: tuple[float, float, float]  # world position of the GT object (NaN when unknown)
+    track_ids: tuple[int, int]  # old, new
 
 
 @dataclass
@@ -99,6 +147,12 @@ class RecordResult:
     kitti_metrics: dict[str, dict[str, float]] | None = None
     motion_markdown: str = "motion metrics: not available"
     counts: dict[str, int] = field(default_factory=dict)
+    #: the cause of every ID event (same order as ``id_evaluation.events``)
+    causes: list[EventCause] = field(default_factory=list)
+    #: per ID event: where the focused view looks (world xyz) and the frame worth a picture
+    focus: list[EventFocus] = field(default_factory=list)
+    #: frames with a camera image
+    image_frames: list[int] = field(default_factory=list)
     #: wall seconds per phase: "track" (tracker + observer), "flush", "evaluate" (ID switches,
     #: TrackEval, motion metrics: analysis, not recording), "post" (curves, events, summary)
     seconds: dict[str, float] = field(default_factory=dict)
@@ -159,6 +213,9 @@ def record_scene(
     input_description: str = "",
     motion_metrics: bool = True,
     live: bool = False,
+    kitti_metrics: dict[str, dict[str, float]] | None = None,
+    result_file: str | Path | None = None,
+    progress: Observer | None = None,
 ) -> RecordResult:
     """Track one scene with the Rerun observer and write the full debug recording.
 
@@ -177,6 +234,10 @@ def record_scene(
     motion_metrics : call ``tracker.eval.motion_eval.evaluate_motion`` when it is importable.
     live : a viewer watches while it runs: send rows every few frames instead of every few
         hundred (slightly more overhead, no visible lag).
+    kitti_metrics : this sequence's TrackEval metrics when the caller has them already
+        (``mctrack kitti`` evaluates all sequences in one run); else computed here.
+    result_file : the KITTI result file of this very run when already written.
+    progress : also gets every stage event (a progress bar counts ``FrameStarted``).
 
     Returns
     -------
@@ -206,10 +267,11 @@ def record_scene(
         images=images,
         flush_rows=8 if live else 512,
         flush_secs=0.25 if live else 4.0,
-        keep_match_costs=bool(gt_frames) or label_file is not None,
     )
     fates = FateCounter(rv_gate_consumes=config.rv_reference)
-    scene_result = run_scene(frames, config, observer=Tee(observer, fates))
+    # the stage log explains the ID events afterwards (only worth keeping with a GT)
+    stages = StageLog() if (gt_frames or label_file is not None) else None
+    scene_result = run_scene(frames, config, observer=Tee(observer, fates, stages, progress))
     t_track, c_track = time.perf_counter(), time.process_time()
     observer.flush()
     t_flush, c_flush = time.perf_counter(), time.process_time()
@@ -228,15 +290,23 @@ def record_scene(
             label_file = _labels_for_frames(label_file, frames, Path(tmp))
             classes = [c for c in config.categories if c in KITTI_EVAL_CLASSES]
             result.id_evaluation = kitti_id_events(
-                outputs, frames, label_file, classes=classes, camera_name=camera_names[0]
+                outputs,
+                frames,
+                label_file,
+                classes=classes,
+                camera_name=camera_names[0],
+                result_file=result_file,
             )
-            result.kitti_metrics = _kitti_metrics(
+            result.kitti_metrics = kitti_metrics or _kitti_metrics(
                 outputs, frames, label_file, classes, camera_names[0], Path(tmp)
             )
         elif gt_frames:
             result.id_evaluation = bev_id_events(
                 outputs, gt_frames, categories=list(config.categories)
             )
+    if result.id_evaluation is not None and stages is not None:
+        result.causes = classify_events(result.id_evaluation, stages, gt_by_frame or {})
+    result.image_frames = observer.image_frames
     if gt_frames and motion_metrics:
         result.motion_markdown = _motion_metrics(frames, gt_frames, outputs, config)
     t_eval, c_eval = time.perf_counter(), time.process_time()
@@ -244,7 +314,7 @@ def record_scene(
     times = _frame_times(outputs, gt_frames)
     result.lag, n_series = _log_velocity_series(rec, outputs, times, result.id_evaluation, gt_index)
     if result.id_evaluation is not None:
-        _log_id_events(rec, result.id_evaluation, outputs, times, gt_index, observer)
+        result.focus = _log_id_events(rec, result, times, gt_index, stages)
     if observer.ego_xyz:
         rec.log(
             paths.EGO_PATH,
@@ -264,7 +334,7 @@ def record_scene(
     rec.log(
         paths.SUMMARY,
         rr.TextDocument(
-            summary_markdown(result, config, input_description, observer),
+            summary_markdown(result, config, input_description),
             media_type=rr.MediaType.MARKDOWN,
         ),
         static=True,
@@ -274,6 +344,8 @@ def record_scene(
         debug_blueprint(
             cameras,
             lag_track_ids=[result.lag.track_id] if result.lag else [],
+            # the y axis fits the pair after the warm-up: a birth spike would squash the curves
+            lag_speed_max_mps=1.15 * result.lag.speed_max_mps if result.lag else None,
             switch_track_ids=[e for s in first_switch for e in (s.old_track_id, s.new_track_id)],
         ),
         make_active=True,
@@ -530,20 +602,14 @@ def _log_velocity_series(
 
 
 def find_velocity_lag(samples: Sequence[tuple[np.ndarray, ...]]) -> LagSample | None:
-    """Where the track's speed trails the GT's most visibly.
+    """The (track, GT object) pair whose speed curve trails the GT's the longest, or None.
 
     ``samples``: per track, arrays (frame, time, track id, GT id, track speed, GT velocity (K, 2),
-    GT xy (K, 2)) of its GT-matched outputs after the warm-up. Static GT objects are left out:
-    their GT "velocity" is label and ego-pose noise (on KITTI, ORB-SLAM poses), not motion.
-
-    For each moving GT object that changes speed (>= :data:`LAG_MIN_SAMPLES` samples, speed range
-    >= :data:`LAG_MIN_SPEED_RANGE_MPS`) the delay is the shift of the track's speed curve that
-    best matches the GT's (mean absolute difference, 0..:data:`LAG_MAX_SHIFT_SAMPLES` samples).
-    The object with the largest delay wins (ties: the larger speed range), and its frame is the
-    one where the track trails most: the speed gap in the direction the GT speed changes
-    (behind while it accelerates, above while it brakes), averaged over
-    :data:`LAG_SMOOTH_SAMPLES` samples so that a single noisy detection does not win. Without any
-    such object: the largest trailing gap of any moving object (``delay_secs`` None).
+    GT xy (K, 2)) of its GT-matched outputs after the warm-up. Static GT objects are left out
+    (their GT "velocity" is label and ego-pose noise). The criterion is :data:`LAG_CRITERION`
+    (see the constants above): only a pair whose GT speed really changes can lag, and a shift
+    must explain the gap better than noise does. The reported frame is where the smoothed GT
+    speed changes fastest (the lag is plainest there).
     """
     from tracker.eval.motion_metrics import static_gt_mask
 
@@ -559,85 +625,109 @@ def find_velocity_lag(samples: Sequence[tuple[np.ndarray, ...]]) -> LagSample | 
     moving = ~static_gt_mask(gt_id, gt_vel, gt_xy)
     gt_speed = np.hypot(gt_vel[:, 0], gt_vel[:, 1])
     best: tuple[float, float] | None = None
-    best_rows: np.ndarray | None = None
-    fallback: tuple[float, int] | None = None
-    for g in np.unique(gt_id[moving]):
-        rows = np.flatnonzero((gt_id == g) & moving)
+    found: LagSample | None = None
+    pairs = np.unique(np.column_stack([gt_id[moving], track[moving]]), axis=0)
+    for g, t in pairs.tolist():
+        rows = np.flatnonzero((gt_id == g) & (track == t) & moving)
         rows = rows[np.argsort(times[rows], kind="stable")]
         _, first = np.unique(times[rows], return_index=True)  # one sample per time
         rows = rows[np.sort(first)]
-        # trailing = the track's speed is behind the GT's in the direction the GT's changes
-        gt_smooth = _moving_average(gt_speed[rows], LAG_SMOOTH_SAMPLES)
-        trend = np.sign(np.gradient(gt_smooth)) if len(rows) > 1 else np.zeros(len(rows))
-        gap = _moving_average((gt_speed[rows] - speed[rows]) * trend, LAG_SMOOTH_SAMPLES)
-        k = int(np.argmax(gap))
-        if fallback is None or gap[k] > fallback[0]:
-            fallback = (float(gap[k]), int(rows[k]))
-        speed_range = float(np.ptp(gt_speed[rows]))
-        if len(rows) < LAG_MIN_SAMPLES or speed_range < LAG_MIN_SPEED_RANGE_MPS:
+        if len(rows) < LAG_MIN_SAMPLES:
             continue
-        shift = _best_shift(gt_speed[rows], speed[rows], LAG_MAX_SHIFT_SAMPLES)
+        gs = _moving_average(gt_speed[rows], LAG_SMOOTH_SAMPLES)
+        noise = float(np.std(gt_speed[rows] - gs))
+        change = float(np.ptp(gs))
+        if change < max(LAG_MIN_SPEED_CHANGE_MPS, LAG_NOISE_FACTOR * noise):
+            continue
+        gaps = _shift_gaps(gs, speed[rows], LAG_MAX_SHIFT_SAMPLES)
+        shift = int(np.argmin(gaps))
+        if shift == 0 or gaps[shift] > (1.0 - LAG_MIN_IMPROVEMENT) * gaps[0]:
+            continue
         delay = shift * float(np.median(np.diff(times[rows])))
-        if best is None or (delay, speed_range) > best:
-            best, best_rows = (delay, speed_range), rows[[k]]
-    if best is not None and best_rows is not None:
-        k, delay_secs = int(best_rows[0]), best[0]
-    elif fallback is not None:
-        k, delay_secs = fallback[1], None
-    else:
-        return None
-    return LagSample(
-        frame_id=int(frame[k]),
-        track_id=int(track[k]),
-        gt_id=int(gt_id[k]),
-        track_speed_mps=float(speed[k]),
-        gt_speed_mps=float(gt_speed[k]),
-        delay_secs=delay_secs,
-    )
+        if best is not None and (delay, change) <= best:
+            continue
+        best = (delay, change)
+        k = rows[int(np.argmax(np.abs(np.gradient(gs))))]
+        found = LagSample(
+            frame_id=int(frame[k]),
+            track_id=int(t),
+            gt_id=int(g),
+            track_speed_mps=float(speed[k]),
+            gt_speed_mps=float(gt_speed[k]),
+            delay_secs=delay,
+            speed_change_mps=change,
+            mean_gap_before_mps=float(gaps[0]),
+            mean_gap_after_mps=float(gaps[shift]),
+            speed_max_mps=float(max(np.max(gt_speed[rows]), np.max(speed[rows]))),
+        )
+    return found
 
 
 def _moving_average(x: FloatArray, window: int) -> FloatArray:
-    if len(x) < window:
-        return np.full(len(x), float(np.mean(x)) if len(x) else 0.0)
-    kernel = np.ones(window) / window
-    return np.convolve(x, kernel, mode="same")
+    """Centred moving average; the ends average over the samples that exist (no zero padding,
+    which would fake a speed change at both ends)."""
+    if len(x) == 0:
+        return np.zeros(0)
+    kernel = np.ones(window)
+    total = np.convolve(x, kernel, mode="same")
+    count = np.convolve(np.ones(len(x)), kernel, mode="same")
+    return total / count
 
 
-def _best_shift(reference: FloatArray, delayed: FloatArray, max_shift: int) -> int:
-    """Samples by which ``delayed`` trails ``reference`` (smallest mean absolute difference)."""
-    scores = [
-        float(np.mean(np.abs(delayed[s:] - reference[: len(reference) - s])))
-        for s in range(min(max_shift, len(reference) - 2) + 1)
-    ]
-    return int(np.argmin(scores))
+def _shift_gaps(reference: FloatArray, delayed: FloatArray, max_shift: int) -> FloatArray:
+    """Mean |delayed[i + s] - reference[i]| for each shift s = 0..max_shift (fewer when short)."""
+    n = len(reference)
+    return np.array(
+        [
+            float(np.mean(np.abs(delayed[s:] - reference[: n - s])))
+            for s in range(min(max_shift, n // 2) + 1)
+        ]
+    )
 
 
 def _log_id_events(
     rec: rr.RecordingStream,
-    evaluation: IdEvaluation,
-    outputs: Sequence[TrackOutput],
+    result: RecordResult,
     times: Mapping[int, float],
     gt: _GtIndex | None,
-    observer: RerunObserver,
-) -> None:
-    """WARN TextLogs at each event's frame, and 3D markers at each ID switch for a few frames.
+    stages: StageLog | None,
+) -> list[EventFocus]:
+    """Per ID event: a short WARN TextLog at its frame (``#K`` = its number in the summary), a
+    3D marker for ID switches (held a few frames), and its focus entities (trails of both
+    tracks, the GT path, the three boxes, the cost row/column text) under ``focus/e<K>``.
 
-    Sent as columns like every per-frame row (one ``ColumnBuffer``, one call per entity)."""
+    Per-frame rows go out as columns (one ``ColumnBuffer``, one call per entity)."""
+    evaluation = result.id_evaluation
+    assert evaluation is not None
+    outputs = result.outputs
     by_frame = {o.frame_id: o for o in outputs}
+    causes = result.causes or [None] * len(evaluation.events)
     buffer = ColumnBuffer(rec, max_rows=1 << 30, max_secs=float("inf"))
     markers: dict[int, list[tuple[np.ndarray, str]]] = {}
-    for e in evaluation.events:
+    track_path = _TrackPaths(outputs)
+    focus: list[EventFocus] = []
+    images = np.array(result.image_frames, dtype=np.int64)
+    for k, (e, cause) in enumerate(zip(evaluation.events, causes, strict=True)):
         time_secs = times.get(e.frame_id, np.nan)
-        text = event_text(e, observer)
+        text = f"#{k} " + (cause.short_text() if cause is not None else _plain_text(e))
         buffer.add(paths.EVENTS, rr.TextLog, e.frame_id, time_secs, 1, text=[text], level=["WARN"])
-        if e.kind is not IdEventKind.ID_SWITCH:
-            continue
         xyz = _event_position(e, by_frame.get(e.frame_id), gt)
-        if xyz is None:
+        centre = xyz if xyz is not None else np.full(3, np.nan)
+        focus.append(
+            EventFocus(
+                k,
+                e.frame_id,
+                _shot_frame(e.frame_id, images),
+                (float(centre[0]), float(centre[1]), float(centre[2])),
+                (e.old_track_id, e.new_track_id),
+            )
+        )
+        _log_focus(rec, k, e, cause, track_path, gt, stages)
+        if e.kind is not IdEventKind.ID_SWITCH or xyz is None:
             continue
-        label = f"ID switch GT {e.gt_id}: T{e.old_track_id} -> T{e.new_track_id}"
+        label = f"#{k} GT{e.gt_id}: T{e.old_track_id}->T{e.new_track_id}"
         for f in range(e.frame_id, e.frame_id + MARKER_HOLD_FRAMES):
-            markers.setdefault(f, []).append((xyz, label))
+            markers.setdefault(f, []).append((xyz + np.array([0.0, 0.0, 2.0]), label))
     shown = False
     for f in sorted(times):
         items = markers.get(f)
@@ -653,64 +743,227 @@ def _log_id_events(
             n,
             mono={"show_labels": [True]},
             positions=np.array([p for p, _ in items], dtype=np.float32).reshape(-1, 3),
-            radii=np.full(n, 0.8, np.float32),
+            radii=np.full(n, 0.25, np.float32),
             colors=np.full(n, pack_rgb(ID_SWITCH_RGB), np.uint32),
             labels=[lbl for _, lbl in items],
         )
         shown = bool(items)
     buffer.flush()
+    return focus
+
+
+def _shot_frame(frame_id: int, image_frames: IntArray) -> int:
+    """The nearest frame with a camera image within :data:`IMAGE_SEARCH_FRAMES`, else the
+    event's frame (ties: the earlier one)."""
+    if not len(image_frames):
+        return frame_id
+    d = np.abs(image_frames - frame_id)
+    k = int(np.argmin(d))
+    return int(image_frames[k]) if d[k] <= IMAGE_SEARCH_FRAMES else frame_id
+
+
+class _TrackPaths:
+    """Output positions and boxes per track id, in frame order."""
+
+    def __init__(self, outputs: Sequence[TrackOutput]) -> None:
+        self._rows: dict[int, list[tuple[int, Boxes, int]]] = {}
+        for o in outputs:
+            for r, t in enumerate(o.boxes.track_id.tolist()):
+                self._rows.setdefault(t, []).append((o.frame_id, o.boxes, r))
+
+    def path(self, track_id: int, first: int, last: int) -> np.ndarray:
+        rows = [(b, r) for f, b, r in self._rows.get(track_id, []) if first <= f <= last]
+        return np.array([b.xyz[r] for b, r in rows]).reshape(-1, 3)
+
+    def box_at_or_before(self, track_id: int, frame_id: int) -> Boxes | None:
+        rows = [(b, r) for f, b, r in self._rows.get(track_id, []) if f <= frame_id]
+        return rows[-1][0][np.array([rows[-1][1]])] if rows else None
+
+
+#: Colours of the focused view: old track, new track, GT (bright on the dark background).
+FOCUS_OLD_RGB = (255, 150, 40)
+FOCUS_NEW_RGB = (60, 200, 255)
+FOCUS_GT_RGB = (80, 255, 120)
+
+
+def focus_path(k: int) -> str:
+    return f"{paths.FOCUS}/e{k}"
+
+
+def _log_focus(
+    rec: rr.RecordingStream,
+    k: int,
+    e: IdEvent,
+    cause: EventCause | None,
+    tracks: _TrackPaths,
+    gt: _GtIndex | None,
+    stages: StageLog | None,
+) -> None:
+    """Static entities of one event's focused view (hidden in the default layout)."""
+    first = (e.last_frame_id if e.last_frame_id >= 0 else e.frame_id) - FOCUS_BEFORE_FRAMES
+    last = e.frame_id + FOCUS_AFTER_FRAMES
+    strips, colors, labels = [], [], []
+    for tid, rgb, name in (
+        (e.old_track_id, FOCUS_OLD_RGB, f"old T{e.old_track_id}"),
+        (e.new_track_id, FOCUS_NEW_RGB, f"new T{e.new_track_id}"),
+    ):
+        if tid >= 0:
+            p = tracks.path(tid, first, last)
+            if len(p) >= 2:
+                strips.append(p)
+                colors.append(rgb)
+                labels.append(name)
+    boxes, box_colors, box_labels = [], [], []
+    if gt is not None:
+        sel = (gt.boxes.track_id == e.gt_id) & (gt.frame_id >= first) & (gt.frame_id <= last)
+        rows = np.flatnonzero(sel)
+        rows = rows[np.argsort(gt.frame_id[rows], kind="stable")]
+        if len(rows) >= 2:
+            strips.append(gt.boxes.xyz[rows])
+            colors.append(FOCUS_GT_RGB)
+            labels.append(f"GT {e.gt_id}")
+        at = rows[gt.frame_id[rows] == e.frame_id]
+        if len(at):
+            boxes.append(gt.boxes[at[:1]])
+            box_colors.append(FOCUS_GT_RGB)
+            box_labels.append(f"GT {e.gt_id}")
+    for tid, rgb in ((e.old_track_id, FOCUS_OLD_RGB), (e.new_track_id, FOCUS_NEW_RGB)):
+        b = tracks.box_at_or_before(tid, e.frame_id) if tid >= 0 else None
+        if b is not None:
+            boxes.append(b)
+            box_colors.append(rgb)
+            box_labels.append(f"T{tid}")
+    base = focus_path(k)
+    if strips:
+        rec.log(
+            f"{base}/paths",
+            # labels on hover only: the boxes carry the same names at the event
+            rr.LineStrips3D(
+                [s.astype(np.float32) for s in strips],
+                colors=colors,
+                radii=0.08,
+                labels=labels,
+                show_labels=False,
+            ),
+            static=True,
+        )
+    if boxes:
+        b = Boxes.concat(boxes)
+        rec.log(
+            f"{base}/boxes",
+            rr.Boxes3D(
+                centers=b.xyz,
+                half_sizes=b.lwh / 2,
+                quaternions=quaternions_xyzw(b.yaw),
+                colors=box_colors,
+                labels=box_labels,
+                radii=0.1,
+                fill_mode="MajorWireframe",
+                show_labels=True,
+            ),
+            static=True,
+        )
+    rec.log(
+        f"{base}/explain",
+        rr.TextDocument(explain_markdown(k, e, cause, stages), media_type=rr.MediaType.MARKDOWN),
+        static=True,
+    )
+
+
+def explain_markdown(k: int, e: IdEvent, cause: EventCause | None, stages: StageLog | None) -> str:
+    """The event, its cause with the evidence, and the deciding frame's BEV cost row of both
+    tracks (their costs to every comparable detection, gate per row)."""
+    what = "ID switch" if e.kind is IdEventKind.ID_SWITCH else "fragmentation"
+    lines = [
+        f"# #{k} {what} at frame {e.frame_id}",
+        "",
+        f"GT {e.gt_id} ({e.category}): T{e.old_track_id} -> T{e.new_track_id}; last matched at "
+        f"frame {e.last_frame_id}; evaluator similarity {e.similarity:.2f}.",
+        "",
+    ]
+    if cause is not None:
+        lines += [f"**Cause: {cause.cause.value}**: {CAUSE_HELP[cause.cause]}.", ""]
+        lines += ["| evidence | value |", "|---|---|"]
+        lines += [f"| {key} | {_cell(v)} |" for key, v in cause.evidence.items()]
+        lines.append("")
+    st = stages.frames.get(e.frame_id) if stages is not None else None
+    c = st.bev if st is not None else None
+    if c is not None:
+        rows = [t for t in (e.old_track_id, e.new_track_id) if np.any(c.track_ids == t)]
+        cols = (
+            np.flatnonzero(np.isfinite(c.cost[np.isin(c.track_ids, rows)]).any(axis=0))
+            if rows
+            else np.zeros(0, np.int64)
+        )
+        lines += [f"BEV cost at frame {e.frame_id} (gate per row; - = not comparable):", ""]
+        if rows and len(cols):
+            lines.append("| track | gate | " + " | ".join(f"d{c.det_rows[j]}" for j in cols) + " |")
+            lines.append("|---|---:|" + "---:|" * len(cols))
+            for t in rows:
+                r = int(np.flatnonzero(c.track_ids == t)[0])
+                cells = [_cell(float(c.cost[r, j])) for j in cols]
+                gate = float(np.asarray(c.max_cost_per_row)[r])
+                lines.append(f"| T{t} | {gate:.2f} | " + " | ".join(cells) + " |")
+        else:
+            lines.append("neither track had a comparable detection")
+    return "\n".join(lines)
+
+
+def _cell(v: object) -> str:
+    if isinstance(v, float):
+        return f"{v:.2f}" if np.isfinite(v) else "-"
+    return str(v)
 
 
 def _event_position(
     e: IdEvent, output: TrackOutput | None, gt: _GtIndex | None
 ) -> np.ndarray | None:
+    """World position of the event: the GT object's centre, else the new track's."""
     if gt is not None:
         row = gt.rows(np.array([e.frame_id]), np.array([e.gt_id]))[0]
         if row >= 0:
-            return gt.boxes.xyz[row] + np.array([0.0, 0.0, 1.5])
+            return np.asarray(gt.boxes.xyz[row], dtype=np.float64)
     if output is not None:
         hit = np.flatnonzero(output.boxes.track_id == e.new_track_id)
         if len(hit):
-            return output.boxes.xyz[hit[0]] + np.array([0.0, 0.0, 1.5])
+            return np.asarray(output.boxes.xyz[hit[0]], dtype=np.float64)
     return None
 
 
-def event_text(e: IdEvent, observer: RerunObserver | None = None) -> str:
-    """One line per event: what switched, the evaluator's similarity, the tracker's cost."""
-    tracker_cost = ""
-    costs = observer.match_costs.get(e.frame_id) if observer is not None else None
-    if costs is not None:
-        hit = np.flatnonzero(costs.track_ids == e.new_track_id)
-        if len(hit):
-            stage = "BEV" if costs.stage[hit[0]] == 1 else "RV"
-            tracker_cost = (
-                f"; tracker matched T{e.new_track_id} in {stage} at cost {costs.costs[hit[0]]:.3f}"
-            )
-        else:
-            tracker_cost = f"; T{e.new_track_id} had no detection this frame (coasting)"
-    what = "ID switch" if e.kind is IdEventKind.ID_SWITCH else "fragmentation"
-    return (
-        f"{what} at frame {e.frame_id}: GT {e.gt_id} ({e.category}) "
-        f"T{e.old_track_id} -> T{e.new_track_id} (last matched at frame {e.last_frame_id}); "
-        f"evaluator similarity {e.similarity:.3f} (cost {e.cost:.3f}){tracker_cost}"
-    )
+def _plain_text(e: IdEvent) -> str:
+    what = "IDSW" if e.kind is IdEventKind.ID_SWITCH else "Frag"
+    return f"{what} f{e.frame_id} {e.category} GT{e.gt_id} T{e.old_track_id}->T{e.new_track_id}"
 
 
 def _log_index(rec: rr.RecordingStream, result: RecordResult) -> None:
-    """Static ``summary/index``: where ``mctrack shots`` (or a test) should look.
+    """Static ``summary/index``: where ``mctrack shots`` / ``inspect`` (or a test) should look.
 
+    Per ID event (both kinds, in the summary's ``#K`` order): frame, kind (0 ID switch,
+    1 fragmentation), GT id, old and new track, cause (index into :class:`Cause`), the world
+    position the focused view looks at (x, y, z, flattened) and the frame to picture.
     Empty lists are left out (Rerun drops empty AnyValues columns with a warning); a reader
     treats a missing field as empty."""
     ev = result.id_evaluation
+    events = list(ev.events) if ev else []
     switches = ev.id_switches if ev else []
     frags = ev.fragmentations if ev else []
     lag = result.lag
-    fields = {
+    causes = list(Cause)
+    fields: dict[str, list] = {
         "id_switch_frames": [e.frame_id for e in switches],
         "id_switch_gt_ids": [e.gt_id for e in switches],
         "id_switch_old_track_ids": [e.old_track_id for e in switches],
         "id_switch_new_track_ids": [e.new_track_id for e in switches],
         "fragmentation_frames": [e.frame_id for e in frags],
+        "event_frames": [e.frame_id for e in events],
+        "event_kinds": [int(e.kind is IdEventKind.FRAGMENTATION) for e in events],
+        "event_gt_ids": [e.gt_id for e in events],
+        "event_old_track_ids": [e.old_track_id for e in events],
+        "event_new_track_ids": [e.new_track_id for e in events],
+        "event_causes": [causes.index(c.cause) for c in result.causes],
+        "event_xyz_m": [v for f in result.focus for v in f.xyz],
+        "event_shot_frames": [f.shot_frame for f in result.focus],
+        "image_frames": list(result.image_frames),
         "lag_frame": [lag.frame_id] if lag else [],
         "lag_track_id": [lag.track_id] if lag else [],
         "lag_gt_id": [lag.gt_id] if lag else [],
@@ -719,7 +972,7 @@ def _log_index(rec: rr.RecordingStream, result: RecordResult) -> None:
         "frames": [result.counts.get("frames", 0)],
     }
     values = {
-        k: np.array(v, dtype=np.float64 if k.endswith(("_mps", "_secs")) else np.int64)
+        k: np.array(v, dtype=np.float64 if k.endswith(("_mps", "_secs", "_m")) else np.int64)
         for k, v in fields.items()
         if v
     }
@@ -730,7 +983,6 @@ def summary_markdown(
     result: RecordResult,
     config: TrackerConfig,
     input_description: str,
-    observer: RerunObserver | None = None,
 ) -> str:
     """The static ``summary`` document."""
     lines = [f"# MCTrack debug recording: scene {result.scene}", "", "## Input", ""]
@@ -772,37 +1024,44 @@ def summary_markdown(
     if result.lag is not None:
         lag = result.lag
         lines += [
-            "Largest velocity lag (the moving GT object whose speed curve the track trails "
-            f"most; its frame of largest speed gap): frame {lag.frame_id}, T{lag.track_id} "
-            f"{lag.track_speed_mps:.2f} m/s vs GT {lag.gt_id} {lag.gt_speed_mps:.2f} m/s"
-            + (f", delay {lag.delay_secs:.1f} s." if lag.delay_secs is not None else "."),
+            f"Largest velocity lag ({LAG_CRITERION}): T{lag.track_id} trails GT {lag.gt_id} by "
+            f"{lag.delay_secs:.1f} s; at frame {lag.frame_id} {lag.track_speed_mps:.2f} m/s "
+            f"vs GT {lag.gt_speed_mps:.2f} m/s (mean gap {lag.mean_gap_before_mps:.2f} m/s "
+            f"unshifted, {lag.mean_gap_after_mps:.2f} m/s shifted).",
             "",
         ]
-    lines += ["## ID switches", ""]
+    else:
+        lines += [f"No velocity lag found ({LAG_CRITERION}).", ""]
+    lines += ["## ID switches and fragmentations", ""]
     if ev is None:
         lines.append("no ground truth given")
     else:
         lines += [f"Counted as TrackEval's CLEAR does ({ev.method}).", ""]
-        switches = ev.id_switches
-        if switches:
-            lines += [
-                "| frame | class | GT | old track | new track | similarity | tracker |",
-                "|---:|---|---:|---:|---:|---:|---|",
-            ]
-            for e in switches:
-                lines.append(
-                    f"| {e.frame_id} | {e.category} | {e.gt_id} | T{e.old_track_id} | "
-                    f"T{e.new_track_id} | {e.similarity:.3f} | "
-                    f"{_tracker_cost_cell(e, observer)} |"
-                )
-        else:
-            lines.append("none")
-        frags = ev.fragmentations
+        if result.causes:
+            lines += ["### Causes", ""]
+            lines += cause_table_markdown({result.scene: cause_counts(result.causes)})
+            lines.append("")
+        rec_arg = str(result.path) if result.path is not None else "REC.rrd"
         lines += [
+            "### Events",
             "",
-            f"Fragmentations: {len(frags)} at frames "
-            + (", ".join(str(e.frame_id) for e in frags) or "-"),
+            f"Open one focused: `mctrack inspect {rec_arg} --event K`; picture it: "
+            f"`mctrack shots {rec_arg} --event K --out DIR`.",
+            "",
+            "| # | frame | kind | class | GT | old -> new | cause | evidence |",
+            "|---:|---:|---|---|---:|---|---|---|",
         ]
+        causes = result.causes or [None] * len(ev.events)
+        for k, (e, c) in enumerate(zip(ev.events, causes, strict=True)):
+            kind = "IDSW" if e.kind is IdEventKind.ID_SWITCH else "Frag"
+            cause = c.cause.value if c is not None else "-"
+            evidence = ", ".join(f"{key} {_cell(v)}" for key, v in c.evidence.items()) if c else ""
+            lines.append(
+                f"| {k} | {e.frame_id} | {kind} | {e.category} | {e.gt_id} | "
+                f"T{e.old_track_id} -> T{e.new_track_id} | {cause} | {evidence} |"
+            )
+        if not ev.events:
+            lines.append("| | | none | | | | | |")
     lines += [
         "",
         "## Config (resolved)",
@@ -812,14 +1071,3 @@ def summary_markdown(
         "```",
     ]
     return "\n".join(lines)
-
-
-def _tracker_cost_cell(e: IdEvent, observer: RerunObserver | None) -> str:
-    costs = observer.match_costs.get(e.frame_id) if observer is not None else None
-    if costs is None:
-        return "-"
-    hit = np.flatnonzero(costs.track_ids == e.new_track_id)
-    if not len(hit):
-        return "coasting"
-    stage = "BEV" if costs.stage[hit[0]] == 1 else "RV"
-    return f"{stage} {costs.costs[hit[0]]:.3f}"

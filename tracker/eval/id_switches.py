@@ -29,7 +29,7 @@ import io
 import shutil
 import tempfile
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -77,12 +77,16 @@ class IdEvent:
 
 @dataclass(frozen=True, slots=True)
 class FrameMatches:
-    """The CLEAR matches of one frame (all categories): GT ``gt_ids[k]`` <-> ``track_ids[k]``."""
+    """The CLEAR matches of one frame (all categories): GT ``gt_ids[k]`` <-> ``track_ids[k]``.
+
+    ``present_gt_ids``: every GT id the evaluator had at this frame (after its preprocessing:
+    occluded, truncated or ignored objects are absent), matched or not."""
 
     frame_id: int
     gt_ids: IntArray
     track_ids: IntArray
     similarity: FloatArray
+    present_gt_ids: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,7 +122,7 @@ def clear_id_events(
     frame_ids: Sequence[int],
     category: str,
     threshold: float = CLEAR_THRESHOLD,
-) -> tuple[list[IdEvent], list[tuple[IntArray, IntArray, FloatArray]]]:
+) -> tuple[list[IdEvent], list[tuple[IntArray, IntArray, FloatArray, IntArray]]]:
     """Replay CLEAR's per-timestep matching and return its IDSW/Frag events and matches.
 
     Parameters
@@ -131,7 +135,7 @@ def clear_id_events(
     Returns
     -------
     events : in timestep order.
-    matches : per timestep, matched (gt ids, track ids, similarity).
+    matches : per timestep, matched (gt ids, track ids, similarity) and all GT ids present.
     """
     all_gt = np.concatenate([np.asarray(g, dtype=np.int64) for g in gt_ids] or [np.zeros(0)])
     num_gt = int(all_gt.max()) + 1 if all_gt.size else 0
@@ -140,13 +144,13 @@ def clear_id_events(
     prev_timestep_tracker_id = np.full(num_gt, np.nan)
     prev_frame = np.full(num_gt, -1, dtype=np.int64)
     events: list[IdEvent] = []
-    matches: list[tuple[IntArray, IntArray, FloatArray]] = []
+    matches: list[tuple[IntArray, IntArray, FloatArray, IntArray]] = []
     empty = (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0))
     for t, (gt_t, trk_t, sim) in enumerate(zip(gt_ids, track_ids, similarity, strict=True)):
         gt_t = np.asarray(gt_t, dtype=np.int64)
         trk_t = np.asarray(trk_t, dtype=np.int64)
         if len(gt_t) == 0 or len(trk_t) == 0:  # no reset of prev_timestep_tracker_id here
-            matches.append(empty)
+            matches.append((*empty, gt_t))
             continue
         score = trk_t[np.newaxis, :] == prev_timestep_tracker_id[gt_t[:, np.newaxis]]
         score = 1000 * score + sim
@@ -183,18 +187,20 @@ def clear_id_events(
         prev_frame[m_gt] = frame_ids[t]
         prev_timestep_tracker_id[:] = np.nan
         prev_timestep_tracker_id[m_gt] = m_trk
-        matches.append((m_gt, m_trk, m_sim))
+        matches.append((m_gt, m_trk, m_sim, gt_t))
     return events, matches
 
 
 def _assemble(
     method: str,
     frame_ids: Sequence[int],
-    per_category: Iterable[tuple[str, list[IdEvent], list[tuple[IntArray, IntArray, FloatArray]]]],
+    per_category: Iterable[
+        tuple[str, list[IdEvent], list[tuple[IntArray, IntArray, FloatArray, IntArray]]]
+    ],
 ) -> IdEvaluation:
     events: list[IdEvent] = []
     counts: dict[str, dict[str, int]] = {}
-    parts: list[list[tuple[IntArray, IntArray, FloatArray]]] = [[] for _ in frame_ids]
+    parts: list[list[tuple[IntArray, IntArray, FloatArray, IntArray]]] = [[] for _ in frame_ids]
     for category, cat_events, cat_matches in per_category:
         events.extend(cat_events)
         counts[category] = {
@@ -209,6 +215,7 @@ def _assemble(
             gt_ids=np.concatenate([p[0] for p in ps]) if ps else np.zeros(0, np.int64),
             track_ids=np.concatenate([p[1] for p in ps]) if ps else np.zeros(0, np.int64),
             similarity=np.concatenate([p[2] for p in ps]) if ps else np.zeros(0),
+            present_gt_ids=np.concatenate([p[3] for p in ps]) if ps else np.zeros(0, np.int64),
         )
         for f, ps in zip(frame_ids, parts, strict=True)
     )
@@ -227,6 +234,7 @@ def kitti_id_events(
     *,
     classes: Sequence[str] = ("car", "pedestrian"),
     camera_name: str = "CAM_FRONT",
+    result_file: str | Path | None = None,
 ) -> IdEvaluation:
     """ID switches and fragmentations of one KITTI sequence, as TrackEval's CLEAR counts them.
 
@@ -236,6 +244,7 @@ def kitti_id_events(
     frames : the sequence's detection frames (for the camera model), in time order.
     label_file : the sequence's ``label_02/<seq>.txt``.
     classes : any of car, pedestrian, cyclist (cyclist as in :mod:`tracker.eval.kitti`).
+    result_file : the KITTI result file of ``outputs`` when already written (saves writing it).
     """
     import trackeval  # heavy import: only when evaluating
 
@@ -252,9 +261,12 @@ def kitti_id_events(
         (gt_root / "evaluate_tracking.seqmap.val").write_text(
             f"{seq} empty 000000 {num_timesteps:06d}\n"
         )
-        write_kitti_sequence(
-            trackers_root / _TRACKER_NAME / "data" / f"{seq}.txt", outputs, frames, camera_name
-        )
+        target = trackers_root / _TRACKER_NAME / "data" / f"{seq}.txt"
+        if result_file is not None:
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(result_file, target)
+        else:
+            write_kitti_sequence(target, outputs, frames, camera_name)
         ds_config = {
             "GT_FOLDER": str(gt_root),
             "TRACKERS_FOLDER": str(trackers_root),

@@ -29,11 +29,13 @@ def evaluate_kitti(
     result_dir: Path,
     seq_lengths: Mapping[str, int],
     classes: Sequence[str] = ("car", "pedestrian"),
+    per_sequence: dict[str, dict[str, dict[str, float]]] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Evaluate ``result_dir/<seq>.txt`` against ``label_dir/<seq>.txt``.
 
     Returns, per class, HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1 (percent), IDSW, Frag, FP, FN,
-    TP (counts) over the combined sequences.
+    TP (counts) over the combined sequences. A ``per_sequence`` dict given is filled with the
+    same per sequence (``{seq: {class: metrics}}``; TrackEval computes them anyway).
     """
     import trackeval  # heavy import: only when evaluating
 
@@ -98,10 +100,13 @@ def evaluate_kitti(
             with contextlib.redirect_stdout(io.StringIO()):
                 evaluator = trackeval.Evaluator(eval_config)
                 results, _messages = evaluator.evaluate([dataset], metrics)
-            combined = results[dataset.get_name()]["mctrack"]["COMBINED_SEQ"]
+            by_seq = results[dataset.get_name()]["mctrack"]
             for name in names:
                 key = "car" if name == "cyclist" else name  # see _cyclist_dataset
-                out[name] = _summarise(combined[key])
+                out[name] = _summarise(by_seq["COMBINED_SEQ"][key])
+                if per_sequence is not None:
+                    for seq in sorted(seq_lengths):
+                        per_sequence.setdefault(seq, {})[name] = _summarise(by_seq[seq][key])
         return out
 
 

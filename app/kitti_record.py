@@ -1,0 +1,95 @@
+"""`mctrack kitti --record DIR`: one debug recording per sequence, and the causes of the run's
+ID switches and fragmentations (``DIR/causes.md``, ``summary.json`` "causes").
+
+:func:`record_sequence` runs inside each sequence's task (:class:`app.kitti.KittiSceneJob`),
+after the timed tracking, and reuses the KITTI result file that task just wrote;
+:func:`recording_summary` gathers the tasks' results into the summary.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from tracker.config import TrackerConfig
+from tracker.frame import Frame
+from tracker.io.fileio import path_in, write_text_atomic
+
+
+def record_sequence(
+    frames: Sequence[Frame],
+    gt_frames: Sequence[Frame] | None,
+    config: TrackerConfig,
+    record_dir: Path,
+    kitti_root: Path,
+    label_dir: Path,
+    result_file: Path,
+) -> dict[str, Any]:
+    """Record one sequence (its camera images too, where ``image_02/<seq>`` exists).
+
+    Returns plain data for the task's ``info``: "recording" (path), "recording_seconds" (per
+    phase) and, with labels, "causes" ({class: {"IDSW"|"Frag": {cause: n}}})."""
+    from tracker.eval.id_causes import cause_counts
+    from viz.record import record_scene
+
+    seq = frames[0].scene if frames else ""
+    has_labels = path_in(label_dir, seq, ".txt").is_file()
+    cameras = frames[0].cameras if frames else ()
+    image_dir = path_in(kitti_root / "training" / "image_02", seq, "")
+    images = {cameras[0].name: image_dir} if cameras and image_dir.is_dir() else None
+    path = path_in(record_dir, seq, ".rrd")
+    r = record_scene(
+        frames,
+        config,
+        gt_frames,
+        path,
+        labels_dir=label_dir if has_labels else None,
+        images=images,
+        input_description=f"KITTI tracking sequence {seq} ({kitti_root})",
+        motion_metrics=False,
+        result_file=result_file if result_file.is_file() else None,
+    )
+    info: dict[str, Any] = {"recording": str(path), "recording_seconds": dict(r.seconds)}
+    if r.id_evaluation is not None and r.causes:
+        info["causes"] = cause_counts(r.causes)
+    return info
+
+
+def recording_summary(
+    records: Sequence[Any], config: TrackerConfig, record_dir: Path
+) -> dict[str, Any]:
+    """Summary keys "recordings", "recording_seconds" (summed per phase) and, with labels,
+    "causes" (per sequence), "causes_other_share" and "causes_markdown" (``record_dir/causes.md``,
+    the table of :func:`tracker.eval.id_causes.cause_table_markdown`)."""
+    from tracker.eval.id_causes import cause_table_markdown, other_share
+
+    recordings = {r.scene: r.info["recording"] for r in records if "recording" in r.info}
+    seconds: Counter[str] = Counter()
+    for r in records:
+        seconds.update(r.info.get("recording_seconds", {}))
+    causes = {r.scene: r.info["causes"] for r in records if r.info.get("causes")}
+    out: dict[str, Any] = {
+        "recordings": recordings,
+        "recording_seconds": {k: round(v, 2) for k, v in sorted(seconds.items())},
+    }
+    if causes:
+        md = record_dir / "causes.md"
+        lines = [
+            "# Causes of ID switches and fragmentations",
+            "",
+            f"Sequences {', '.join(causes)}; classes {', '.join(config.categories)}; events "
+            "counted by TrackEval's CLEAR (KITTI 2D-box protocol); causes from "
+            "tracker/eval/id_causes.py.",
+            "",
+            *cause_table_markdown(causes),
+            "",
+            f'Share of "other": {other_share(causes):.1%}.',
+            "",
+        ]
+        write_text_atomic(md, ["\n".join(lines)])
+        out["causes"] = causes
+        out["causes_other_share"] = round(other_share(causes), 4)
+        out["causes_markdown"] = str(md)
+    return out

@@ -1,0 +1,310 @@
+"""The debugger's explanation of ID events: ego heading, lag finder, focused view, shots, inspect,
+images and causes on real KITTI (0016, the validation sequence with the most pedestrian IDSW)."""
+
+from __future__ import annotations
+
+import functools
+import math
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from tests.test_viz import column_at, entity_table, recording
+from tracker.eval.id_causes import Cause
+from viz import layout, paths
+from viz.observer import ego_yaw
+from viz.record import (
+    LAG_MIN_SAMPLES,
+    LAG_WARMUP_SAMPLES,
+    find_velocity_lag,
+)
+from viz.shots import (
+    PlannedShot,
+    image_variance,
+    plan_shots,
+    read_shot_index,
+    renderer_available,
+    take_shots,
+)
+
+#: A conservative field of view for "inside the view" (Rerun's 3D default is wider).
+VERTICAL_FOV_DEG = 45.0
+ASPECT = 1.5
+
+
+def _in_view(eye: dict[str, np.ndarray], point: np.ndarray) -> bool:
+    """Does ``point`` project inside a pinhole at ``eye['position']`` looking at its target?"""
+    p, t, up = eye["position"], eye["look_target"], eye["eye_up"]
+    f = (t - p) / np.linalg.norm(t - p)
+    r = np.cross(f, up)
+    r /= np.linalg.norm(r)
+    u = np.cross(r, f)
+    d = point - p
+    z = d @ f
+    if z <= 0:
+        return False
+    tan_v = math.tan(math.radians(VERTICAL_FOV_DEG / 2))
+    return abs(d @ r / z) < tan_v * ASPECT and abs(d @ u / z) < tan_v
+
+
+def _eye(target: np.ndarray) -> dict[str, np.ndarray]:
+    """The focused view's eye, as the blueprint gets it (:func:`viz.layout.focus_eye`)."""
+    eye = layout.focus_eye(target)
+    return {
+        "position": np.array(eye.position.as_arrow_array().to_pylist()[0]),
+        "look_target": np.array(eye.look_target.as_arrow_array().to_pylist()[0]),
+        "eye_up": np.array(eye.eye_up.as_arrow_array().to_pylist()[0]),
+    }
+
+
+# ---------------------------------------------------------------------------------------------
+# ego heading
+
+
+def _pose(yaw: float, *, camera_axes: bool) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    forward, left = np.array([c, s, 0.0]), np.array([-s, c, 0.0])
+    up = np.array([0.0, 0.0, 1.0])
+    pose = np.eye(4)
+    # camera axes: x right, y down, z forward; vehicle axes: x forward, y left, z up
+    pose[:3, :3] = np.column_stack([-left, -up, forward] if camera_axes else [forward, left, up])
+    pose[:3, 3] = [5.0, -2.0, 1.6]
+    return pose
+
+
+@pytest.mark.parametrize("camera_axes", [True, False], ids=["kitti-camera", "vehicle"])
+@pytest.mark.parametrize("yaw", [0.0, 0.7, -2.5, math.pi / 2])
+def test_ego_yaw_is_the_poses_heading(yaw: float, camera_axes: bool) -> None:
+    poses = np.stack([_pose(yaw, camera_axes=camera_axes)] * 3)  # parked: never moves
+    assert np.allclose(np.cos(ego_yaw(poses) - yaw), 1.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# lag finder
+
+
+def _samples(
+    track_speed: np.ndarray, gt_speed: np.ndarray, *, track_id: int = 3, gt_id: int = 7
+) -> tuple:
+    n = len(gt_speed)
+    t = np.arange(n) * 0.1
+    x = np.cumsum(gt_speed) * 0.1  # moving along x
+    return (
+        np.arange(n) + LAG_WARMUP_SAMPLES,
+        t,
+        np.full(n, track_id),
+        np.full(n, gt_id),
+        track_speed,
+        np.column_stack([gt_speed, np.zeros(n)]),
+        np.column_stack([x, np.zeros(n)]),
+    )
+
+
+def test_lag_finder_returns_nothing_on_pure_noise() -> None:
+    rng = np.random.default_rng(0)
+    n = 120
+    for scale in (0.05, 0.3, 1.0):
+        gt = 5.0 + rng.normal(0, scale, n)
+        trk = 5.0 + rng.normal(0, scale, n)
+        assert find_velocity_lag([_samples(trk, gt)]) is None, scale
+
+
+def test_lag_finder_finds_the_delay_of_a_delayed_copy() -> None:
+    n = 100
+    t = np.arange(n)
+    gt = 2.0 + 6.0 / (1.0 + np.exp(-(t - 50) / 4.0))  # accelerates from 2 to 8 m/s
+    delay = 6  # samples = 0.6 s
+    trk = np.r_[np.full(delay, gt[0]), gt[:-delay]]
+    lag = find_velocity_lag([_samples(trk, gt)])
+    assert lag is not None
+    assert lag.delay_secs == pytest.approx(0.6)
+    assert lag.track_id == 3 and lag.gt_id == 7
+    assert 45 <= lag.frame_id - LAG_WARMUP_SAMPLES <= 55  # where the GT speed changes fastest
+    assert lag.mean_gap_after_mps < 0.2 * lag.mean_gap_before_mps
+    # a second pair without any speed change is never "the largest lag", however noisy
+    noisy = np.full(n, 5.0) + np.random.default_rng(1).normal(0, 0.5, n)
+    flat = _samples(noisy, np.full(n, 5.0), track_id=4, gt_id=8)
+    assert find_velocity_lag([flat, _samples(trk, gt)]).track_id == 3
+    assert (
+        find_velocity_lag([_samples(trk[: LAG_MIN_SAMPLES - 1], gt[: LAG_MIN_SAMPLES - 1])]) is None
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# focused view, shots, inspect (on the shared sample recording)
+
+
+def test_focused_eye_sees_the_event_and_markers() -> None:
+    path, result = recording()
+    index = read_shot_index(path)
+    assert len(index.event_frames) == len(result.id_evaluation.events)
+    assert [Cause(c) for c in index.event_causes] == [c.cause for c in result.causes]
+    switches = [k for k, kind in enumerate(index.event_kinds) if kind == 0]
+    assert switches
+    for k in switches:
+        target = np.array(index.event_xyz_m[k])
+        eye = _eye(target)
+        assert _in_view(eye, target)
+        assert _in_view(eye, target + np.array([0.0, 0.0, 2.0]))  # the marker above it
+        # the marker in the recording is where the focused view looks
+        table = entity_table(path, paths.ID_SWITCH_MARKERS)
+        positions = np.array(column_at(table, "Points3D:positions", index.event_frames[k]))
+        assert (
+            np.min(np.linalg.norm(positions - (target + np.array([0.0, 0.0, 2.0])), axis=1)) < 1e-3
+        )
+
+
+def test_inspect_prints_the_url_and_the_event(capsys: pytest.CaptureFixture[str]) -> None:
+    path, result = recording()
+    k = next(i for i, e in enumerate(result.id_evaluation.events) if e.kind.value == "id_switch")
+    e = result.id_evaluation.events[k]
+    assert main(["inspect", str(path), "--event", str(k), "--print"]) == 0
+    out = capsys.readouterr().out
+    assert f"event #{k}: ID switch at frame {e.frame_id}" in out
+    assert f"T{e.old_track_id} -> T{e.new_track_id} ({result.causes[k].cause.value})" in out
+    assert f"viewer URL: {path.resolve().as_uri()}#when=frame@{e.frame_id}" in out
+    assert main(["inspect", str(path), "--event", "100000", "--print"]) == 2
+
+
+def test_focused_blueprint_of_an_event_targets_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    from viz import shots
+
+    path, _ = recording()
+    index = read_shot_index(path)
+    seen = {}
+    monkeypatch.setattr(layout, "focus_blueprint", lambda cams, **kw: seen.update(kw, cams=cams))
+    shots.focus_blueprint_for(path, index, 0)
+    assert seen["event_index"] == 0
+    assert seen["target_xyz"] == index.event_xyz_m[0]
+    assert seen["track_ids"] == (index.event_old_track_ids[0], index.event_new_track_ids[0])
+    assert seen["cams"] == [("CAM_FRONT", 1242, 375)]
+
+
+def test_shot_plans() -> None:
+    path, result = recording()
+    index = read_shot_index(path)
+    assert index.image_frames == [10, 15, 20]
+    # --frame: the nearest frame with an image within 3 frames, else the frame itself
+    assert plan_shots(index, frame=13) == [PlannedShot(15, "frame")]
+    assert plan_shots(index, frame=40) == [PlannedShot(40, "frame")]
+    assert len(plan_shots(index, events="all")) == len(result.id_evaluation.events)
+    k = index.event_kinds.index(0)
+    assert plan_shots(index, events=[k]) == [
+        PlannedShot(index.event_shot_frames[k], "id_switch", k)
+    ]
+    with pytest.raises(IndexError):
+        plan_shots(index, events=[len(index.event_frames)])
+
+
+def test_shots_of_an_event_and_a_frame(tmp_path: Path) -> None:
+    ok, why = renderer_available()
+    if not ok:
+        pytest.skip(f"no software renderer: {why}")
+    path, _ = recording()
+    index = read_shot_index(path)
+    k, k2 = [i for i, kind in enumerate(index.event_kinds) if kind == 0][:2]
+    frame = index.event_shot_frames[k]
+    plan = [*plan_shots(index, events=[k, k2]), *plan_shots(index, frame=15)]
+    shots = take_shots(path, tmp_path, plan=plan, settle_secs=1.0)
+    names = {s.path.name for s in shots}
+    # each event in its own focused layout (not the previous event's)
+    frame2 = index.event_shot_frames[k2]
+    second = next(s for s in shots if s.path.name == f"event{k2}_f{frame2:04d}_focus.png")
+    assert second.view == f"{layout.VIEW_FOCUS}#{k2}"
+    for view in ("viewer", "focus", "event", "camera", "cost_bev"):
+        assert f"event{k}_f{frame:04d}_{view}.png" in names
+    for view in ("viewer", "bev_3d", "camera", "cost_bev"):
+        assert f"frame_f0015_{view}.png" in names
+    focus = next(s for s in shots if s.path.name == f"event{k}_f{frame:04d}_focus.png")
+    assert focus.view == f"{layout.VIEW_FOCUS}#{k}"
+    for s in shots:
+        assert image_variance(s.path) > 20.0, s.path
+
+
+# ---------------------------------------------------------------------------------------------
+# real KITTI: 0016 pedestrians through `mctrack kitti --record`
+
+
+@functools.cache
+def _kitti_0016(kitti_root: Path) -> tuple[Path, dict]:
+    from app.kitti import run_kitti
+
+    out = Path(tempfile.mkdtemp(prefix="mctrack-test-0016-"))
+    summary = run_kitti(
+        kitti_root=kitti_root,
+        seqs=["0016"],
+        classes=["pedestrian"],
+        record=out / "rec",
+        out=out,
+        quiet=True,
+    )
+    return out, summary
+
+
+@pytest.fixture(scope="module")
+def kitti_0016(kitti_root: Path):
+    out, summary = _kitti_0016(kitti_root)
+    yield out, summary
+    shutil.rmtree(out, ignore_errors=True)
+
+
+def test_kitti_record_logs_images_where_image_02_exists(kitti_0016) -> None:
+    _, summary = kitti_0016
+    rrd = Path(summary["recordings"]["0016"])
+    table = entity_table(rrd, paths.camera_image("CAM_FRONT"))
+    shown = [
+        f
+        for f, blob in zip(
+            table[paths.FRAME].to_pylist(),
+            table["EncodedImage:blob"].to_pylist(),
+            strict=True,
+        )
+        if blob
+    ]
+    assert shown == [2, 7, 12]  # training/image_02/0016/0000{02,07,12}.png
+
+
+def test_kitti_record_parked_ego_faces_the_poses_heading(kitti_0016, kitti_root: Path) -> None:
+    from tracker.io.convert.kitti import convert_kitti
+
+    _, summary = kitti_0016
+    rrd = Path(summary["recordings"]["0016"])
+    frames = convert_kitti(kitti_root, seqs=["0016"], classes=["pedestrian"])[0]["0016"]
+    table = entity_table(rrd, paths.EGO)
+    rows = [
+        (f, q[0])
+        for f, q in zip(
+            table[paths.FRAME].to_pylist(), table["Transform3D:quaternion"].to_pylist(), strict=True
+        )
+        if q  # the axes rows of the same entity carry no rotation
+    ]
+    q = np.array([r for _, r in sorted(rows)])
+    yaw_rec = 2 * np.arctan2(q[:, 2], q[:, 3])
+    yaw_pose = ego_yaw(np.stack([f.world_from_ego for f in frames]))
+    assert len(yaw_rec) == len(frames) == 209
+    assert np.allclose(np.cos(yaw_rec - yaw_pose), 1.0, atol=1e-6)
+    # the ego barely moves in 0016, and its heading is not the -90 deg of a camera's x axis
+    assert abs(np.degrees(np.median(yaw_pose)) + 90.0) > 45.0
+
+
+def test_kitti_0016_pedestrian_switches_explained_and_in_view(kitti_0016) -> None:
+    out, summary = kitti_0016
+    per = summary["per_sequence"]["0016"]["pedestrian"]
+    assert per == {k: summary["metrics"]["pedestrian"][k] for k in ("IDSW", "Frag")}
+    causes = summary["causes"]["0016"]["pedestrian"]
+    assert sum(causes["IDSW"].values()) == per["IDSW"] > 0
+    assert sum(causes["Frag"].values()) == per["Frag"]
+    assert causes["IDSW"]["other"] == 0
+    index = read_shot_index(summary["recordings"]["0016"])
+    switches = [k for k, kind in enumerate(index.event_kinds) if kind == 0]
+    assert len(switches) == per["IDSW"]
+    for k in switches:
+        target = np.array(index.event_xyz_m[k])
+        assert np.isfinite(target).all()
+        assert _in_view(_eye(target), target + np.array([0.0, 0.0, 2.0]))
+        assert index.event_causes[k] != "other"
+    assert (out / "rec" / "causes.md").is_file()
