@@ -19,6 +19,7 @@ import resource
 from pathlib import Path
 from typing import Any
 
+from app.inputs import default_kitti_root, kitti_root_help
 from tracker.config import load_config
 from tracker.fileio import write_text_atomic
 from tracker.pipeline import run_scene
@@ -26,8 +27,12 @@ from tracker.synthetic import synthetic_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--kitti-root", default="../shared/data/kitti/tracking")
-    parser.add_argument("--config", default="kitti")
+    parser.add_argument(
+        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
+    )
+    parser.add_argument(
+        "--config", default="kitti", help="built-in config name (kitti, ...) or a TOML file"
+    )
     parser.add_argument("--repeat", type=int, default=5, help="runs per case; the best is kept")
     parser.add_argument("--frames", type=int, default=200, help="frames per synthetic scene")
     parser.add_argument("--json", default=None, help="also write the results to this file")
@@ -57,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} (1 min); "
         f"best of {args.repeat} runs per case"
     )
-    root = Path(args.kitti_root)
+    root = args.kitti_root or default_kitti_root()
     if root.is_dir():
         from tracker.convert.kitti import convert_kitti
 

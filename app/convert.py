@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+from app.inputs import NO_POSES_NOTE, check_kitti_root, default_kitti_root, kitti_root_help
 from tracker.errors import InputError
 from tracker.frame import Frame
 
@@ -27,15 +28,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="KITTI tracking (labels, AB3DMOT/KITTI-object detections, ORB-SLAM3 or oxts poses)",
         description="Write OUT/detections.json and OUT/gt.json (when labels exist).",
     )
-    kitti.add_argument("--kitti-root", type=Path, required=True, help="the kitti/tracking folder")
-    kitti.add_argument("--split", default="training", choices=["training", "testing"])
+    kitti.add_argument(
+        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
+    )
+    kitti.add_argument(
+        "--split",
+        default="training",
+        choices=["training", "testing"],
+        help="which half of the kit (testing has no labels)",
+    )
     kitti.add_argument("--seqs", type=_csv, default=None, help="e.g. 0001,0006 (default: all)")
     kitti.add_argument("--detector", default="pointrcnn", help="folder under detections/")
     kitti.add_argument(
         "--detections", type=Path, default=None, help="detections folder (overrides --detector)"
     )
     kitti.add_argument(
-        "--detections-layout", default="auto", choices=["auto", "ab3dmot", "kitti_object"]
+        "--detections-layout",
+        default="auto",
+        choices=["auto", "ab3dmot", "kitti_object"],
+        help="ab3dmot: <seq>.txt or <Class>/<seq>.txt; kitti_object: <seq>/<frame>.txt; "
+        "auto: whichever exists",
     )
     kitti.add_argument(
         "--poses",
@@ -113,9 +125,21 @@ def _run_kitti(args: argparse.Namespace) -> int:
     from tracker.convert.kitti import convert_kitti
 
     start = time.perf_counter()
+    root = args.kitti_root or default_kitti_root()
     poses = None if str(args.poses).lower() == "none" else args.poses
+    if args.detections is not None and not args.detections.is_dir():
+        raise InputError(f"{args.detections}: --detections folder not found")
+    check_kitti_root(
+        root,
+        split=args.split,
+        seqs=args.seqs,
+        poses=poses,
+        detector=None if args.detections else args.detector,
+    )
+    if poses is None:
+        print(NO_POSES_NOTE, file=sys.stderr)
     detections, gt = convert_kitti(
-        args.kitti_root,
+        root,
         split=args.split,
         seqs=args.seqs,
         detector=args.detector,
@@ -183,16 +207,6 @@ def _run_waymo(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``mctrack convert``; returns the exit code (2 for bad or missing input)."""
-    try:
-        if args.dataset == "kitti":
-            return _run_kitti(args)
-        if args.dataset == "nuscenes":
-            return _run_nuscenes(args)
-        if args.dataset == "waymo":
-            return _run_waymo(args)
-    except (InputError, FileNotFoundError) as exc:
-        print(f"mctrack convert {args.dataset}: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"mctrack convert: unknown dataset {args.dataset!r}", file=sys.stderr)
-    return 2
+    """Run ``mctrack convert``; bad or missing input raises (the CLI prints one line, exit 2)."""
+    runners = {"kitti": _run_kitti, "nuscenes": _run_nuscenes, "waymo": _run_waymo}
+    return runners[args.dataset](args)

@@ -17,7 +17,12 @@ from tracker.writers import write_kitti_sequence, write_tracks_file
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="BaseVersion detections JSON")
     parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
-    parser.add_argument("--mode", choices=["online", "offline"], default=None)
+    parser.add_argument(
+        "--mode",
+        choices=["online", "offline"],
+        default=None,
+        help="tracking mode (default: the config's)",
+    )
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
     parser.add_argument(

@@ -29,7 +29,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gt", default=None, help="folder of <segment>.npz ground truth (ids)")
     parser.add_argument("--segments", type=_csv, default=None, help="segment names (default all)")
     parser.add_argument("--config", default="waymo", help="waymo or a TOML path")
-    parser.add_argument("--mode", choices=["online", "offline"], default=None)
+    parser.add_argument(
+        "--mode",
+        choices=["online", "offline"],
+        default=None,
+        help="tracking mode (default: the config's)",
+    )
     parser.add_argument("--motion", action="store_true", help="motion metrics (needs --gt)")
     parser.add_argument("--out", required=True, help="output folder")
 
