@@ -15,15 +15,15 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 from pathlib import Path
 from typing import Any
 
+from app.common import peak_rss_mb
 from app.inputs import default_kitti_root, kitti_root_help
 from tracker.config import load_config
-from tracker.fileio import write_text_atomic
+from tracker.io.fileio import write_text_atomic
+from tracker.io.synthetic import synthetic_scene
 from tracker.pipeline import run_scene
-from tracker.synthetic import synthetic_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,24 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", default=None, help="also write the results to this file")
 
 
-def peak_rss_mb() -> float:
-    """This process's peak resident memory, MB.
-
-    Linux's VmHWM (the high-water mark of this process image); ``ru_maxrss`` would also count
-    the parent's memory when this process was started by fork + exec (a benchmark run from a
-    script that already holds hundreds of MB would report the script's peak).
-    """
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return round(int(line.split()[1]) / 1024.0, 1)  # kB
-    except OSError:
-        pass
-    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
-
-
 def run(args: argparse.Namespace) -> int:
-    from app.kitti import VALIDATION_SEQS
+    from tracker.io.convert.kitti import VALIDATION_SEQS
 
     results: dict[str, Any] = {"load_average_1min": round(os.getloadavg()[0], 2)}
     print(
@@ -64,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     )
     root = args.kitti_root or default_kitti_root()
     if root.is_dir():
-        from tracker.convert.kitti import convert_kitti
+        from tracker.io.convert.kitti import convert_kitti
 
         config = load_config(
             args.config, overrides={"categories": ["car", "pedestrian", "cyclist"]}

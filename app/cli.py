@@ -174,14 +174,16 @@ def _warm_kernels() -> None:
     if not kernels_cold():
         return
     print(
-        "mctrack: compiling the tracker kernels (first run on this machine only, ~20 s)...",
+        "mctrack: compiling the tracker kernels (first run on this machine only, 20-40 s)...",
         file=sys.stderr,
         flush=True,
     )
-    from tracker.mctracker import frame_kernels
+    from tracker.geometry import prepare_kernels
+    from tracker.kernels import load
 
     start = time.perf_counter()
-    frame_kernels()
+    load()
+    prepare_kernels()
     print(f"mctrack: kernels compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr)
 
 

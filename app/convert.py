@@ -121,8 +121,8 @@ def _summary(name: str, scenes: dict[str, list[Frame]]) -> str:
 
 
 def _run_kitti(args: argparse.Namespace) -> int:
-    from tracker.baseversion import write_baseversion
-    from tracker.convert.kitti import convert_kitti
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.convert.kitti import convert_kitti
 
     start = time.perf_counter()
     root = args.kitti_root or default_kitti_root()
@@ -164,8 +164,8 @@ def _run_kitti(args: argparse.Namespace) -> int:
 
 
 def _run_nuscenes(args: argparse.Namespace) -> int:
-    from tracker.baseversion import write_baseversion
-    from tracker.convert.nuscenes import convert_nuscenes
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.convert.nuscenes import convert_nuscenes
 
     start = time.perf_counter()
     conv = convert_nuscenes(
@@ -188,8 +188,8 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
 
 
 def _run_waymo(args: argparse.Namespace) -> int:
-    from tracker.baseversion import write_baseversion
-    from tracker.convert.waymo import convert_waymo
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.convert.waymo import convert_waymo
 
     if args.gt_out is not None and args.gt is None:
         raise InputError("--gt-out needs --gt (the ground-truth npz folder)")

@@ -23,8 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.track import parse_frame_range
-    from tracker.baseversion import read_baseversion
     from tracker.config import load_config
+    from tracker.io.baseversion import read_baseversion
     from viz.record import record_scene
 
     sample = Path(args.sample)

@@ -16,11 +16,11 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from tracker.baseversion import read_baseversion
 from tracker.errors import InputError
 from tracker.events import TrackOutput
-from tracker.fileio import write_text_atomic
 from tracker.frame import Frame
+from tracker.io.baseversion import read_baseversion
+from tracker.io.fileio import write_text_atomic
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,7 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tracker.writers import read_tracks_file
+    from tracker.io.writers import read_tracks_file
 
     if args.dataset == "nuscenes":
         return _run_nuscenes(args)
@@ -101,7 +101,7 @@ def evaluate_tracks(
 ) -> dict[str, Any]:
     """Static and/or motion metrics of tracker output; writes ``out/eval.json`` and
     ``out/eval.md`` and returns the JSON content."""
-    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     result: dict[str, Any] = {"tracks_scenes": sorted(outputs), "classes": list(classes)}
     md = ["# Evaluation", ""]
@@ -135,8 +135,8 @@ def _static_metrics(
     classes: Sequence[str],
     labels: Path,
 ) -> dict[str, Any] | str:
-    from tracker.kitti_eval import SUPPORTED_CLASSES, evaluate_kitti
-    from tracker.writers import write_kitti_sequence
+    from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
+    from tracker.io.writers import write_kitti_sequence
 
     missing = [s for s in outputs if not (labels / f"{s}.txt").is_file()]
     if missing:
@@ -190,7 +190,7 @@ def _is_submission(path: Path) -> bool:
 
 
 def _run_nuscenes(args: argparse.Namespace) -> int:
-    from tracker.nuscenes_eval import evaluate_nuscenes, nuscenes_markdown
+    from tracker.eval.nuscenes import evaluate_nuscenes, nuscenes_markdown
 
     if not args.dataroot:
         raise InputError("--dataset nuscenes needs --dataroot (the nuScenes tables)")
@@ -207,8 +207,8 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
         if args.motion:
             raise InputError("--motion needs a tracks file, not a submission results.json")
     else:
-        from tracker.writers import read_tracks_file
-        from tracker.writers_nuscenes import write_nuscenes_results
+        from tracker.io.nuscenes_writer import write_nuscenes_results
+        from tracker.io.writers import read_tracks_file
 
         track_frames, outputs = read_tracks_file(tracks)
         results_path = out / "results.json"
@@ -224,7 +224,7 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
     )
     md.append(nuscenes_markdown(result["static"]))
     if args.motion and motion_inputs is not None:
-        from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+        from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
         if args.gt is None:
             raise InputError("--motion needs --gt (the GT BaseVersion of `mctrack nuscenes`)")

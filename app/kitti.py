@@ -11,26 +11,13 @@ from typing import Any
 
 from tqdm import tqdm
 
-from app.bench import peak_rss_mb
+from app.common import peak_rss_mb
 from app.inputs import NO_POSES_NOTE, check_kitti_root, default_kitti_root, kitti_root_help
 from tracker.config import BUILTIN, config_to_dict, load_config
-from tracker.fileio import write_text_atomic
+from tracker.io.convert.kitti import VALIDATION_SEQS
+from tracker.io.fileio import write_text_atomic
+from tracker.io.writers import write_kitti_sequence, write_tracks_file
 from tracker.pipeline import SceneResult, run_scene
-from tracker.writers import write_kitti_sequence, write_tracks_file
-
-VALIDATION_SEQS = (
-    "0001",
-    "0006",
-    "0008",
-    "0010",
-    "0012",
-    "0013",
-    "0014",
-    "0015",
-    "0016",
-    "0018",
-    "0019",
-)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -134,10 +121,10 @@ def run_kitti(
     """The end-to-end KITTI job; returns (and writes) ``out/summary.json``.
 
     With ``motion`` the labels are converted too and the motion metrics
-    (:func:`tracker.motion_eval.evaluate_motion`) go to ``summary["motion"]``, ``out/motion.md``
-    and ``out/motion_velocity.png``.
+    (:func:`tracker.eval.motion_eval.evaluate_motion`) go to ``summary["motion"]``,
+    ``out/motion.md`` and ``out/motion_velocity.png``.
     """
-    from tracker.convert.kitti import convert_kitti
+    from tracker.io.convert.kitti import convert_kitti
 
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
@@ -205,7 +192,7 @@ def run_kitti(
         if missing:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
         else:
-            from tracker.kitti_eval import absent_classes, evaluate_kitti
+            from tracker.eval.kitti import absent_classes, evaluate_kitti
 
             lengths = {s: len(detections[s]) for s in detections}
             metrics = evaluate_kitti(
@@ -235,7 +222,7 @@ def _motion(
     out: Path,
 ) -> dict[str, Any] | str:
     """Motion metrics of the run, and ``out/motion.md`` with the velocity-curve PNG."""
-    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     missing = sorted(s for s in detections if gt is None or s not in gt)
     if gt is None or missing:

@@ -12,12 +12,12 @@ from typing import Any
 
 from tqdm import tqdm
 
-from app.bench import peak_rss_mb
+from app.common import peak_rss_mb
 from tracker.config import TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
-from tracker.fileio import write_text_atomic
 from tracker.frame import Frame
+from tracker.io.fileio import write_text_atomic
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -94,11 +94,11 @@ def run_nuscenes(
     ``motion`` also ``out/gt.json``, ``out/motion.md`` and the velocity PNG, and with ``record``
     one ``.rrd`` per scene in ``out/recordings/``.
     """
-    from tracker.convert.nuscenes import convert_nuscenes, load_nuscenes
-    from tracker.nuscenes_eval import evaluate_nuscenes, load_results_with_devkit
+    from tracker.eval.nuscenes import evaluate_nuscenes, load_results_with_devkit
+    from tracker.io.convert.nuscenes import convert_nuscenes, load_nuscenes
+    from tracker.io.nuscenes_writer import write_nuscenes_results
+    from tracker.io.writers import write_tracks_file
     from tracker.pipeline import run_scene
-    from tracker.writers import write_tracks_file
-    from tracker.writers_nuscenes import write_nuscenes_results
 
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     has_gt = not version.endswith("test")
@@ -196,9 +196,9 @@ def _motion(
     classes: tuple[str, ...],
     out: Path,
 ) -> dict[str, Any] | str:
-    from tracker.baseversion import write_baseversion
-    from tracker.fileio import write_text_atomic
-    from tracker.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.fileio import write_text_atomic
 
     if gt is None:
         return "skipped: no annotations (test split)"

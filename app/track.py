@@ -6,12 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from tracker.baseversion import LoadReport, read_baseversion
 from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
+from tracker.io.baseversion import LoadReport, read_baseversion
+from tracker.io.writers import write_kitti_sequence, write_tracks_file
 from tracker.pipeline import run_scene
-from tracker.writers import write_kitti_sequence, write_tracks_file
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from tracker.baseversion import LoadReport, read_baseversion, summarize
+from tracker.io.baseversion import LoadReport, read_baseversion, summarize
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -84,8 +84,8 @@ def run(args: argparse.Namespace) -> int:
     import rerun as rr
 
     from app.track import parse_frame_range, select_scenes
-    from tracker.baseversion import read_baseversion
     from tracker.config import load_config
+    from tracker.io.baseversion import read_baseversion
     from viz.layout import debug_blueprint
     from viz.record import new_recording, record_scene
 

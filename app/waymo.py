@@ -16,7 +16,7 @@ from tqdm import tqdm
 
 from tracker.config import config_to_dict, load_config
 from tracker.events import TrackOutput
-from tracker.fileio import write_text_atomic
+from tracker.io.fileio import write_text_atomic
 
 
 def _csv(text: str) -> list[str]:
@@ -70,11 +70,11 @@ def run_waymo(
     quiet: bool = False,
 ) -> dict[str, Any]:
     """The end-to-end Waymo job; returns (and writes) ``out/summary.json``."""
-    from tracker.convert.waymo import convert_waymo
     from tracker.errors import InputError
+    from tracker.io.convert.waymo import convert_waymo
+    from tracker.io.waymo_writer import write_waymo_results
+    from tracker.io.writers import write_tracks_file
     from tracker.pipeline import run_scene
-    from tracker.writers import write_tracks_file
-    from tracker.writers_waymo import write_waymo_results
 
     if motion and gt is None:
         raise InputError("--motion needs --gt (the ground-truth npz folder)")
@@ -103,8 +103,8 @@ def run_waymo(
         "config": config_to_dict(config),
     }
     if motion and conv.gt is not None:
-        from tracker.baseversion import write_baseversion
-        from tracker.motion_eval import evaluate_motion
+        from tracker.eval.motion_eval import evaluate_motion
+        from tracker.io.baseversion import write_baseversion
 
         write_baseversion(out / "gt.json", conv.gt)
         summary["motion"] = evaluate_motion(

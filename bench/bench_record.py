@@ -42,8 +42,8 @@ def _peak_rss_mb() -> float:
 
 
 def kitti_overhead(repeat: int) -> dict[str, Any]:
-    from tracker.baseversion import read_baseversion
     from tracker.config import load_config
+    from tracker.io.baseversion import read_baseversion
     from tracker.pipeline import run_scene
     from viz.record import record_scene
 
@@ -112,8 +112,8 @@ def memory_child(mode: str, num_frames: int) -> dict[str, Any]:
     import rerun as rr  # imported in both modes so the baseline carries the library too
 
     from tracker.config import load_config
+    from tracker.io.synthetic import synthetic_scene
     from tracker.pipeline import run_scene
-    from tracker.synthetic import synthetic_scene
 
     del rr
     frames, _ = synthetic_scene(num_objects=20, num_frames=num_frames)

@@ -58,7 +58,7 @@ def kitti(root: Path, classes: list[str], **kw: Any) -> dict[str, Any]:
 
 
 def _val() -> tuple[str, ...]:
-    from app.kitti import VALIDATION_SEQS
+    from tracker.io.convert.kitti import VALIDATION_SEQS
 
     return VALIDATION_SEQS
 

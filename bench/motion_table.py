@@ -3,7 +3,7 @@
     mctrack kitti --out results/val --motion
     python bench/motion_table.py results/val/summary.json --out docs/motion_results.md
 
-Reads the ``motion`` block of ``summary.json`` (see :mod:`tracker.motion_eval`) and writes a
+Reads the ``motion`` block of ``summary.json`` (see :mod:`tracker.eval.motion_eval`) and writes a
 markdown page: one estimator × metric table per class (car and pedestrian by default) and
 pooled, the box errors, and whether the paper's nuScenes ranking (Kalman lowest VAE, VNE and VIR;
 differencing lowest VDE) holds on this run, decided from the numbers in the file.
@@ -25,9 +25,9 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from tracker.fileio import write_text_atomic
-from tracker.motion_eval import METRIC_COLUMNS, metrics_from_dict
-from tracker.motion_metrics import combine_motion_metrics
+from tracker.eval.motion_eval import METRIC_COLUMNS, metrics_from_dict
+from tracker.eval.motion_metrics import combine_motion_metrics
+from tracker.io.fileio import write_text_atomic
 
 PAPER_LOWEST = {
     "vae_deg": "kalman",
@@ -156,9 +156,9 @@ def control_metrics(
     from scipy.signal import savgol_filter
 
     from tracker.config import config_from_dict
-    from tracker.convert.kitti import convert_kitti
-    from tracker.motion_eval import Estimator, collect_motion_samples
-    from tracker.motion_metrics import motion_metrics
+    from tracker.eval.motion_eval import Estimator, collect_motion_samples
+    from tracker.eval.motion_metrics import motion_metrics
+    from tracker.io.convert.kitti import convert_kitti
     from tracker.pipeline import run_scene
 
     config = config_from_dict(summary["config"], source=f"{summary_source(summary)} config")
@@ -274,14 +274,15 @@ def motion_page(
         f"({summary['detector']} detections, {summary['mode']} mode, {summary['frames']} frames, "
         f"sequences {' '.join(summary['sequences'])}).",
         "",
-        "Protocol (`tracker/motion_eval.py`): "
+        "Protocol (`tracker/eval/motion_eval.py`): "
         + protocol["association"]
         + "; thresholds "
         + ", ".join(f"{c} {d:g} m" for c, d in protocol["max_distance_m"].items() if c in classes)
         + f". Samples: {protocol['samples']}. GT velocity: {protocol['gt_velocity']} "
         "(KITTI has no velocity labels; the world frame comes from ORB-SLAM3 poses, so the GT "
-        "velocity includes the pose error). Metrics as in `tracker/motion_metrics.py`: VIR is a "
-        "fraction, VDE keeps zero delays and uses the real 0.1 s step, the curve fit is in m/s; "
+        "velocity includes the pose error). Metrics as in `tracker/eval/motion_metrics.py`: "
+        "VIR is a fraction, VDE keeps zero delays and uses the real 0.1 s step, the curve fit is "
+        "in m/s; "
         "static GT tracks are left out of VAE, VNE, VAIE and VIR.",
         "",
         "Estimators: "

@@ -18,12 +18,11 @@ import time
 from pathlib import Path
 from typing import Any
 
-from app.kitti import VALIDATION_SEQS
 from tracker.config import load_config
-from tracker.convert.kitti import convert_kitti
-from tracker.kitti_eval import evaluate_kitti
+from tracker.eval.kitti import evaluate_kitti
+from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti
+from tracker.io.writers import write_kitti_sequence
 from tracker.pipeline import run_scene
-from tracker.writers import write_kitti_sequence
 
 
 def nested(flat: dict[str, Any]) -> dict[str, Any]:

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from tracker.baseversion import LoadReport, read_baseversion, write_baseversion
 from tracker.boxes import Boxes
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
+from tracker.io.baseversion import LoadReport, read_baseversion, write_baseversion
 
 # An official-style file as the original MCTrack converters write it (spec §1.5): KITTI frame
 # with null timestamp, unwrapped yaw, camera2image with the [1,1,1,1] bottom-row quirk; and a

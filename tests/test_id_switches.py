@@ -10,19 +10,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tracker.baseversion import read_baseversion
 from tracker.boxes import Boxes
 from tracker.categories import category_index
 from tracker.config import load_config
-from tracker.events import TrackOutput
-from tracker.frame import Frame
-from tracker.id_switches import (
+from tracker.eval.id_switches import (
     IdEventKind,
     bev_id_events,
     clear_id_events,
     kitti_id_events,
     kitti_num_timesteps,
 )
+from tracker.events import TrackOutput
+from tracker.frame import Frame
+from tracker.io.baseversion import read_baseversion
 from tracker.pipeline import run_scene
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
@@ -125,8 +125,8 @@ def test_kitti_events_equal_trackeval_on_the_sample() -> None:
     """The reference config switches ids on sequence 0001; every one is an event."""
     if not (SAMPLE / "detections.json.gz").is_file():
         pytest.skip("sample data missing")
-    from tracker.kitti_eval import evaluate_kitti
-    from tracker.writers import write_kitti_sequence
+    from tracker.eval.kitti import evaluate_kitti
+    from tracker.io.writers import write_kitti_sequence
 
     frames = read_baseversion(SAMPLE / "detections.json.gz", fallback_frame_rate_hz=10.0)["0001"]
     outputs = run_scene(frames, load_config("kitti_reference")).outputs

@@ -1,4 +1,4 @@
-"""tracker.convert.kitti on the real KITTI tracking kit (skipped when the kit is absent)."""
+"""tracker.io.convert.kitti on the real KITTI tracking kit (skipped when the kit is absent)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,10 @@ import pytest
 from tracker.boxes import Boxes
 from tracker.camera import project_boxes
 from tracker.categories import category_index
-from tracker.convert.kitti import (
+from tracker.errors import InputError
+from tracker.frame import Frame
+from tracker.geometry import wrap_angle
+from tracker.io.convert.kitti import (
     WORLD_FROM_CAMERA_AXES,
     boxes_rect_to_world,
     boxes_world_to_rect,
@@ -20,9 +23,6 @@ from tracker.convert.kitti import (
     read_kitti_calib,
     read_kitti_labels,
 )
-from tracker.errors import InputError
-from tracker.frame import Frame
-from tracker.geometry import wrap_angle
 
 VAL_SEQS = ("0001", "0006", "0008", "0010", "0012", "0013", "0014", "0015", "0016", "0018", "0019")
 SEQ_0001_FRAMES = 447
@@ -105,7 +105,7 @@ def test_world_to_rect_round_trip(
 
 
 def test_yaw_and_centre_for_the_identity_pose() -> None:
-    from tracker.convert.kitti import KittiObjects
+    from tracker.io.convert.kitti import KittiObjects
 
     ry = np.array([0.0, 0.5, -2.0, np.pi])
     objects = KittiObjects(
@@ -436,7 +436,7 @@ def main(argv: list[str]) -> int:
 def test_cli_convert_kitti(
     kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from tracker.baseversion import read_baseversion
+    from tracker.io.baseversion import read_baseversion
 
     out = tmp_path / "out"
     argv = ["convert", "kitti", "--kitti-root", str(kitti_root), "--seqs", "0012,14"]

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tracker.baseversion import read_baseversion
 from tracker.boxes import Boxes
 from tracker.categories import category_index
 from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.events import LifecycleChanged, ListObserver, TrackStatus
 from tracker.frame import Frame
+from tracker.io.baseversion import read_baseversion
 from tracker.mctracker import MCTracker
 from tracker.pipeline import run_scene
 
@@ -174,8 +174,8 @@ def test_output_acceleration_ca_estimated_cv_absent() -> None:
 
 def test_sample_sequence_regression() -> None:
     """Track count and ID switches on the bundled sequence, against committed numbers."""
-    from tracker.kitti_eval import evaluate_kitti
-    from tracker.writers import write_kitti_sequence
+    from tracker.eval.kitti import evaluate_kitti
+    from tracker.io.writers import write_kitti_sequence
 
     cfg = load_config("kitti")
     frames = read_baseversion(SAMPLE / "detections.json.gz")["0001"]

@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from tracker import geometry, mctracker
-from tracker.baseversion import read_baseversion
 from tracker.config import load_config
 from tracker.events import ListObserver, TrackOutput
+from tracker.io.baseversion import read_baseversion
+from tracker.io.synthetic import synthetic_scene
 from tracker.pipeline import run_scene
-from tracker.synthetic import synthetic_scene
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
 
@@ -80,7 +80,7 @@ def test_dense_synthetic_scene_both_pose_models(motion: str, monkeypatch) -> Non
     assert len(plain[-1]) >= 40  # the scene is tracked
     observed = run_scene(dets, cfg, observer=ListObserver()).outputs
     assert_same_tracking(plain, observed, exact=True)
-    monkeypatch.setattr(mctracker, "frame_kernels", lambda: None)  # numpy stages
+    monkeypatch.setattr(mctracker, "load_kernels", lambda: None)  # numpy stages
     assert_same_tracking(plain, run_scene(dets, cfg).outputs, exact=False)
     monkeypatch.setattr(geometry, "_geometry_kernel", lambda: None)  # and numpy geometry
     assert_same_tracking(plain, run_scene(dets, cfg).outputs, exact=False)

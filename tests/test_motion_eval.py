@@ -1,4 +1,5 @@
-"""Motion evaluation (tracker/motion_eval.py): association, GT velocity, estimators, invariances.
+"""Motion evaluation (tracker/eval/motion_eval.py): association, GT velocity, estimators,
+invariances.
 
 Analytic truths, not snapshots: exact velocities of hand-built tracks, invariance under frame
 order and scene splits, and physical sanity on KITTI (parked cars have ~0 GT velocity).
@@ -16,9 +17,7 @@ import pytest
 from tracker.boxes import Boxes
 from tracker.categories import category_index
 from tracker.config import load_config
-from tracker.events import TrackOutput, TrackStatus
-from tracker.frame import Frame
-from tracker.motion_eval import (
+from tracker.eval.motion_eval import (
     MAX_DISTANCE_M,
     NO_DETECTOR_VELOCITY,
     Estimator,
@@ -30,9 +29,11 @@ from tracker.motion_eval import (
     metrics_from_dict,
     motion_markdown,
 )
-from tracker.motion_metrics import combine_motion_metrics
+from tracker.eval.motion_metrics import combine_motion_metrics
+from tracker.events import TrackOutput, TrackStatus
+from tracker.frame import Frame
+from tracker.io.synthetic import synthetic_scene
 from tracker.pipeline import run_scene
-from tracker.synthetic import synthetic_scene
 
 CAR = category_index("car")
 PEDESTRIAN = category_index("pedestrian")
@@ -443,8 +444,8 @@ def test_largest_delay_tracks_finds_the_delayed_one() -> None:
 
 def test_tracks_file_round_trip_and_eval_command(tmp_path: Path) -> None:
     from app.cli import main
-    from tracker.baseversion import write_baseversion
-    from tracker.writers import read_tracks_file, write_tracks_file
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.writers import read_tracks_file, write_tracks_file
 
     dets, gts, outputs = tracked(num_frames=50)
     write_tracks_file(tmp_path / "tracks.json", {"synthetic": (dets, outputs)})
@@ -497,7 +498,7 @@ def test_kitti_parked_cars_have_zero_gt_velocity_and_motion_block(
     positions is ~0 for parked cars and several m/s for moving ones; `mctrack kitti --motion`'s
     job produces the motion block with the detection estimator absent."""
     from app.kitti import run_kitti
-    from tracker.convert.kitti import convert_kitti
+    from tracker.io.convert.kitti import convert_kitti
 
     _dets, gt = convert_kitti(kitti_root, seqs=["0014"], classes=["car"], with_gt=True)
     frames = gt["0014"]

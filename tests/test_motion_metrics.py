@@ -1,4 +1,4 @@
-"""Analytic tests of the motion metrics and velocity estimators (tracker/motion_metrics.py)."""
+"""Analytic tests of the motion metrics and velocity estimators (tracker/eval/motion_metrics.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
-from tracker.motion_metrics import (
+from tracker.eval.motion_metrics import (
     MotionMetricParams,
     MotionMetrics,
     angle_error_rad,

@@ -22,12 +22,16 @@ from tests.test_nuscenes_fixture import (
     rot_z,
     write_synthetic_nuscenes,
 )
-from tracker.baseversion import read_baseversion, write_baseversion
 from tracker.boxes import Boxes
 from tracker.camera import project_points
 from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
-from tracker.convert.nuscenes import (
+from tracker.errors import InputError
+from tracker.events import TrackOutput, TrackStatus
+from tracker.frame import Camera, Frame
+from tracker.geometry import corners_3d
+from tracker.io.baseversion import read_baseversion, write_baseversion
+from tracker.io.convert.nuscenes import (
     CATEGORY_TO_TRACKING_NAME,
     NUSCENES_CAMERAS,
     assign_cameras,
@@ -35,12 +39,8 @@ from tracker.convert.nuscenes import (
     load_nuscenes,
     yaw_from_quaternions,
 )
-from tracker.errors import InputError
-from tracker.events import TrackOutput, TrackStatus
-from tracker.frame import Camera, Frame
-from tracker.geometry import corners_3d
+from tracker.io.nuscenes_writer import nuscenes_results, write_nuscenes_results
 from tracker.pipeline import run_scene
-from tracker.writers_nuscenes import nuscenes_results, write_nuscenes_results
 
 VAL_SCENES = ("scene-0103", "scene-0916")
 NOISY = {
@@ -373,7 +373,7 @@ def test_bad_inputs_name_the_table_or_token(
 def _track_and_evaluate(
     data: SyntheticNuScenes, nusc: Any, detections: Path, out: Path
 ) -> dict[str, Any]:
-    from tracker.nuscenes_eval import evaluate_nuscenes, load_results_with_devkit
+    from tracker.eval.nuscenes import evaluate_nuscenes, load_results_with_devkit
 
     conv = convert_nuscenes(
         data.dataroot, version=data.version, detections=detections, split="mini_val", nusc=nusc

@@ -15,8 +15,8 @@ from tests.test_nuscenes_fixture import (
     make_detections,
     write_synthetic_nuscenes,
 )
-from tracker.baseversion import read_baseversion
-from tracker.writers import read_tracks_file
+from tracker.io.baseversion import read_baseversion
+from tracker.io.writers import read_tracks_file
 
 pytestmark = pytest.mark.skipif(_devkit_missing() is not None, reason=str(_devkit_missing()))
 

@@ -20,8 +20,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pytest
 
-from tracker.baseversion import read_baseversion
 from tracker.config import load_config
+from tracker.io.baseversion import read_baseversion
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.record import RecordResult, record_scene
@@ -317,7 +317,7 @@ def test_recorded_gt_wireframes_are_the_projection(rrd: Path) -> None:
 @pytest.mark.parametrize("with_gt", [False, True])
 def test_synthetic_scene_without_labels(tmp_path: Path, with_gt: bool) -> None:
     """No KITTI labels, no ego pose: the recording still works (BEV-IoU ID switches with GT)."""
-    from tracker.synthetic import synthetic_scene
+    from tracker.io.synthetic import synthetic_scene
 
     det, gt = synthetic_scene(num_objects=6, num_frames=40, seed=3)
     config = load_config("kitti", overrides={"categories": ["car", "pedestrian"]})

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tracker.baseversion import read_baseversion
 from tracker.boxes import Boxes
 from tracker.camera import box_wireframes_image, project_boxes
-from tracker.convert.kitti import read_kitti_labels
-from tracker.synthetic import front_camera
+from tracker.io.baseversion import read_baseversion
+from tracker.io.convert.kitti import read_kitti_labels
+from tracker.io.synthetic import front_camera
 from viz.projection import drawable_segments, project_boxes_batched
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"

@@ -12,14 +12,14 @@ import numpy as np
 import pytest
 
 from app.cli import main
-from tracker.baseversion import read_baseversion, write_baseversion
 from tracker.camera import project_points
 from tracker.categories import category_index
 from tracker.config import load_config
-from tracker.convert.waymo import WAYMO_CAMERAS, convert_waymo
 from tracker.errors import InputError
+from tracker.io.baseversion import read_baseversion, write_baseversion
+from tracker.io.convert.waymo import WAYMO_CAMERAS, convert_waymo
+from tracker.io.waymo_writer import read_waymo_results, write_waymo_results
 from tracker.pipeline import run_scene
-from tracker.writers_waymo import read_waymo_results, write_waymo_results
 
 SEGMENT = "segment-1234_5678_with_camera_labels"
 N_FRAMES = 20

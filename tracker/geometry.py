@@ -380,7 +380,7 @@ def bev_pair_geometry(
     intersection area (computed only where the circumscribed circles overlap, else 0 exactly),
     the minimum-area rectangle enclosing both boxes and its squared diagonal
     (:func:`min_area_rect_bev`), and the squared centre distance. Runs the compiled kernel of
-    :mod:`tracker.geometry_numba` when numba is installed (and the environment variable
+    :mod:`tracker.kernels.geometry` when numba is installed (and the environment variable
     ``MCTRACK_NUMBA`` is not ``0``), else :func:`bev_pair_geometry_numpy`; both agree to float64
     rounding.
 
@@ -453,7 +453,7 @@ def _geometry_kernel() -> Callable[..., tuple[FloatArray, ...]] | None:
     if os.environ.get("MCTRACK_NUMBA", "1") == "0":
         return None
     try:
-        from tracker.geometry_numba import bev_pair_geometry_kernel
+        from tracker.kernels.geometry import bev_pair_geometry_kernel
     except ImportError:
         return None
     # compile (first run on this machine) or load from numba's cache now, not on first use

@@ -11,11 +11,8 @@ state, and the filtered acceleration in the output.
 
 from __future__ import annotations
 
-import functools
 import math
-import os
 from collections.abc import Callable
-from types import ModuleType
 
 import numpy as np
 
@@ -58,6 +55,7 @@ from tracker.events import (
 from tracker.frame import Frame
 from tracker.geometry import prepare_kernels, wrap_angle
 from tracker.kalman import Axis
+from tracker.kernels import load as load_kernels
 from tracker.matching import Matches, greedy, hungarian
 from tracker.track import TrackTable
 
@@ -69,19 +67,6 @@ _COASTING, _LOST = int(TrackStatus.COASTING), int(TrackStatus.LOST)
 # lookups by status: output (confirmed, coasting), re-acquired on a hit (coasting, lost)
 _IS_OUTPUT = np.isin(np.arange(len(TrackStatus)), [_CONFIRMED, _COASTING])
 _IS_REACQUIRED = np.isin(np.arange(len(TrackStatus)), [_COASTING, _LOST])
-
-
-@functools.cache
-def frame_kernels() -> ModuleType | None:
-    """The compiled per-frame kernels (:mod:`tracker.mctracker_numba`), loaded once; None
-    without numba or with ``MCTRACK_NUMBA=0`` (then every stage runs its numpy code)."""
-    if os.environ.get("MCTRACK_NUMBA", "1") == "0":
-        return None
-    try:
-        from tracker import mctracker_numba
-    except ImportError:
-        return None
-    return mctracker_numba
 
 
 class _PerCategory:
@@ -185,7 +170,7 @@ class MCTracker:
     config : the resolved configuration (:func:`tracker.config.load_config`).
     observer : called with one event per stage (:mod:`tracker.events`); None costs nothing.
     compiled : run the stages that have one through their compiled kernel
-        (:mod:`tracker.mctracker_numba`) when numba is available; False: numpy only (the
+        (:mod:`tracker.kernels`) when numba is available; False: numpy only (the
         reference the kernels are tested against).
     """
 
@@ -196,7 +181,7 @@ class MCTracker:
         self.observer = observer
         self._cat = _PerCategory(config)
         # one-time JIT loads here, never inside a frame
-        self._kernels = frame_kernels() if compiled else None
+        self._kernels = load_kernels() if compiled else None
         prepare_kernels()
         self.reset()
 

@@ -28,9 +28,7 @@ import rerun as rr
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.config import TrackerConfig, config_to_dict
-from tracker.events import TrackOutput
-from tracker.frame import Frame
-from tracker.id_switches import (
+from tracker.eval.id_switches import (
     IdEvaluation,
     IdEvent,
     IdEventKind,
@@ -38,7 +36,9 @@ from tracker.id_switches import (
     kitti_id_events,
     kitti_num_timesteps,
 )
-from tracker.motion_metrics import gt_velocity_central
+from tracker.eval.motion_metrics import gt_velocity_central
+from tracker.events import TrackOutput
+from tracker.frame import Frame
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.archetypes import ID_SWITCH_RGB, annotation_context, pack_rgb, track_colors_u32
@@ -160,7 +160,7 @@ def record_scene(
         the static metrics come from TrackEval's KITTI protocol (also without ``gt_frames``).
     images : camera name -> folder of ``<frame_id:06d>.png`` images.
     input_description : free text for the summary (input files, frame range).
-    motion_metrics : call ``tracker.motion_eval.evaluate_motion`` when it is importable.
+    motion_metrics : call ``tracker.eval.motion_eval.evaluate_motion`` when it is importable.
     live : a viewer watches while it runs: send rows every few frames instead of every few
         hundred (slightly more overhead, no visible lag).
 
@@ -337,8 +337,8 @@ def _kitti_metrics(
     camera_name: str,
     tmp: Path,
 ) -> dict[str, dict[str, float]]:
-    from tracker.kitti_eval import evaluate_kitti
-    from tracker.writers import write_kitti_sequence
+    from tracker.eval.kitti import evaluate_kitti
+    from tracker.io.writers import write_kitti_sequence
 
     seq = label_file.stem
     result_dir = tmp / "results"
@@ -358,9 +358,9 @@ def _motion_metrics(
     outputs: Sequence[TrackOutput],
     config: TrackerConfig,
 ) -> str:
-    """Motion metrics from ``tracker.motion_eval`` (written separately) when it is there."""
+    """Motion metrics from ``tracker.eval.motion_eval`` (written separately) when it is there."""
     try:
-        from tracker.motion_eval import evaluate_motion, motion_markdown
+        from tracker.eval.motion_eval import evaluate_motion, motion_markdown
     except ImportError:
         return "motion metrics: not available"
     scene = frames[0].scene
@@ -523,7 +523,7 @@ def find_velocity_lag(samples: Sequence[tuple[np.ndarray, ...]]) -> LagSample | 
     :data:`LAG_SMOOTH_SAMPLES` samples so that a single noisy detection does not win. Without any
     such object: the largest trailing gap of any moving object (``delay_secs`` None).
     """
-    from tracker.motion_metrics import static_gt_mask
+    from tracker.eval.motion_metrics import static_gt_mask
 
     if not samples:
         return None
@@ -721,7 +721,7 @@ def summary_markdown(
         cols = ["HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "FN"]
         lines += ["TrackEval 1.3.0, KITTI 2D-box protocol.", ""]
         lines += ["| class | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
-        from tracker.kitti_eval import absent_classes
+        from tracker.eval.kitti import absent_classes
 
         absent = absent_classes(result.kitti_metrics)
         for cls, m in result.kitti_metrics.items():

@@ -10,7 +10,7 @@ MCTrack lists it as a dependency).
 The kernel ports :func:`tracker.geometry.intersection_area_bev` and
 :func:`tracker.geometry.min_area_rect_bev` operation by operation (same candidates, tolerances,
 degenerate-box rules and 10 enclosing directions), so they agree to float64 rounding; the numpy
-functions stay the reference and the fallback (``tests/test_geometry_numba.py`` compares them).
+functions stay the reference and the fallback (``tests/test_kernels_geometry.py`` compares them).
 Import this module only through :func:`tracker.geometry.bev_pair_geometry`, which falls back to
 numpy when numba is missing.
 """

@@ -21,9 +21,9 @@ import numpy as np
 from tracker.boxes import Boxes, FloatArray
 from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
-from tracker.fileio import write_json_atomic
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
+from tracker.io.fileio import write_json_atomic
 
 log = logging.getLogger(__name__)
 

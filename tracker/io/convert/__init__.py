@@ -2,6 +2,6 @@
 
 from __future__ import annotations
 
-from tracker.convert.kitti import convert_kitti
+from tracker.io.convert.kitti import convert_kitti
 
 __all__ = ["convert_kitti"]

@@ -235,12 +235,12 @@ def kitti_id_events(
     outputs : the tracker's outputs for the sequence (what gets written to the result file).
     frames : the sequence's detection frames (for the camera model), in time order.
     label_file : the sequence's ``label_02/<seq>.txt``.
-    classes : any of car, pedestrian, cyclist (cyclist as in :mod:`tracker.kitti_eval`).
+    classes : any of car, pedestrian, cyclist (cyclist as in :mod:`tracker.eval.kitti`).
     """
     import trackeval  # heavy import: only when evaluating
 
-    from tracker.kitti_eval import _cyclist_dataset
-    from tracker.writers import write_kitti_sequence
+    from tracker.eval.kitti import _cyclist_dataset
+    from tracker.io.writers import write_kitti_sequence
 
     label_file = Path(label_file)
     seq = label_file.stem
@@ -269,7 +269,7 @@ def kitti_id_events(
         standard = [c for c in classes if c != "cyclist"]
         per_category = []
         with contextlib.redirect_stdout(io.StringIO()):
-            # one dataset (one raw load) for car + pedestrian; cyclist as in tracker.kitti_eval
+            # one dataset (one raw load) for car + pedestrian; cyclist as in tracker.eval.kitti
             runs: list[tuple[Any, list[tuple[str, str]]]] = []
             if standard:
                 dataset = trackeval.datasets.Kitti2DBox({**ds_config, "CLASSES_TO_EVAL": standard})

@@ -17,9 +17,9 @@ import warnings
 from pathlib import Path
 from typing import Any, Final
 
-from tracker.convert.nuscenes import SPLIT_VERSION_SUFFIX, check_tables, require_devkit
 from tracker.errors import InputError
-from tracker.fileio import write_text_atomic
+from tracker.io.convert.nuscenes import SPLIT_VERSION_SUFFIX, check_tables, require_devkit
+from tracker.io.fileio import write_text_atomic
 
 EVAL_CONFIG: Final = "tracking_nips_2019"
 #: Metrics reported per class and overall (devkit names; lower-case).
@@ -56,7 +56,7 @@ def evaluate_nuscenes(
 
     Parameters
     ----------
-    results_path : the tracking ``results.json`` (:mod:`tracker.writers_nuscenes`).
+    results_path : the tracking ``results.json`` (:mod:`tracker.io.nuscenes_writer`).
     dataroot, version : the nuScenes tables (``DATAROOT/<version>/``).
     split : the evaluated split (``val``, ``mini_val``, or a custom split); it must contain
         exactly the samples of the results file.

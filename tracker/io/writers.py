@@ -13,16 +13,16 @@ from pathlib import Path
 
 import numpy as np
 
-from tracker.baseversion import frame_to_dict, read_baseversion
 from tracker.boxes import Boxes, FloatArray
 from tracker.camera import project_boxes
 from tracker.categories import CATEGORIES
-from tracker.convert.kitti import WORLD_FROM_CAMERA_AXES, boxes_world_to_rect
 from tracker.errors import InputError
 from tracker.events import TrackOutput, TrackStatus
-from tracker.fileio import write_json_atomic, write_text_atomic
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
+from tracker.io.baseversion import frame_to_dict, read_baseversion
+from tracker.io.convert.kitti import WORLD_FROM_CAMERA_AXES, boxes_world_to_rect
+from tracker.io.fileio import write_json_atomic, write_text_atomic
 
 KITTI_CLASS_NAMES = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
 
@@ -124,7 +124,7 @@ def write_tracks_file(
     Each box carries ``track_id``, the filtered ``global_velocity`` (m/s) and
     ``global_acceleration`` (m/s²), ``status`` and ``det_row`` (the row of the input frame's
     detections matched this frame, -1 when coasting); frames keep the input's camera models, so
-    the file loads with :func:`tracker.baseversion.read_baseversion` for evaluation and viewing,
+    the file loads with :func:`tracker.io.baseversion.read_baseversion` for evaluation and viewing,
     and with :func:`read_tracks_file` as tracker output.
     """
     payload = {}
@@ -166,7 +166,7 @@ def read_tracks_file(
 
     Raises
     ------
-    InputError (from :func:`tracker.baseversion.read_baseversion`) for an invalid file.
+    InputError (from :func:`tracker.io.baseversion.read_baseversion`) for an invalid file.
     """
     scenes = read_baseversion(path)
     opener = gzip.open if str(path).endswith(".gz") else open

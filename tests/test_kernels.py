@@ -1,4 +1,4 @@
-"""The compiled per-frame kernels (tracker/mctracker_numba.py) equal the numpy stages they
+"""The compiled per-frame kernels (tracker/kernels/) equal the numpy stages they
 replace: on random inputs stage by stage (including the rare branches: heading flips, moving
 objects, contested assignments, NaN boxes), and over whole scenes."""
 
@@ -11,13 +11,14 @@ import numpy as np
 import pytest
 
 from tracker import kalman, mctracker
-from tracker.baseversion import read_baseversion
 from tracker.boxes import Boxes
 from tracker.config import load_config
 from tracker.cost import ro_gdiou_bev_arrays
 from tracker.events import LifecycleChanged, ListObserver, TrackStatus
+from tracker.io.baseversion import read_baseversion
+from tracker.kernels import load as load_kernels
 from tracker.matching import hungarian
-from tracker.mctracker import MCTracker, frame_kernels
+from tracker.mctracker import MCTracker
 from tracker.pipeline import run_scene
 from tracker.track import TrackTable
 
@@ -31,7 +32,7 @@ LIVE_STATUSES = [
     TrackStatus.COASTING,
     TrackStatus.LOST,
 ]
-kernels = frame_kernels()
+kernels = load_kernels()
 pytestmark = pytest.mark.skipif(kernels is None, reason="numba not installed (numpy path only)")
 
 
@@ -221,7 +222,7 @@ def sample_frames():
 
 
 def _numpy_only(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(mctracker, "frame_kernels", lambda: None)
+    monkeypatch.setattr(mctracker, "load_kernels", lambda: None)
 
 
 @pytest.mark.parametrize("config_name", ["kitti", "kitti_offline"])
@@ -241,11 +242,11 @@ def test_compiled_tracker_equals_numpy_on_the_sample(
 def test_numba_switch(monkeypatch: pytest.MonkeyPatch) -> None:
     """MCTRACK_NUMBA=0 selects the numpy stages."""
     monkeypatch.setenv("MCTRACK_NUMBA", "0")
-    frame_kernels.cache_clear()
+    load_kernels.cache_clear()
     try:
-        assert frame_kernels() is None
+        assert load_kernels() is None
         assert MCTracker(load_config("kitti"))._kernels is None
     finally:
         monkeypatch.delenv("MCTRACK_NUMBA")
-        frame_kernels.cache_clear()
-    assert frame_kernels() is not None
+        load_kernels.cache_clear()
+    assert load_kernels() is not None

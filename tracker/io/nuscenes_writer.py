@@ -25,12 +25,12 @@ from typing import Any, Final
 
 import numpy as np
 
-from tracker.baseversion import yaw_to_quaternion_wxyz
 from tracker.categories import CATEGORIES
 from tracker.errors import InputError
 from tracker.events import TrackOutput, TrackStatus
-from tracker.fileio import write_json_atomic
 from tracker.frame import Frame
+from tracker.io.baseversion import yaw_to_quaternion_wxyz
+from tracker.io.fileio import write_json_atomic
 
 TRACKING_NAMES: Final[frozenset[str]] = frozenset(
     ("bicycle", "bus", "car", "motorcycle", "pedestrian", "trailer", "truck")

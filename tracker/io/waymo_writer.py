@@ -28,8 +28,8 @@ import numpy as np
 
 from tracker.categories import CATEGORIES
 from tracker.events import TrackOutput, TrackStatus
-from tracker.fileio import write_bytes_atomic
 from tracker.frame import Frame
+from tracker.io.fileio import write_bytes_atomic
 
 #: Our category → the Waymo result folder (the benchmark's object types).
 WAYMO_RESULT_DIRS: Final[dict[str, str]] = {

@@ -51,9 +51,9 @@ import numpy as np
 
 from tracker.boxes import Boxes, FloatArray
 from tracker.categories import category_index
-from tracker.convert.nuscenes import assign_cameras
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
+from tracker.io.convert.nuscenes import assign_cameras
 
 log = logging.getLogger(__name__)
 

@@ -1,4 +1,4 @@
-"""The compiled pairwise BEV kernel (tracker.geometry_numba) against its numpy reference."""
+"""The compiled pairwise BEV kernel (tracker.kernels.geometry) against its numpy reference."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from tracker import geometry
 from tracker.geometry import bev_pair_geometry, bev_pair_geometry_numpy
 
-numba_kernels = pytest.importorskip("tracker.geometry_numba")
+numba_kernels = pytest.importorskip("tracker.kernels.geometry")
 
 
 def boxes(rng: np.random.Generator, n: int, *, origin_m: float = 0.0) -> np.ndarray:

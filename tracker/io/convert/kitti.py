@@ -59,6 +59,23 @@ from tracker.geometry import wrap_angle
 
 LOG = logging.getLogger(__name__)
 
+# The validation split of AB3DMOT/PC3T/CasTrack (labels exist for these 11; the other 10 training
+# sequences overlap the detectors' training data).
+VALIDATION_SEQS = (
+    "0001",
+    "0006",
+    "0008",
+    "0010",
+    "0012",
+    "0013",
+    "0014",
+    "0015",
+    "0016",
+    "0018",
+    "0019",
+)
+TRAINING_SEQS = tuple(f"{i:04d}" for i in range(21))
+
 FRAME_PERIOD_SECS = 0.1  # KITTI raw recordings run at 10 Hz
 CAMERA_NAME = "CAM_FRONT"
 

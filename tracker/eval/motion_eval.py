@@ -1,6 +1,6 @@
 """Motion evaluation: match tracker output to ground truth and score four velocity estimators.
 
-The maths lives in :mod:`tracker.motion_metrics`; this module prepares its input from frames
+The maths lives in :mod:`tracker.eval.motion_metrics`; this module prepares its input from frames
 and tracker output, like for like for every estimator, and formats the result.
 
 Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4, are deliberate):
@@ -8,8 +8,8 @@ Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4
 1. **Ground-truth velocity.** A dataset whose GT boxes carry a velocity (nuScenes) uses it. A
    dataset whose GT velocities are all exactly zero (KITTI: none is annotated) gets it from the GT
    world positions, per (scene, GT track), over real time with
-   :func:`~tracker.motion_metrics.gt_velocity_central` (zero lag, 5-sample window). A GT track is
-   split into segments where it skips a frame (Δt > 1.5 × the scene's median frame step); a
+   :func:`~tracker.eval.motion_metrics.gt_velocity_central` (zero lag, 5-sample window). A GT track
+   is split into segments where it skips a frame (Δt > 1.5 × the scene's median frame step); a
    one-sample segment has an unknown (NaN) velocity and its samples are dropped and counted.
    On KITTI the world frame comes from estimated (ORB-SLAM3) ego poses, so the "GT" velocity also
    carries the pose error.
@@ -41,7 +41,7 @@ Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4
    The two baselines run over each output track's own detection sequence in time order (causal),
    using the raw centre of the detection the tracker matched (``det_row`` indexes the input
    frame's boxes), and are then read at the GT-matched samples.
-5. **Keys**: GT and output tracks are keyed by :func:`~tracker.motion_metrics.composite_key`
+5. **Keys**: GT and output tracks are keyed by :func:`~tracker.eval.motion_metrics.composite_key`
    of (scene, id), so ids never collide across scenes; frames are ordered by time, so the input
    order of frames does not matter.
 6. **Box errors** (ATE-style, not in the paper), over the same samples, for the tracker's output
@@ -67,10 +67,7 @@ from numpy.typing import NDArray
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.categories import CATEGORIES, category_index
-from tracker.events import TrackOutput
-from tracker.frame import Frame
-from tracker.geometry import wrap_angle
-from tracker.motion_metrics import (
+from tracker.eval.motion_metrics import (
     MotionMetricParams,
     MotionMetrics,
     combine_motion_metrics,
@@ -82,6 +79,9 @@ from tracker.motion_metrics import (
     velocity_delay_secs,
     velocity_differencing,
 )
+from tracker.events import TrackOutput
+from tracker.frame import Frame
+from tracker.geometry import wrap_angle
 
 log = logging.getLogger(__name__)
 
@@ -260,7 +260,7 @@ def derive_gt_velocity(
 
     Per GT track, in time order, split into segments where the track skips a frame (Δt greater
     than 1.5 × the scene's median frame step), each segment through
-    :func:`~tracker.motion_metrics.gt_velocity_central`. Boxes with ``track_id < 0`` and
+    :func:`~tracker.eval.motion_metrics.gt_velocity_central`. Boxes with ``track_id < 0`` and
     one-sample segments get NaN.
 
     Parameters
@@ -696,7 +696,7 @@ def evaluate_samples(
     ``{"metrics": {estimator: {class | "all": {vae_deg, vne_mps, vaie_deg, vir_ratio, vse_mps,
     vde_secs, n_samples, ...}}}, "absent": {estimator: reason}, "counts": {class | "all":
     {...}}, "box_errors": {"tracker" | "detection": {class | "all": {...}}}}``. The "all" row
-    pools the classes with :func:`~tracker.motion_metrics.combine_motion_metrics`.
+    pools the classes with :func:`~tracker.eval.motion_metrics.combine_motion_metrics`.
     """
     metrics: dict[str, dict[str, Any]] = {}
     absent: dict[str, str] = {}
@@ -874,7 +874,7 @@ def largest_delay_tracks(
 ) -> list[tuple[str, int, float]]:
     """The GT tracks whose ``estimator`` speed lags the GT speed most (VDE's per-track delay).
 
-    With ``moving_only`` the static GT tracks (:func:`~tracker.motion_metrics.static_gt_mask`)
+    With ``moving_only`` the static GT tracks (:func:`~tracker.eval.motion_metrics.static_gt_mask`)
     are left out: their "peaks" are label and pose noise, and so is their delay.
 
     Returns up to ``count`` ``(class, gt_key, delay_secs)``, largest max-delay first (ties: the

@@ -1,0 +1,22 @@
+"""Helpers shared by the subcommands (below every app module: no app imports here)."""
+
+from __future__ import annotations
+
+import resource
+from pathlib import Path
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory, MB.
+
+    Linux's VmHWM (the high-water mark of this process image); ``ru_maxrss`` would also count
+    the parent's memory when this process was started by fork + exec (a benchmark run from a
+    script that already holds hundreds of MB would report the script's peak).
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return round(int(line.split()[1]) / 1024.0, 1)  # kB
+    except OSError:
+        pass
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
