@@ -41,6 +41,7 @@ def check_kitti_root(
     """Raise :class:`InputError` naming the first missing piece of a KITTI layout and the flag
     that fixes it; the converter's own checks then only see files that exist."""
     flag = f"--kitti-root (or ${KITTI_ROOT_ENV})"
+    seqs = [s.zfill(4) if s.isdigit() else s for s in (str(s).strip() for s in seqs or ())]
     if not root.is_dir():
         raise InputError(f"{root}: KITTI folder not found; pass {flag}")
     calib = root / split / "calib"
@@ -49,7 +50,7 @@ def check_kitti_root(
             f"{calib}: not found; {flag} must be the kitti/tracking folder "
             f"(with {split}/calib, {split}/label_02, detections/)"
         )
-    for seq in seqs or ():
+    for seq in seqs:
         if not (calib / f"{seq}.txt").is_file():
             raise InputError(f"{calib / f'{seq}.txt'}: no calibration for sequence {seq}")
     if detector is not None:
@@ -67,7 +68,7 @@ def check_kitti_root(
                 f"{pose_dir}: not found (official KITTI downloads have no ORB-SLAM3 poses); "
                 "pass --poses none to track in the camera frame, or --poses DIR for pose files"
             )
-        missing = [s for s in seqs or () if not (pose_dir / f"{s}.txt").is_file()]
+        missing = [s for s in seqs if not (pose_dir / f"{s}.txt").is_file()]
         if missing:
             raise InputError(
                 f"{pose_dir / f'{missing[0]}.txt'}: no poses for sequence {missing[0]}; "
