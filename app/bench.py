@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from app.common import peak_rss_mb
-from app.inputs import default_kitti_root, kitti_root_help
+from app.inputs import check_kitti_root, default_kitti_root, kitti_root_help, positive_int
 from tracker.config import load_config
 from tracker.io.fileio import write_text_atomic
 from tracker.io.synthetic import synthetic_scene
@@ -33,8 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config", default="kitti", help="built-in config name (kitti, ...) or a TOML file"
     )
-    parser.add_argument("--repeat", type=int, default=5, help="runs per case; the best is kept")
-    parser.add_argument("--frames", type=int, default=200, help="frames per synthetic scene")
+    parser.add_argument(
+        "--repeat", type=positive_int, default=5, help="runs per case; the best is kept"
+    )
+    parser.add_argument(
+        "--frames", type=positive_int, default=200, help="frames per synthetic scene"
+    )
     parser.add_argument("--json", default=None, help="also write the results to this file")
 
 
@@ -47,6 +51,8 @@ def run(args: argparse.Namespace) -> int:
         f"best of {args.repeat} runs per case"
     )
     root = args.kitti_root or default_kitti_root()
+    if args.kitti_root is not None:  # a path the user gave must exist; the default may not
+        check_kitti_root(root, seqs=VALIDATION_SEQS)
     if root.is_dir():
         from tracker.io.convert.kitti import convert_kitti
 

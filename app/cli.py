@@ -125,6 +125,8 @@ def error_message(exc: BaseException) -> tuple[str, int] | None:
         if exc.filename is None:  # raised with a message of our own
             return str(exc), EXIT_INPUT
         return f"{exc.filename}: not found (check the path)", EXIT_INPUT
+    if isinstance(exc, FileExistsError):
+        return f"{exc.filename}: exists and is not a folder; pass another --out", EXIT_INPUT
     if isinstance(exc, IsADirectoryError):
         return f"{exc.filename}: is a folder, expected a file", EXIT_INPUT
     if isinstance(exc, NotADirectoryError):

@@ -3,6 +3,7 @@ folder into one line naming the folder and the flag that fixes it."""
 
 from __future__ import annotations
 
+import argparse
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -76,6 +77,17 @@ def check_kitti_root(
             )
     elif poses is not None and not Path(poses).is_dir():
         raise InputError(f"{poses}: --poses folder not found (orbslam3, none or a folder)")
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (argparse prints the message as a usage error, exit 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
 
 
 #: Printed once when a run has no ego poses.

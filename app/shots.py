@@ -12,6 +12,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from app.inputs import positive_int
 from tracker.errors import InputError
 
 EXIT_NO_RENDERER = 3
@@ -21,7 +22,7 @@ EXIT_VIEWER_FAILED = 4
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", help="an .rrd written by mctrack view / demo / kitti --record")
     parser.add_argument("--out", required=True, help="folder for the PNG files")
-    parser.add_argument("--events", type=int, default=3, help="ID switches to capture")
+    parser.add_argument("--events", type=positive_int, default=3, help="ID switches to capture")
     parser.add_argument("--settle", type=float, default=2.0, help="seconds to wait per frame")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds to load the file")
 
@@ -32,7 +33,14 @@ def run(args: argparse.Namespace) -> int:
     recording = Path(args.recording)
     if not recording.is_file():
         raise InputError(f"{recording}: file not found")
-    plan = plan_shots(read_shot_index(recording), max_events=args.events)
+    try:
+        index = read_shot_index(recording)
+    except RuntimeError as exc:  # rerun's reader: not an .rrd, truncated, or another version
+        raise InputError(
+            f"{recording}: not a readable Rerun recording ({exc}); pass an .rrd written by "
+            "mctrack view, demo or kitti --record"
+        ) from None
+    plan = plan_shots(index, max_events=args.events)
     if not plan:
         print(
             f"{recording}: no ID switches, fragmentations or velocity lag recorded; nothing "
