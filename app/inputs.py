@@ -90,6 +90,16 @@ def positive_int(text: str) -> int:
     return value
 
 
+def recording_path(out: Path, scene: str) -> Path:
+    """``out/recordings/<scene>.rrd``; a scene name from the input that would leave that folder
+    is refused (input files are untrusted)."""
+    folder = out / "recordings"
+    path = folder / f"{scene}.rrd"
+    if path.resolve().parent != folder.resolve():
+        raise InputError(f"scene name {scene!r} is not a plain file name", field="scene")
+    return path
+
+
 #: Printed once when a run has no ego poses.
 NO_POSES_NOTE = (
     "note: --poses none: no ego motion, so positions and velocities are relative to the moving "

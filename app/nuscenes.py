@@ -13,6 +13,7 @@ from typing import Any
 from tqdm import tqdm
 
 from app.common import peak_rss_mb
+from app.inputs import recording_path
 from tracker.config import TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
@@ -134,7 +135,7 @@ def run_nuscenes(
                 from viz.record import record_scene
 
                 gt_frames = conv.gt.get(name) if conv.gt else None
-                path = out / "recordings" / f"{name}.rrd"
+                path = recording_path(out, name)
                 result = record_scene(frames, config, gt_frames, path)
                 outputs[name], seconds = result.outputs, result.tracker_seconds
                 recordings.append(str(path))

@@ -14,6 +14,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from app.inputs import recording_path
 from tracker.config import config_to_dict, load_config
 from tracker.events import TrackOutput
 from tracker.io.fileio import write_text_atomic
@@ -36,6 +37,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="tracking mode (default: the config's)",
     )
     parser.add_argument("--motion", action="store_true", help="motion metrics (needs --gt)")
+    parser.add_argument(
+        "--record",
+        action="store_true",
+        help="also write a Rerun recording per segment to OUT/recordings/<segment>.rrd",
+    )
     parser.add_argument("--out", required=True, help="output folder")
 
 
@@ -48,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         mode=args.mode,
         motion=args.motion,
+        record=args.record,
         out=Path(args.out),
     )
     print(
@@ -67,9 +74,11 @@ def run_waymo(
     config_name: str | Path = "waymo",
     mode: str | None = None,
     motion: bool = False,
+    record: bool = False,
     quiet: bool = False,
 ) -> dict[str, Any]:
-    """The end-to-end Waymo job; returns (and writes) ``out/summary.json``."""
+    """The end-to-end Waymo job; returns (and writes) ``out/summary.json``; with ``record``
+    also one Rerun recording per segment in ``out/recordings/``."""
     from tracker.errors import InputError
     from tracker.io.convert.waymo import convert_waymo
     from tracker.io.waymo_writer import write_waymo_results
@@ -83,9 +92,18 @@ def run_waymo(
     outputs: dict[str, list[TrackOutput]] = {}
     seconds = 0.0
     frames = sum(len(f) for f in conv.detections.values())
+    recordings: list[str] = []
     with tqdm(total=frames, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
         for name, scene_frames in conv.detections.items():
-            result = run_scene(scene_frames, config)
+            if record:
+                from viz.record import record_scene
+
+                path = recording_path(out, name)
+                gt_frames = conv.gt.get(name) if conv.gt else None
+                result = record_scene(scene_frames, config, gt_frames, path)
+                recordings.append(str(path))
+            else:
+                result = run_scene(scene_frames, config)
             outputs[name], seconds = result.outputs, seconds + result.tracker_seconds
             bar.update(len(scene_frames))
     results = {s: (conv.detections[s], outputs[s]) for s in conv.detections}
@@ -102,6 +120,8 @@ def run_waymo(
         "skipped_types": {str(k): v for k, v in sorted(conv.skipped_types.items())},
         "config": config_to_dict(config),
     }
+    if recordings:
+        summary["recordings"] = recordings
     if motion and conv.gt is not None:
         from tracker.eval.motion_eval import evaluate_motion
         from tracker.io.baseversion import write_baseversion
