@@ -23,7 +23,6 @@ from app.inputs import check_kitti_root, default_kitti_root, kitti_root_help, po
 from tracker.config import load_config
 from tracker.io.fileio import write_text_atomic
 from tracker.io.synthetic import synthetic_scene
-from tracker.pipeline import run_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,6 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from tracker.io.convert.kitti import VALIDATION_SEQS
+    from tracker.pipeline import run_scene  # scipy: imported when running, not for --help
 
     results: dict[str, Any] = {"load_average_1min": round(os.getloadavg()[0], 2)}
     print(

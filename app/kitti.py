@@ -7,7 +7,7 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tqdm import tqdm
 
@@ -17,7 +17,9 @@ from tracker.config import BUILTIN, config_to_dict, load_config
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
 from tracker.io.writers import write_kitti_sequence, write_tracks_file
-from tracker.pipeline import SceneResult, run_scene
+
+if TYPE_CHECKING:
+    from tracker.pipeline import SceneResult
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -125,6 +127,7 @@ def run_kitti(
     ``out/motion.md`` and ``out/motion_velocity.png``.
     """
     from tracker.io.convert.kitti import convert_kitti
+    from tracker.pipeline import run_scene  # scipy: imported when running, not for --help
 
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes

@@ -11,7 +11,6 @@ from tracker.errors import InputError
 from tracker.frame import Frame
 from tracker.io.baseversion import LoadReport, read_baseversion
 from tracker.io.writers import write_kitti_sequence, write_tracks_file
-from tracker.pipeline import run_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,6 +55,8 @@ def select_scenes(
 
 
 def run(args: argparse.Namespace) -> int:
+    from tracker.pipeline import run_scene  # scipy: imported when running, not for --help
+
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     report = LoadReport()
