@@ -28,6 +28,18 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "kitti": ("app.kitti", "convert, track and evaluate KITTI tracking sequences"),
     "nuscenes": ("app.nuscenes", "convert, track and evaluate nuScenes (official devkit metrics)"),
     "waymo": ("app.waymo", "convert and track Waymo segments, write the per-segment result npz"),
+    "calibrate": (
+        "app.calibrate",
+        "fit a detector's score calibration profile (raw score -> P(true positive)) on labels",
+    ),
+    "tune": (
+        "app.tune",
+        "cross-validated search of one class's settings over detectors (Optuna)",
+    ),
+    "robustness": (
+        "app.robustness",
+        "HOTA per class under seeded detection noise (drops, jitter, false positives)",
+    ),
     "bench": ("app.bench", "tracker speed benchmark (frames/s, ms/frame, peak memory)"),
     "eval": ("app.eval", "evaluate a tracks file: KITTI static metrics and motion metrics"),
     "view": ("app.view", "run the tracker with the Rerun visual debugger (file, viewer or web)"),
@@ -133,6 +145,12 @@ def error_message(exc: BaseException) -> tuple[str, int] | None:
         return f"{exc.filename}: expected a folder", EXIT_INPUT
     if isinstance(exc, PermissionError):
         return f"{exc.filename}: permission denied", EXIT_INPUT
+    if isinstance(exc, ModuleNotFoundError) and exc.name:
+        return (
+            f"needs the Python package {exc.name!r}, which is not installed: run the README's "
+            "install line (python -m pip install -e '.[dev,nuscenes]')",
+            EXIT_INPUT,
+        )
     if isinstance(exc, json.JSONDecodeError):
         return f"malformed JSON ({exc})", EXIT_INPUT
     if isinstance(exc, UnicodeDecodeError):
@@ -167,7 +185,7 @@ def kernels_cold() -> bool:
 
 #: Subcommands that run the tracker (and so load its compiled kernels).
 TRACKING_COMMANDS = frozenset(
-    {"demo", "track", "kitti", "nuscenes", "waymo", "view", "bench", "calibrate", "tune"}
+    {"demo", "track", "kitti", "nuscenes", "waymo", "view", "bench", "tune", "robustness"}
 )
 
 

@@ -45,9 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     kitti.add_argument(
         "--detections-layout",
         default="auto",
-        choices=["auto", "ab3dmot", "kitti_object"],
-        help="ab3dmot: <seq>.txt or <Class>/<seq>.txt; kitti_object: <seq>/<frame>.txt; "
-        "auto: whichever exists",
+        choices=["auto", "ab3dmot", "kitti_tracking", "kitti_object"],
+        help="ab3dmot: <seq>.txt (CSV) or <Class>/<seq>.txt; kitti_tracking: <seq>.txt in the "
+        "label format + score; kitti_object: <seq>/<frame>.txt; auto: whichever exists",
     )
     kitti.add_argument(
         "--poses",

@@ -13,7 +13,9 @@ from tqdm import tqdm
 
 from app.common import peak_rss_mb
 from app.inputs import NO_POSES_NOTE, check_kitti_root, default_kitti_root, kitti_root_help
-from tracker.config import BUILTIN, config_to_dict, load_config
+from tracker.calibration import calibrate_frames, resolve_profile
+from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
+from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
 from tracker.io.writers import write_kitti_sequence, write_tracks_file
@@ -63,6 +65,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="ego poses: orbslam3 (<root>/training/pose_orbslam3), none (no ego motion: "
         "velocities relative to the ego vehicle) or a folder of <seq>.txt",
     )
+    parser.add_argument(
+        "--profile",
+        default=None,
+        help="score calibration profile (TOML from `mctrack calibrate`); default: the one shipped "
+        "for --detector, if any (configs with scores = 'as_given' use none)",
+    )
     parser.add_argument("--no-eval", action="store_true", help="skip the evaluation")
     parser.add_argument(
         "--motion",
@@ -92,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         mode=args.mode,
         detector=args.detector,
+        profile=Path(args.profile) if args.profile else None,
         labels=Path(args.labels) if args.labels else None,
         poses=poses,
         evaluate=not args.no_eval,
@@ -111,6 +120,7 @@ def run_kitti(
     config_name: str | Path = "kitti",
     mode: str | None = None,
     detector: str = "pointrcnn",
+    profile: Path | None = None,
     labels: Path | None = None,
     poses: str | None = "orbslam3",
     evaluate: bool = True,
@@ -145,6 +155,7 @@ def run_kitti(
         classes=classes,
         with_gt=motion or record is not None,
     )
+    detections, calibration = apply_score_source(detections, config, detector, profile)
     convert_secs = time.perf_counter() - t0
 
     results: dict[str, SceneResult] = {}
@@ -186,6 +197,7 @@ def run_kitti(
         "frames": total_frames,
         "tracker_seconds": round(tracker_secs, 4),
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
+        "score_calibration": calibration,
         "convert_seconds": round(convert_secs, 3),
         "peak_rss_mb": peak_rss_mb(),
         "config": config_to_dict(config),
@@ -215,6 +227,26 @@ def run_kitti(
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
     return summary
+
+
+def apply_score_source(
+    detections: dict[str, list[Frame]],
+    config: TrackerConfig,
+    detector: str,
+    profile: Path | None,
+) -> tuple[dict[str, list[Frame]], str]:
+    """Scores in the units the config's thresholds expect, and a note of what was used."""
+    if config.scores is ScoreSource.AS_GIVEN:
+        return detections, "none (scores as converted; the config asks for scores = 'as_given')"
+    found = resolve_profile(detector, profile)
+    every = [f for frames in detections.values() for f in frames]
+    calibrated = calibrate_frames(every, found)
+    out, i = {}, 0
+    for seq, frames in detections.items():
+        out[seq], i = calibrated[i : i + len(frames)], i + len(frames)
+    if found is None:
+        return out, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
+    return out, f"profile {profile or detector + ' (shipped)'}"
 
 
 def _motion(

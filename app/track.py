@@ -4,13 +4,19 @@ files included) and write the tracks file (BaseVersion + filtered velocity/accel
 from __future__ import annotations
 
 import argparse
+import logging
 from pathlib import Path
 
-from tracker.config import load_config
+import numpy as np
+
+from tracker.calibration import calibrate_frames, load_profile
+from tracker.config import ScoreSource, TrackerConfig, load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
 from tracker.io.baseversion import LoadReport, read_baseversion
 from tracker.io.writers import write_kitti_sequence, write_tracks_file
+
+LOG = logging.getLogger("mctrack.track")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,6 +27,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=["online", "offline"],
         default=None,
         help="tracking mode (default: the config's)",
+    )
+    parser.add_argument(
+        "--profile",
+        default=None,
+        help="score calibration profile (`mctrack calibrate`, or tracker/profiles/*.toml) applied "
+        "to each box's detection_score_raw; default: detection_score as given",
     )
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
@@ -54,6 +66,25 @@ def select_scenes(
     return {s: f[frames] for s, f in scenes.items()}
 
 
+def _calibrated(
+    scenes: dict[str, list[Frame]], config: TrackerConfig, profile: str | None, source: str
+) -> dict[str, list[Frame]]:
+    """Scores recomputed by ``profile`` from the raw scores; without one, as given (with a
+    warning when the config's thresholds expect calibrated scores)."""
+    if profile is None:
+        if config.scores is ScoreSource.PROFILE:
+            LOG.warning(
+                "no --profile: detection_score is used as given; the %s config's thresholds "
+                "expect calibrated probabilities (see `mctrack calibrate`)",
+                config.source,
+            )
+        return scenes
+    if not any(np.isfinite(f.boxes.score_raw).any() for fr in scenes.values() for f in fr):
+        raise InputError(f"{source}: --profile maps detection_score_raw, but no box has one")
+    loaded = load_profile(profile)
+    return {s: calibrate_frames(f, loaded) for s, f in scenes.items()}
+
+
 def run(args: argparse.Namespace) -> int:
     from tracker.pipeline import run_scene  # scipy: imported when running, not for --help
 
@@ -64,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         args.input, fallback_frame_rate_hz=config.frame_rate_hz, report=report
     )
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames))
+    scenes = _calibrated(scenes, config, args.profile, args.input)
     out = Path(args.out)
     results = {s: run_scene(f, config) for s, f in scenes.items()}
     write_tracks_file(out / "tracks.json", {s: (scenes[s], results[s].outputs) for s in scenes})

@@ -68,6 +68,7 @@ def random_table(rng: np.random.Generator, n: int, k: int) -> TrackTable:
         last_det_lwh=np.ones((n, 3)),
         last_det_yaw=np.zeros(n),
         heading_votes=rng.integers(0, 3, n),
+        evidence=rng.uniform(0.0, 8.0, n),
         matched_det=zeros - 1,
         matched_stage=np.zeros(n, dtype=np.int8),
     )
@@ -193,9 +194,15 @@ def test_isolated_pairs_kernel_equals_hungarian() -> None:
     assert solved_seen > 100 and contested_seen > 20
 
 
-def test_lifecycle_kernel_equals_numpy() -> None:
+@pytest.mark.parametrize("confirm_prob", [1.0, 0.99])
+def test_lifecycle_kernel_equals_numpy(confirm_prob: float) -> None:
     rng = np.random.default_rng(11)
-    cfg = load_config("kitti", overrides={"categories": ["car", "pedestrian", "cyclist"]})
+    overrides = {
+        "categories": ["car", "pedestrian", "cyclist"],
+        "defaults": {"lifecycle": {"confirm_prob": confirm_prob, "min_hits": 5}},
+        "category": {"car": {"lifecycle": {"confirm_prob": confirm_prob, "min_hits": 5}}},
+    }
+    cfg = load_config("kitti", overrides=overrides)
     for _ in range(20):
         compiled, plain = (
             MCTracker(cfg, observer=lambda e: None),

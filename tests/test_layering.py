@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import ast
 import subprocess
 import sys
 import textwrap
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -51,3 +54,63 @@ def test_cli_parser_does_not_import_rerun() -> None:
         """
     )
     assert result.returncode == 0, result.stderr
+
+
+def _imports(path: Path) -> set[str]:
+    """Absolute module names a source file imports (every ``import``/``from``, lazy ones too)."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+    return names
+
+
+def _layer(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[0] in ("app", "viz", "rerun"):
+        return parts[0]
+    if parts[0] != "tracker":
+        return None
+    return parts[1] if len(parts) > 1 and parts[1] in ("io", "eval") else "core"
+
+
+def _layer_of_file(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    return _layer(".".join(p for p in rel.parts if p != "__init__")) or "other"
+
+
+# who may import whom: the core is the bottom; io and eval sit on it (eval may read files
+# through io); viz draws the core's events; app is the top.
+ALLOWED = {
+    "core": {"core"},
+    "io": {"core", "io"},
+    "eval": {"core", "io", "eval"},
+    "viz": {"core", "io", "eval", "viz", "rerun"},
+    "app": {"core", "io", "eval", "viz", "app", "rerun"},
+}
+
+
+@pytest.mark.parametrize("package", ["tracker", "viz", "app"])
+def test_import_layers(package: str) -> None:
+    files = sorted((ROOT / package).rglob("*.py"))
+    assert files
+    violations = []
+    for path in files:
+        layer = _layer_of_file(path)
+        for name in sorted(_imports(path)):
+            target = _layer(name)
+            if target is not None and target not in ALLOWED[layer]:
+                violations.append(f"{path.relative_to(ROOT)} ({layer}) imports {name} ({target})")
+    assert not violations, "\n".join(violations)
+
+
+def test_layer_rules_catch_a_violation(tmp_path: Path) -> None:
+    """The checker itself: a core module importing the evaluators is reported."""
+    fake = tmp_path / "m.py"
+    fake.write_text("from tracker.eval.kitti import evaluate\nimport viz.observer\n")
+    layers = {_layer(n) for n in _imports(fake)}
+    assert {"eval", "viz"} <= layers
+    assert not layers <= ALLOWED["core"]

@@ -111,6 +111,23 @@ def test_tentative_track_dies_on_first_miss_and_confirm_score() -> None:
     assert out.boxes.track_id.tolist() == [1]
 
 
+@pytest.mark.parametrize("compiled", [True, False])
+def test_confirmation_from_accumulated_evidence(compiled: bool) -> None:
+    """confirm_prob 0.99: one 0.995 box confirms at birth; 0.9 boxes need two hits (1 - 0.1²
+    = 0.99); 0.6 boxes need six (1 - 0.4⁶ = 0.996 but 1 - 0.4⁵ < 0.99), before min_hits (10)."""
+    tracker = MCTracker(config(min_hits=10, confirm_prob=0.99), compiled=compiled)
+    out = tracker.step(frame(0, [10.0, 30.0, 50.0], scores=[0.995, 0.9, 0.6]))
+    assert out.boxes.xyz[:, 0].tolist() == [10.0]
+    out = tracker.step(frame(1, [11.0, 31.0, 51.0], scores=[0.995, 0.9, 0.6]))
+    assert out.boxes.xyz[:, 0].round().tolist() == [11.0, 31.0]  # 1 - 0.1 * 0.1 >= 0.99
+    confirmed_at = None
+    for i in range(2, 8):
+        out = tracker.step(frame(i, [10.0 + i, 30.0 + i, 50.0 + i], scores=[0.995, 0.9, 0.6]))
+        if confirmed_at is None and len(out) == 3:
+            confirmed_at = i
+    assert confirmed_at == 5  # the sixth hit
+
+
 def test_birth_threshold_and_score_filter() -> None:
     tracker = MCTracker(config(min_hits=1))
     out = tracker.step(frame(0, [10.0, 30.0, 50.0], scores=[0.05, 0.3, 0.9]))

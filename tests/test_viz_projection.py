@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from tracker.boxes import Boxes
-from tracker.camera import box_wireframes_image, project_boxes
+from tracker.camera import box_wireframes_image, project_boxes, project_boxes_batched
 from tracker.io.baseversion import read_baseversion
 from tracker.io.convert.kitti import read_kitti_labels
 from tracker.io.synthetic import front_camera
-from viz.projection import drawable_segments, project_boxes_batched
+from viz.projection import drawable_segments
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
 

@@ -188,3 +188,47 @@ def box_wireframes_image(
     if len(corners) == 0:
         return np.zeros((0, len(BOX_EDGES), 2, 2))
     return _clipped_edges_px(corners, camera, near_m)
+
+
+def project_boxes_batched(
+    xyz: FloatArray,
+    lwh: FloatArray,
+    yaw_rad: FloatArray,
+    image_from_world: FloatArray,
+    size_px: NDArray[np.integer],
+    *,
+    near_m: float = NEAR_PLANE_M,
+) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+    """Projected edges and 2D boxes of N boxes, each in its own camera.
+
+    Parameters
+    ----------
+    xyz, lwh, yaw_rad : (N, 3), (N, 3), (N,) world boxes (metres, radians).
+    image_from_world : (N, 3, 4) the camera matrix of each box.
+    size_px : (N, 2) image width and height of each box's camera.
+
+    Returns
+    -------
+    segments_px : (N, 12, 2, 2) edge end points; NaN for edges entirely behind the near plane.
+    xyxy_image : (N, 4) image extent clipped to the image; NaN where not visible.
+    visible : (N,) part of the box is in front of the near plane and inside the image.
+    """
+    n = len(yaw_rad)
+    if n == 0:
+        return np.zeros((0, 12, 2, 2)), np.zeros((0, 4)), np.zeros(0, dtype=bool)
+    corners = corners_3d(xyz, lwh, yaw_rad)  # (N, 8, 3)
+    m = np.asarray(image_from_world, dtype=np.float64)
+    h = np.einsum("nij,nkj->nki", m[:, :, :3], corners) + m[:, None, :, 3]  # (N, 8, 3)
+    seg = clip_edges_px(h, near_m=near_m)  # the same clipping as project_boxes
+
+    pts = seg.reshape(n, -1, 2)
+    missing = np.isnan(pts)
+    lo = np.where(missing, np.inf, pts).min(axis=1)
+    hi = np.where(missing, -np.inf, pts).max(axis=1)
+    max_xy = np.asarray(size_px, dtype=np.float64) - 1.0
+    lo_clip = np.clip(lo, 0.0, max_xy)
+    hi_clip = np.clip(hi, 0.0, max_xy)
+    visible = ~missing[..., 0].all(axis=1) & (hi_clip > lo_clip).all(axis=1)
+    xyxy = np.concatenate([lo_clip, hi_clip], axis=1)
+    xyxy[~visible] = np.nan
+    return seg, xyxy, visible

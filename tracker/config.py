@@ -54,6 +54,13 @@ class MotionModel(enum.Enum):
     CA = "ca"  # constant acceleration [x, y, vx, vy, ax, ay] (the paper's model)
 
 
+class ScoreSource(enum.Enum):
+    """What the score thresholds compare against (tracker/calibration.py)."""
+
+    PROFILE = "profile"  # P(true positive) from the detector's calibration profile
+    AS_GIVEN = "as_given"  # the converted score (KITTI: sigmoid of the raw logit, the reference)
+
+
 class TrackingMode(enum.Enum):
     ONLINE = "online"
     OFFLINE = "offline"
@@ -100,6 +107,9 @@ class RvConfig:
 class LifecycleConfig:
     min_hits: int = 1  # hits before a track is confirmed and output (1 = at birth)
     confirm_score: float = 2.0  # a detection scoring >= this confirms at once (2 = never)
+    # confirm when the hits' evidence 1 - prod(1 - score) reaches this (1 = never): with
+    # calibrated scores, the probability that at least one of them was a real object
+    confirm_prob: float = 1.0
     max_misses_tentative: int = 0  # misses after which an unconfirmed track is deleted
     max_misses_output: int = 0  # consecutive misses during which a coasting track is still output
     max_misses: int = 30  # consecutive misses after which a track is deleted
@@ -151,6 +161,7 @@ class TrackerConfig:
     nms: bool = False
     output_geometry: OutputGeometry = OutputGeometry.FILTERED
     offline: OfflineConfig = OfflineConfig()
+    scores: ScoreSource = ScoreSource.AS_GIVEN
     source: str = "<defaults>"
     category_ids: tuple[int, ...] = field(default=())
 

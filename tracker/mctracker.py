@@ -11,6 +11,7 @@ state, and the filtered acceleration in the output.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 
@@ -42,6 +43,7 @@ from tracker.events import (
     CostComputed,
     DetectionsFiltered,
     DropReason,
+    Event,
     FrameFinished,
     FrameStarted,
     LifecycleChanged,
@@ -119,6 +121,8 @@ class _PerCategory:
         self.max_misses_tentative = arr(lambda c: c.lifecycle.max_misses_tentative)
         self.max_misses_output = arr(lambda c: c.lifecycle.max_misses_output)
         self.max_misses = arr(lambda c: c.lifecycle.max_misses)
+        with np.errstate(divide="ignore"):  # confirm_prob 1: an infinite threshold (never)
+            self.confirm_evidence = -np.log1p(-arr(lambda c: c.lifecycle.confirm_prob))
         # the five lifecycle thresholds per category, gathered once per frame
         self.lifecycle = np.column_stack(
             [
@@ -127,6 +131,7 @@ class _PerCategory:
                 self.max_misses_output,
                 self.max_misses,
                 self.max_misses_tentative,
+                self.confirm_evidence,
             ]
         )
         self.measure_velocity = np.array([c.pose.measure_velocity for c in cfgs])
@@ -195,20 +200,37 @@ class MCTracker:
     # -----------------------------------------------------------------------------------------
     def step(self, frame: Frame) -> TrackOutput:
         """Track one frame; returns the confirmed tracks (rows sorted by id)."""
-        obs = self.observer
         time_secs, dt = self._advance_clock(frame)
-        if obs:
-            obs(FrameStarted(frame, time_secs))
-
-        dets, kept_rows = self._preprocess(frame)
+        self._emit(FrameStarted(frame, time_secs))
+        dets, kept_rows = self._preprocess(frame)  # category, score, NMS
         prev_boxes = self._tracks.boxes() if self._needs_back_prediction() else None
-        self._predict(dt)
-        tracks = self._tracks
-        if obs:
-            pred_boxes = tracks.boxes() if len(tracks) else Boxes.empty()
-            obs(Predicted(tracks.track_id, pred_boxes, tracks.status))
+        self._predict(dt)  # three decoupled Kalman filters
+        m1, bev_mask = self._bev_stage(prev_boxes, dets, kept_rows, dt)  # Ro_GDIoU, Hungarian
+        assoc = self._image_stage(frame, dets, kept_rows, m1, bev_mask)  # SDIoU, greedy
+        self._update(assoc.rows, dets, assoc.dets)
+        self._tracks.record_matches(assoc.rows, kept_rows[assoc.dets], assoc.stage)
+        born = self._birth(dets, assoc.unmatched_dets, kept_rows)
+        self._emit(self._lifecycle(assoc.rows, born))
+        output = self._output(frame, time_secs)
+        self._emit(FrameFinished(output))
+        return output
 
-        # stage 1: BEV plane, Ro_GDIoU cost, Hungarian
+    def _emit(self, event: Event | None) -> None:
+        if self.observer and event is not None:
+            self.observer(event)
+
+    def _bev_stage(
+        self, prev_boxes: Boxes | None, dets: Boxes, kept_rows: IntArray, dt: float
+    ) -> tuple[Matches, np.ndarray | None]:
+        """Stage 1 in the BEV plane: the gated Ro_GDIoU cost and the Hungarian assignment.
+        Also returns the mask of the pairs scored (None when there was nothing to score)."""
+        tracks, obs = self._tracks, self.observer
+        if obs:
+            obs(
+                Predicted(
+                    tracks.track_id, tracks.boxes() if len(tracks) else Boxes.empty(), tracks.status
+                )
+            )
         bev_mask = None
         if len(tracks) and len(dets):
             cost, bev_mask = self._bev_cost(prev_boxes, dets, dt)
@@ -220,36 +242,23 @@ class MCTracker:
             m1 = Matches.empty(len(tracks), len(dets))
         if obs:
             obs(_matched(Stage.BEV, m1, tracks.track_id, kept_rows))
-        # matched track rows (sorted), their detections and stages
-        matched, matched_dets, stage = m1.rows, m1.cols, np.ones(len(m1), dtype=np.int8)
-        unmatched_dets = m1.unmatched_cols
+        return m1, bev_mask
 
-        # stage 2: image plane, SDIoU, greedy
-        if self.config.rv_matching and len(m1.unmatched_rows) and len(unmatched_dets):
-            rows, cols = m1.unmatched_rows, unmatched_dets
-            m2, consumed = self._rv_stage(frame, dets, rows, cols, kept_rows, bev_mask)
-            if len(m2):
-                matched = np.concatenate([matched, rows[m2.rows]])
-                order = np.argsort(matched, kind="stable")
-                matched = matched[order]
-                matched_dets = np.concatenate([matched_dets, cols[m2.cols]])[order]
-                stage = np.concatenate([stage, np.full(len(m2), 2, dtype=np.int8)])[order]
-            if len(consumed):
-                unmatched_dets = _without(cols, consumed)
-
-        self._update(matched, dets, matched_dets)
-        tracks.matched_det = np.full(len(tracks), -1, dtype=np.int64)
-        tracks.matched_det[matched] = kept_rows[matched_dets]
-        tracks.matched_stage = np.zeros(len(tracks), dtype=np.int8)
-        tracks.matched_stage[matched] = stage
-        born = self._birth(dets, unmatched_dets, kept_rows)
-        changes = self._lifecycle(matched, born)
-        if obs:
-            obs(changes)
-        output = self._output(frame, time_secs)
-        if obs:
-            obs(FrameFinished(output))
-        return output
+    def _image_stage(
+        self,
+        frame: Frame,
+        dets: Boxes,
+        kept_rows: IntArray,
+        m1: Matches,
+        bev_mask: np.ndarray | None,
+    ) -> _Association:
+        """Stage 2 on stage 1's unmatched tracks and detections (when enabled and both
+        exist), merged with stage 1's matches."""
+        rows, cols = m1.unmatched_rows, m1.unmatched_cols
+        if not (self.config.rv_matching and len(rows) and len(cols)):
+            return _merge_stages(m1, None, rows, cols, _EMPTY_INT)
+        m2, consumed = self._rv_stage(frame, dets, rows, cols, kept_rows, bev_mask)
+        return _merge_stages(m1, m2, rows, cols, consumed)
 
     # -----------------------------------------------------------------------------------------
     def _advance_clock(self, frame: Frame) -> tuple[float, float]:
@@ -566,6 +575,7 @@ class MCTracker:
         tr.last_det_xyz[idx], tr.last_det_lwh[idx] = xyz, lwh
         tr.last_det_yaw[idx] = dets.yaw[det_rows]
         tr.hits[idx] += 1
+        tr.evidence[idx] += _evidence(dets.score[det_rows])
 
     def _birth(self, dets: Boxes, det_index: IntArray, kept_rows: IntArray) -> IntArray:
         """New tracks from unmatched detections ``det_index`` scoring above the birth threshold."""
@@ -602,6 +612,7 @@ class MCTracker:
             last_det_lwh=lwh,
             last_det_yaw=yaw,
             heading_votes=zeros,
+            evidence=_evidence(score),
             matched_det=kept_rows[det_index],
             matched_stage=np.zeros(n, dtype=np.int8),
         )  # every array is fresh or only read: append() copies them into the table
@@ -622,11 +633,21 @@ class MCTracker:
             return self._lifecycle_compiled(hit, born)
         misses = np.where(hit, 0, tr.misses + 1)
         tr.misses = misses
-        min_hits, confirm_score, max_output, max_live, max_tentative = cat.lifecycle[tr.category].T
+        min_hits, confirm_score, max_output, max_live, max_tentative, confirm_evidence = (
+            cat.lifecycle[tr.category].T
+        )
         old_status = tr.status
         status = old_status.copy()
         tentative = old_status == _TENTATIVE
-        confirm = hit & tentative & ((tr.hits >= min_hits) | (tr.score >= confirm_score))
+        confirm = (
+            hit
+            & tentative
+            & (
+                (tr.hits >= min_hits)
+                | (tr.score >= confirm_score)
+                | (tr.evidence >= confirm_evidence)
+            )
+        )
         reacquire = hit & _IS_REACQUIRED[old_status]
         status[confirm | reacquire] = _CONFIRMED
         missed = ~hit
@@ -654,7 +675,14 @@ class MCTracker:
         tr, k = self._tracks, self._kernels
         assert k is not None
         tr.status, tr.misses, flags = k.lifecycle_kernel(
-            tr.status, tr.hits, tr.misses, tr.score, tr.category, hit, self._cat.lifecycle
+            tr.status,
+            tr.hits,
+            tr.misses,
+            tr.score,
+            tr.evidence,
+            tr.category,
+            hit,
+            self._cat.lifecycle,
         )
         dead = (flags & k.DEAD) != 0
         change = None
@@ -703,6 +731,38 @@ class MCTracker:
             det_row=det_row,
             stage=tr.matched_stage[rows],
         )
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class _Association:
+    """Both stages' matches of one frame: track rows (sorted), their detection rows (into the
+    kept detections), the stage of each (1 BEV, 2 image plane), and the unused detections."""
+
+    rows: IntArray
+    dets: IntArray
+    stage: np.ndarray
+    unmatched_dets: IntArray
+
+
+def _merge_stages(
+    m1: Matches, m2: Matches | None, rv_rows: IntArray, rv_cols: IntArray, consumed: IntArray
+) -> _Association:
+    """Stage 1's matches plus stage 2's (mapped back from the leftovers), sorted by track row."""
+    stage1 = np.ones(len(m1), dtype=np.int8)
+    unmatched = _without(rv_cols, consumed) if len(consumed) else m1.unmatched_cols
+    if m2 is None or not len(m2):
+        return _Association(m1.rows, m1.cols, stage1, unmatched)
+    rows = np.concatenate([m1.rows, rv_rows[m2.rows]])
+    order = np.argsort(rows, kind="stable")
+    dets = np.concatenate([m1.cols, rv_cols[m2.cols]])[order]
+    stage = np.concatenate([stage1, np.full(len(m2), 2, dtype=np.int8)])[order]
+    return _Association(rows[order], dets, stage, unmatched)
+
+
+def _evidence(score: FloatArray) -> FloatArray:
+    """A hit's contribution -log(1 - p) to its track's evidence (p capped below 1, NaN: 0)."""
+    p = np.nan_to_num(np.clip(score, 0.0, 1.0 - 1e-9), nan=0.0)
+    return -np.log1p(-p)
 
 
 def _without(index: IntArray, positions: IntArray) -> IntArray:

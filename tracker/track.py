@@ -37,6 +37,7 @@ class TrackTable:
     last_det_lwh: FloatArray  # (T, 3) (its height is the track's height)
     last_det_yaw: FloatArray  # (T,)
     heading_votes: IntArray  # (T,) consecutive detections whose yaw disagrees by > 90°
+    evidence: FloatArray  # (T,) sum over hits of -log(1 - score): 1 - exp(-e) = noisy-OR
     matched_det: IntArray  # (T,) this frame's matched detection row (-1: none)
     matched_stage: np.ndarray  # (T,) int8: 1 BEV, 2 RV, 0 none (births: 0)
 
@@ -59,6 +60,7 @@ class TrackTable:
             "last_det_lwh": ((0, 3), np.float64),
             "last_det_yaw": ((0,), np.float64),
             "heading_votes": ((0,), np.int64),
+            "evidence": ((0,), np.float64),
             "matched_det": ((0,), np.int64),
             "matched_stage": ((0,), np.int8),
         }
@@ -76,6 +78,13 @@ class TrackTable:
         return TrackTable(
             *[np.concatenate([getattr(self, name), getattr(other, name)]) for name in _FIELDS]
         )
+
+    def record_matches(self, rows: IntArray, det_rows: IntArray, stage: np.ndarray) -> None:
+        """This frame's match of each track: detection row (-1 none) and stage (0 none)."""
+        self.matched_det = np.full(len(self), -1, dtype=np.int64)
+        self.matched_det[rows] = det_rows
+        self.matched_stage = np.zeros(len(self), dtype=np.int8)
+        self.matched_stage[rows] = stage
 
     def xyz(self, rows: IntArray) -> FloatArray:
         """(R, 3) current box centres of the tracks ``rows`` (filtered x, y; detection z)."""

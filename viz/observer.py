@@ -22,6 +22,7 @@ import numpy as np
 import rerun as rr
 
 from tracker.boxes import Boxes, FloatArray, IntArray
+from tracker.camera import project_boxes_batched
 from tracker.events import (
     CostComputed,
     DetectionsFiltered,
@@ -54,7 +55,7 @@ from viz.archetypes import (
     track_colors_u32,
 )
 from viz.columns import Built, ColumnBuffer, set_frame_time
-from viz.projection import drawable_segments, project_boxes_batched
+from viz.projection import drawable_segments
 
 _DROP_LABEL = {
     DropReason.CATEGORY: "dropped: category",

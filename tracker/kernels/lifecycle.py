@@ -15,21 +15,23 @@ _TENTATIVE, _CONFIRMED = int(TrackStatus.TENTATIVE), int(TrackStatus.CONFIRMED)
 _COASTING, _LOST = int(TrackStatus.COASTING), int(TrackStatus.LOST)
 
 
-@numba.njit((_S1, _I1, _I1, _F1, _I1, _B1, _F2), cache=True, error_model="numpy", nogil=True)
+@numba.njit((_S1, _I1, _I1, _F1, _F1, _I1, _B1, _F2), cache=True, error_model="numpy", nogil=True)
 def lifecycle_kernel(
     status: np.ndarray,
     hits: IntArray,
     misses: IntArray,
     score: FloatArray,
+    evidence: FloatArray,
     category: IntArray,
     hit: np.ndarray,
     thresholds: FloatArray,
 ) -> tuple:  # pragma: no cover (compiled)
     """The per-category lifecycle rules of ``MCTracker._lifecycle``, one pass over the tracks.
 
-    ``thresholds`` (C, 5) per category: min_hits, confirm_score, max_misses_output,
-    max_misses, max_misses_tentative. Returns the new status (int8), the new consecutive
-    misses, and per track the flags CONFIRMED_NOW, REACQUIRED_FROM_LOST, LOST_NOW, DEAD.
+    ``thresholds`` (C, 6) per category: min_hits, confirm_score, max_misses_output,
+    max_misses, max_misses_tentative, confirm_evidence (``-log(1 - confirm_prob)``). Returns the
+    new status (int8), the new consecutive misses, and per track the flags CONFIRMED_NOW,
+    REACQUIRED_FROM_LOST, LOST_NOW, DEAD.
     """
     n = status.shape[0]
     new_status = np.empty(n, dtype=np.int8)
@@ -44,7 +46,7 @@ def lifecycle_kernel(
         dead = False
         if hit[t]:
             if old == _TENTATIVE:
-                if hits[t] >= th[0] or score[t] >= th[1]:
+                if hits[t] >= th[0] or score[t] >= th[1] or evidence[t] >= th[5]:
                     state = _CONFIRMED
                     flags[t] |= CONFIRMED_NOW
             elif old == _COASTING or old == _LOST:

@@ -123,9 +123,12 @@ AB3DMOT_COLUMNS = (
     "alpha",
 )  # fmt: skip
 OBJECT_COLUMNS = LABEL_COLUMNS[2:]  # KITTI object label + score, one file per frame
+#: KITTI tracking result format as detections are distributed (CasTrack/PC3T, VirConvTrack,
+#: RobMOT, DeepFusionMOT): label_02 without the track id, plus a score; one file per sequence.
+TRACKING_DET_COLUMNS = ("frame", *OBJECT_COLUMNS)
 
 PoseFormat = Literal["camera", "lidar"]
-DetectionsLayout = Literal["auto", "ab3dmot", "kitti_object"]
+DetectionsLayout = Literal["auto", "ab3dmot", "kitti_tracking", "kitti_object"]
 
 
 # --------------------------------------------------------------------------------------------
@@ -560,6 +563,45 @@ def read_ab3dmot_detections(paths: Sequence[str | Path]) -> KittiObjects:
     )
 
 
+def read_kitti_tracking_detections(path: str | Path) -> KittiObjects:
+    """Parse detections in the KITTI tracking result format: one file per sequence, lines
+    ``frame type truncated occluded alpha x1 y1 x2 y2 h w l x y z rotation_y score`` (17
+    columns; 18 with a track id after the frame, as tracker results are written).
+
+    Class names decide the category (unknown ones are counted, logged and dropped by the
+    caller's class filter); ``alpha``/``rotation_y`` may be unwrapped (headings are wrapped
+    when the boxes move to the world frame). A frame without boxes simply has no line.
+    """
+    path = Path(path)
+    table = _read_table([path], columns=TRACKING_DET_COLUMNS, counts=(17, 18))
+    if len(table.tokens) == 18:
+        table = _Table(
+            columns=LABEL_COLUMNS, tokens=table.tokens, paths=table.paths,
+            source=table.source, line=table.line,
+        )  # fmt: skip
+        track_id, offset = table.ints(1), 2
+    else:
+        track_id, offset = np.full(len(table.line), -1, dtype=np.int64), 1
+    objects = _objects_from_label_columns(
+        table, offset=offset, frame=_frames(table, 0), track_id=track_id, where=str(path)
+    )
+    if not np.isfinite(objects.score_raw).all():
+        row = int(np.argmax(~np.isfinite(objects.score_raw)))
+        bad_path, line = table.where(row)
+        raise InputError("score must be finite", path=bad_path, line=line, field="score")
+    return objects
+
+
+def _sniff_single_file(path: Path) -> Literal["ab3dmot", "kitti_tracking"]:
+    """A single ``<seq>.txt``: comma-separated AB3DMOT rows, or the whitespace-separated
+    KITTI tracking format (decided by the first non-empty line; an empty file is either)."""
+    with path.open(encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            if line.strip():
+                return "ab3dmot" if "," in line else "kitti_tracking"
+    return "kitti_tracking"
+
+
 def read_kitti_object_detections(seq_dir: str | Path) -> tuple[KittiObjects, int]:
     """Parse KITTI-object-layout detections: ``<seq_dir>/<frame:06d>.txt``, 16 columns
     (the label columns from ``type`` on, plus the score). Returns the objects and the number of
@@ -723,7 +765,7 @@ def _normalise_seq(seq: str | int) -> str:
 
 def _detection_sources(
     detections_dir: Path, seq: str, layout: DetectionsLayout, classes: Sequence[str]
-) -> tuple[Literal["ab3dmot", "kitti_object"], list[Path] | Path]:
+) -> tuple[Literal["ab3dmot", "kitti_tracking", "kitti_object"], list[Path] | Path]:
     """Which files hold a sequence's detections, and in which layout."""
     per_frame_dir = detections_dir / seq
     single = detections_dir / f"{seq}.txt"
@@ -733,11 +775,13 @@ def _detection_sources(
     per_class = [p for p in per_class if p.is_file()]
     if layout in ("auto", "kitti_object") and per_frame_dir.is_dir():
         return "kitti_object", per_frame_dir
-    if layout in ("auto", "ab3dmot"):
-        if single.is_file():
-            return "ab3dmot", [single]
-        if per_class:
-            return "ab3dmot", per_class
+    if single.is_file() and layout in ("auto", "ab3dmot", "kitti_tracking"):
+        found = _sniff_single_file(single) if layout == "auto" else layout
+        if found == "kitti_tracking":
+            return "kitti_tracking", single
+        return "ab3dmot", [single]
+    if layout in ("auto", "ab3dmot") and per_class:
+        return "ab3dmot", per_class
     raise FileNotFoundError(
         f"no {layout} detections for sequence {seq} in {detections_dir} "
         f"(looked for {per_frame_dir}/, {single}, and <Class>/{seq}.txt)"
@@ -767,9 +811,11 @@ def convert_kitti(
     split : ``"training"`` or ``"testing"``.
     seqs : sequence names (``"0001"`` or ``1``); default: every ``<split>/calib/*.txt``.
     detector : detections folder name under ``detections/`` (used when ``detections_dir`` is None).
-    detections_dir : folder holding ``<seq>.txt`` / ``<Class>/<seq>.txt`` (AB3DMOT CSV) or
-        ``<seq>/<frame:06d>.txt`` (KITTI object layout + score column).
-    detections_layout : ``"auto"``, ``"ab3dmot"`` or ``"kitti_object"``.
+    detections_dir : folder holding ``<seq>.txt`` (KITTI tracking result format + score, or an
+        AB3DMOT CSV), ``<Class>/<seq>.txt`` (AB3DMOT CSV) or ``<seq>/<frame:06d>.txt`` (KITTI
+        object layout + score column).
+    detections_layout : ``"auto"`` (decided from the files), ``"ab3dmot"``,
+        ``"kitti_tracking"`` or ``"kitti_object"``.
     poses : ``"orbslam3"`` (``<split>/pose_orbslam3/<seq>.txt``), a folder of ``<seq>.txt`` pose
         files, or None for no ego motion (world = current camera frame, z up: velocities are then
         relative to the ego vehicle).
@@ -795,7 +841,7 @@ def convert_kitti(
     split_dir = kitti_root / split
     if pose_format not in ("camera", "lidar"):
         raise ValueError(f"pose_format must be 'camera' or 'lidar', got {pose_format!r}")
-    if detections_layout not in ("auto", "ab3dmot", "kitti_object"):
+    if detections_layout not in ("auto", "ab3dmot", "kitti_tracking", "kitti_object"):
         raise ValueError(f"unknown detections_layout {detections_layout!r}")
     unknown_classes = [c for c in classes if category_index(c) < 0]
     if unknown_classes:
@@ -858,7 +904,10 @@ def _convert_sequence(
 
     layout, source = _detection_sources(detections_dir, seq, detections_layout, classes)
     if isinstance(source, Path):
-        dets, det_frames = read_kitti_object_detections(source)
+        if layout == "kitti_tracking":
+            dets, det_frames = read_kitti_tracking_detections(source), 0
+        else:
+            dets, det_frames = read_kitti_object_detections(source)
         det_where = str(source)
     else:
         dets, det_frames = read_ab3dmot_detections(source), 0

@@ -1,0 +1,61 @@
+"""`mctrack calibrate`: fit a detector's score calibration profile on labelled KITTI sequences."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from app.inputs import check_kitti_root, default_kitti_root, kitti_root_help
+from tracker.calibration import profile_toml
+from tracker.errors import InputError
+from tracker.io.convert.kitti import VALIDATION_SEQS
+from tracker.io.fileio import write_text_atomic
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
+    )
+    parser.add_argument(
+        "--detector",
+        required=True,
+        help="detections folder name under <root>/detections/ (e.g. virconv)",
+    )
+    parser.add_argument(
+        "--seqs",
+        default=",".join(VALIDATION_SEQS),
+        help="labelled sequences to fit on (default: the 11 validation sequences)",
+    )
+    parser.add_argument(
+        "--classes",
+        default="car,pedestrian,cyclist",
+        help="classes to calibrate; a class without detections keeps the fallback "
+        "(default: %(default)s)",
+    )
+    parser.add_argument("--out", required=True, help="the profile to write (PROFILE.toml)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tracker.eval.calibrate import fit_profile
+    from tracker.io.convert.kitti import convert_kitti
+
+    classes = [c.strip() for c in args.classes.split(",") if c.strip()]
+    seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
+    root = args.kitti_root or default_kitti_root()
+    check_kitti_root(root, seqs=seqs, detector=args.detector)
+    detections, gt = convert_kitti(
+        root, seqs=seqs, detector=args.detector, classes=classes, with_gt=True
+    )
+    if not gt:
+        raise InputError(f"{root / 'training' / 'label_02'}: no labels for {seqs}")
+    detections = {s: f for s, f in detections.items() if s in gt}
+    profile = fit_profile(args.detector, detections, gt, classes)
+    write_text_atomic(Path(args.out), [profile_toml(profile)])
+    for name, q in profile.quality.items():
+        print(f"{args.detector} {name}: {json.dumps(q)}")
+    missing = [c for c in classes if c not in profile.maps]
+    if missing:
+        print(f"no fit for {missing} (too few detections or labels): they keep the fallback")
+    print(f"wrote {args.out}")
+    return 0

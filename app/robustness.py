@@ -1,0 +1,282 @@
+"""`mctrack robustness`: seeded detection noise, tracked and scored against the clean input.
+
+Converts the KITTI detections once, perturbs them per noise level and seed
+(:mod:`tracker.eval.perturb`), tracks each set, writes KITTI results and scores them with the
+standard evaluator (TrackEval, KITTI 2D box protocol). Prints HOTA per class and level (mean over
+seeds ± the seeds' standard deviation, and the change from clean) and writes
+``OUT/robustness.json`` and ``OUT/robustness.md``; the result files stay in
+``OUT/runs/<level>/seed<k>/``. The clean level is always run, once (it does not depend on the seed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from app.inputs import check_kitti_root, default_kitti_root, kitti_root_help
+from tracker.calibration import calibrate_frames, resolve_profile
+from tracker.config import ScoreSource, load_config
+from tracker.errors import InputError
+from tracker.eval.perturb import NOISE_LEVELS, Rescore, perturb_frames
+from tracker.io.convert.kitti import VALIDATION_SEQS
+from tracker.io.fileio import write_text_atomic
+from tracker.io.writers import write_kitti_sequence
+from tracker.pipeline import run_scene
+
+CLEAN = "clean"
+EVALUATOR = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
+#: Metrics kept per run in the json (the table shows HOTA).
+KEPT_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "FN")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
+    )
+    parser.add_argument(
+        "--detector",
+        default="pointrcnn",
+        help="detections folder under <root>/detections/ (pointrcnn, virconv, second_iou, ...)",
+    )
+    parser.add_argument(
+        "--seqs",
+        default=",".join(VALIDATION_SEQS),
+        help="comma-separated sequences (default: the 11 validation sequences)",
+    )
+    parser.add_argument("--classes", default="car,pedestrian,cyclist")
+    parser.add_argument("--config", default="kitti", help="kitti or a TOML path")
+    parser.add_argument(
+        "--levels",
+        default="clean,noise,double",
+        help=f"noise levels, from {', '.join(NOISE_LEVELS)} (clean is always run)",
+    )
+    parser.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (integers >= 0)")
+    parser.add_argument(
+        "--score-sigma",
+        type=float,
+        default=0.0,
+        help="std of the noise added to the raw detector score on the noisy levels (default 0)",
+    )
+    parser.add_argument(
+        "--profile",
+        default=None,
+        help="score calibration profile (default: the one shipped for --detector)",
+    )
+    parser.add_argument("--out", default="robustness", help="output folder")
+
+
+def run(args: argparse.Namespace) -> int:
+    t0 = time.perf_counter()
+    root = args.kitti_root or default_kitti_root()
+    check_kitti_root(root, seqs=_names(args.seqs), detector=args.detector)
+    report = run_robustness(
+        kitti_root=root,
+        seqs=_names(args.seqs),
+        classes=_names(args.classes),
+        config_name=args.config,
+        detector=args.detector,
+        levels=_names(args.levels),
+        seeds=_seeds(args.seeds),
+        score_sigma=args.score_sigma,
+        profile=Path(args.profile) if args.profile else None,
+        out=Path(args.out),
+    )
+    print("\n".join(table_lines(report, markdown=False)))
+    print(f"wall time {time.perf_counter() - t0:.1f} s; wrote {Path(args.out) / 'robustness.md'}")
+    return 0
+
+
+def run_robustness(
+    *,
+    kitti_root: Path,
+    seqs: Sequence[str],
+    classes: Sequence[str],
+    config_name: str | Path = "kitti",
+    detector: str = "pointrcnn",
+    levels: Sequence[str] = tuple(NOISE_LEVELS),
+    seeds: Sequence[int] = (0, 1, 2),
+    score_sigma: float = 0.0,
+    rescore: Rescore | None = None,
+    profile: Path | None = None,
+    out: Path,
+    quiet: bool = False,
+) -> dict[str, Any]:
+    """The benchmark; returns (and writes) ``out/robustness.json``.
+
+    ``rescore`` maps (category, raw score) to the tracker's score after score noise (default:
+    the detector's calibration profile, ``profile`` or the shipped one, when the config asks for
+    calibrated scores; else the converter's sigmoid).
+    """
+    from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
+    from tracker.io.convert.kitti import convert_kitti
+
+    bad_classes = [c for c in classes if c not in SUPPORTED_CLASSES]
+    if bad_classes:
+        raise InputError(f"--classes: cannot score {bad_classes}; supported: {SUPPORTED_CLASSES}")
+    unknown = [name for name in levels if name not in NOISE_LEVELS]
+    if unknown:
+        raise InputError(f"unknown noise level(s) {unknown}; known: {', '.join(NOISE_LEVELS)}")
+    if score_sigma < 0 or not np.isfinite(score_sigma):
+        raise InputError(f"--score-sigma must be a finite value >= 0, got {score_sigma}")
+    specs = {CLEAN: NOISE_LEVELS[CLEAN]}  # the reference every drop is measured from
+    for name in levels:
+        if name != CLEAN:
+            specs[name] = dataclasses.replace(NOISE_LEVELS[name], score_sigma=score_sigma)
+    label_dir = kitti_root / "training" / "label_02"
+    missing = [str(label_dir / f"{s}.txt") for s in seqs if not (label_dir / f"{s}.txt").is_file()]
+    if missing:
+        raise InputError(f"no labels to score against: {', '.join(missing)}")
+    config = load_config(config_name, overrides={"categories": list(classes)})
+    t0 = time.perf_counter()
+    try:
+        detections, _ = convert_kitti(
+            kitti_root, seqs=seqs, detector=detector, classes=classes, with_gt=False
+        )
+    except FileNotFoundError as exc:
+        raise InputError(str(exc)) from None
+    if config.scores is ScoreSource.PROFILE:  # thresholds in calibrated units
+        calibration = resolve_profile(detector, profile)
+        detections = {s: calibrate_frames(f, calibration) for s, f in detections.items()}
+        if calibration is not None and rescore is None:
+            rescore = calibration.scores
+    lengths = {seq: len(frames) for seq, frames in detections.items()}
+
+    jobs = [(name, None if name == CLEAN else seed) for name in specs for seed in seeds]
+    jobs = list(dict.fromkeys(jobs))  # clean once
+    runs: dict[str, list[dict[str, Any]]] = {name: [] for name in specs}
+    total = len(jobs) * sum(lengths.values())
+    with tqdm(total=total, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
+        for name, seed in jobs:
+            run_dir = out / "runs" / name / ("clean" if seed is None else f"seed{seed}")
+            for seq, frames in detections.items():
+                bar.set_description(f"{name} seed {'-' if seed is None else seed} seq {seq}")
+                noisy = perturb_frames(frames, specs[name], seed=seed or 0, rescore=rescore)
+                result = run_scene(noisy, config)
+                write_kitti_sequence(run_dir / f"{seq}.txt", result.outputs, noisy)
+                bar.update(len(frames))
+            metrics = evaluate_kitti(
+                label_dir=label_dir, result_dir=run_dir, seq_lengths=lengths, classes=classes
+            )
+            runs[name].append(
+                {
+                    "seed": seed,
+                    "metrics": {
+                        cls: {k: m[k] for k in KEPT_METRICS if k in m} for cls, m in metrics.items()
+                    },
+                }
+            )
+    report: dict[str, Any] = {
+        "dataset": "kitti",
+        "detector": detector,
+        "sequences": list(detections),
+        "classes": list(classes),
+        "config": str(config_name),
+        "mode": config.mode.value,
+        "seeds": list(seeds),
+        "evaluator": EVALUATOR,
+        "spread": "standard deviation over seeds (ddof=1; 0 for one run)",
+        "levels": {
+            name: {
+                "spec": dataclasses.asdict(spec),
+                "runs": runs[name],
+                "summary": _summary(runs[name], runs[CLEAN], classes),
+            }
+            for name, spec in specs.items()
+        },
+        "wall_seconds": round(time.perf_counter() - t0, 1),
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "robustness.json", [json.dumps(report, indent=2)])
+    write_text_atomic(out / "robustness.md", ["\n".join(markdown_lines(report))])
+    return report
+
+
+def _summary(
+    runs: list[dict[str, Any]], clean: list[dict[str, Any]], classes: Sequence[str]
+) -> dict[str, dict[str, float]]:
+    """Per class: HOTA mean and spread over the runs, and the mean's change from clean."""
+    out = {}
+    for cls in classes:
+        hota = np.array([r["metrics"][cls]["HOTA"] for r in runs], dtype=np.float64)
+        clean_hota = float(np.mean([r["metrics"][cls]["HOTA"] for r in clean]))
+        spread = float(np.std(hota, ddof=1)) if len(hota) > 1 else 0.0
+        out[cls] = {
+            "HOTA_mean": round(float(hota.mean()), 3),
+            "HOTA_spread": round(spread, 3),
+            "HOTA_drop": round(float(hota.mean()) - clean_hota, 3),
+        }
+    return out
+
+
+def _spec_text(spec: dict[str, float]) -> str:
+    if not any(spec.values()):
+        return "none"
+    text = (
+        f"drop {spec['drop_rate']:.0%}, σ {spec['centre_sigma_m']:g} m, "
+        f"yaw σ {spec['yaw_sigma_deg']:g}°, FP {spec['fp_rate']:.0%}"
+    )
+    return text + (f", score σ {spec['score_sigma']:g}" if spec["score_sigma"] else "")
+
+
+def table_lines(report: dict[str, Any], *, markdown: bool) -> list[str]:
+    """The HOTA table: a row per level; per class the mean ± spread and the change from clean."""
+    classes = report["classes"]
+    header = ["level", "perturbation"]
+    for cls in classes:
+        header += [f"{cls} HOTA", f"{cls} Δ"]
+    rows = []
+    for name, level in report["levels"].items():
+        row = [name, _spec_text(level["spec"])]
+        for cls in classes:
+            s = level["summary"][cls]
+            row += [f"{s['HOTA_mean']:.2f} ± {s['HOTA_spread']:.2f}", f"{s['HOTA_drop']:+.2f}"]
+        rows.append(row)
+    if markdown:
+        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        return lines + ["| " + " | ".join(row) + " |" for row in rows]
+    widths = [max(len(r[i]) for r in [header, *rows]) for i in range(len(header))]
+    return ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)) for r in [header, *rows]]
+
+
+def markdown_lines(report: dict[str, Any]) -> list[str]:
+    seeds = ",".join(map(str, report["seeds"]))
+    command = (
+        f"mctrack robustness --detector {report['detector']} --classes "
+        f"{','.join(report['classes'])} --config {report['config']} --levels "
+        f"{','.join(report['levels'])} --seeds {seeds}"
+    )
+    return [
+        "# Robustness to detection noise",
+        "",
+        f"Detector `{report['detector']}`, config `{report['config']}` ({report['mode']}), "
+        f"sequences {' '.join(report['sequences'])}; {report['evaluator']}. HOTA: mean over "
+        f"seeds {seeds} ± {report['spread']}; Δ: change of the mean from clean. Clean runs once.",
+        "",
+        *table_lines(report, markdown=True),
+        "",
+        f"Command: `{command}` ({report['wall_seconds']} s).",
+        "",
+    ]
+
+
+def _names(text: str) -> list[str]:
+    return [part.strip() for part in text.split(",") if part.strip()]
+
+
+def _seeds(text: str) -> list[int]:
+    try:
+        seeds = [int(s) for s in _names(text)]
+    except ValueError:
+        raise InputError(f"--seeds: expected comma-separated integers, got {text!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise InputError(f"--seeds: expected integers >= 0, got {text!r}")
+    return list(dict.fromkeys(seeds))

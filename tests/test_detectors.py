@@ -1,0 +1,187 @@
+"""Detections as people distribute them (KITTI tracking result format) and score calibration."""
+
+from __future__ import annotations
+
+import logging
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tracker.boxes import Boxes
+from tracker.calibration import (
+    ScoreMap,
+    ScoreProfile,
+    builtin_profiles,
+    calibrate_frames,
+    fallback_scores,
+    load_profile,
+    profile_toml,
+    resolve_profile,
+)
+from tracker.categories import category_index
+from tracker.errors import InputError
+from tracker.eval.calibrate import fit_map, fit_profile, label_detections
+from tracker.frame import Frame
+from tracker.io.convert.kitti import convert_kitti, read_kitti_tracking_detections
+
+CAR = category_index("car")
+ROW = "{f} {cls} -1 -1 {alpha} 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 {ry} {score}\n"
+
+
+def _kit(kitti_root: Path, tmp_path: Path, text: str, seq: str = "0001") -> Path:
+    root = tmp_path / "kit"
+    for sub in ("calib", "label_02"):
+        (root / "training" / sub).mkdir(parents=True)
+        shutil.copy(kitti_root / "training" / sub / f"{seq}.txt", root / "training" / sub)
+    det = root / "detections" / "mydet" / "training"
+    det.mkdir(parents=True)
+    (det / f"{seq}.txt").write_text(text)
+    return root
+
+
+def test_tracking_format_reader(tmp_path: Path) -> None:
+    """17 columns (no track id) with a score; unwrapped angles are kept raw by the reader."""
+    path = tmp_path / "0001.txt"
+    path.write_text(
+        ROW.format(f=0, cls="Car", alpha=-8.07, ry=-7.85, score=7.05)
+        + ROW.format(f=3, cls="Pedestrian", alpha=0.1, ry=0.2, score=-1.5)
+    )
+    objects = read_kitti_tracking_detections(path)
+    assert objects.frame.tolist() == [0, 3]
+    assert objects.track_id.tolist() == [-1, -1]
+    np.testing.assert_allclose(objects.rotation_y, [-7.85, 0.2])
+    np.testing.assert_allclose(objects.score_raw, [7.05, -1.5])
+    assert objects.category.tolist() == [CAR, category_index("pedestrian")]
+
+
+def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    text = (
+        ROW.format(f=0, cls="Car", alpha=-8.07, ry=-7.85, score=7.05)
+        + ROW.format(f=0, cls="Car", alpha=0.0, ry=-7.85 + 2 * math.pi, score=1.0)
+        + ROW.format(f=5, cls="Boat", alpha=0.0, ry=0.0, score=3.0)
+    )
+    root = _kit(kitti_root, tmp_path, text)
+    with caplog.at_level(logging.WARNING):
+        dets, _ = convert_kitti(root, seqs=["0001"], detector="mydet", poses=None, classes=["car"])
+    frames = dets["0001"]
+    assert len(frames) == 447  # the labels' length: frames without detections are emitted
+    assert [len(f.boxes) for f in frames[:6]] == [2, 0, 0, 0, 0, 0]
+    yaw = frames[0].boxes.yaw
+    assert np.all(np.abs(yaw) <= math.pi)
+    assert yaw[0] == pytest.approx(yaw[1])  # -7.85 and -7.85 + 2π are the same heading
+    assert "Boat" in caplog.text  # an unknown class is counted and logged, never kept
+
+
+def test_tracking_format_malformed_line_names_file_and_line(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    good = ROW.format(f=0, cls="Car", alpha=0, ry=0, score=1.0)
+    bad = ROW.format(f=1, cls="Car", alpha=0, ry=0, score="high")
+    root = _kit(kitti_root, tmp_path, good + bad)
+    with pytest.raises(InputError) as err:
+        convert_kitti(root, seqs=["0001"], detector="mydet", poses=None, classes=["car"])
+    message = str(err.value)
+    assert "0001.txt:2" in message and "score" in message
+
+
+def test_real_detectors_read(kitti_root: Path) -> None:
+    for detector, low, high in (("virconv", -2.3, 10.2), ("second_iou", -2.3, 3.3)):
+        dets, _ = convert_kitti(kitti_root, seqs=["0001"], detector=detector, classes=["car"])
+        raw = np.concatenate([f.boxes.score_raw for f in dets["0001"]])
+        assert len(raw) > 1000 and low <= raw.min() and raw.max() <= high
+
+
+# --- calibration -------------------------------------------------------------------------------
+
+
+def test_isotonic_fit_recovers_known_precision() -> None:
+    """A synthetic detector whose P(true positive | raw) is a known logistic curve."""
+    rng = np.random.default_rng(0)
+    raw = rng.uniform(-4, 8, 40_000)
+    truth = 1.0 / (1.0 + np.exp(-(0.8 * raw - 1.5)))
+    label = (rng.uniform(size=raw.size) < truth).astype(np.int64)
+    score_map = fit_map(raw, label)
+    grid = np.linspace(-3, 7, 41)
+    expected = 1.0 / (1.0 + np.exp(-(0.8 * grid - 1.5)))
+    assert np.max(np.abs(score_map(grid) - expected)) < 0.06
+    assert np.all(np.diff(score_map(grid)) >= 0)
+
+
+def _profile() -> ScoreProfile:
+    return ScoreProfile(
+        "toy",
+        {"car": ScoreMap(np.array([-1.0, 0.0, 2.5]), np.array([0.01, 0.4, 0.99]))},
+        {"dataset": "synthetic", "sequences": ["a", "b"]},
+        {"car": {"detections": 10, "in_sample": {"brier": 0.1}}},
+    )
+
+
+def test_profile_round_trips_through_its_file(tmp_path: Path) -> None:
+    path = tmp_path / "toy.toml"
+    path.write_text(profile_toml(_profile()))
+    again = load_profile(path)
+    assert again.detector == "toy"
+    np.testing.assert_array_equal(again.maps["car"].raw, [-1.0, 0.0, 2.5])
+    np.testing.assert_array_equal(again.maps["car"].prob, [0.01, 0.4, 0.99])
+    assert again.fitted_on["sequences"] == ["a", "b"]
+    assert again.quality["car"]["in_sample"]["brier"] == 0.1
+    scores = again.scores(
+        np.array([CAR, CAR, category_index("pedestrian")]), np.array([-5, 1.25, 0])
+    )
+    np.testing.assert_allclose(scores, [0.01, 0.695, 0.5])  # clipped, interpolated, fallback
+
+
+def test_bad_profile_names_file_and_field(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(
+        profile_toml(_profile()).replace("prob = [0.01, 0.4, 0.99]", "prob = [0.5, 0.4]")
+    )
+    with pytest.raises(InputError, match=r"bad\.toml.*class\.car"):
+        load_profile(path)
+
+
+def test_shipped_profiles_load() -> None:
+    assert {"pointrcnn", "virconv", "second_iou"} <= set(builtin_profiles())
+    for name in ("pointrcnn", "virconv", "second_iou"):
+        profile = resolve_profile(name)
+        assert profile is not None and "car" in profile.maps
+        q = profile.quality["car"]
+        # calibrated better than the raw sigmoid, also on sequences the fit did not see
+        assert q["held_out_by_sequence"]["ece"] < q["uncalibrated"]["ece"]
+
+
+def test_missing_profile_warns_and_falls_back(caplog: pytest.LogCaptureFixture) -> None:
+    with caplog.at_level(logging.WARNING):
+        assert resolve_profile("my_new_detector") is None
+    assert "NO SCORE CALIBRATION" in caplog.text and "mctrack calibrate" in caplog.text
+    np.testing.assert_allclose(fallback_scores(np.array([0.2, 0.9])), [0.2, 0.9])
+    np.testing.assert_allclose(fallback_scores(np.array([0.0, 3.0])), [0.5, 1 / (1 + np.exp(-3))])
+
+
+def test_calibrate_frames_decides_the_fallback_once_per_detector() -> None:
+    """A logit detector whose frame happens to hold only scores in [0, 1] is still a logit."""
+
+    def frame(i: int, raw: list[float]) -> Frame:
+        boxes = Boxes.create(
+            xyz=np.zeros((len(raw), 3)), lwh=np.ones((len(raw), 3)), yaw=np.zeros(len(raw)),
+            score=np.zeros(len(raw)), category=np.full(len(raw), CAR), score_raw=np.array(raw),
+        )  # fmt: skip
+        return Frame("s", i, 0.1 * i, boxes)
+
+    frames = calibrate_frames([frame(0, [0.5]), frame(1, [4.0, -2.0])], None)
+    np.testing.assert_allclose(frames[0].boxes.score, [1 / (1 + np.exp(-0.5))])
+
+
+def test_labels_and_fit_on_real_sequences(kitti_root: Path) -> None:
+    dets, gt = convert_kitti(kitti_root, seqs=["0001", "0006"], detector="virconv", classes=["car"])
+    assert gt is not None
+    data = label_detections(dets, gt, ["car"])
+    assert 0.5 < data.label.mean() < 0.95  # VirConv: mostly, not only, true positives
+    profile = fit_profile("virconv", dets, gt, ["car"])
+    high, low = profile.maps["car"](np.array([6.0])), profile.maps["car"](np.array([-2.0]))
+    assert high > 0.95 and low < 0.2

@@ -1,0 +1,290 @@
+"""The robustness benchmark: seeded detection noise (tracker.eval.perturb), `mctrack robustness`."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from app.cli import main
+from tracker.boxes import Boxes
+from tracker.camera import project_boxes
+from tracker.eval.perturb import NOISE_LEVELS, PerturbSpec, perturb_frames, sigmoid_rescore
+from tracker.frame import Frame
+from tracker.geometry import wrap_angle
+from tracker.io.synthetic import synthetic_scene
+
+SAMPLE_KIT = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001" / "raw"
+
+
+def _scene(name: str = "synthetic", *, seed: int = 3, num_frames: int = 150) -> list[Frame]:
+    """A synthetic scene whose detections sit in the camera, like converted KITTI detections:
+    camera 0, the 2D box = the projection, and a raw score (the score's logit)."""
+    dets, _ = synthetic_scene(
+        num_objects=60, num_frames=num_frames, seed=seed, dropout=0.0, scene=name
+    )
+    frames = []
+    for frame in dets:
+        xyxy, visible = project_boxes(frame.boxes, frame.cameras[0])
+        b = frame.boxes[visible]
+        b = b.replace(
+            xyxy_image=xyxy[visible],
+            camera=np.zeros(len(b), dtype=np.int64),
+            score_raw=np.log(b.score / (1 - b.score)),
+        )
+        frames.append(dataclasses.replace(frame, boxes=b))
+    return frames
+
+
+def _all(frames: list[Frame]) -> Boxes:
+    return Boxes.concat([f.boxes for f in frames])
+
+
+def _added(perturbed: Frame, source: Frame) -> Boxes:
+    """The false positives: the rows after the (undropped) real boxes."""
+    return perturbed.boxes[np.arange(len(source.boxes), len(perturbed.boxes))]
+
+
+def _count(frames: list[Frame]) -> int:
+    return sum(len(f.boxes) for f in frames)
+
+
+@pytest.fixture(scope="module")
+def scene() -> list[Frame]:
+    frames = _scene()
+    assert _count(frames) > 5000
+    return frames
+
+
+def test_same_seed_same_boxes_other_seed_different(scene: list[Frame]) -> None:
+    spec = dataclasses.replace(NOISE_LEVELS["double"], score_sigma=0.5)
+    a = perturb_frames(scene, spec, seed=4)
+    b = perturb_frames(scene, spec, seed=4)
+    c = perturb_frames(scene, spec, seed=5)
+    assert all(fa.boxes.equals(fb.boxes) for fa, fb in zip(a, b, strict=True))
+    assert not _all(a).equals(_all(c))
+    assert [f.frame_id for f in a] == [f.frame_id for f in scene]
+
+
+def test_a_scene_noise_does_not_depend_on_the_other_scenes() -> None:
+    """Seeded per scene from its name: perturbing A alone or after B gives the same A."""
+    a, b = _scene("A", num_frames=20), _scene("B", seed=9, num_frames=20)
+    spec = NOISE_LEVELS["noise"]
+    alone = perturb_frames(a, spec, seed=1)
+    together = perturb_frames(b + a, spec, seed=1)[len(b) :]
+    assert all(x.boxes.equals(y.boxes) for x, y in zip(alone, together, strict=True))
+    # and two scenes with the same content but other names get different noise
+    renamed = perturb_frames([dataclasses.replace(f, scene="C") for f in a], spec, seed=1)
+    assert not _all(alone).equals(_all(renamed))
+
+
+def test_clean_spec_is_the_identity(scene: list[Frame]) -> None:
+    out = perturb_frames(scene, NOISE_LEVELS["clean"], seed=0)
+    assert all(o is f for o, f in zip(out, scene, strict=True))
+    # a spec whose every rate is zero draws but changes nothing either
+    assert PerturbSpec().is_clean and not NOISE_LEVELS["noise"].is_clean
+
+
+def test_drop_fraction_and_kept_boxes_unchanged(scene: list[Frame]) -> None:
+    out = perturb_frames(scene, PerturbSpec(drop_rate=0.3), seed=2)
+    n, kept = _count(scene), _count(out)
+    sd = np.sqrt(0.3 * 0.7 / n)
+    assert abs((n - kept) / n - 0.3) < 4 * sd
+    for before, after in zip(scene, out, strict=True):
+        rows = [
+            int(np.flatnonzero((before.boxes.xyz == p).all(axis=1))[0]) for p in after.boxes.xyz
+        ]
+        assert rows == sorted(rows)  # a subsequence: the kept rows in their order, untouched
+        assert after.boxes.equals(before.boxes[np.array(rows, dtype=np.int64)])
+
+
+def test_jitter_statistics_and_the_2d_box_moves_with_the_3d_box(scene: list[Frame]) -> None:
+    spec = PerturbSpec(centre_sigma_m=0.2, yaw_sigma_deg=3.0)
+    out = perturb_frames(scene, spec, seed=6)
+    before, after = _all(scene), _all(out)
+    assert len(after) == len(before)
+    d = after.xyz - before.xyz
+    n = len(d)
+    for axis in (0, 1):
+        assert abs(d[:, axis].std() - 0.2) < 0.2 * 4 / np.sqrt(2 * n)
+        assert abs(d[:, axis].mean()) < 0.2 * 4 / np.sqrt(n)
+    np.testing.assert_array_equal(d[:, 2], 0.0)  # BEV jitter: height untouched
+    dyaw = np.rad2deg(wrap_angle(after.yaw - before.yaw))
+    assert abs(dyaw.std() - 3.0) < 3.0 * 4 / np.sqrt(2 * n)
+    np.testing.assert_array_equal(after.lwh, before.lwh)
+    np.testing.assert_array_equal(after.score, before.score)
+    # The 2D box shifts by the change of the projection; here the 2D box *is* the projection, so
+    # it must equal the jittered box's projection wherever neither is clipped by the image.
+    for frame in out:
+        proj, visible = project_boxes(frame.boxes, frame.cameras[0], clip_to_image=False)
+        cam = frame.cameras[0]
+        inside = visible & (proj[:, :2] > 1).all(axis=1)
+        inside &= (proj[:, 2] < cam.width_px - 2) & (proj[:, 3] < cam.height_px - 2)
+        np.testing.assert_allclose(frame.boxes.xyxy_image[inside], proj[inside], atol=1e-6)
+
+
+def test_false_positives_count_plausibility_and_projection(scene: list[Frame]) -> None:
+    rate = 0.2
+    out = perturb_frames(scene, PerturbSpec(fp_rate=rate), seed=8)
+    real = _all(scene)
+    fps = Boxes.concat([_added(o, f) for o, f in zip(out, scene, strict=True)])
+    for frame, source in zip(out, scene, strict=True):  # real boxes first, unchanged
+        assert frame.boxes[np.arange(len(source.boxes))].equals(source.boxes)
+    for category in np.unique(real.category):
+        expected = rate * (real.category == category).sum()
+        got = (fps.category == category).sum()
+        assert abs(got - expected) < 4 * np.sqrt(expected) + 1, (category, got, expected)
+    assert (fps.track_id == -1).all() and (fps.camera == 0).all()
+    # plausible: a real size and (score, raw score) pair of the class
+    for i in range(len(fps)):
+        same = real.category == fps.category[i]
+        assert (real.lwh[same] == fps.lwh[i]).all(axis=1).any()
+        assert (
+            (real.score[same] == fps.score[i]) & (real.score_raw[same] == fps.score_raw[i])
+        ).any()
+    # 2D box = projection of the 3D box, inside the image; the centre is in the camera's view
+    for frame, source in zip(out, scene, strict=True):
+        fp = _added(frame, source)
+        if not len(fp):
+            continue
+        cam = frame.cameras[0]
+        proj, visible = project_boxes(fp, cam)
+        assert visible.all()
+        np.testing.assert_allclose(fp.xyxy_image, proj, atol=1e-9)
+        assert (fp.xyxy_image >= 0).all()
+        assert (fp.xyxy_image[:, [0, 2]] <= cam.width_px - 1).all()
+        assert (fp.xyxy_image[:, [1, 3]] <= cam.height_px - 1).all()
+    # inside the region the real boxes cover (depth = world x for this camera at the origin)
+    assert real.xyz[:, 0].min() - 1e-9 <= fps.xyz[:, 0].min()
+    assert fps.xyz[:, 0].max() <= real.xyz[:, 0].max() + 1e-9
+    assert len(np.unique(fps.yaw)) == len(fps)  # a random heading each
+
+
+def test_score_noise_recomputes_the_score_with_rescore(scene: list[Frame]) -> None:
+    out = perturb_frames(scene, PerturbSpec(score_sigma=0.5), seed=1)
+    before, after = _all(scene), _all(out)
+    d = after.score_raw - before.score_raw
+    assert abs(d.std() - 0.5) < 0.5 * 4 / np.sqrt(2 * len(d))
+    np.testing.assert_allclose(after.score, sigmoid_rescore(after.category, after.score_raw))
+    np.testing.assert_array_equal(after.xyz, before.xyz)
+
+    seen: list[np.ndarray] = []
+
+    def rescore(category: np.ndarray, raw: np.ndarray) -> np.ndarray:
+        seen.append(category.copy())
+        return np.clip(raw / 10.0, 0.0, 1.0)
+
+    custom = _all(perturb_frames(scene, PerturbSpec(score_sigma=0.5), seed=1, rescore=rescore))
+    np.testing.assert_array_equal(custom.score_raw, after.score_raw)  # same draws
+    np.testing.assert_allclose(custom.score, np.clip(custom.score_raw / 10.0, 0.0, 1.0))
+    np.testing.assert_array_equal(seen[0], custom.category)
+
+
+def test_score_noise_needs_a_raw_score_and_specs_are_checked(scene: list[Frame]) -> None:
+    no_raw = [
+        dataclasses.replace(f, boxes=f.boxes.replace(score_raw=np.full(len(f.boxes), np.nan)))
+        for f in scene[:5]
+    ]
+    with pytest.raises(ValueError, match="score_raw"):
+        perturb_frames(no_raw, PerturbSpec(score_sigma=0.1), seed=0)
+    with pytest.raises(ValueError, match="drop_rate"):
+        PerturbSpec(drop_rate=1.5)
+    with pytest.raises(ValueError, match="centre_sigma_m"):
+        PerturbSpec(centre_sigma_m=-0.1)
+    with pytest.raises(ValueError, match="seed"):
+        perturb_frames(scene[:2], NOISE_LEVELS["noise"], seed=-1)
+
+
+def test_a_stronger_level_drops_a_superset_at_one_seed(scene: list[Frame]) -> None:
+    weak = perturb_frames(scene, PerturbSpec(drop_rate=0.1), seed=3)
+    strong = perturb_frames(scene, PerturbSpec(drop_rate=0.2), seed=3)
+    for w, s in zip(weak, strong, strict=True):
+        kept_weak = {tuple(p) for p in w.boxes.xyz}
+        assert {tuple(p) for p in s.boxes.xyz} <= kept_weak
+
+
+# --------------------------------------------------------------------------------------------
+# The command, on the bundled one-sequence kit (sample_data/kitti-0001/raw)
+
+
+@pytest.fixture(scope="module")
+def sample_kit() -> Path:
+    if not (SAMPLE_KIT / "training" / "calib" / "0001.txt").is_file():
+        pytest.skip(f"bundled sample kit missing at {SAMPLE_KIT}")
+    return SAMPLE_KIT
+
+
+def test_tracking_perturbed_kitti_is_deterministic(sample_kit: Path) -> None:
+    from tracker.config import load_config
+    from tracker.io.convert.kitti import convert_kitti
+    from tracker.pipeline import run_scene
+
+    dets, _ = convert_kitti(sample_kit, seqs=["0001"], classes=["car"], with_gt=False)
+    frames = dets["0001"][:200]
+    config = load_config("kitti", overrides={"categories": ["car"]})
+    runs = [run_scene(perturb_frames(frames, NOISE_LEVELS["noise"], seed=0), config) for _ in "ab"]
+    first, second = (Boxes.concat([o.boxes for o in r.outputs]) for r in runs)
+    assert len(first) > 500 and first.equals(second)
+
+
+def test_robustness_command_on_the_sample(
+    sample_kit: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from app.kitti import run_kitti
+
+    out = tmp_path / "rob"
+    args = ["--kitti-root", str(sample_kit), "--seqs", "0001", "--classes", "car"]
+    assert main(["robustness", *args, "--levels", "noise", "--seeds", "0", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "car HOTA" in printed and "noise" in printed and "clean" in printed
+
+    report = json.loads((out / "robustness.json").read_text())
+    assert {"detector", "sequences", "classes", "config", "seeds", "levels", "evaluator"} <= set(
+        report
+    )
+    assert list(report["levels"]) == ["clean", "noise"]  # clean always runs, first
+    for level in report["levels"].values():
+        assert set(level) == {"spec", "runs", "summary"}
+        assert set(level["summary"]["car"]) == {"HOTA_mean", "HOTA_spread", "HOTA_drop"}
+    clean, noise = report["levels"]["clean"], report["levels"]["noise"]
+    assert [r["seed"] for r in clean["runs"]] == [None] and [r["seed"] for r in noise["runs"]] == [
+        0
+    ]
+    assert noise["spec"] == dataclasses.asdict(NOISE_LEVELS["noise"])
+    drop = noise["summary"]["car"]["HOTA_drop"]
+    assert drop == pytest.approx(
+        noise["summary"]["car"]["HOTA_mean"] - clean["summary"]["car"]["HOTA_mean"], abs=1e-3
+    )
+    assert drop < 0  # noise costs HOTA
+    assert "| noise |" in (out / "robustness.md").read_text()
+
+    plain = run_kitti(
+        kitti_root=sample_kit, seqs=["0001"], classes=["car"], out=tmp_path / "plain", quiet=True
+    )
+    assert clean["runs"][0]["metrics"]["car"]["HOTA"] == plain["metrics"]["car"]["HOTA"]
+    assert clean["summary"]["car"]["HOTA_mean"] == round(plain["metrics"]["car"]["HOTA"], 3)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--levels", "loud"], "unknown noise level"),
+        (["--seeds", "0,x"], "--seeds"),
+        (["--classes", "van"], "--classes"),
+        (["--seqs", "0002"], "0002.txt"),
+    ],
+)
+def test_robustness_bad_arguments_are_one_line_errors(
+    sample_kit: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    extra: list[str],
+    message: str,
+) -> None:
+    argv = ["robustness", "--kitti-root", str(sample_kit), "--seqs", "0001", *extra]
+    assert main([*argv, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and err.startswith("mctrack robustness")

@@ -1,0 +1,238 @@
+"""Detector score calibration: raw detector scores → probability that the box is a real object.
+
+Every score threshold of the tracker (``score_min``, ``birth_score_min``, ``confirm_score``,
+the evidence needed to confirm a track, the offline track score) is a probability, so it
+means the same thing for every detector. A :class:`ScoreProfile` holds, per class, a monotone
+piecewise-linear map fitted on labelled sequences (:mod:`tracker.eval.calibrate`, isotonic
+regression) and stored as a small TOML file; profiles for the detectors of the KITTI kit ship in
+``tracker/profiles/``.
+
+Without a profile the score is ``sigmoid(raw)`` (the BaseVersion convention for logits) or the
+raw value where it already lies in [0, 1]: defensible for a detector that outputs calibrated
+probabilities or logits, wrong for any other, so callers warn loudly (:func:`fallback_scores`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import tomllib
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tracker.boxes import FloatArray, IntArray
+from tracker.categories import CATEGORIES, category_index
+from tracker.errors import InputError
+from tracker.frame import Frame
+
+LOG = logging.getLogger(__name__)
+PROFILE_DIR = Path(__file__).resolve().parent / "profiles"
+PROFILE_VERSION = 1
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class ScoreMap:
+    """One class's monotone map: ``np.interp`` through knots (raw increasing, prob
+    non-decreasing in [0, 1]); constant beyond the first and last knot."""
+
+    raw: FloatArray
+    prob: FloatArray
+
+    def __post_init__(self) -> None:
+        raw, prob = np.asarray(self.raw, np.float64), np.asarray(self.prob, np.float64)
+        ok = (
+            raw.ndim == 1
+            and raw.shape == prob.shape
+            and len(raw) >= 1
+            and bool(np.all(np.isfinite(raw)) and np.all(np.isfinite(prob)))
+            and bool(np.all(np.diff(raw) > 0) and np.all(np.diff(prob) >= 0))
+            and bool(np.all((prob >= 0) & (prob <= 1)))
+        )
+        if not ok:
+            raise ValueError("a score map needs increasing raw knots and non-decreasing probs")
+        object.__setattr__(self, "raw", raw)
+        object.__setattr__(self, "prob", prob)
+
+    def __call__(self, raw: FloatArray) -> FloatArray:
+        return np.interp(np.asarray(raw, np.float64), self.raw, self.prob)
+
+
+@dataclasses.dataclass(frozen=True)
+class ScoreProfile:
+    """A detector's calibration: one :class:`ScoreMap` per class name, plus provenance.
+
+    ``fitted_on`` says what data the maps come from (dataset, sequences, match rule) and
+    ``quality`` the fit's quality per class (counts, Brier scores, calibration error); both
+    are informative and kept verbatim.
+    """
+
+    detector: str
+    maps: Mapping[str, ScoreMap]
+    fitted_on: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    quality: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
+
+    def scores(self, category: IntArray, raw: FloatArray) -> FloatArray:
+        """Calibrated score per box; classes without a map keep :func:`fallback_scores`."""
+        raw = np.asarray(raw, np.float64)
+        out = fallback_scores(raw)
+        for name, score_map in self.maps.items():
+            rows = np.asarray(category) == category_index(name)
+            if rows.any():
+                out[rows] = score_map(raw[rows])
+        return out
+
+
+def fallback_scores(raw: FloatArray, *, is_probability: bool | None = None) -> FloatArray:
+    """The uncalibrated score: the raw value when the raw scores are probabilities, else
+    ``sigmoid(raw)`` (a logit). ``is_probability`` None: decided from ``raw`` (every finite
+    value in [0, 1]); decide it once per detector, not per frame. NaN stays NaN."""
+    raw = np.asarray(raw, np.float64)
+    if is_probability is None:
+        is_probability = looks_like_probability(raw)
+    if is_probability:
+        return raw.copy()
+    return np.exp(-np.logaddexp(0.0, -raw))
+
+
+def looks_like_probability(raw: FloatArray) -> bool:
+    finite = raw[np.isfinite(raw)]
+    return bool(finite.size and finite.min() >= 0 and finite.max() <= 1)
+
+
+def calibrate_frames(frames: Sequence[Frame], profile: ScoreProfile | None) -> list[Frame]:
+    """The frames with every box's ``score`` recomputed from ``score_raw`` by ``profile``
+    (None: :func:`fallback_scores`). Boxes without a raw score keep their score."""
+    every_raw = [f.boxes.score_raw for f in frames]
+    is_probability = looks_like_probability(np.concatenate(every_raw)) if every_raw else False
+    out = []
+    for frame in frames:
+        boxes = frame.boxes
+        if len(boxes):
+            raw = boxes.score_raw
+            new = (
+                profile.scores(boxes.category, raw)
+                if profile
+                else fallback_scores(raw, is_probability=is_probability)
+            )
+            boxes = boxes.replace(score=np.where(np.isfinite(raw), new, boxes.score))
+        out.append(dataclasses.replace(frame, boxes=boxes))
+    return out
+
+
+def resolve_profile(detector: str, path: str | Path | None = None) -> ScoreProfile | None:
+    """The profile to calibrate ``detector``'s scores with: the file ``path`` when given, else
+    the shipped one; None (with a loud warning: thresholds then mean something else for this
+    detector) when there is none."""
+    if path is not None:
+        return load_profile(path)
+    profile = find_profile(detector)
+    if profile is None:
+        LOG.warning(
+            "NO SCORE CALIBRATION for detector %r: its scores are used as sigmoid(raw) (or raw "
+            "where already in [0, 1]), so the tracker's thresholds may not fit it. Fit one on "
+            "labelled sequences with `mctrack calibrate --detector %s --out PROFILE.toml` and "
+            "pass --profile PROFILE.toml (shipped profiles: %s).",
+            detector,
+            detector,
+            ", ".join(builtin_profiles()),
+        )
+    return profile
+
+
+def builtin_profiles() -> list[str]:
+    """Detector names with a profile shipped in the package."""
+    return sorted(p.stem for p in PROFILE_DIR.glob("*.toml"))
+
+
+def find_profile(detector: str) -> ScoreProfile | None:
+    """The shipped profile of ``detector`` (``tracker/profiles/<detector>.toml``), or None."""
+    if detector in builtin_profiles():
+        return load_profile(PROFILE_DIR / f"{detector}.toml")
+    return None
+
+
+def load_profile(path: str | Path) -> ScoreProfile:
+    """Read a profile file; errors name the file and the field."""
+    path = Path(path)
+    try:
+        doc = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"cannot read profile: {exc}", path=path) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(f"not valid TOML: {exc}", path=path) from None
+    if doc.get("version") != PROFILE_VERSION:
+        raise InputError(f"expected version = {PROFILE_VERSION}", path=path, field="version")
+    detector = doc.get("detector")
+    if not isinstance(detector, str) or not detector:
+        raise InputError("expected a detector name", path=path, field="detector")
+    classes = doc.get("class")
+    if not isinstance(classes, dict) or not classes:
+        raise InputError("expected [class.<name>] tables", path=path, field="class")
+    maps: dict[str, ScoreMap] = {}
+    quality: dict[str, dict[str, Any]] = {}
+    for name, table in classes.items():
+        where = f"class.{name}"
+        if name not in CATEGORIES:
+            raise InputError(f"unknown class {name!r}", path=path, field=where)
+        if not isinstance(table, dict):
+            raise InputError("expected a table", path=path, field=where)
+        try:
+            maps[name] = ScoreMap(
+                np.array(table.get("raw"), dtype=np.float64),
+                np.array(table.get("prob"), dtype=np.float64),
+            )
+        except (TypeError, ValueError):
+            raise InputError(
+                "raw/prob must be equal-length number arrays, raw increasing, prob "
+                "non-decreasing in [0, 1]",
+                path=path,
+                field=f"{where}.raw",
+            ) from None
+        quality[name] = dict(table.get("quality", {}))
+    fitted_on = doc.get("fitted_on", {})
+    return ScoreProfile(detector, maps, dict(fitted_on), quality)
+
+
+def profile_toml(profile: ScoreProfile) -> str:
+    """The profile as a small readable TOML document (what :func:`load_profile` reads)."""
+    lines = [
+        f"# Score calibration of the {profile.detector!r} detector: raw score -> probability",
+        "# that the box is a real object (monotone, piecewise linear through the knots).",
+        "# Made by `mctrack calibrate`; see tracker/calibration.py.",
+        f"version = {PROFILE_VERSION}",
+        f"detector = {_toml_value(profile.detector)}",
+        "",
+        "[fitted_on]",
+        *(f"{k} = {_toml_value(v)}" for k, v in profile.fitted_on.items()),
+    ]
+    for name, score_map in profile.maps.items():
+        lines += [
+            "",
+            f"[class.{name}]",
+            f"raw = {_toml_value([round(float(v), 4) for v in score_map.raw])}",
+            f"prob = {_toml_value([round(float(v), 4) for v in score_map.prob])}",
+            f"quality = {_toml_value(dict(profile.quality.get(name, {})))}",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+        return repr(round(value, 6))
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, Mapping):
+        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")

@@ -1,0 +1,194 @@
+"""Fitting a detector's score calibration on labelled sequences (isotonic regression).
+
+A detection is a *true positive* when it is matched to a ground-truth object of its class in
+the BEV plane: per frame and class, detections in descending raw score take the nearest
+unmatched ground-truth centre within ``MATCH_DISTANCE_M`` (the greedy matching of detection
+benchmarks). Detections that match no object of their class but lie within that distance of an
+evaluation distractor (van or truck for cars, a sitting person for pedestrians) or whose 2D box
+lies mostly inside a DontCare region are left out of the fit: the evaluator counts them neither
+way. The map raw → P(true positive) is scikit-learn's isotonic regression (monotone, no shape
+assumed); its held-out quality comes from leave-one-sequence-out cross-fitting.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.distance import cdist
+
+from tracker.boxes import FloatArray, IntArray
+from tracker.calibration import ScoreMap, ScoreProfile, fallback_scores
+from tracker.categories import category_index
+from tracker.frame import Frame
+
+#: BEV centre distance (m) under which a detection counts as its object found.
+MATCH_DISTANCE_M: Mapping[str, float] = {"car": 2.0, "pedestrian": 1.0, "cyclist": 1.5}
+#: Ground-truth classes that are neither a hit nor a miss for a class (KITTI's evaluation).
+DISTRACTORS: Mapping[str, tuple[str, ...]] = {
+    "car": ("van", "truck"),
+    "pedestrian": ("person_sitting",),
+    "cyclist": (),
+}
+DONTCARE_OVERLAP = 0.5  # fraction of a detection's 2D box inside DontCare regions to ignore it
+MAX_KNOTS = 48  # knots stored per class (the map is read back with linear interpolation)
+# finite data never proves a probability of exactly 0 or 1 (and the lifecycle's evidence
+# -log(1 - p) must stay finite)
+PROB_RANGE = (0.001, 0.999)
+
+
+@dataclass(frozen=True, slots=True)
+class LabelledScores:
+    """Per kept detection: category, raw score, 1 for a true positive, and its sequence."""
+
+    category: IntArray
+    raw: FloatArray
+    label: IntArray
+    scene: np.ndarray
+
+    def of_class(self, name: str) -> LabelledScores:
+        rows = self.category == category_index(name)
+        return LabelledScores(self.category[rows], self.raw[rows], self.label[rows],
+                              self.scene[rows])  # fmt: skip
+
+
+def label_detections(
+    detections: Mapping[str, Sequence[Frame]],
+    gt: Mapping[str, Sequence[Frame]],
+    classes: Sequence[str],
+) -> LabelledScores:
+    """Match every detection of ``classes`` to the ground truth; drop the ignored ones."""
+    cats, raws, labels, scenes = [], [], [], []
+    for scene, frames in detections.items():
+        gt_frames = {f.frame_id: f for f in gt[scene]}
+        for frame in frames:
+            truth = gt_frames.get(frame.frame_id)
+            if truth is None:
+                continue
+            for name in classes:
+                label, keep = _label_frame(frame, truth, name)
+                rows = np.nonzero(frame.boxes.category == category_index(name))[0][keep]
+                cats.append(frame.boxes.category[rows])
+                raws.append(frame.boxes.score_raw[rows])
+                labels.append(label[keep])
+                scenes.append(np.full(len(rows), scene, dtype=object))
+    if not cats:
+        empty = np.zeros(0)
+        return LabelledScores(empty.astype(np.int64), empty, empty.astype(np.int64),
+                              empty.astype(object))  # fmt: skip
+    return LabelledScores(
+        np.concatenate(cats), np.concatenate(raws), np.concatenate(labels).astype(np.int64),
+        np.concatenate(scenes),
+    )  # fmt: skip
+
+
+def _label_frame(frame: Frame, truth: Frame, name: str) -> tuple[IntArray, np.ndarray]:
+    """(label, keep) for the detections of class ``name`` in one frame."""
+    cat = category_index(name)
+    dets = frame.boxes[frame.boxes.category == cat]
+    n = len(dets)
+    label = np.zeros(n, dtype=np.int64)
+    keep = np.isfinite(dets.score_raw)
+    if n == 0:
+        return label, keep
+    radius = MATCH_DISTANCE_M.get(name, 2.0)
+    gt_xy = truth.boxes.xyz[truth.boxes.category == cat, :2]
+    if len(gt_xy):
+        dist = cdist(dets.xyz[:, :2], gt_xy)
+        taken = np.zeros(len(gt_xy), dtype=bool)
+        for i in np.argsort(-dets.score_raw, kind="stable"):
+            d = np.where(taken, np.inf, dist[i])
+            j = int(np.argmin(d))
+            if d[j] <= radius:
+                taken[j], label[i] = True, 1
+    distractor = np.isin(
+        truth.boxes.category, [category_index(c) for c in DISTRACTORS.get(name, ())]
+    )
+    if distractor.any():
+        near = cdist(dets.xyz[:, :2], truth.boxes.xyz[distractor, :2]).min(axis=1) <= radius
+        keep &= ~((label == 0) & near)
+    if len(truth.ignore_xyxy_image):
+        keep &= ~((label == 0) & (_inside_fraction(dets.xyxy_image, truth.ignore_xyxy_image)
+                                  >= DONTCARE_OVERLAP))  # fmt: skip
+    return label, keep
+
+
+def _inside_fraction(boxes: FloatArray, regions: FloatArray) -> FloatArray:
+    """Largest fraction of each box's area covered by one region (NaN boxes: 0)."""
+    x1 = np.maximum(boxes[:, None, 0], regions[None, :, 0])
+    y1 = np.maximum(boxes[:, None, 1], regions[None, :, 1])
+    x2 = np.minimum(boxes[:, None, 2], regions[None, :, 2])
+    y2 = np.minimum(boxes[:, None, 3], regions[None, :, 3])
+    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
+    area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        frac = np.where(area[:, None] > 0, inter / area[:, None], 0.0)
+    return np.nan_to_num(frac).max(axis=1)
+
+
+def fit_map(raw: FloatArray, label: IntArray) -> ScoreMap:
+    """Isotonic regression of the label on the raw score, stored as at most MAX_KNOTS knots
+    (quantiles of the raw scores, where the fitted function is evaluated)."""
+    from sklearn.isotonic import IsotonicRegression
+
+    iso = IsotonicRegression(y_min=0.0, y_max=1.0, increasing=True, out_of_bounds="clip")
+    iso.fit(raw, label)
+    knots = np.unique(np.round(np.quantile(raw, np.linspace(0, 1, MAX_KNOTS)), 4))
+    prob = np.maximum.accumulate(np.clip(iso.predict(knots), *PROB_RANGE))
+    return ScoreMap(knots, np.round(prob, 4))
+
+
+def _quality(prob: FloatArray, label: IntArray) -> dict[str, float]:
+    """Brier score and expected calibration error (10 equal-count bins)."""
+    brier = float(np.mean((prob - label) ** 2))
+    order = np.argsort(prob, kind="stable")
+    ece = 0.0
+    for part in np.array_split(order, 10):
+        if len(part):
+            ece += len(part) / len(prob) * abs(float(prob[part].mean() - label[part].mean()))
+    return {"brier": round(brier, 4), "ece": round(ece, 4)}
+
+
+def fit_profile(
+    detector: str,
+    detections: Mapping[str, Sequence[Frame]],
+    gt: Mapping[str, Sequence[Frame]],
+    classes: Sequence[str],
+    *,
+    dataset: str = "kitti",
+) -> ScoreProfile:
+    """Fit one map per class with detections; quality in-sample and held out by sequence."""
+    data = label_detections(detections, gt, classes)
+    maps: dict[str, ScoreMap] = {}
+    quality: dict[str, dict[str, object]] = {}
+    for name in classes:
+        part = data.of_class(name)
+        if len(part.raw) < 20 or part.label.min(initial=1) == part.label.max(initial=0):
+            continue  # too little (or one-sided) evidence to fit: the class keeps the fallback
+        score_map = fit_map(part.raw, part.label)
+        maps[name] = score_map
+        held_out = np.empty(len(part.raw))
+        for scene in np.unique(part.scene):
+            test = part.scene == scene
+            train = ~test
+            if train.sum() >= 20 and part.label[train].min() != part.label[train].max():
+                held_out[test] = fit_map(part.raw[train], part.label[train])(part.raw[test])
+            else:
+                held_out[test] = score_map(part.raw[test])
+        quality[name] = {
+            "detections": len(part.raw),
+            "true_positives": int(part.label.sum()),
+            "in_sample": _quality(score_map(part.raw), part.label),
+            "held_out_by_sequence": _quality(held_out, part.label),
+            "uncalibrated": _quality(fallback_scores(part.raw), part.label),
+        }
+    fitted_on = {
+        "dataset": dataset,
+        "sequences": sorted(detections),
+        "match": "greedy by score, BEV centre distance <= "
+        + ", ".join(f"{c} {MATCH_DISTANCE_M.get(c, 2.0)} m" for c in classes)
+        + "; distractor classes and DontCare regions ignored",
+        "fit": "sklearn IsotonicRegression",
+    }
+    return ScoreProfile(detector, maps, fitted_on, quality)
