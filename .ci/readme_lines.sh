@@ -15,7 +15,10 @@ clean_path="$(printf '%s' "$PATH" | tr ':' '\n' | grep -v -e '/\.venv/bin$' -e "
 for i in 0 1; do
   echo "readme_lines: line $((i + 1)): ${lines[$i]}"
   start=$(date +%s)
-  (cd "$dir" && env -u VIRTUAL_ENV -u PYTHONPATH -u PYTHONHOME PATH="$clean_path" \
-    bash --noprofile --norc -c "${lines[$i]}")
+  if ! (cd "$dir" && env -u VIRTUAL_ENV -u PYTHONPATH -u PYTHONHOME PATH="$clean_path" \
+    bash --noprofile --norc -c "${lines[$i]}"); then
+    echo "readme_lines: line $((i + 1)) FAILED after $(($(date +%s) - start)) s" >&2
+    exit 1
+  fi
   echo "readme_lines: line $((i + 1)) succeeded in $(($(date +%s) - start)) s"
 done
