@@ -15,20 +15,22 @@ from __future__ import annotations
 import argparse
 import json
 import os
-from pathlib import Path
 from typing import Any
 
 from app.common import peak_rss_mb
-from app.inputs import check_kitti_root, default_kitti_root, kitti_root_help, positive_int
+from app.inputs import (
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+    positive_int,
+)
 from tracker.config import load_config
 from tracker.io.fileio import write_text_atomic
 from tracker.io.synthetic import synthetic_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
-    )
+    add_kitti_root_argument(parser)
     parser.add_argument(
         "--config", default="kitti", help="built-in config name (kitti, ...) or a TOML file"
     )

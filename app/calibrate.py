@@ -6,7 +6,11 @@ import argparse
 import json
 from pathlib import Path
 
-from app.inputs import check_kitti_root, default_kitti_root, kitti_root_help
+from app.inputs import (
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.calibration import profile_toml
 from tracker.errors import InputError
 from tracker.io.convert.kitti import VALIDATION_SEQS
@@ -14,9 +18,7 @@ from tracker.io.fileio import write_text_atomic
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
-    )
+    add_kitti_root_argument(parser)
     parser.add_argument(
         "--detector",
         required=True,

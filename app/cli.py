@@ -194,7 +194,7 @@ def _warm_kernels() -> None:
     if not kernels_cold():
         return
     print(
-        "mctrack: compiling the tracker kernels (first run on this machine only, 20-40 s)...",
+        "mctrack: compiling the tracker kernels (first run on this machine only, 20-60 s)...",
         file=sys.stderr,
         flush=True,
     )

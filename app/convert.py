@@ -11,7 +11,12 @@ import sys
 import time
 from pathlib import Path
 
-from app.inputs import NO_POSES_NOTE, check_kitti_root, default_kitti_root, kitti_root_help
+from app.inputs import (
+    NO_POSES_NOTE,
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.errors import InputError
 from tracker.frame import Frame
 
@@ -28,9 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="KITTI tracking (labels, AB3DMOT/KITTI-object detections, ORB-SLAM3 or oxts poses)",
         description="Write OUT/detections.json and OUT/gt.json (when labels exist).",
     )
-    kitti.add_argument(
-        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
-    )
+    add_kitti_root_argument(kitti)
     kitti.add_argument(
         "--split",
         default="training",

@@ -31,6 +31,21 @@ def kitti_root_help() -> str:
     )
 
 
+def add_kitti_root_argument(parser: argparse.ArgumentParser) -> None:
+    """``--kitti-root DIR``; None unless given (:func:`default_kitti_root` is read at run time)."""
+    parser.add_argument(
+        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
+    )
+
+
+def add_detector_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--detector",
+        default="pointrcnn",
+        help="detections folder under <root>/detections/ (pointrcnn, virconv, second_iou, ...)",
+    )
+
+
 def check_kitti_root(
     root: Path,
     *,

@@ -12,7 +12,13 @@ from typing import TYPE_CHECKING, Any
 from tqdm import tqdm
 
 from app.common import peak_rss_mb
-from app.inputs import NO_POSES_NOTE, check_kitti_root, default_kitti_root, kitti_root_help
+from app.inputs import (
+    NO_POSES_NOTE,
+    add_detector_argument,
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.calibration import calibrate_frames, resolve_profile
 from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
 from tracker.frame import Frame
@@ -25,14 +31,8 @@ if TYPE_CHECKING:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
-    )
-    parser.add_argument(
-        "--detector",
-        default="pointrcnn",
-        help="detections folder under <root>/detections/ (pointrcnn, virconv, second_iou, ...)",
-    )
+    add_kitti_root_argument(parser)
+    add_detector_argument(parser)
     parser.add_argument(
         "--seqs",
         default=",".join(VALIDATION_SEQS),

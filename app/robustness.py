@@ -22,7 +22,12 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from app.inputs import check_kitti_root, default_kitti_root, kitti_root_help
+from app.inputs import (
+    add_detector_argument,
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.calibration import calibrate_frames, resolve_profile
 from tracker.config import ScoreSource, load_config
 from tracker.errors import InputError
@@ -39,14 +44,8 @@ KEPT_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "F
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
-    )
-    parser.add_argument(
-        "--detector",
-        default="pointrcnn",
-        help="detections folder under <root>/detections/ (pointrcnn, virconv, second_iou, ...)",
-    )
+    add_kitti_root_argument(parser)
+    add_detector_argument(parser)
     parser.add_argument(
         "--seqs",
         default=",".join(VALIDATION_SEQS),

@@ -23,7 +23,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from app.inputs import check_kitti_root, default_kitti_root, kitti_root_help
+from app.inputs import (
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.config import load_config
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
@@ -52,9 +56,7 @@ _FRAMES: dict[tuple[str, str], dict[str, list[Frame]]] = {}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
-    )
+    add_kitti_root_argument(parser)
     parser.add_argument(
         "--class",
         dest="cls",
