@@ -23,6 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from app.track import parse_frame_range
+    from tracker.calibration import calibrate_frames, find_profile
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
     from viz.record import record_scene
@@ -40,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
     frames = read_baseversion(detections, fallback_frame_rate_hz=config.frame_rate_hz)["0001"]
     gt = read_baseversion(gt_file, fallback_frame_rate_hz=config.frame_rate_hz)["0001"]
     frames, gt = frames[window], gt[window]
+    frames = calibrate_frames(frames, find_profile("pointrcnn"))  # the sample is PointRCNN's
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "demo.rrd"

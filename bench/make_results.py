@@ -114,6 +114,15 @@ def tune_section(paths: list[str]) -> list[str]:
     return [*lines, ""]
 
 
+def robustness_section(path: str | None) -> list[str]:
+    if not path:
+        return []
+    from app.robustness import markdown_lines
+
+    lines = markdown_lines(json.loads(Path(path).read_text()))
+    return ["## Robustness to detection noise", *lines[1:]]
+
+
 def _val() -> tuple[str, ...]:
     from tracker.io.convert.kitti import VALIDATION_SEQS
 
@@ -126,6 +135,9 @@ def main() -> int:
     parser.add_argument("--skip-speed", action="store_true")
     parser.add_argument(
         "--tune", nargs="*", default=[], help="tune.json files of `mctrack tune` to quote"
+    )
+    parser.add_argument(
+        "--robustness", default=None, help="robustness.json of `mctrack robustness` to quote"
     )
     parser.add_argument("--out", default=str(ROOT / "docs" / "results.md"))
     args = parser.parse_args()
@@ -220,6 +232,7 @@ def main() -> int:
         "",
         table(detector_rows),
         *tune_section(args.tune),
+        *robustness_section(args.robustness),
         "## Ablation: BEV cost x matching stages (car, online)",
         "",
         "Each cost has its own range, so each gets a comparable similarity threshold: IoU >= 0.1,"

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from tracker.boxes import Boxes
+from tracker.calibration import calibrate_frames, find_profile
 from tracker.categories import category_index
 from tracker.config import load_config
 from tracker.errors import InputError
@@ -196,6 +197,7 @@ def test_sample_sequence_regression() -> None:
 
     cfg = load_config("kitti")
     frames = read_baseversion(SAMPLE / "detections.json.gz")["0001"]
+    frames = calibrate_frames(frames, find_profile("pointrcnn"))  # the sample is PointRCNN's
     outputs = run_scene(frames, cfg).outputs
     ids = {int(t) for o in outputs for t in o.boxes.track_id}
     result = Path(pytest.importorskip("tempfile").mkdtemp())
