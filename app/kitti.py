@@ -6,11 +6,11 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from tqdm import tqdm
-
+from app import scenes
 from app.common import peak_rss_mb
 from app.inputs import (
     NO_POSES_NOTE,
@@ -19,15 +19,15 @@ from app.inputs import (
     check_kitti_root,
     default_kitti_root,
 )
-from tracker.calibration import calibrate_frames, resolve_profile
+from app.scenes import SceneRecord
+from tracker.calibration import ScoreProfile, calibrate_frames, resolve_profile
 from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
+from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
-from tracker.io.fileio import write_text_atomic
-from tracker.io.writers import write_kitti_sequence, write_tracks_file
-
-if TYPE_CHECKING:
-    from tracker.pipeline import SceneResult
+from tracker.io.fileio import write_bytes_atomic, write_text_atomic
+from tracker.io.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
+from tracker.pipeline import run_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -83,6 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also write a Rerun recording per sequence to OUT/recordings/<seq>.rrd",
     )
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    scenes.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -107,9 +108,74 @@ def run(args: argparse.Namespace) -> int:
         motion=args.motion,
         record=out / "recordings" if args.record else None,
         out=out,
+        parallel=scenes.from_args(args),
     )
     _print_summary(summary)
-    return 0
+    return scenes.print_failures("kitti", summary["failed"])
+
+
+@dataclass(frozen=True, slots=True)
+class KittiSceneJob:
+    """One KITTI sequence as a task: convert it (by path), track it, write its files."""
+
+    kitti_root: Path
+    detector: str
+    poses: str | None
+    classes: tuple[str, ...]
+    config: TrackerConfig
+    out: Path
+    label_dir: Path
+    with_gt: bool
+    keep: bool  # send the frames and outputs back (the motion metrics need them)
+    record: Path | None
+    calibrate: bool = False  # recompute the scores from the raw ones (score_source)
+    profile: ScoreProfile | None = None
+
+    def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
+        from tracker.io.convert.kitti import convert_kitti
+
+        t0 = time.perf_counter()
+        detections, gt = convert_kitti(
+            self.kitti_root,
+            seqs=[scene],
+            detector=self.detector,
+            poses=self.poses,
+            classes=self.classes,
+            with_gt=self.with_gt,
+        )
+        convert_secs = time.perf_counter() - t0
+        ((seq, frames),) = detections.items()  # the sequence's normalised name ("14" -> "0014")
+        if self.calibrate:
+            frames = calibrate_frames(frames, self.profile)
+        gt_frames = (gt or {}).get(seq)
+        result = run_scene(frames, self.config)
+        t1 = time.perf_counter()
+        write_kitti_sequence(self.out / "data" / f"{seq}.txt", result.outputs, frames)
+        write_bytes_atomic(
+            scenes.part_path(self.out, index, "json"),
+            tracks_scene_json(seq, frames, result.outputs),
+        )
+        write_secs = time.perf_counter() - t1
+        if self.record is not None:  # outside the timed tracker region
+            from viz.record import record_scene
+
+            labels_ok = self.label_dir if (self.label_dir / f"{seq}.txt").is_file() else None
+            record_scene(
+                frames,
+                self.config,
+                gt_frames,
+                self.record / f"{seq}.rrd",
+                labels_dir=labels_ok,
+                motion_metrics=False,
+            )
+        return SceneRecord(
+            index,
+            seq,
+            frames=len(frames),
+            tracker_seconds=result.tracker_seconds,
+            info={"convert_seconds": convert_secs, "write_seconds": write_secs},
+            kept=(frames, gt_frames, result.outputs) if self.keep else None,
+        )
 
 
 def run_kitti(
@@ -129,16 +195,20 @@ def run_kitti(
     out: Path,
     config_overrides: dict[str, Any] | None = None,
     quiet: bool = False,
+    parallel: scenes.Parallelism = scenes.SEQUENTIAL,
 ) -> dict[str, Any]:
     """The end-to-end KITTI job; returns (and writes) ``out/summary.json``.
+
+    Each sequence is one task (:mod:`app.scenes`: sequential, ``parallel.workers`` processes or
+    Ray): it converts, tracks and writes ``out/data/<seq>.txt``; ``out/tracks.json`` is
+    assembled from the tasks' parts in sequence order and the evaluation runs once at the end,
+    when every sequence succeeded. A sequence whose input is bad fails alone
+    (``summary["failed"]``).
 
     With ``motion`` the labels are converted too and the motion metrics
     (:func:`tracker.eval.motion_eval.evaluate_motion`) go to ``summary["motion"]``,
     ``out/motion.md`` and ``out/motion_velocity.png``.
     """
-    from tracker.io.convert.kitti import convert_kitti
-    from tracker.pipeline import run_scene  # scipy: imported when running, not for --help
-
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
     if mode == "offline" and f"{config_name}_offline" in BUILTIN:
@@ -146,70 +216,60 @@ def run_kitti(
     if mode:
         overrides["mode"] = mode
     config = load_config(config_name, overrides=overrides)
-    t0 = time.perf_counter()
-    detections, gt = convert_kitti(
-        kitti_root,
-        seqs=seqs,
+    label_dir = labels or kitti_root / "training" / "label_02"
+    calibrate, found, calibration = score_source(config, detector, profile)
+    job = KittiSceneJob(
+        kitti_root=kitti_root,
         detector=detector,
         poses=poses,
-        classes=classes,
+        classes=tuple(classes),
+        config=config,
+        out=out,
+        label_dir=label_dir,
         with_gt=motion or record is not None,
+        keep=motion,
+        record=record,
+        calibrate=calibrate,
+        profile=found,
     )
-    detections, calibration = apply_score_source(detections, config, detector, profile)
-    convert_secs = time.perf_counter() - t0
-
-    results: dict[str, SceneResult] = {}
-    total_frames = sum(len(f) for f in detections.values())
-    with tqdm(total=total_frames, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
-        for seq, frames in detections.items():
-            bar.set_description(f"seq {seq}")
-            results[seq] = run_scene(frames, config)
-            bar.update(len(frames))
-    tracker_secs = sum(r.tracker_seconds for r in results.values())
-    label_dir = labels or kitti_root / "training" / "label_02"
-    if record is not None:  # outside the timed tracker region
-        from viz.record import record_scene
-
-        for seq, frames in detections.items():
-            labels_ok = label_dir if (label_dir / f"{seq}.txt").is_file() else None
-            record_scene(
-                frames,
-                config,
-                (gt or {}).get(seq),
-                record / f"{seq}.rrd",
-                labels_dir=labels_ok,
-                motion_metrics=False,
-            )
-
+    t0 = time.perf_counter()
+    records = scenes.run_scenes(job, seqs, parallel=parallel, quiet=quiet)
+    wall_secs = time.perf_counter() - t0
+    ok = [r for r in records if r.error is None]
     data_dir = out / "data"
-    for seq, frames in detections.items():
-        write_kitti_sequence(data_dir / f"{seq}.txt", results[seq].outputs, frames)
-    write_tracks_file(
-        out / "tracks.json", {s: (detections[s], results[s].outputs) for s in detections}
+    write_tracks_parts(
+        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
     )
+    scenes.remove_parts(out)
 
+    total_frames = sum(r.frames for r in ok)
+    tracker_secs = sum(r.tracker_seconds for r in ok)
     summary: dict[str, Any] = {
         "dataset": "kitti",
         "detector": detector,
-        "sequences": list(detections),
+        "sequences": [r.scene for r in records],
         "mode": config.mode.value,
         "classes": classes,
         "frames": total_frames,
         "tracker_seconds": round(tracker_secs, 4),
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
         "score_calibration": calibration,
-        "convert_seconds": round(convert_secs, 3),
+        "convert_seconds": round(sum(r.info["convert_seconds"] for r in ok), 3),
+        "write_seconds": round(sum(r.info["write_seconds"] for r in ok), 3),
         "peak_rss_mb": peak_rss_mb(),
+        **scenes.summary_fields(records, parallel, wall_secs),
         "config": config_to_dict(config),
     }
     if evaluate:
-        missing = [s for s in detections if not (label_dir / f"{s}.txt").is_file()]
-        if missing:
+        missing = [r.scene for r in ok if not (label_dir / f"{r.scene}.txt").is_file()]
+        if summary["failed"]:
+            summary["evaluation"] = f"skipped: sequences failed: {list(summary['failed'])}"
+        elif missing:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
         else:
             from tracker.eval.kitti import absent_classes, evaluate_kitti
 
-            lengths = {s: len(detections[s]) for s in detections}
+            lengths = {r.scene: r.frames for r in ok}
             metrics = evaluate_kitti(
                 label_dir=label_dir, result_dir=data_dir, seq_lengths=lengths, classes=classes
             )
@@ -223,36 +283,32 @@ def run_kitti(
                 }
             summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
     if motion:
-        summary["motion"] = _motion(detections, gt, results, classes, out)
+        detections = {r.scene: r.kept[0] for r in ok}
+        gt = {r.scene: r.kept[1] for r in ok if r.kept[1] is not None}
+        outputs = {r.scene: r.kept[2] for r in ok}
+        summary["motion"] = _motion(detections, gt or None, outputs, classes, out)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
     return summary
 
 
-def apply_score_source(
-    detections: dict[str, list[Frame]],
-    config: TrackerConfig,
-    detector: str,
-    profile: Path | None,
-) -> tuple[dict[str, list[Frame]], str]:
-    """Scores in the units the config's thresholds expect, and a note of what was used."""
+def score_source(
+    config: TrackerConfig, detector: str, profile: Path | None
+) -> tuple[bool, ScoreProfile | None, str]:
+    """Whether to recalibrate the scores, with which profile (None: the fallback), and a note of
+    what was used. Resolved once by the driver; each scene task applies it to its own frames."""
     if config.scores is ScoreSource.AS_GIVEN:
-        return detections, "none (scores as converted; the config asks for scores = 'as_given')"
+        return False, None, "none (scores as converted; the config asks for scores = 'as_given')"
     found = resolve_profile(detector, profile)
-    every = [f for frames in detections.values() for f in frames]
-    calibrated = calibrate_frames(every, found)
-    out, i = {}, 0
-    for seq, frames in detections.items():
-        out[seq], i = calibrated[i : i + len(frames)], i + len(frames)
     if found is None:
-        return out, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
-    return out, f"profile {profile or detector + ' (shipped)'}"
+        return True, None, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
+    return True, found, f"profile {profile or detector + ' (shipped)'}"
 
 
 def _motion(
     detections: dict[str, Any],
     gt: dict[str, Any] | None,
-    results: dict[str, SceneResult],
+    outputs: dict[str, list[TrackOutput]],
     classes: list[str],
     out: Path,
 ) -> dict[str, Any] | str:
@@ -265,7 +321,7 @@ def _motion(
     motion = evaluate_motion(
         detections,
         gt,
-        {s: r.outputs for s, r in results.items()},
+        outputs,
         classes=classes,
         plot_path=out / MOTION_PLOT,
     )

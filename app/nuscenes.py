@@ -5,20 +5,70 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
+from app import scenes
 from app.common import peak_rss_mb
 from app.inputs import recording_path
-from tracker.config import TrackingMode, config_to_dict, load_config
+from app.scenes import SceneRecord
+from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import compact_json, write_bytes_atomic, write_text_atomic
+
+
+@dataclass(frozen=True, slots=True)
+class NuscenesSceneJob:
+    """One nuScenes scene as a task: track its frames (converted once, by the caller, from the
+    shared tables), write its parts of the submission and of the tracks file."""
+
+    config: TrackerConfig
+    out: Path
+    coasting_score: float | None
+    record: bool
+    keep: bool  # send the outputs back (the motion metrics need them)
+
+    def process(
+        self, index: int, scene: str, data: tuple[list[Frame], list[Frame] | None] | None
+    ) -> SceneRecord:
+        """``data``: the scene's detection frames and (for the recording) ground truth."""
+        from tracker.io.nuscenes_writer import nuscenes_results
+        from tracker.io.writers import tracks_scene_json
+        from tracker.pipeline import run_scene
+
+        if data is None:
+            raise ValueError("NuscenesSceneJob needs the scene's frames")
+        frames, gt_frames = data
+        info: dict[str, Any] = {}
+        if self.record:
+            from viz.record import record_scene
+
+            path = recording_path(self.out, scene)
+            result = record_scene(frames, self.config, gt_frames, path)
+            info["recording"] = str(path)
+        else:
+            result = run_scene(frames, self.config)
+        outputs = result.outputs
+        per_sample = nuscenes_results(
+            {scene: (frames, outputs)}, coasting_score=self.coasting_score
+        )
+        info["boxes"] = sum(len(v) for v in per_sample.values())
+        write_bytes_atomic(scenes.part_path(self.out, index, "nusc.json"), compact_json(per_sample))
+        write_bytes_atomic(
+            scenes.part_path(self.out, index, "json"), tracks_scene_json(scene, frames, outputs)
+        )
+        return SceneRecord(
+            index,
+            scene,
+            frames=len(frames),
+            tracker_seconds=result.tracker_seconds,
+            info=info,
+            kept=outputs if self.keep else None,
+        )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,6 +101,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(viz.record.record_scene; needs rerun-sdk)",
     )
     parser.add_argument("--out", required=True, help="output folder")
+    scenes.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -61,15 +112,18 @@ def run(args: argparse.Namespace) -> int:
         detections=Path(args.detections),
         config_name=args.config,
         mode=args.mode,
-        scenes=[s.strip() for s in args.scenes.split(",") if s.strip()] if args.scenes else None,
+        scene_names=[s.strip() for s in args.scenes.split(",") if s.strip()]
+        if args.scenes
+        else None,
         score_min=args.score_min,
         evaluate=not args.no_eval,
         motion=args.motion,
         record=args.record,
         out=Path(args.out),
+        parallel=scenes.from_args(args),
     )
     _print_summary(summary)
-    return 0
+    return scenes.print_failures("nuscenes", summary["failed"])
 
 
 def run_nuscenes(
@@ -81,12 +135,13 @@ def run_nuscenes(
     out: Path,
     config_name: str | Path = "nuscenes",
     mode: str | None = None,
-    scenes: list[str] | None = None,
+    scene_names: list[str] | None = None,
     score_min: float = 0.0,
     evaluate: bool = True,
     motion: bool = False,
     record: bool = False,
     quiet: bool = False,
+    parallel: scenes.Parallelism = scenes.SEQUENTIAL,
 ) -> dict[str, Any]:
     """The end-to-end nuScenes job; returns (and writes) ``out/summary.json``.
 
@@ -97,9 +152,8 @@ def run_nuscenes(
     """
     from tracker.eval.nuscenes import evaluate_nuscenes, load_results_with_devkit
     from tracker.io.convert.nuscenes import convert_nuscenes, load_nuscenes
-    from tracker.io.nuscenes_writer import write_nuscenes_results
-    from tracker.io.writers import write_tracks_file
-    from tracker.pipeline import run_scene
+    from tracker.io.nuscenes_writer import write_nuscenes_parts
+    from tracker.io.writers import write_tracks_parts
 
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     has_gt = not version.endswith("test")
@@ -117,43 +171,43 @@ def run_nuscenes(
     )
     del nusc  # several GB on v1.0-trainval; the evaluation loads its own copy
     det_scenes = conv.detections
-    if scenes:
-        missing = [s for s in scenes if s not in det_scenes]
+    if scene_names:
+        missing = [s for s in scene_names if s not in det_scenes]
         if missing:
             raise InputError(f"--scenes: not in split {split!r}: {missing}")
-        det_scenes = {s: det_scenes[s] for s in scenes}
+        det_scenes = {s: det_scenes[s] for s in scene_names}
     convert_secs = time.perf_counter() - t0
 
-    outputs: dict[str, list[TrackOutput]] = {}
-    tracker_secs = 0.0
-    recordings: list[str] = []
-    total_frames = sum(len(f) for f in det_scenes.values())
-    with tqdm(total=total_frames, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
-        for name, frames in det_scenes.items():
-            bar.set_description(name)
-            if record:
-                from viz.record import record_scene
-
-                gt_frames = conv.gt.get(name) if conv.gt else None
-                path = recording_path(out, name)
-                result = record_scene(frames, config, gt_frames, path)
-                outputs[name], seconds = result.outputs, result.tracker_seconds
-                recordings.append(str(path))
-            else:
-                scene_result = run_scene(frames, config)
-                outputs[name], seconds = scene_result.outputs, scene_result.tracker_seconds
-            tracker_secs += seconds
-            bar.update(len(frames))
-
-    results = {s: (det_scenes[s], outputs[s]) for s in det_scenes}
     coasting_score = None if config.mode is TrackingMode.OFFLINE else 0.0
+    job = NuscenesSceneJob(
+        config,
+        out,
+        coasting_score=coasting_score,
+        record=record,
+        keep=motion,
+    )
+    t1 = time.perf_counter()
+    gt_of = conv.gt if record and conv.gt else {}
+    inputs = {s: (f, gt_of.get(s)) for s, f in det_scenes.items()}
+    records = scenes.run_scenes(
+        job, list(det_scenes), inputs=inputs, parallel=parallel, quiet=quiet
+    )
+    wall_secs = time.perf_counter() - t1
+    ok = [r for r in records if r.error is None]
     out.mkdir(parents=True, exist_ok=True)
     results_path = out / "results.json"
-    n_boxes = write_nuscenes_results(
-        results_path, results, meta=conv.meta, coasting_score=coasting_score
+    write_nuscenes_parts(
+        results_path, [scenes.part_path(out, r.index, "nusc.json") for r in ok], meta=conv.meta
     )
+    write_tracks_parts(
+        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
+    )
+    scenes.remove_parts(out)
     load_results_with_devkit(results_path)  # the devkit's own format check
-    write_tracks_file(out / "tracks.json", results)
+    n_boxes = sum(r.info["boxes"] for r in ok)
+    tracker_secs = sum(r.tracker_seconds for r in ok)
+    total_frames = sum(len(f) for f in det_scenes.values())
+    recordings = [r.info["recording"] for r in ok if "recording" in r.info]
 
     summary: dict[str, Any] = {
         "dataset": "nuscenes",
@@ -170,6 +224,7 @@ def run_nuscenes(
         "convert_seconds": round(convert_secs, 3),
         "peak_rss_mb": peak_rss_mb(),
         "skipped_detections": dict(sorted(conv.skipped_detections.items())),
+        **scenes.summary_fields(records, parallel, wall_secs),
         "config": config_to_dict(config),
     }
     if recordings:
@@ -178,14 +233,18 @@ def run_nuscenes(
         summary["evaluation"] = "skipped (--no-eval)"
     elif not has_gt:
         summary["evaluation"] = "skipped: the test split has no public annotations (submit it)"
-    elif scenes:
+    elif scene_names:
         summary["evaluation"] = "skipped: --scenes selects part of the split"
+    elif summary["failed"]:
+        summary["evaluation"] = f"skipped: scenes failed: {list(summary['failed'])}"
     else:
         summary["metrics"] = evaluate_nuscenes(
             results_path, dataroot=dataroot, version=version, split=split, out_dir=out / "eval"
         )
     if motion:
-        summary["motion"] = _motion(det_scenes, conv.gt, outputs, config.categories, out)
+        outputs = {r.scene: r.kept for r in ok}
+        det_ok = {s: det_scenes[s] for s in outputs}
+        summary["motion"] = _motion(det_ok, conv.gt, outputs, config.categories, out)
     write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
     return summary
 

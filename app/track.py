@@ -5,16 +5,25 @@ from __future__ import annotations
 
 import argparse
 import logging
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from app import scenes
+from app.scenes import SceneRecord
 from tracker.calibration import calibrate_frames, load_profile
 from tracker.config import ScoreSource, TrackerConfig, load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
 from tracker.io.baseversion import LoadReport, read_baseversion
-from tracker.io.writers import write_kitti_sequence, write_tracks_file
+from tracker.io.fileio import write_bytes_atomic
+from tracker.io.writers import (
+    tracks_scene_json,
+    write_kitti_sequence,
+    write_tracks_parts,
+)
+from tracker.pipeline import run_scene
 
 LOG = logging.getLogger("mctrack.track")
 
@@ -42,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also write KITTI label_02-style files to OUT/data/<scene>.txt",
     )
     parser.add_argument("--out", required=True, help="output folder")
+    scenes.add_arguments(parser)
 
 
 def parse_frame_range(text: str | None) -> slice:
@@ -66,6 +76,38 @@ def select_scenes(
     return {s: f[frames] for s, f in scenes.items()}
 
 
+@dataclass(frozen=True, slots=True)
+class TrackSceneJob:
+    """One scene of a BaseVersion file as a task: track it (its frames are given), write its
+    part of the tracks file and, when asked, its KITTI result file."""
+
+    config: TrackerConfig
+    out: Path
+    kitti_results: bool
+
+    def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
+        if frames is None:
+            raise ValueError("TrackSceneJob needs the scene's frames")
+        if self.kitti_results and (Path(scene).name != scene or scene in ("", ".", "..")):
+            # the scene name comes from the input: it must not lead outside OUT/data
+            raise InputError(f"scene {scene!r}: not usable as a file name (--kitti-results)")
+        result = run_scene(frames, self.config)
+        write_bytes_atomic(
+            scenes.part_path(self.out, index, "json"),
+            tracks_scene_json(scene, frames, result.outputs),
+        )
+        if self.kitti_results:
+            write_kitti_sequence(self.out / "data" / f"{scene}.txt", result.outputs, frames)
+        ids = {int(t) for o in result.outputs for t in o.boxes.track_id}
+        return SceneRecord(
+            index,
+            scene,
+            frames=len(frames),
+            tracker_seconds=result.tracker_seconds,
+            info={"tracks": len(ids)},
+        )
+
+
 def _calibrated(
     scenes: dict[str, list[Frame]], config: TrackerConfig, profile: str | None, source: str
 ) -> dict[str, list[Frame]]:
@@ -86,27 +128,27 @@ def _calibrated(
 
 
 def run(args: argparse.Namespace) -> int:
-    from tracker.pipeline import run_scene  # scipy: imported when running, not for --help
-
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     report = LoadReport()
-    scenes = read_baseversion(
+    scene_frames = read_baseversion(
         args.input, fallback_frame_rate_hz=config.frame_rate_hz, report=report
     )
-    scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames))
-    scenes = _calibrated(scenes, config, args.profile, args.input)
+    scene_frames = select_scenes(scene_frames, args.scenes, parse_frame_range(args.frames))
+    scene_frames = _calibrated(scene_frames, config, args.profile, args.input)
     out = Path(args.out)
-    results = {s: run_scene(f, config) for s, f in scenes.items()}
-    write_tracks_file(out / "tracks.json", {s: (scenes[s], results[s].outputs) for s in scenes})
-    if args.kitti_results:
-        for s, frames in scenes.items():
-            write_kitti_sequence(out / "data" / f"{s}.txt", results[s].outputs, frames)
-    frames = sum(len(f) for f in scenes.values())
-    secs = sum(r.tracker_seconds for r in results.values())
-    ids = {(s, int(t)) for s, r in results.items() for o in r.outputs for t in o.boxes.track_id}
+    job = TrackSceneJob(config, out, args.kitti_results)
+    parallel = scenes.from_args(args)
+    records = scenes.run_scenes(job, list(scene_frames), inputs=scene_frames, parallel=parallel)
+    ok = [r for r in records if r.error is None]
+    write_tracks_parts(
+        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
+    )
+    scenes.remove_parts(out)
+    frames = sum(r.frames for r in ok)
+    secs = sum(r.tracker_seconds for r in ok)
     print(
-        f"{len(scenes)} scenes, {frames} frames, {len(ids)} tracks, "
+        f"{len(ok)} scenes, {frames} frames, {sum(r.info['tracks'] for r in ok)} tracks, "
         f"{frames / secs if secs else 0:.0f} frames/s -> {out / 'tracks.json'}"
     )
     if report.boxes_skipped:
@@ -114,4 +156,4 @@ def run(args: argparse.Namespace) -> int:
             f"skipped {report.boxes_skipped} boxes of unknown categories: "
             f"{dict(report.skipped_categories)}"
         )
-    return 0
+    return scenes.print_failures("track", {r.scene: r.error for r in records if r.error})

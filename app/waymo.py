@@ -8,16 +8,21 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
+import time
+from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from tqdm import tqdm
-
+from app import scenes
 from app.inputs import recording_path
-from tracker.config import config_to_dict, load_config
-from tracker.events import TrackOutput
-from tracker.io.fileio import write_text_atomic
+from app.scenes import SceneRecord
+from tracker.config import TrackerConfig, config_to_dict, load_config
+from tracker.errors import InputError
+from tracker.frame import Frame
+from tracker.io.fileio import write_bytes_atomic, write_text_atomic
+from tracker.io.waymo_writer import RESULT_TYPES
+from tracker.io.writers import tracks_scene_json, write_tracks_parts
 
 
 def _csv(text: str) -> list[str]:
@@ -43,6 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also write a Rerun recording per segment to OUT/recordings/<segment>.rrd",
     )
     parser.add_argument("--out", required=True, help="output folder")
+    scenes.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -56,12 +62,58 @@ def run(args: argparse.Namespace) -> int:
         motion=args.motion,
         record=args.record,
         out=Path(args.out),
+        parallel=scenes.from_args(args),
     )
     print(
         f"{len(summary['segments'])} segments, {summary['frames']} frames, "
         f"{summary['tracker_fps']} frames/s -> {summary['results']} {summary['boxes_written']}"
     )
-    return 0
+    return scenes.print_failures("waymo", summary["failed"])
+
+
+@dataclass(frozen=True, slots=True)
+class WaymoSceneJob:
+    """One Waymo segment as a task: convert it (by path), track it, write its result files."""
+
+    data_root: Path
+    detections: Path
+    gt: Path | None
+    config: TrackerConfig
+    out: Path
+    keep: bool  # send the frames and outputs back (the motion metrics need them)
+    record: bool = False  # also a Rerun recording, OUT/recordings/<segment>.rrd
+
+    def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
+        from tracker.io.convert.waymo import convert_waymo
+        from tracker.io.waymo_writer import write_waymo_results
+        from tracker.pipeline import run_scene
+
+        conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
+        frames = conv.detections[scene]
+        gt_frames = conv.gt[scene] if conv.gt is not None else None
+        info: dict[str, Any] = {"skipped_types": dict(conv.skipped_types)}
+        if self.record:
+            from viz.record import record_scene
+
+            path = recording_path(self.out, scene)
+            result = record_scene(frames, self.config, gt_frames, path)
+            info["recording"] = str(path)
+        else:
+            result = run_scene(frames, self.config)
+        written = write_waymo_results(self.out / "results", {scene: (frames, result.outputs)})
+        write_bytes_atomic(
+            scenes.part_path(self.out, index, "json"),
+            tracks_scene_json(scene, frames, result.outputs),
+        )
+        info["written"] = written
+        return SceneRecord(
+            index,
+            scene,
+            frames=len(frames),
+            tracker_seconds=result.tracker_seconds,
+            info=info,
+            kept=(frames, gt_frames, result.outputs) if self.keep else None,
+        )
 
 
 def run_waymo(
@@ -76,59 +128,61 @@ def run_waymo(
     motion: bool = False,
     record: bool = False,
     quiet: bool = False,
+    parallel: scenes.Parallelism = scenes.SEQUENTIAL,
 ) -> dict[str, Any]:
-    """The end-to-end Waymo job; returns (and writes) ``out/summary.json``; with ``record``
-    also one Rerun recording per segment in ``out/recordings/``."""
-    from tracker.errors import InputError
-    from tracker.io.convert.waymo import convert_waymo
-    from tracker.io.waymo_writer import write_waymo_results
-    from tracker.io.writers import write_tracks_file
-    from tracker.pipeline import run_scene
+    """The end-to-end Waymo job; returns (and writes) ``out/summary.json``.
 
+    Each segment is one task (:mod:`app.scenes`); a segment with bad input fails alone.
+    """
     if motion and gt is None:
         raise InputError("--motion needs --gt (the ground-truth npz folder)")
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
-    conv = convert_waymo(data_root, detections, gt=gt, segments=segments)
-    outputs: dict[str, list[TrackOutput]] = {}
-    seconds = 0.0
-    frames = sum(len(f) for f in conv.detections.values())
-    recordings: list[str] = []
-    with tqdm(total=frames, unit="frame", disable=quiet or None, file=sys.stderr) as bar:
-        for name, scene_frames in conv.detections.items():
-            if record:
-                from viz.record import record_scene
+    from tracker.io.convert.waymo import segment_names
 
-                path = recording_path(out, name)
-                gt_frames = conv.gt.get(name) if conv.gt else None
-                result = record_scene(scene_frames, config, gt_frames, path)
-                recordings.append(str(path))
-            else:
-                result = run_scene(scene_frames, config)
-            outputs[name], seconds = result.outputs, seconds + result.tracker_seconds
-            bar.update(len(scene_frames))
-    results = {s: (conv.detections[s], outputs[s]) for s in conv.detections}
-    written = write_waymo_results(out / "results", results)
-    write_tracks_file(out / "tracks.json", results)
+    names = segment_names(data_root, detections, segments)
+    job = WaymoSceneJob(data_root, detections, gt, config, out, keep=motion, record=record)
+    t0 = time.perf_counter()
+    records = scenes.run_scenes(job, names, parallel=parallel, quiet=quiet)
+    wall_secs = time.perf_counter() - t0
+    ok = [r for r in records if r.error is None]
+    write_tracks_parts(
+        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
+    )
+    scenes.remove_parts(out)
+    written = dict.fromkeys(RESULT_TYPES, 0)
+    skipped: Counter[int] = Counter()
+    for r in ok:
+        written.update({k: written[k] + v for k, v in r.info["written"].items()})
+        skipped.update(r.info["skipped_types"])
+    frames = sum(r.frames for r in ok)
+    seconds = sum(r.tracker_seconds for r in ok)
     summary: dict[str, Any] = {
         "dataset": "waymo",
-        "segments": list(conv.detections),
+        "segments": [r.scene for r in ok],
         "frames": frames,
         "results": str(out / "results"),
         "boxes_written": written,
         "tracker_seconds": round(seconds, 4),
         "tracker_fps": round(frames / seconds, 1) if seconds > 0 else None,
-        "skipped_types": {str(k): v for k, v in sorted(conv.skipped_types.items())},
+        "skipped_types": {str(k): v for k, v in sorted(skipped.items())},
+        **scenes.summary_fields(records, parallel, wall_secs),
         "config": config_to_dict(config),
     }
+    recordings = [r.info["recording"] for r in ok if "recording" in r.info]
     if recordings:
         summary["recordings"] = recordings
-    if motion and conv.gt is not None:
+    if motion and gt is not None:
         from tracker.eval.motion_eval import evaluate_motion
         from tracker.io.baseversion import write_baseversion
 
-        write_baseversion(out / "gt.json", conv.gt)
+        det_scenes = {r.scene: r.kept[0] for r in ok}
+        gt_scenes = {r.scene: r.kept[1] for r in ok}
+        write_baseversion(out / "gt.json", gt_scenes)
         summary["motion"] = evaluate_motion(
-            conv.detections, conv.gt, outputs, classes=["car", "pedestrian", "cyclist"]
+            det_scenes,
+            gt_scenes,
+            {r.scene: r.kept[2] for r in ok},
+            classes=["car", "pedestrian", "cyclist"],
         )
     write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
     return summary

@@ -97,3 +97,19 @@ def test_nuscenes_record(dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path
     assert summary["evaluation"].startswith("skipped: --scenes")
     rrd = out / "recordings" / "scene-0916.rrd"
     assert rrd.is_file() and rrd.stat().st_size > 10_000
+
+
+def test_nuscenes_with_workers_gives_the_sequential_files(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path
+) -> None:
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--no-eval", "--motion"]
+    runs = {}
+    for workers in ("1", "2"):
+        out = tmp_path / workers
+        assert main([*argv, "--workers", workers, "--out", str(out)]) == 0
+        summary = json.loads((out / "summary.json").read_text())
+        files = {n: (out / n).read_bytes() for n in ("results.json", "tracks.json", "gt.json")}
+        motion = {k: v for k, v in summary["motion"].items() if k != "plot"}  # path differs
+        runs[workers] = (files, motion, summary["boxes_written"])
+    assert runs["2"] == runs["1"]
+    assert list(json.loads(runs["2"][0]["tracks.json"])) == ["scene-0103", "scene-0916"]

@@ -19,7 +19,7 @@ Format (nuScenes tracking benchmark; loaded by the devkit's ``load_prediction``)
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Final
 
@@ -30,7 +30,7 @@ from tracker.errors import InputError
 from tracker.events import TrackOutput, TrackStatus
 from tracker.frame import Frame
 from tracker.io.baseversion import yaw_to_quaternion_wxyz
-from tracker.io.fileio import write_json_atomic
+from tracker.io.fileio import compact_json, write_bytes_atomic, write_json_atomic
 
 TRACKING_NAMES: Final[frozenset[str]] = frozenset(
     ("bicycle", "bus", "car", "motorcycle", "pedestrian", "trailer", "truck")
@@ -130,6 +130,32 @@ def write_nuscenes_results(
     per_sample = nuscenes_results(
         results, coasting_score=coasting_score, max_boxes_per_sample=max_boxes_per_sample
     )
-    flags = {**DEFAULT_META, **{k: bool(v) for k, v in (meta or {}).items() if k in DEFAULT_META}}
-    write_json_atomic(Path(path), {"meta": flags, "results": per_sample})
+    write_json_atomic(Path(path), {"meta": _meta_flags(meta), "results": per_sample})
     return sum(len(v) for v in per_sample.values())
+
+
+def _meta_flags(meta: Mapping[str, Any] | None) -> dict[str, bool]:
+    return {**DEFAULT_META, **{k: bool(v) for k, v in (meta or {}).items() if k in DEFAULT_META}}
+
+
+def write_nuscenes_parts(
+    path: str | Path, parts: Iterable[Path], *, meta: Mapping[str, Any] | None = None
+) -> None:
+    """Assemble the submission from per-scene parts, in order (a scene-parallel run).
+
+    Each part is one scene's compact ``{sample_token: [box, ...]}`` object
+    (:func:`nuscenes_results` of that scene); the bytes equal :func:`write_nuscenes_results`'s
+    for the same scenes, since sample tokens are unique across scenes.
+    """
+
+    def chunks() -> Iterator[bytes]:
+        yield b'{"meta":' + compact_json(_meta_flags(meta)) + b',"results":{'
+        first = True
+        for part in parts:
+            body = part.read_bytes()[1:-1]  # the object's members, without its braces
+            if body:
+                yield body if first else b"," + body
+                first = False
+        yield b"}}"
+
+    write_bytes_atomic(Path(path), chunks())

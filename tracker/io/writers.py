@@ -8,8 +8,9 @@ from __future__ import annotations
 
 import gzip
 import json
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -22,7 +23,7 @@ from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
 from tracker.io.baseversion import frame_to_dict, read_baseversion
 from tracker.io.convert.kitti import WORLD_FROM_CAMERA_AXES, boxes_world_to_rect
-from tracker.io.fileio import write_json_atomic, write_text_atomic
+from tracker.io.fileio import compact_json, write_bytes_atomic, write_json_atomic, write_text_atomic
 
 KITTI_CLASS_NAMES = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
 
@@ -127,32 +128,62 @@ def write_tracks_file(
     the file loads with :func:`tracker.io.baseversion.read_baseversion` for evaluation and viewing,
     and with :func:`read_tracks_file` as tracker output.
     """
-    payload = {}
-    for scene, (frames, outputs) in results.items():
-        by_frame = {f.frame_id: f for f in frames}
-        scene_frames = []
-        for out in outputs:
-            src = by_frame[out.frame_id]
-            frame = Frame(
-                scene=scene,
-                frame_id=out.frame_id,
-                timestamp_secs=out.time_secs,
-                boxes=out.boxes,
-                cameras=src.cameras,
-                world_from_ego=src.world_from_ego,
-                sample_token=src.sample_token,
-                transform_matrix=src.transform_matrix,
-            )
-            record = frame_to_dict(frame)
-            for box, acc, status, det_row in zip(
-                record["bboxes"], out.acceleration, out.status, out.det_row, strict=True
-            ):
-                box["global_acceleration"] = [None if not np.isfinite(a) else float(a) for a in acc]
-                box["status"] = int(status)
-                box["det_row"] = int(det_row)
-            scene_frames.append(record)
-        payload[scene] = scene_frames
+    payload = {scene: tracks_scene_records(scene, f, o) for scene, (f, o) in results.items()}
     write_json_atomic(Path(path), payload)
+
+
+def tracks_scene_records(
+    scene: str, frames: Sequence[Frame], outputs: Sequence[TrackOutput]
+) -> list[dict[str, Any]]:
+    """One scene of the tracks file (:func:`write_tracks_file`): its list of frame records."""
+    by_frame = {f.frame_id: f for f in frames}
+    scene_frames = []
+    for out in outputs:
+        src = by_frame[out.frame_id]
+        frame = Frame(
+            scene=scene,
+            frame_id=out.frame_id,
+            timestamp_secs=out.time_secs,
+            boxes=out.boxes,
+            cameras=src.cameras,
+            world_from_ego=src.world_from_ego,
+            sample_token=src.sample_token,
+            transform_matrix=src.transform_matrix,
+        )
+        record = frame_to_dict(frame)
+        for box, acc, status, det_row in zip(
+            record["bboxes"], out.acceleration, out.status, out.det_row, strict=True
+        ):
+            box["global_acceleration"] = [None if not np.isfinite(a) else float(a) for a in acc]
+            box["status"] = int(status)
+            box["det_row"] = int(det_row)
+        scene_frames.append(record)
+    return scene_frames
+
+
+def tracks_scene_json(scene: str, frames: Sequence[Frame], outputs: Sequence[TrackOutput]) -> bytes:
+    """One scene's part of the tracks file, encoded exactly as :func:`write_tracks_file` does."""
+    return compact_json(tracks_scene_records(scene, frames, outputs))
+
+
+def write_tracks_parts(path: Path, parts: Iterable[tuple[str, Path]]) -> None:
+    """Assemble the tracks file from per-scene parts (:func:`tracks_scene_json` files), in order.
+
+    The bytes equal :func:`write_tracks_file`'s for the same scenes: a compact JSON object is
+    ``{"key":value,...}``, so the parts are joined, not parsed again.
+    """
+
+    def chunks() -> Iterator[bytes]:
+        yield b"{"
+        for i, (scene, part) in enumerate(parts):
+            yield (b"," if i else b"") + compact_json(scene) + b":"
+            yield part.read_bytes()
+        yield b"}"
+
+    if str(path).endswith(".gz"):
+        write_bytes_atomic(path, gzip.compress(b"".join(chunks()), mtime=0))
+    else:
+        write_bytes_atomic(path, chunks())
 
 
 def read_tracks_file(

@@ -278,6 +278,31 @@ def _frame(scene: str, frame_id: int, t_micros: int, ego: _EgoFrame, boxes: Boxe
     )
 
 
+def segment_names(
+    data_root: str | Path, detections: str | Path, segments: Sequence[str] | None = None
+) -> list[str]:
+    """The segments to convert: ``segments``, or every ``<segment>.npz`` detection file.
+
+    Raises
+    ------
+    InputError for a missing folder, no detection files, or a name that is not a plain file
+    name (it must not lead outside the folders).
+    """
+    data_root, det_dir = Path(data_root), Path(detections)
+    if not det_dir.is_dir():
+        raise InputError(f"{det_dir}: detections folder not found")
+    for sub in ("ts_info", "ego_info"):
+        if not (data_root / sub).is_dir():
+            raise InputError(f"{data_root / sub}: folder not found (expected {sub}/<segment>)")
+    names = list(segments) if segments else sorted(p.stem for p in det_dir.glob("*.npz"))
+    if not names:
+        raise InputError(f"{det_dir}: no <segment>.npz detection files")
+    bad = [n for n in names if Path(n).name != n or n in ("", ".", "..")]
+    if bad:
+        raise InputError(f"segments: not segment names: {bad}")
+    return names
+
+
 def convert_waymo(
     data_root: str | Path,
     detections: str | Path,
@@ -299,14 +324,7 @@ def convert_waymo(
     InputError naming the missing or malformed file and frame.
     """
     data_root, det_dir = Path(data_root), Path(detections)
-    if not det_dir.is_dir():
-        raise InputError(f"{det_dir}: detections folder not found")
-    for sub in ("ts_info", "ego_info"):
-        if not (data_root / sub).is_dir():
-            raise InputError(f"{data_root / sub}: folder not found (expected {sub}/<segment>)")
-    names = list(segments) if segments else sorted(p.stem for p in det_dir.glob("*.npz"))
-    if not names:
-        raise InputError(f"{det_dir}: no <segment>.npz detection files")
+    names = segment_names(data_root, det_dir, segments)
     skipped: Counter[int] = Counter()
     det_scenes: Scenes = {}
     gt_scenes: Scenes | None = {} if gt is not None else None

@@ -1,0 +1,369 @@
+"""Scene-parallel runs (app/scenes.py): byte-identical outputs, in order, with --workers and
+--ray; a scene with bad input fails alone; a task whose worker dies is run again."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from app import scenes
+from app.cli import main
+from app.kitti import KittiSceneJob, run_kitti, score_source
+from tracker.config import load_config
+from tracker.io.baseversion import write_baseversion
+from tracker.io.nuscenes_writer import (
+    nuscenes_results,
+    write_nuscenes_parts,
+    write_nuscenes_results,
+)
+from tracker.io.synthetic import synthetic_scene
+from tracker.io.writers import tracks_scene_json, write_tracks_file, write_tracks_parts
+from tracker.pipeline import run_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE_KIT = ROOT / "sample_data" / "kitti-0001" / "raw"
+CLASSES = ("Car", "Pedestrian", "Cyclist")
+
+
+def _copy_seq(kit: Path, new: str, n_frames: int) -> None:
+    """Sequence ``new`` = the sample's first ``n_frames`` frames (its own length and content)."""
+
+    def keep(path: Path, out: Path, sep: str | None) -> None:
+        lines = path.read_text().splitlines(keepends=True)
+        kept = [ln for ln in lines if int(ln.split(sep)[0]) < n_frames]
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text("".join(kept))
+
+    train = SAMPLE_KIT / "training"
+    shutil.copy(train / "calib" / "0001.txt", kit / "training" / "calib" / f"{new}.txt")
+    poses = (train / "pose_orbslam3" / "0001.txt").read_text().splitlines(keepends=True)
+    (kit / "training" / "pose_orbslam3" / f"{new}.txt").write_text("".join(poses[:n_frames]))
+    keep(train / "label_02" / "0001.txt", kit / "training" / "label_02" / f"{new}.txt", None)
+    for cls in CLASSES:
+        det = SAMPLE_KIT / "detections" / "pointrcnn" / "training" / cls / "0001.txt"
+        keep(det, kit / "detections" / "pointrcnn" / "training" / cls / f"{new}.txt", ",")
+
+
+@pytest.fixture(scope="module")
+def small_kit(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A three-sequence kit made from the sample: 0001 (447 frames), 0002 (60), 0003 (120)."""
+    kit = tmp_path_factory.mktemp("kit")
+    shutil.copytree(SAMPLE_KIT, kit, dirs_exist_ok=True)
+    _copy_seq(kit, "0002", 60)
+    _copy_seq(kit, "0003", 120)
+    return kit
+
+
+def _files(out: Path) -> dict[str, bytes]:
+    """Every result file of a run (the summary holds timings, so it is compared separately)."""
+    return {
+        str(p.relative_to(out)): p.read_bytes()
+        for p in sorted(out.rglob("*"))
+        if p.is_file() and p.name != "summary.json"
+    }
+
+
+def _kitti(kit: Path, out: Path, *extra: str, seqs: str = "0001,0002,0003") -> int:
+    argv = ["kitti", "--kitti-root", str(kit), "--seqs", seqs, "--out", str(out), *extra]
+    return main(argv)
+
+
+@pytest.fixture(scope="module")
+def sequential(small_kit: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sequential")
+    assert _kitti(small_kit, out) == 0
+    return out
+
+
+def test_tracks_file_from_parts_is_byte_identical(tmp_path: Path) -> None:
+    config = load_config("kitti")
+    runs = {}
+    for name, seed in (("b", 1), ("a", 2), ("c", 3)):  # not sorted: the order is kept
+        dets, _ = synthetic_scene(num_objects=8, num_frames=30, seed=seed, scene=name)
+        runs[name] = (dets, run_scene(dets, config).outputs)
+    write_tracks_file(tmp_path / "whole.json", runs)
+    parts = []
+    for i, (name, (dets, outputs)) in enumerate(runs.items()):
+        part = scenes.part_path(tmp_path, i, "json")
+        part.parent.mkdir(exist_ok=True)
+        part.write_bytes(tracks_scene_json(name, dets, outputs))
+        parts.append((name, part))
+    write_tracks_parts(tmp_path / "parts.json", parts)
+    whole = (tmp_path / "whole.json").read_bytes()
+    assert (tmp_path / "parts.json").read_bytes() == whole
+    assert list(json.loads(whole)) == ["b", "a", "c"]
+
+
+def test_nuscenes_submission_from_parts_is_byte_identical(tmp_path: Path) -> None:
+    config = load_config("kitti")
+    runs = {}
+    for name, seed in (("scene-2", 4), ("scene-1", 5), ("scene-3", 6)):
+        dets, _ = synthetic_scene(num_objects=8, num_frames=20, seed=seed, scene=name)
+        dets = [replace(f, sample_token=f"{name}-{f.frame_id}") for f in dets]
+        runs[name] = (dets, run_scene(dets, config).outputs)
+    meta = {"use_camera": True}
+    write_nuscenes_results(tmp_path / "whole.json", runs, meta=meta)
+    parts = []
+    for i, (name, run) in enumerate(runs.items()):
+        part = tmp_path / f"{i}.json"
+        part.write_text(json.dumps(nuscenes_results({name: run}), separators=(",", ":")))
+        parts.append(part)
+    write_nuscenes_parts(tmp_path / "parts.json", parts, meta=meta)
+    assert (tmp_path / "parts.json").read_bytes() == (tmp_path / "whole.json").read_bytes()
+
+
+def test_workers_give_the_sequential_files_and_metrics(
+    small_kit: Path, sequential: Path, tmp_path: Path
+) -> None:
+    assert _kitti(small_kit, tmp_path, "--workers", "2") == 0
+    assert _files(tmp_path) == _files(sequential)
+    assert sorted(_files(tmp_path)) == [
+        "data/0001.txt",
+        "data/0002.txt",
+        "data/0003.txt",
+        "tracks.json",
+    ]
+    assert not (tmp_path / scenes.PARTS_DIR).exists()
+    par = json.loads((tmp_path / "summary.json").read_text())
+    seq = json.loads((sequential / "summary.json").read_text())
+    assert par["metrics"] == seq["metrics"]  # the evaluation ran once, on the same files
+    assert par["sequences"] == seq["sequences"] == ["0001", "0002", "0003"]
+    assert (par["frames"], par["failed"]) == (447 + 60 + 120, {})
+    assert par["parallel"]["backend"] == "processes"
+    assert seq["parallel"]["backend"] == "sequential"
+
+
+def test_a_scene_with_a_malformed_file_fails_alone(
+    small_kit: Path, sequential: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    kit = tmp_path / "kit"
+    shutil.copytree(small_kit, kit)
+    bad = kit / "detections" / "pointrcnn" / "training" / "Car" / "0002.txt"
+    bad.write_text(bad.read_text().replace(",", ";", 3))  # row 1 is no longer CSV
+    out = tmp_path / "out"
+    assert _kitti(kit, out, "--workers", "2") == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "scene 0002" in err[0] and str(bad) in err[0], err
+    summary = json.loads((out / "summary.json").read_text())
+    assert list(summary["failed"]) == ["0002"]
+    assert summary["evaluation"].startswith("skipped: sequences failed")
+    # the other sequences' outputs are complete and the same as in the good run
+    good = _files(sequential)
+    files = _files(out)
+    assert sorted(files) == ["data/0001.txt", "data/0003.txt", "tracks.json"]
+    assert files["data/0001.txt"] == good["data/0001.txt"]
+    assert files["data/0003.txt"] == good["data/0003.txt"]
+    assert list(json.loads(files["tracks.json"])) == ["0001", "0003"]
+
+
+@dataclass(frozen=True, slots=True)
+class DiesOnce:
+    """A job whose worker process dies (os._exit, like an OOM kill) the first time it runs
+    scene ``victim``; the marker file remembers across processes that it already died."""
+
+    inner: KittiSceneJob
+    victim: str
+    marker: Path
+
+    def process(self, index: int, scene: str, data: Any) -> scenes.SceneRecord:
+        if scene == self.victim and not self.marker.exists():
+            self.marker.touch()
+            os._exit(1)
+        return self.inner.process(index, scene, data)
+
+
+def _dies_once_job(kit: Path, out: Path, marker: Path) -> DiesOnce:
+    config = load_config("kitti", overrides={"categories": ["car", "pedestrian", "cyclist"]})
+    calibrate, profile, _ = score_source(config, "pointrcnn", None)
+    inner = KittiSceneJob(
+        kitti_root=kit,
+        detector="pointrcnn",
+        poses="orbslam3",
+        classes=("car", "pedestrian", "cyclist"),
+        config=config,
+        out=out,
+        label_dir=kit / "training" / "label_02",
+        with_gt=False,
+        keep=False,
+        record=None,
+        calibrate=calibrate,
+        profile=profile,
+    )
+    return DiesOnce(inner, victim="0002", marker=marker)
+
+
+def _assemble(records: list[scenes.SceneRecord], out: Path) -> None:
+    assert [r.error for r in records] == [None, None, None]
+    parts = [(r.scene, scenes.part_path(out, r.index, "json")) for r in records]
+    write_tracks_parts(out / "tracks.json", parts)
+    scenes.remove_parts(out)
+
+
+def test_a_worker_that_dies_is_replaced_and_its_scene_run_again(
+    small_kit: Path, sequential: Path, tmp_path: Path
+) -> None:
+    out, marker = tmp_path / "out", tmp_path / "died"
+    job = _dies_once_job(small_kit, out, marker)
+    records = scenes.run_scenes(
+        job, ["0001", "0002", "0003"], parallel=scenes.Parallelism(workers=2), quiet=True
+    )
+    assert marker.exists()  # it did die once
+    _assemble(records, out)
+    assert _files(out) == _files(sequential)
+
+
+def test_workers_on_a_basversion_file_and_an_unsafe_scene_name(tmp_path: Path) -> None:
+    scenes_in = {}
+    for name, seed in (("s2", 1), ("s1", 2), ("../escape", 3)):
+        dets, _ = synthetic_scene(num_objects=8, num_frames=25, seed=seed, scene=name)
+        scenes_in[name] = dets
+    path = tmp_path / "in.json"
+    write_baseversion(path, scenes_in)
+    runs = {}
+    for workers in ("1", "2"):
+        out = tmp_path / f"w{workers}"
+        argv = ["track", str(path), "--kitti-results", "--workers", workers, "--out", str(out)]
+        assert main(argv) == 2  # "../escape" may not name a file: that scene fails alone
+        runs[workers] = _files(out)
+    assert runs["1"] == runs["2"]
+    assert sorted(runs["2"]) == ["data/s1.txt", "data/s2.txt", "tracks.json"]
+    assert list(json.loads(runs["2"]["tracks.json"])) == ["s2", "s1"]
+    assert not (tmp_path / "escape.txt").exists()
+
+
+def test_ray_without_the_extra_is_a_one_line_error(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    dets, _ = synthetic_scene(num_objects=3, num_frames=5, seed=0, scene="s")
+    write_baseversion(tmp_path / "in.json", {"s": dets, "t": dets})
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as when not installed
+    assert main(["track", str(tmp_path / "in.json"), "--ray", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install -e '.[ray]'" in err[0], err
+
+
+def test_workers_must_be_positive(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as exc:
+        main(["track", "x.json", "--workers", "0", "--out", "o"])
+    assert exc.value.code == 2
+    assert "--workers: must be at least 1" in capsys.readouterr().err
+
+
+KITTI21 = ",".join(f"{i:04d}" for i in range(21))
+
+
+@pytest.fixture(scope="module")
+def kitti21_sequential(kitti_root: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The sequential run on the 21 training sequences (10 have no labels: no evaluation)."""
+    out = tmp_path_factory.mktemp("kitti21")
+    assert _kitti(kitti_root, out, "--no-eval", seqs=KITTI21) == 0
+    return out
+
+
+def test_all_21_kitti_sequences_with_2_workers(
+    kitti_root: Path, kitti21_sequential: Path, tmp_path: Path
+) -> None:
+    assert _kitti(kitti_root, tmp_path, "--no-eval", "--workers", "2", seqs=KITTI21) == 0
+    files = _files(tmp_path)
+    assert files == _files(kitti21_sequential)
+    assert len(files) == 22
+
+
+# ---- Ray (optional extra) ------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def local_ray(small_kit: Path) -> Any:
+    """A local Ray instance on loopback with 2 CPUs, started once for the Ray tests."""
+    ray = pytest.importorskip("ray", reason="Ray is an optional extra: pip install -e '.[ray]'")
+    # workers must import this test module (DiesOnce) by name, like the driver does
+    old = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), old) if p)
+    ray.init(
+        address="local",
+        num_cpus=2,
+        include_dashboard=False,
+        _node_ip_address="127.0.0.1",
+        log_to_driver=False,
+    )
+    yield ray
+    ray.shutdown()
+    if old is None:
+        os.environ.pop("PYTHONPATH", None)
+    else:
+        os.environ["PYTHONPATH"] = old
+
+
+def test_ray_gives_the_sequential_files(
+    local_ray: Any, small_kit: Path, sequential: Path, tmp_path: Path
+) -> None:
+    summary = run_kitti(
+        kitti_root=small_kit,
+        seqs=["0001", "0002", "0003"],
+        classes=["car", "pedestrian", "cyclist"],
+        out=tmp_path,
+        quiet=True,
+        parallel=scenes.Parallelism(ray="auto"),  # joins the instance the fixture started
+    )
+    assert _files(tmp_path) == _files(sequential)
+    seq = json.loads((sequential / "summary.json").read_text())
+    assert summary["metrics"] == seq["metrics"]
+    assert summary["parallel"]["backend"] == "ray"
+    assert local_ray.is_initialized()  # not shut down: the run did not start it
+
+
+def test_ray_retries_a_task_whose_worker_died(
+    local_ray: Any, small_kit: Path, sequential: Path, tmp_path: Path
+) -> None:
+    out, marker = tmp_path / "out", tmp_path / "died"
+    job = _dies_once_job(small_kit, out, marker)
+    records = scenes.run_scenes(
+        job, ["0001", "0002", "0003"], parallel=scenes.Parallelism(ray="auto"), quiet=True
+    )
+    assert marker.exists()
+    _assemble(records, out)
+    assert _files(out) == _files(sequential)
+
+
+def test_ray_on_all_21_kitti_sequences(
+    local_ray: Any, kitti_root: Path, kitti21_sequential: Path, tmp_path: Path
+) -> None:
+    run_kitti(
+        kitti_root=kitti_root,
+        seqs=KITTI21.split(","),
+        classes=["car", "pedestrian", "cyclist"],
+        evaluate=False,
+        quiet=True,
+        out=tmp_path,
+        parallel=scenes.Parallelism(ray="auto"),
+    )
+    assert _files(tmp_path) == _files(kitti21_sequential)
+
+
+def test_waymo_segments_with_workers_and_a_segment_that_fails_alone(tmp_path: Path) -> None:
+    from tests.test_waymo import SEGMENT, write_segment
+
+    root = write_segment(tmp_path / "waymo")
+    for copy in ("seg-b", "seg-a", "seg-broken"):
+        for sub, ext in (("ts_info", "json"), ("ego_info", "npz"), ("dets", "npz")):
+            shutil.copy(root / sub / f"{SEGMENT}.{ext}", root / sub / f"{copy}.{ext}")
+    (root / "ts_info" / "seg-broken.json").write_text("[1, 2")  # truncated JSON
+    runs = {}
+    for workers in ("1", "2"):
+        out = tmp_path / f"w{workers}"
+        argv = ["waymo", "--data-root", str(root), "--detections", str(root / "dets")]
+        assert main([*argv, "--workers", workers, "--out", str(out)]) == 2
+        runs[workers] = _files(out)
+        summary = json.loads((out / "summary.json").read_text())
+        assert list(summary["failed"]) == ["seg-broken"]
+        assert summary["segments"] == ["seg-a", "seg-b", SEGMENT]
+    assert runs["1"] == runs["2"]
+    assert "results/vehicle/seg-a.npz" in runs["2"]
+    assert not any("seg-broken" in name for name in runs["2"])
