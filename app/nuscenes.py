@@ -12,7 +12,7 @@ from typing import Any
 
 from app import scenes
 from app.common import peak_rss_mb
-from app.inputs import recording_path
+from app.inputs import track_or_record
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
@@ -38,20 +38,14 @@ class NuscenesSceneJob:
         """``data``: the scene's detection frames and (for the recording) ground truth."""
         from tracker.io.nuscenes_writer import nuscenes_results
         from tracker.io.writers import tracks_scene_json
-        from tracker.pipeline import run_scene
 
         if data is None:
             raise ValueError("NuscenesSceneJob needs the scene's frames")
         frames, gt_frames = data
         info: dict[str, Any] = {}
-        if self.record:
-            from viz.record import record_scene
-
-            path = recording_path(self.out, scene)
-            result = record_scene(frames, self.config, gt_frames, path)
-            info["recording"] = str(path)
-        else:
-            result = run_scene(frames, self.config)
+        result = track_or_record(
+            frames, self.config, gt_frames, self.out, scene, record=self.record, info=info
+        )
         outputs = result.outputs
         per_sample = nuscenes_results(
             {scene: (frames, outputs)}, coasting_score=self.coasting_score

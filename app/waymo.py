@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.inputs import recording_path
+from app.inputs import track_or_record
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
@@ -86,20 +86,14 @@ class WaymoSceneJob:
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
         from tracker.io.convert.waymo import convert_waymo
         from tracker.io.waymo_writer import write_waymo_results
-        from tracker.pipeline import run_scene
 
         conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
         frames = conv.detections[scene]
         gt_frames = conv.gt[scene] if conv.gt is not None else None
         info: dict[str, Any] = {"skipped_types": dict(conv.skipped_types)}
-        if self.record:
-            from viz.record import record_scene
-
-            path = recording_path(self.out, scene)
-            result = record_scene(frames, self.config, gt_frames, path)
-            info["recording"] = str(path)
-        else:
-            result = run_scene(frames, self.config)
+        result = track_or_record(
+            frames, self.config, gt_frames, self.out, scene, record=self.record, info=info
+        )
         written = write_waymo_results(self.out / "results", {scene: (frames, result.outputs)})
         write_bytes_atomic(
             scenes.part_path(self.out, index, "json"),
