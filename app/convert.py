@@ -19,6 +19,7 @@ from app.inputs import (
 )
 from tracker.errors import InputError
 from tracker.frame import Frame
+from tracker.io.fileio import check_output_file, check_output_folder
 
 
 def _csv(text: str) -> list[str]:
@@ -211,5 +212,12 @@ def _run_waymo(args: argparse.Namespace) -> int:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``mctrack convert``; bad or missing input raises (the CLI prints one line, exit 2)."""
+    # the output is checked before the (long) conversion
+    if args.dataset == "kitti":
+        check_output_folder(args.out)
+    else:
+        check_output_file(args.out)
+        if getattr(args, "gt_out", None) is not None:
+            check_output_file(args.gt_out, "--gt-out")
     runners = {"kitti": _run_kitti, "nuscenes": _run_nuscenes, "waymo": _run_waymo}
     return runners[args.dataset](args)

@@ -11,6 +11,7 @@ import argparse
 from pathlib import Path
 
 from tracker.errors import InputError
+from tracker.io.fileio import check_output_folder
 
 SAMPLE_DIR = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
 
@@ -36,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
             f"sample data not found in {sample} (detections.json.gz, gt.json.gz); see "
             "sample_data/README.md to regenerate it"
         )
+    check_output_folder(args.out)  # before any work
     config = load_config("kitti")
     window = parse_frame_range(args.frames)
     frames = read_baseversion(detections, fallback_frame_rate_hz=config.frame_rate_hz)["0001"]

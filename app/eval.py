@@ -20,7 +20,7 @@ from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.baseversion import read_baseversion
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import path_in, write_text_atomic
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -140,7 +140,7 @@ def _static_metrics(
     from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
     from tracker.io.writers import write_kitti_sequence
 
-    missing = [s for s in outputs if not (labels / f"{s}.txt").is_file()]
+    missing = [s for s in outputs if not path_in(labels, s, ".txt").is_file()]
     if missing:
         return f"skipped: no labels for {missing} in {labels}"
     static_classes = [c for c in classes if c in SUPPORTED_CLASSES]
@@ -156,7 +156,7 @@ def _static_metrics(
     }
     with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
         for scene, scene_outputs in outputs.items():
-            write_kitti_sequence(Path(tmp) / f"{scene}.txt", scene_outputs, track_frames[scene])
+            write_kitti_sequence(path_in(tmp, scene, ".txt"), scene_outputs, track_frames[scene])
         return evaluate_kitti(
             label_dir=labels, result_dir=Path(tmp), seq_lengths=lengths, classes=static_classes
         )

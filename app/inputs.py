@@ -7,13 +7,12 @@ import argparse
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from tracker.errors import InputError
 
 if TYPE_CHECKING:
-    from tracker.config import TrackerConfig
-    from tracker.frame import Frame
+    pass
 
 #: Environment variable naming the KITTI tracking kit (the tests honour it too).
 KITTI_ROOT_ENV = "MCTRACK_KITTI_ROOT"
@@ -108,39 +107,6 @@ def positive_int(text: str) -> int:
     if value < 1:
         raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
     return value
-
-
-def recording_path(out: Path, scene: str) -> Path:
-    """``out/recordings/<scene>.rrd``; a scene name from the input that would leave that folder
-    is refused (input files are untrusted)."""
-    folder = out / "recordings"
-    path = folder / f"{scene}.rrd"
-    if path.resolve().parent != folder.resolve():
-        raise InputError(f"scene name {scene!r} is not a plain file name", field="scene")
-    return path
-
-
-def track_or_record(
-    frames: Sequence[Frame],
-    config: TrackerConfig,
-    gt_frames: Sequence[Frame] | None,
-    out: Path,
-    scene: str,
-    *,
-    record: bool,
-    info: dict[str, Any],
-) -> Any:
-    """Track one scene; with ``record`` through the Rerun recorder, writing
-    ``out/recordings/<scene>.rrd`` and naming it in ``info["recording"]``."""
-    if not record:
-        from tracker.pipeline import run_scene
-
-        return run_scene(frames, config)
-    from viz.record import record_scene
-
-    path = recording_path(out, scene)
-    info["recording"] = str(path)
-    return record_scene(frames, config, gt_frames, path)
 
 
 #: Printed once when a run has no ego poses.

@@ -22,10 +22,11 @@ from app.inputs import (
 from app.scenes import SceneRecord
 from tracker.calibration import ScoreProfile, calibrate_frames, resolve_profile
 from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
+from tracker.eval.fates import FateCounter, combine_fates
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
-from tracker.io.fileio import write_bytes_atomic, write_text_atomic
+from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
 from tracker.io.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
 from tracker.pipeline import run_scene
 
@@ -87,6 +88,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)  # before any work: a bad --out fails in a second, not at the end
+    if args.record:
+        check_output_folder(args.record, "--record")
+    (Path(args.out) / "summary.json").unlink(missing_ok=True)  # written last: marks completion
     root = args.kitti_root or default_kitti_root()
     seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
     poses = None if args.poses == "none" else args.poses
@@ -148,9 +153,10 @@ class KittiSceneJob:
         if self.calibrate:
             frames = calibrate_frames(frames, self.profile)
         gt_frames = (gt or {}).get(seq)
-        result = run_scene(frames, self.config)
+        fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
+        result = run_scene(frames, self.config, observer=fates)
         t1 = time.perf_counter()
-        write_kitti_sequence(self.out / "data" / f"{seq}.txt", result.outputs, frames)
+        write_kitti_sequence(path_in(self.out / "data", seq, ".txt"), result.outputs, frames)
         write_bytes_atomic(
             scenes.part_path(self.out, index, "json"),
             tracks_scene_json(seq, frames, result.outputs),
@@ -159,12 +165,12 @@ class KittiSceneJob:
         if self.record is not None:  # outside the timed tracker region
             from viz.record import record_scene
 
-            labels_ok = self.label_dir if (self.label_dir / f"{seq}.txt").is_file() else None
+            labels_ok = self.label_dir if path_in(self.label_dir, seq, ".txt").is_file() else None
             record_scene(
                 frames,
                 self.config,
                 gt_frames,
-                self.record / f"{seq}.rrd",
+                path_in(self.record, seq, ".rrd"),
                 labels_dir=labels_ok,
                 motion_metrics=False,
             )
@@ -173,7 +179,12 @@ class KittiSceneJob:
             seq,
             frames=len(frames),
             tracker_seconds=result.tracker_seconds,
-            info={"convert_seconds": convert_secs, "write_seconds": write_secs},
+            info={
+                "convert_seconds": convert_secs,
+                "write_seconds": write_secs,
+                "fates": fates.summary(),
+                "offline_removed_tracks": len(result.removed_offline),
+            },
             kept=(frames, gt_frames, result.outputs) if self.keep else None,
         )
 
@@ -258,10 +269,12 @@ def run_kitti(
         "write_seconds": round(sum(r.info["write_seconds"] for r in ok), 3),
         "peak_rss_mb": peak_rss_mb(),
         **scenes.summary_fields(records, parallel, wall_secs),
+        "detection_fates": combine_fates([r.info["fates"] for r in ok]),
+        "offline_removed_tracks": sum(r.info["offline_removed_tracks"] for r in ok),
         "config": config_to_dict(config),
     }
     if evaluate:
-        missing = [r.scene for r in ok if not (label_dir / f"{r.scene}.txt").is_file()]
+        missing = [r.scene for r in ok if not path_in(label_dir, r.scene, ".txt").is_file()]
         if summary["failed"]:
             summary["evaluation"] = f"skipped: sequences failed: {list(summary['failed'])}"
         elif missing:

@@ -12,13 +12,19 @@ from typing import Any
 
 from app import scenes
 from app.common import peak_rss_mb
-from app.inputs import track_or_record
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
+from tracker.eval.fates import FateCounter, combine_fates
 from tracker.events import TrackOutput
 from tracker.frame import Frame
-from tracker.io.fileio import compact_json, write_bytes_atomic, write_text_atomic
+from tracker.io.fileio import (
+    check_output_folder,
+    compact_json,
+    path_in,
+    write_bytes_atomic,
+    write_text_atomic,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,14 +44,23 @@ class NuscenesSceneJob:
         """``data``: the scene's detection frames and (for the recording) ground truth."""
         from tracker.io.nuscenes_writer import nuscenes_results
         from tracker.io.writers import tracks_scene_json
+        from tracker.pipeline import run_scene
 
         if data is None:
             raise ValueError("NuscenesSceneJob needs the scene's frames")
         frames, gt_frames = data
         info: dict[str, Any] = {}
-        result = track_or_record(
-            frames, self.config, gt_frames, self.out, scene, record=self.record, info=info
-        )
+        if self.record:
+            from viz.record import record_scene
+
+            path = path_in(self.out / "recordings", scene, ".rrd")  # names are input data
+            result = record_scene(frames, self.config, gt_frames, path)
+            info["recording"] = str(path)
+            info["fates"] = result.fates
+        else:
+            fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
+            result = run_scene(frames, self.config, observer=fates)
+            info["fates"] = fates.summary()
         outputs = result.outputs
         per_sample = nuscenes_results(
             {scene: (frames, outputs)}, coasting_score=self.coasting_score
@@ -99,6 +114,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)  # before any work
     summary = run_nuscenes(
         dataroot=Path(args.dataroot),
         version=args.version,
@@ -219,6 +235,7 @@ def run_nuscenes(
         "peak_rss_mb": peak_rss_mb(),
         "skipped_detections": dict(sorted(conv.skipped_detections.items())),
         **scenes.summary_fields(records, parallel, wall_secs),
+        "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
         "config": config_to_dict(config),
     }
     if recordings:

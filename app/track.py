@@ -4,7 +4,9 @@ files included) and write the tracks file (BaseVersion + filtered velocity/accel
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,9 +17,16 @@ from app.scenes import SceneRecord
 from tracker.calibration import calibrate_frames, load_profile
 from tracker.config import ScoreSource, TrackerConfig, load_config
 from tracker.errors import InputError
+from tracker.eval.fates import FateCounter, combine_fates, format_fates
 from tracker.frame import Frame
 from tracker.io.baseversion import LoadReport, read_baseversion
-from tracker.io.fileio import write_bytes_atomic
+from tracker.io.fileio import (
+    check_output_folder,
+    output_manifest,
+    path_in,
+    write_bytes_atomic,
+    write_text_atomic,
+)
 from tracker.io.writers import (
     tracks_scene_json,
     write_kitti_sequence,
@@ -88,24 +97,38 @@ class TrackSceneJob:
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
         if frames is None:
             raise ValueError("TrackSceneJob needs the scene's frames")
-        if self.kitti_results and (Path(scene).name != scene or scene in ("", ".", "..")):
-            # the scene name comes from the input: it must not lead outside OUT/data
-            raise InputError(f"scene {scene!r}: not usable as a file name (--kitti-results)")
-        result = run_scene(frames, self.config)
+        fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
+        result = run_scene(frames, self.config, observer=fates)
         write_bytes_atomic(
             scenes.part_path(self.out, index, "json"),
             tracks_scene_json(scene, frames, result.outputs),
         )
         if self.kitti_results:
-            write_kitti_sequence(self.out / "data" / f"{scene}.txt", result.outputs, frames)
+            # the scene name comes from the input: escaped, it cannot lead outside OUT/data
+            write_kitti_sequence(path_in(self.out / "data", scene, ".txt"), result.outputs, frames)
         ids = {int(t) for o in result.outputs for t in o.boxes.track_id}
         return SceneRecord(
             index,
             scene,
             frames=len(frames),
             tracker_seconds=result.tracker_seconds,
-            info={"tracks": len(ids)},
+            info={
+                "tracks": len(ids),
+                "fates": fates.summary(),
+                "offline_removed": [(r.reason, r.detections) for r in result.removed_offline],
+            },
         )
+
+
+def check_camera_models(path: str, scenes: dict[str, list[Frame]], camera: str) -> None:
+    """KITTI result files need each frame's camera model: refuse before tracking, not after."""
+    for scene, frames in scenes.items():
+        for frame in frames:
+            if frame.camera_index(camera) < 0:
+                raise InputError(
+                    f"{path}: scene {scene!r}, frame_id {frame.frame_id}: --kitti-results needs "
+                    f"a {camera} camera model (transform_matrix.cameras_transform_matrix)"
+                )
 
 
 def _calibrated(
@@ -128,6 +151,9 @@ def _calibrated(
 
 
 def run(args: argparse.Namespace) -> int:
+    out = check_output_folder(args.out)  # before any work: exists as a file, not writable
+    summary_path = out / "summary.json"
+    summary_path.unlink(missing_ok=True)  # written last: its absence marks a run cut short
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     report = LoadReport()
@@ -136,7 +162,8 @@ def run(args: argparse.Namespace) -> int:
     )
     scene_frames = select_scenes(scene_frames, args.scenes, parse_frame_range(args.frames))
     scene_frames = _calibrated(scene_frames, config, args.profile, args.input)
-    out = Path(args.out)
+    if args.kitti_results:
+        check_camera_models(args.input, scene_frames, "CAM_FRONT")
     job = TrackSceneJob(config, out, args.kitti_results)
     parallel = scenes.from_args(args)
     records = scenes.run_scenes(job, list(scene_frames), inputs=scene_frames, parallel=parallel)
@@ -147,10 +174,40 @@ def run(args: argparse.Namespace) -> int:
     scenes.remove_parts(out)
     frames = sum(r.frames for r in ok)
     secs = sum(r.tracker_seconds for r in ok)
+    fate_summary = combine_fates([r.info["fates"] for r in ok], report.skipped_categories)
+    removed = [x for r in ok for x in r.info["offline_removed"]]
+    written = [out / "tracks.json"]
+    if args.kitti_results:
+        written += [path_in(out / "data", r.scene, ".txt") for r in ok]
+    failed = {r.scene: r.error for r in records if r.error}
+    summary = {
+        "input": str(args.input),
+        "config": str(args.config),
+        "mode": config.mode.value,
+        "scenes": len(ok),
+        "frames": frames,
+        "tracks": sum(r.info["tracks"] for r in ok),
+        "detection_fates": fate_summary,
+        "offline_removed": {
+            "tracks": len(removed),
+            "detections": sum(n for _, n in removed),
+            "per_reason": dict(sorted(Counter(reason for reason, _ in removed).items())),
+        },
+        "failed_scenes": failed,
+        "outputs": output_manifest(out, written),
+        "complete": not failed,
+    }
+    write_text_atomic(summary_path, [json.dumps(summary, indent=2, allow_nan=False)])
     print(
-        f"{len(ok)} scenes, {frames} frames, {sum(r.info['tracks'] for r in ok)} tracks, "
+        f"{len(ok)} scenes, {frames} frames, {summary['tracks']} tracks, "
         f"{frames / secs if secs else 0:.0f} frames/s -> {out / 'tracks.json'}"
     )
+    print(format_fates(fate_summary))
+    if removed:
+        print(
+            f"offline post-processing removed {len(removed)} tracks "
+            f"({summary['offline_removed']['detections']} detections)"
+        )
     if report.boxes_skipped:
         print(
             f"skipped {report.boxes_skipped} boxes of unknown categories: "

@@ -33,4 +33,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"  time span: {summary['time_span_secs']:.1f} s")
     for name, count in summary.get("skipped_unknown_categories", {}).items():
         print(f"  skipped (unknown category): {name} x{count}")
+    for name, file_name in summary.get("scene_names_escaped_in_file_names", {}).items():
+        print(f"  warning: scene {name!a} is written to files as {file_name!r}")
     return 0

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from tracker.errors import InputError
+from tracker.io.fileio import safe_filename
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,9 +76,9 @@ def _images(specs: list[str], input_path: Path, first_camera: str | None) -> dic
 
 def _save_path(save: str | None, scene: str, many: bool) -> Path:
     if save is None:
-        return Path(f"mctrack_{scene}.rrd")
+        return Path(f"mctrack_{safe_filename(scene)}.rrd")  # scene names are input data
     path = Path(save)
-    return path.with_name(f"{path.stem}_{scene}{path.suffix}") if many else path
+    return path.with_name(f"{path.stem}_{safe_filename(scene)}{path.suffix}") if many else path
 
 
 def run(args: argparse.Namespace) -> int:
@@ -86,8 +87,9 @@ def run(args: argparse.Namespace) -> int:
     from app.track import parse_frame_range, select_scenes
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
+    from tracker.io.fileio import finish_temp
     from viz.layout import debug_blueprint
-    from viz.record import new_recording, record_scene
+    from viz.record import new_recording, partial_path, record_scene
 
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
@@ -112,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
                 print(f"scene {scene}: not in {args.gt}; recording without ground truth")
                 gt = None
         path = None if live else _save_path(args.save, scene, many)
-        rec = new_recording(scene, path=path)
+        partial = None if path is None else partial_path(path)  # renamed when complete
+        rec = new_recording(scene, path=partial)
         if args.spawn:
             rec.spawn(port=args.grpc_port, default_blueprint=debug_blueprint(cameras))
         elif args.serve_web:
@@ -143,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
         rec.flush()
         if not args.serve_web:
             rec.disconnect()
+            if partial is not None and path is not None:
+                finish_temp(partial, path)
         _print_result(result, path)
     if args.serve_web:
         print("serving; press Ctrl-C to stop")

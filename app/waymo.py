@@ -15,12 +15,17 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.inputs import track_or_record
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
+from tracker.eval.fates import FateCounter, combine_fates
 from tracker.frame import Frame
-from tracker.io.fileio import write_bytes_atomic, write_text_atomic
+from tracker.io.fileio import (
+    check_output_folder,
+    path_in,
+    write_bytes_atomic,
+    write_text_atomic,
+)
 from tracker.io.waymo_writer import RESULT_TYPES
 from tracker.io.writers import tracks_scene_json, write_tracks_parts
 
@@ -52,6 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_folder(args.out)  # before any work
     summary = run_waymo(
         data_root=Path(args.data_root),
         detections=Path(args.detections),
@@ -86,14 +92,23 @@ class WaymoSceneJob:
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
         from tracker.io.convert.waymo import convert_waymo
         from tracker.io.waymo_writer import write_waymo_results
+        from tracker.pipeline import run_scene
 
         conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
         frames = conv.detections[scene]
         gt_frames = conv.gt[scene] if conv.gt is not None else None
         info: dict[str, Any] = {"skipped_types": dict(conv.skipped_types)}
-        result = track_or_record(
-            frames, self.config, gt_frames, self.out, scene, record=self.record, info=info
-        )
+        if self.record:
+            from viz.record import record_scene
+
+            path = path_in(self.out / "recordings", scene, ".rrd")  # names are input data
+            result = record_scene(frames, self.config, gt_frames, path)
+            info["recording"] = str(path)
+            info["fates"] = result.fates
+        else:
+            fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
+            result = run_scene(frames, self.config, observer=fates)
+            info["fates"] = fates.summary()
         written = write_waymo_results(self.out / "results", {scene: (frames, result.outputs)})
         write_bytes_atomic(
             scenes.part_path(self.out, index, "json"),
@@ -160,6 +175,7 @@ def run_waymo(
         "tracker_fps": round(frames / seconds, 1) if seconds > 0 else None,
         "skipped_types": {str(k): v for k, v in sorted(skipped.items())},
         **scenes.summary_fields(records, parallel, wall_secs),
+        "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
         "config": config_to_dict(config),
     }
     recordings = [r.info["recording"] for r in ok if "recording" in r.info]

@@ -426,13 +426,3 @@ def test_kernel_cache_check_sees_a_cold_cache(
     assert cli.kernels_cold()
     monkeypatch.setenv("MCTRACK_NUMBA", "0")  # numpy only: nothing to compile
     assert not cli.kernels_cold()
-
-
-@pytest.mark.parametrize("scene", ["../escape", "/abs/path", "a/b"])
-def test_recordings_stay_in_the_output_folder(scene: str, tmp_path: Path) -> None:
-    from app.inputs import recording_path
-    from tracker.errors import InputError
-
-    assert recording_path(tmp_path, "seg_1") == tmp_path / "recordings" / "seg_1.rrd"
-    with pytest.raises(InputError, match="not a plain file name"):
-        recording_path(tmp_path, scene)

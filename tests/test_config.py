@@ -36,17 +36,20 @@ def test_config_to_dict_reloads_to_the_same_config(name: str) -> None:
     assert config_from_dict(json.loads(json.dumps(config_to_dict(changed)))) != cfg
 
 
-def test_kitti_reference_values() -> None:
-    car = load_config("kitti").per_category["car"]
-    assert car.bev.cost is CostKind.RO_GDIOU and car.bev.cost_state is CostState.PREDICT
-    assert (car.bev.w1, car.bev.w2, car.bev.cost_max, car.rv.cost_max) == (1.0, 1.0, 1.4, -0.3)
+@pytest.mark.parametrize(("name", "category"), [("kitti_reference", "car"), ("kitti", "cyclist")])
+def test_kitti_reference_values(name: str, category: str) -> None:
+    """The reference's cost settings: in kitti_reference, and in kitti's [defaults] (which the
+    untuned cyclist keeps)."""
+    cfg = load_config(name).per_category[category]
+    assert cfg.bev.cost is CostKind.RO_GDIOU and cfg.bev.cost_state is CostState.PREDICT
+    assert (cfg.bev.w1, cfg.bev.w2, cfg.bev.cost_max, cfg.rv.cost_max) == (1.0, 1.0, 1.4, -0.3)
 
 
 def test_override_merges_one_key() -> None:
     cfg = load_config("kitti", overrides={"category": {"car": {"bev": {"cost_max": 0.9}}}})
     assert cfg.per_category["car"].bev.cost_max == 0.9
     assert cfg.per_category["car"].bev.w1 == 1.0  # sibling kept
-    assert cfg.per_category["pedestrian"].bev.cost_max == 1.4  # other categories untouched
+    assert cfg.per_category["cyclist"].bev.cost_max == 1.4  # other categories untouched
 
 
 @pytest.mark.parametrize(
@@ -84,7 +87,8 @@ def test_base_inheritance_and_loops(tmp_path: Path) -> None:
     online = load_config("kitti")
     assert offline.mode.value == "offline" and online.mode.value == "online"
     assert offline.per_category["pedestrian"] == online.per_category["pedestrian"]  # inherited
-    assert offline.per_category["car"].score_min < online.per_category["car"].score_min
+    assert offline.per_category["car"] != online.per_category["car"]  # its own car settings
+    assert offline.per_category["car"].birth_score_min < online.per_category["car"].birth_score_min
     child = tmp_path / "child.toml"
     child.write_text('base = "kitti"\n[category.car]\nscore_min = 0.6\n')
     cfg = load_config(child)

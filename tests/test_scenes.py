@@ -230,11 +230,16 @@ def test_workers_on_a_basversion_file_and_an_unsafe_scene_name(tmp_path: Path) -
     for workers in ("1", "2"):
         out = tmp_path / f"w{workers}"
         argv = ["track", str(path), "--kitti-results", "--workers", workers, "--out", str(out)]
-        assert main(argv) == 2  # "../escape" may not name a file: that scene fails alone
+        assert main(argv) == 0  # "../escape" is escaped in its file name (issue #15)
         runs[workers] = _files(out)
     assert runs["1"] == runs["2"]
-    assert sorted(runs["2"]) == ["data/s1.txt", "data/s2.txt", "tracks.json"]
-    assert list(json.loads(runs["2"]["tracks.json"])) == ["s2", "s1"]
+    assert sorted(runs["2"]) == [
+        "data/%2E.%2Fescape.txt",
+        "data/s1.txt",
+        "data/s2.txt",
+        "tracks.json",
+    ]
+    assert list(json.loads(runs["2"]["tracks.json"])) == ["s2", "s1", "../escape"]
     assert not (tmp_path / "escape.txt").exists()
 
 

@@ -18,6 +18,7 @@ from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.io.baseversion import read_baseversion, write_baseversion
 from tracker.io.convert.waymo import WAYMO_CAMERAS, convert_waymo
+from tracker.io.fileio import load_npz
 from tracker.io.waymo_writer import read_waymo_results, write_waymo_results
 from tracker.pipeline import run_scene
 
@@ -218,7 +219,7 @@ def test_tracking_and_result_writer(segment: Path, tmp_path: Path) -> None:
     np.testing.assert_allclose(row[:3], object_world(10, OBJECTS[0][2], OBJECTS[0][3]), atol=0.3)
     np.testing.assert_allclose(row[4:7], OBJECTS[0][4], atol=0.2)
     assert row[7] == pytest.approx(0.9)
-    with np.load(tmp_path / "results" / "vehicle" / f"{SEGMENT}.npz", allow_pickle=True) as npz:
+    with load_npz(tmp_path / "results" / "vehicle" / f"{SEGMENT}.npz") as npz:
         assert set(npz.files) >= {"ids", "bboxes", "states", "timestamps"}
         assert npz["timestamps"][0] == T0_MICROS
 

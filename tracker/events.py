@@ -8,7 +8,7 @@ the default ``observer=None`` no event is even built, so observing costs nothing
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
@@ -98,13 +98,17 @@ class Matched:
 
 @dataclass(frozen=True, slots=True)
 class LifecycleChanged:
-    """Track ids whose status changed this frame (each array sorted)."""
+    """Track ids whose status changed this frame (each array sorted).
+
+    ``born_det_rows[k]`` is the detection row (of the frame) that started track ``born[k]``.
+    """
 
     born: IntArray
     confirmed: IntArray
     lost: IntArray
     reacquired: IntArray
     deleted: IntArray
+    born_det_rows: IntArray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
 
 @dataclass(frozen=True, slots=True)

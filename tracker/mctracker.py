@@ -210,7 +210,9 @@ class MCTracker:
         self._update(assoc.rows, dets, assoc.dets)
         self._tracks.record_matches(assoc.rows, kept_rows[assoc.dets], assoc.stage)
         born = self._birth(dets, assoc.unmatched_dets, kept_rows)
-        self._emit(self._lifecycle(assoc.rows, born))
+        born_rows = self._tracks.matched_det[len(self._tracks) - len(born) :]  # appended last
+        changes = self._lifecycle(assoc.rows, born)
+        self._emit(changes and dataclasses.replace(changes, born_det_rows=born_rows))
         output = self._output(frame, time_secs)
         self._emit(FrameFinished(output))
         return output
@@ -396,7 +398,9 @@ class MCTracker:
         the pairs it scored.
         """
         tr, cat, reference = self._tracks, self._cat, self.config.rv_reference
-        shortcut = not reference and self.observer is None
+        # an observer that only counts (tracker.eval.fates) does not need the costs of empty stages
+        obs = self.observer
+        shortcut = not reference and (obs is None or not getattr(obs, "wants_rv_costs", True))
         # Shortcut (exact): when the gate below can accept no pair, whatever the costs, nothing
         # is matched or consumed. Most frames' leftovers are far apart or of other classes: a
         # pair outside stage 1's mask is of another class or farther (in BEV, so in 3D) than

@@ -12,9 +12,10 @@ Offline mode (reference §2.9, improved): run online with the offline config, th
 from __future__ import annotations
 
 import itertools
+import logging
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,12 +27,26 @@ from tracker.frame import Frame
 from tracker.geometry import wrap_angle
 from tracker.mctracker import MCTracker
 
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class RemovedTrack:
+    """A whole track offline post-processing removed, and why."""
+
+    track_id: int
+    category: str
+    detections: int  # its real (matched or born) detections
+    score: float  # mean logit of its detections
+    reason: str  # "track_score" (score <= offline.track_score_min) or "min_hits"
+
 
 @dataclass(frozen=True, slots=True)
 class SceneResult:
     scene: str
     outputs: list[TrackOutput]
     tracker_seconds: float  # time inside the tracker (and offline post-processing) only
+    removed_offline: list[RemovedTrack] = field(default_factory=list)
 
 
 def run_scene(
@@ -40,18 +55,36 @@ def run_scene(
     """Track one scene's frames (in time order) with a fresh tracker."""
     tracker = MCTracker(config, observer=observer)
     outputs: list[TrackOutput] = []
+    removed: list[RemovedTrack] = []
     start = time.perf_counter()
     for frame in frames:
         outputs.append(tracker.step(frame))
     if config.mode is TrackingMode.OFFLINE:
-        outputs = offline_postprocess(outputs, config)
+        outputs = offline_postprocess(outputs, config, removed=removed)
     elapsed = time.perf_counter() - start
     scene = frames[0].scene if frames else ""
-    return SceneResult(scene, outputs, elapsed)
+    if removed:
+        log.info(
+            "scene %s: offline post-processing removed %d tracks (%d detections): %s",
+            scene,
+            len(removed),
+            sum(r.detections for r in removed),
+            ", ".join(f"{r.track_id} {r.category} {r.reason}" for r in removed[:20])
+            + (" ..." if len(removed) > 20 else ""),
+        )
+    return SceneResult(scene, outputs, elapsed, removed)
 
 
-def offline_postprocess(outputs: list[TrackOutput], config: TrackerConfig) -> list[TrackOutput]:
-    """Track-score filter and gap interpolation over a whole scene (see module docstring)."""
+def offline_postprocess(
+    outputs: list[TrackOutput],
+    config: TrackerConfig,
+    *,
+    removed: list[RemovedTrack] | None = None,
+) -> list[TrackOutput]:
+    """Track-score filter and gap interpolation over a whole scene (see module docstring).
+
+    Whole tracks removed by the filter are appended to ``removed`` (when given).
+    """
     if not outputs:
         return outputs
     # flatten: one row per (frame, track)
@@ -78,6 +111,9 @@ def offline_postprocess(outputs: list[TrackOutput], config: TrackerConfig) -> li
         min_hits = config.per_category[name].lifecycle.min_hits
         if score <= config.offline.track_score_min or len(rows) < min_hits:
             keep[rows] = False
+            if removed is not None:
+                reason = "track_score" if score <= config.offline.track_score_min else "min_hits"
+                removed.append(RemovedTrack(int(tid), name, len(rows), score, reason))
             continue
         for a, b in itertools.pairwise(rows):
             gap = frame_index[b] - frame_index[a] - 1

@@ -21,6 +21,7 @@ import uuid
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -28,6 +29,7 @@ import rerun as rr
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.config import TrackerConfig, config_to_dict
+from tracker.eval.fates import FateCounter, Tee
 from tracker.eval.id_switches import (
     IdEvaluation,
     IdEvent,
@@ -39,6 +41,7 @@ from tracker.eval.id_switches import (
 from tracker.eval.motion_metrics import gt_velocity_central
 from tracker.events import TrackOutput
 from tracker.frame import Frame
+from tracker.io.fileio import finish_temp, remove_stale_temps, temp_name
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.archetypes import ID_SWITCH_RGB, annotation_context, pack_rgb, track_colors_u32
@@ -101,6 +104,8 @@ class RecordResult:
     seconds: dict[str, float] = field(default_factory=dict)
     #: process CPU seconds per phase (all threads: Rerun compresses and writes in the background)
     cpu_seconds: dict[str, float] = field(default_factory=dict)
+    #: detections per fate and class (tracker.eval.fates.FateCounter.summary)
+    fates: dict[str, Any] = field(default_factory=dict)
 
     @property
     def recording_seconds(self) -> float:
@@ -110,6 +115,15 @@ class RecordResult:
     @property
     def track_ids(self) -> list[int]:
         return sorted({int(i) for o in self.outputs for i in o.boxes.track_id})
+
+
+def partial_path(path: Path) -> Path:
+    """Where to stream a recording meant for ``path``: a hidden temporary name in the same
+    folder, renamed by :func:`tracker.io.fileio.finish_temp` when complete (a killed run leaves
+    no footer-less file under the real name; the next run removes the temporary one)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    remove_stale_temps(path.parent)
+    return path.parent / f"{temp_name(path)}{uuid.uuid4().hex[:8]}.tmp"
 
 
 def new_recording(
@@ -173,8 +187,12 @@ def record_scene(
     cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras] if frames else []
     camera_names = [name for name, _, _ in cameras]
     own = rec is None
+    partial: Path | None = None
     if rec is None:
-        rec = new_recording(scene, path=path)
+        # stream to a hidden temporary name, renamed when complete: a killed run leaves no
+        # footer-less file under the real name (and the next write to the folder removes it)
+        partial = None if path is None else partial_path(Path(path))
+        rec = new_recording(scene, path=partial)
     rec.log(paths.WORLD, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     rec.log("/", annotation_context(), static=True)
 
@@ -190,7 +208,8 @@ def record_scene(
         flush_secs=0.25 if live else 4.0,
         keep_match_costs=bool(gt_frames) or label_file is not None,
     )
-    scene_result = run_scene(frames, config, observer=observer)
+    fates = FateCounter(rv_gate_consumes=config.rv_reference)
+    scene_result = run_scene(frames, config, observer=Tee(observer, fates))
     t_track, c_track = time.perf_counter(), time.process_time()
     observer.flush()
     t_flush, c_flush = time.perf_counter(), time.process_time()
@@ -240,6 +259,7 @@ def record_scene(
         "detections_kept": observer.detection_counts["kept"],
         **{f"tracks_{k}": v for k, v in observer.lifecycle_counts.items()},
     }
+    result.fates = fates.summary()
     _log_index(rec, result)
     rec.log(
         paths.SUMMARY,
@@ -262,6 +282,8 @@ def record_scene(
     if own:
         rec.flush()
         rec.disconnect()
+        if partial is not None and path is not None:
+            finish_temp(partial, Path(path))
     end, cpu_end = time.perf_counter(), time.process_time()
     result.total_seconds = end - start
     result.cpu_seconds = {
@@ -715,6 +737,22 @@ def summary_markdown(
     lines += [input_description or "(not given)", ""]
     lines += ["## Counts", "", "| what | count |", "|---|---:|"]
     lines += [f"| {k.replace('_', ' ')} | {v} |" for k, v in result.counts.items()]
+    if result.fates:
+        lines += ["", "## Detection fates", "", "Every input detection has exactly one fate.", ""]
+        classes = sorted({c for d in result.fates["per_fate_and_class"].values() for c in d})
+        lines += ["| fate | total | " + " | ".join(classes) + " |"]
+        lines += ["|---|---:|" + "---:|" * len(classes)]
+        for fate, total in result.fates["per_fate"].items():
+            per = result.fates["per_fate_and_class"].get(fate, {})
+            lines.append(
+                f"| {fate} | {total} | " + " | ".join(str(per.get(c, 0)) for c in classes) + " |"
+            )
+        lines += [
+            f"| **all** | {result.fates['detections']} |" + " |" * len(classes),
+            "",
+            f"{result.fates['in_unconfirmed_tracks']} matched or born detections went into "
+            "tracks never confirmed.",
+        ]
     ev = result.id_evaluation
     lines += ["", "## Static metrics", ""]
     if result.kitti_metrics:

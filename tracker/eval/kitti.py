@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from tracker.io.fileio import path_in
+
 SUPPORTED_CLASSES = ("car", "pedestrian", "cyclist")
 
 
@@ -44,9 +46,11 @@ def evaluate_kitti(
         (trackers_root / "mctrack" / "data").mkdir(parents=True)
         seqmap = []
         for seq, length in sorted(seq_lengths.items()):
-            shutil.copyfile(label_dir / f"{seq}.txt", gt_root / "label_02" / f"{seq}.txt")
-            result = result_dir / f"{seq}.txt"
-            target = trackers_root / "mctrack" / "data" / f"{seq}.txt"
+            shutil.copyfile(
+                path_in(label_dir, seq, ".txt"), path_in(gt_root / "label_02", seq, ".txt")
+            )
+            result = path_in(result_dir, seq, ".txt")
+            target = path_in(trackers_root / "mctrack" / "data", seq, ".txt")
             if result.is_file():
                 shutil.copyfile(result, target)
             else:

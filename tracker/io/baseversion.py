@@ -8,9 +8,12 @@ this boundary; inside the tracker the data is trusted.
 from __future__ import annotations
 
 import gzip
+import itertools
 import json
 import logging
 import math
+import os
+import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,7 +26,7 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
-from tracker.io.fileio import write_json_atomic
+from tracker.io.fileio import name_is_escaped, safe_filename, write_json_atomic
 
 log = logging.getLogger(__name__)
 
@@ -49,36 +52,192 @@ class LoadReport:
 # ---------------------------------------------------------------------------------------------
 # reading
 
+# Decompressed (or plain) input larger than this is refused before parsing: a 1 MB .json.gz can
+# expand to gigabytes. Generous for real files (a full nuScenes val split is ~0.5 GB); override
+# per call or with the MCTRACK_MAX_INPUT_BYTES environment variable.
+DEFAULT_MAX_INPUT_BYTES = 4 * 1024**3
+MAX_INPUT_BYTES_ENV = "MCTRACK_MAX_INPUT_BYTES"
+# Integers in the schema fit in int64 (ids, frame ids) or are exact in float64 (timestamps, µs);
+# longer literals are refused in the parser (before Python's 4,300-digit conversion limit).
+MAX_INT_DIGITS = 19
+INT64_MAX = 2**63 - 1
+MAX_EXACT_INT = 2**53
+MAX_TRANSFORM_DEPTH = 8  # transform_matrix is copied to outputs: bounded, finite, encodable
+MAX_SCENE_NAME_CHARS = 200  # scene names become file names (at most 255 bytes on most systems)
+
+
+class _Refused(ValueError):
+    """Raised inside the JSON parser's hooks; turned into an InputError with a location."""
+
+
+def max_input_bytes() -> int:
+    """The decompressed-size cap: ``MCTRACK_MAX_INPUT_BYTES`` if set, else the default."""
+    value = os.environ.get(MAX_INPUT_BYTES_ENV)
+    if not value:
+        return DEFAULT_MAX_INPUT_BYTES
+    try:
+        cap = int(value)
+    except ValueError:
+        raise InputError(f"{MAX_INPUT_BYTES_ENV}={value!r}: must be a number of bytes") from None
+    if cap <= 0:
+        raise InputError(f"{MAX_INPUT_BYTES_ENV}={value!r}: must be positive")
+    return cap
+
+
+def read_input_bytes(path: Path, cap: int | None = None) -> bytes:
+    """The file's bytes, gunzipped for ``.gz``, refused (InputError) beyond ``cap`` bytes."""
+    cap = max_input_bytes() if cap is None else cap
+    hint = f"(the cap; raise it with {MAX_INPUT_BYTES_ENV})"
+    try:
+        if path.suffix != ".gz":
+            size = path.stat().st_size
+            if size > cap:
+                raise InputError(f"{path}: {size} bytes is more than {cap} {hint}")
+            return path.read_bytes()
+        chunks: list[bytes] = []
+        total = 0
+        with gzip.open(path, "rb") as fh:
+            while chunk := fh.read(min(1 << 24, cap + 1 - total)):
+                chunks.append(chunk)
+                total += len(chunk)
+                if total > cap:
+                    raise InputError(f"{path}: decompresses to more than {cap} bytes {hint}")
+        return b"".join(chunks)
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a folder, not a file") from None
+    except (EOFError, gzip.BadGzipFile, zlib.error) as exc:
+        raise InputError(f"{path}: corrupt gzip data ({exc})") from None
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read ({exc.strerror or exc})") from None
+
+
+def _object_no_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    out = dict(pairs)
+    if len(out) != len(pairs):
+        seen: set[str] = set()
+        for key, _ in pairs:
+            if key in seen:
+                raise _Refused(f"duplicate key {key!r} in an object")
+            seen.add(key)
+    return out
+
+
+def _parse_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise _Refused(f"integer with {len(text.lstrip('-'))} digits (at most {MAX_INT_DIGITS})")
+    return int(text)
+
+
+def parse_json_bytes(path: Path, raw: bytes) -> Any:
+    """Strict, depth-safe JSON: duplicate keys and overlong integers are refused; every failure
+    is an InputError naming the file (and the line and column where the parser knows them)."""
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    try:
+        return json.loads(text, object_pairs_hook=_object_no_duplicates, parse_int=_parse_int)
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: malformed JSON ({exc})") from None
+    except _Refused as exc:
+        raise InputError(f"{path}: {exc}") from None
+    except RecursionError:
+        raise InputError(f"{path}: JSON nested too deeply") from None
+
 
 def read_baseversion(
     path: str | Path,
     *,
     fallback_frame_rate_hz: float | None = None,
     report: LoadReport | None = None,
+    max_bytes: int | None = None,
 ) -> Scenes:
     """Load and validate a BaseVersion file.
 
     Parameters
     ----------
-    path : the JSON file.
+    path : the JSON file (``.json`` or ``.json.gz``).
     fallback_frame_rate_hz : used when a frame's ``timestamp`` is null (official KITTI files):
         ``timestamp_secs = frame_id / rate``. Without it such frames get NaN timestamps.
     report : filled with counts of skipped boxes (unknown categories are a logged, counted skip).
+    max_bytes : decompressed-size cap (default :func:`max_input_bytes`).
 
     Raises
     ------
-    InputError naming the file, scene, frame index, box index and field.
+    InputError naming the file, scene, frame index, box index and field (the first error).
     """
-    path = Path(path)
-    report = report if report is not None else LoadReport()
+    errors = _Errors(limit=0)
+    return _read(Path(path), fallback_frame_rate_hz, report, max_bytes, errors)
+
+
+@dataclass
+class Validation:
+    """What :func:`validate_baseversion` found: the first ``max_errors`` messages and the total."""
+
+    errors: list[str]
+    error_count: int
+    scenes: Scenes
+    report: LoadReport
+
+    @property
+    def ok(self) -> bool:
+        return self.error_count == 0
+
+
+def validate_baseversion(
+    path: str | Path,
+    *,
+    max_errors: int = 50,
+    fallback_frame_rate_hz: float | None = None,
+    max_bytes: int | None = None,
+) -> Validation:
+    """Check a whole file, collecting every error (messages kept up to ``max_errors``).
+
+    A frame with an error is left out of ``scenes`` and the check goes on with the next one.
+    A file that cannot be parsed at all gives one error. Accepts exactly what
+    :func:`read_baseversion` accepts (and so what ``mctrack track`` processes to the end).
+    """
+    errors = _Errors(limit=max(1, max_errors))
+    report = LoadReport()
+    scenes: Scenes = {}
     try:
-        opener = gzip.open if path.suffix == ".gz" else open
-        with opener(path, "rb") as fh:
-            data = json.load(fh)
-    except FileNotFoundError:
-        raise InputError(f"{path}: file not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, EOFError, gzip.BadGzipFile) as exc:
-        raise InputError(f"{path}: malformed JSON ({exc})") from None
+        scenes = _read(Path(path), fallback_frame_rate_hz, report, max_bytes, errors)
+    except InputError as exc:  # unparseable file or top-level shape: nothing more to check
+        errors.add(str(exc))
+    return Validation(errors.messages, errors.count, scenes, report)
+
+
+class _Recorded(InputError):
+    """A frame's errors were already recorded: leave the frame out, add nothing."""
+
+
+class _Errors:
+    """limit 0: raise the first error; else record up to ``limit`` messages and count them all."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self.messages: list[str] = []
+        self.count = 0
+
+    def add(self, message: str) -> None:
+        if not self.limit:
+            raise InputError(message)
+        self.count += 1
+        if len(self.messages) < self.limit:
+            self.messages.append(message)
+
+
+def _read(
+    path: Path,
+    fallback_frame_rate_hz: float | None,
+    report: LoadReport | None,
+    max_bytes: int | None,
+    errors: _Errors,
+) -> Scenes:
+    report = report if report is not None else LoadReport()
+    data = parse_json_bytes(path, read_input_bytes(path, max_bytes))
     if isinstance(data, dict) and "results" in data and "meta" in data:
         raise InputError(
             f"{path}: this is a nuScenes results file, not BaseVersion; convert it first "
@@ -88,10 +247,15 @@ def read_baseversion(
         raise InputError(f"{path}: top level must be an object {{scene: [frame, ...]}}")
     scenes: Scenes = {}
     for scene, frames in data.items():
-        where = f"{path}: scene {scene!r}"
+        where = f"{path}: scene {_quote(scene)}"
+        problem = scene_name_problem(scene)
+        if problem:
+            errors.add(f"{where}: scene name {problem}")
+            continue
         if not isinstance(frames, list):
-            raise InputError(f"{where}: must map to a list of frames, got {type(frames).__name__}")
-        scenes[str(scene)] = _read_scene(str(scene), frames, where, fallback_frame_rate_hz, report)
+            errors.add(f"{where}: must map to a list of frames, got {type(frames).__name__}")
+            continue
+        scenes[scene] = _read_scene(scene, frames, where, fallback_frame_rate_hz, report, errors)
     if report.boxes_skipped:
         log.warning(
             "%s: skipped %d boxes of unknown categories: %s",
@@ -102,73 +266,156 @@ def read_baseversion(
     return scenes
 
 
+def _quote(text: str) -> str:
+    """repr() that is always printable and encodable (lone surrogates, NUL, controls escaped)."""
+    return ascii(text) if len(text) <= 80 else ascii(text[:80]) + "..."
+
+
+def scene_name_problem(name: str) -> str | None:
+    """Why a scene name cannot be used at all (None when it can).
+
+    Names with path separators, ``..`` or a leading dot are usable: file names built from them
+    are escaped by :func:`tracker.io.fileio.safe_filename`. Empty names, NUL, control characters,
+    lone surrogates and overlong names are refused.
+    """
+    if not name:
+        return "is empty"
+    if len(name) > MAX_SCENE_NAME_CHARS:
+        return f"is longer than {MAX_SCENE_NAME_CHARS} characters"
+    if any(ord(c) < 32 or ord(c) == 127 for c in name):
+        return "contains a NUL or control character"
+    if not _encodable(name):
+        return "contains a lone surrogate (not encodable text)"
+    return None
+
+
 def _read_scene(
     scene: str,
     frames: list[Any],
     where: str,
     fallback_rate: float | None,
     report: LoadReport,
+    errors: _Errors,
 ) -> list[Frame]:
     out: list[Frame] = []
     for index, raw in enumerate(frames):
         at = f"{where}, frame index {index}"
-        if not isinstance(raw, dict):
-            raise InputError(f"{at}: a frame must be an object")
-        for key in REQUIRED_FRAME_KEYS:
-            if key not in raw:
-                raise InputError(f"{at}: missing key '{key}'")
-        frame_id = _int_field(raw["frame_id"], at, "frame_id")
-        timestamp_secs = _timestamp(raw.get("timestamp"), frame_id, fallback_rate, at)
-        if out:
-            prev = out[-1]
-            if frame_id <= prev.frame_id:
-                raise InputError(
-                    f"{at}: field 'frame_id' = {frame_id} is not increasing "
-                    f"(previous frame_id {prev.frame_id})"
-                )
-            if timestamp_secs <= prev.timestamp_secs:
-                raise InputError(
-                    f"{at}: field 'timestamp' = {raw.get('timestamp')} is not increasing "
-                    f"(previous {prev.timestamp_secs:.6f} s)"
-                )
-        transform = raw.get("transform_matrix")
-        if transform is not None and not isinstance(transform, dict):
-            raise InputError(f"{at}: field 'transform_matrix' must be an object or null")
-        cameras = _read_cameras(transform, at)
-        camera_names = [c.name for c in cameras]
-        bboxes = raw["bboxes"]
-        if not isinstance(bboxes, list):
-            raise InputError(f"{at}: field 'bboxes' must be a list")
-        boxes = _read_boxes(bboxes, camera_names, at, report)
-        ignore_xyxy, ignore_cam = _read_ignore(raw.get("ignore_regions_image"), camera_names, at)
-        token = raw.get("cur_sample_token")
-        out.append(
-            Frame(
-                scene=scene,
-                frame_id=frame_id,
-                timestamp_secs=timestamp_secs,
-                boxes=boxes,
-                cameras=tuple(cameras),
-                world_from_ego=_world_from_ego(transform, at),
-                sample_token=None if token is None else str(token),
-                transform_matrix=transform,
-                ignore_xyxy_image=ignore_xyxy,
-                ignore_camera=ignore_cam,
-            )
-        )
+        try:
+            frame = _read_frame(scene, raw, at, fallback_rate, report, errors)
+            if out:
+                _check_order(out[-1], frame, raw, at)
+        except _Recorded:
+            continue
+        except InputError as exc:
+            errors.add(str(exc))
+            continue
+        out.append(frame)
     return out
 
 
-def _int_field(value: Any, at: str, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, int | float | str):
-        raise InputError(f"{at}: field '{name}' must be an integer, got {value!r}")
+def _check_order(prev: Frame, frame: Frame, raw: dict[str, Any], at: str) -> None:
+    if frame.frame_id <= prev.frame_id:
+        raise InputError(
+            f"{at}: field 'frame_id' = {frame.frame_id} is not increasing "
+            f"(previous frame_id {prev.frame_id})"
+        )
+    if frame.timestamp_secs <= prev.timestamp_secs:
+        raise InputError(
+            f"{at}: field 'timestamp' = {raw.get('timestamp')} is not increasing "
+            f"(previous {prev.timestamp_secs:.6f} s)"
+        )
+
+
+def _read_frame(
+    scene: str,
+    raw: Any,
+    at: str,
+    fallback_rate: float | None,
+    report: LoadReport,
+    errors: _Errors,
+) -> Frame:
+    if not isinstance(raw, dict):
+        raise InputError(f"{at}: a frame must be an object")
+    for key in REQUIRED_FRAME_KEYS:
+        if key not in raw:
+            raise InputError(f"{at}: missing key '{key}'")
+    frame_id = _int_field(raw["frame_id"], at, "frame_id", low=0, high=INT64_MAX)
+    timestamp_secs = _timestamp(raw.get("timestamp"), frame_id, fallback_rate, at)
+    transform = raw.get("transform_matrix")
+    if transform is not None and not isinstance(transform, dict):
+        raise InputError(f"{at}: field 'transform_matrix' must be an object or null")
+    _check_passthrough(transform, at, "transform_matrix", 0)
+    cameras = _read_cameras(transform, at)
+    camera_names = [c.name for c in cameras]
+    bboxes = raw["bboxes"]
+    if not isinstance(bboxes, list):
+        raise InputError(f"{at}: field 'bboxes' must be a list")
+    boxes = _read_boxes(bboxes, camera_names, at, report, errors)
+    ignore_xyxy, ignore_cam = _read_ignore(raw.get("ignore_regions_image"), camera_names, at)
+    token = raw.get("cur_sample_token")
+    if token is not None and not isinstance(token, str):
+        raise InputError(f"{at}: field 'cur_sample_token' must be a string or null")
+    return Frame(
+        scene=scene,
+        frame_id=frame_id,
+        timestamp_secs=timestamp_secs,
+        boxes=boxes,
+        cameras=tuple(cameras),
+        world_from_ego=_world_from_ego(transform, at),
+        sample_token=token,
+        transform_matrix=transform,
+        ignore_xyxy_image=ignore_xyxy,
+        ignore_camera=ignore_cam,
+    )
+
+
+def _check_passthrough(value: Any, at: str, name: str, depth: int) -> None:
+    """``transform_matrix`` is copied into output files: bounded depth, finite numbers,
+    encodable strings (else the writer would fail after the whole run)."""
+    if depth > MAX_TRANSFORM_DEPTH:
+        raise InputError(f"{at}: field '{name}' is nested deeper than {MAX_TRANSFORM_DEPTH}")
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not _encodable(key):
+                raise InputError(f"{at}: field '{name}' has a key with a lone surrogate")
+            _check_passthrough(item, at, f"{name}.{_safe_key(key)}", depth + 1)
+    elif isinstance(value, list):
+        for item in value:
+            _check_passthrough(item, at, name, depth + 1)
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise InputError(f"{at}: field '{name}' contains NaN or inf")
+    elif isinstance(value, str) and not _encodable(value):
+        raise InputError(f"{at}: field '{name}' contains a lone surrogate")
+
+
+def _encodable(text: str) -> bool:
     try:
-        number = float(value)
-    except ValueError:
-        raise InputError(f"{at}: field '{name}' must be an integer, got {value!r}") from None
-    if not math.isfinite(number) or number != int(number):
-        raise InputError(f"{at}: field '{name}' must be an integer, got {value!r}")
-    return int(number)
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return False
+    return True
+
+
+def _safe_key(key: str) -> str:
+    return key if key.isprintable() and len(key) <= 40 else _quote(key)
+
+
+def _int_field(
+    value: Any, at: str, name: str, *, low: int = -INT64_MAX, high: int = INT64_MAX
+) -> int:
+    """A JSON integer (not a float, string or bool) within [low, high]."""
+    if type(value) is not int:
+        raise InputError(f"{at}: field '{name}' must be an integer, got {_short(value)}")
+    if not low <= value <= high:
+        raise InputError(f"{at}: field '{name}' = {value} is outside [{low}, {high}]")
+    return value
+
+
+def _short(value: Any) -> str:
+    """A printable, encodable, bounded repr for error messages (input may hold anything)."""
+    text = repr(value)
+    text = text[:60] + "..." if len(text) > 60 else text
+    return text.encode("ascii", "backslashreplace").decode()
 
 
 def _timestamp(value: Any, frame_id: int, fallback_rate: float | None, at: str) -> float:
@@ -177,12 +424,18 @@ def _timestamp(value: Any, frame_id: int, fallback_rate: float | None, at: str) 
         return frame_id / fallback_rate if fallback_rate else math.nan
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InputError(f"{at}: field 'timestamp' must be microseconds (a number) or null")
-    if not math.isfinite(value):
+    if isinstance(value, float) and not math.isfinite(value):
         raise InputError(f"{at}: field 'timestamp' is not finite ({value})")
+    if abs(value) > MAX_EXACT_INT:
+        raise InputError(f"{at}: field 'timestamp' = {value} is outside ±2^53 µs")
     return float(value) / MICROS_PER_SEC
 
 
 def _matrix(value: Any, shapes: tuple[tuple[int, int], ...], at: str, name: str) -> FloatArray:
+    if not isinstance(value, list) or not all(
+        isinstance(row, list) and set(map(type, row)) <= {int, float} for row in value
+    ):
+        raise InputError(f"{at}: field '{name}' is not a numeric matrix (lists of numbers)")
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError):
@@ -197,7 +450,13 @@ def _matrix(value: Any, shapes: tuple[tuple[int, int], ...], at: str, name: str)
 def _world_from_ego(transform: dict[str, Any] | None, at: str) -> FloatArray:
     if transform and transform.get("global2ego") is not None:
         ego_from_world = _matrix(transform["global2ego"], ((4, 4),), at, "global2ego")
-        return np.linalg.inv(ego_from_world)
+        try:
+            world_from_ego = np.linalg.inv(ego_from_world)
+        except np.linalg.LinAlgError:
+            raise InputError(f"{at}: field 'global2ego' is singular (not a pose)") from None
+        if not np.isfinite(world_from_ego).all():
+            raise InputError(f"{at}: field 'global2ego' is singular (not a pose)")
+        return world_from_ego
     return np.full((4, 4), np.nan)
 
 
@@ -271,53 +530,86 @@ def _read_ignore(value: Any, camera_names: list[str], at: str) -> tuple[FloatArr
     return xyxy, cam
 
 
-def _read_boxes(bboxes: list[Any], camera_names: list[str], at: str, report: LoadReport) -> Boxes:
-    """Fast path: one array per field. On any failure, re-walk to name the exact box and field."""
-    report.boxes_read += len(bboxes)
+def _read_boxes(
+    bboxes: list[Any], camera_names: list[str], at: str, report: LoadReport, errors: _Errors
+) -> Boxes:
+    """Fast path: one array per field. On any failure, re-walk to name every bad box and field."""
     if not bboxes:
         return Boxes.empty()
     try:
-        return _boxes_fast(bboxes, camera_names, report)
-    except (KeyError, TypeError, ValueError, AttributeError):
+        boxes = _boxes_fast(bboxes, camera_names, report)
+        report.boxes_read += len(bboxes)
+        return boxes
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
         pass
+    recorded = False
     for i, b in enumerate(bboxes):
-        _check_box(b, f"{at}, box {i}")
-    raise InputError(f"{at}: invalid boxes")  # _check_box raises first; kept as a guard
+        try:
+            _check_box(b, f"{at}, box {i}")
+        except InputError as exc:
+            errors.add(str(exc))  # raises the first when not collecting
+            recorded = True
+    if recorded:
+        raise _Recorded(f"{at}: invalid boxes")  # the frame is left out; errors are recorded
+    raise InputError(f"{at}: invalid boxes")  # a guard: the fast path refused, the check did not
+
+
+_NUMBER_TYPES = {int, float}
+
+
+def _numbers(rows: list[Any]) -> bool:
+    """Every row is a list of JSON numbers (no strings, booleans or nested lists)."""
+    return (
+        set(map(type, rows)) <= {list}
+        and set(map(type, itertools.chain.from_iterable(rows))) <= _NUMBER_TYPES
+    )
 
 
 def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) -> Boxes:
-    cats = np.array([category_index(b["category"]) for b in bboxes], dtype=np.int64)
+    names = [b["category"] for b in bboxes]
+    if set(map(type, names)) != {str}:
+        raise ValueError("category must be a string")
+    cats = np.array([category_index(n) for n in names], dtype=np.int64)
     known = cats >= 0
-    if not known.all():
-        for b, ok in zip(bboxes, known, strict=True):
-            if not ok:
-                report.skipped_categories[str(b["category"])] += 1
-    xyz = np.array([b["global_xyz"] for b in bboxes], dtype=np.float64)
-    lwh = np.array([b["lwh"] for b in bboxes], dtype=np.float64)
-    yaw = np.array([b["global_yaw"] for b in bboxes], dtype=np.float64)
-    score = np.array([b["detection_score"] for b in bboxes], dtype=np.float64)
-    vel = np.array([b.get("global_velocity") or (0.0, 0.0) for b in bboxes], dtype=np.float64)
-    raw = np.array([_opt_float(b.get("detection_score_raw")) for b in bboxes], dtype=np.float64)
-    tid = np.array([b.get("track_id", -1) for b in bboxes], dtype=np.int64)
+    xyz_rows = [b["global_xyz"] for b in bboxes]
+    lwh_rows = [b["lwh"] for b in bboxes]
+    yaw_list = [b["global_yaw"] for b in bboxes]
+    score_list = [b["detection_score"] for b in bboxes]
+    vel_rows = [b.get("global_velocity") or [0.0, 0.0] for b in bboxes]
+    raw_list = [b.get("detection_score_raw") for b in bboxes]
+    tid_list = [b.get("track_id", -1) for b in bboxes]
     images = [b.get("bbox_image") or {} for b in bboxes]
-    xyxy = np.array([im.get("x1y1x2y2") or (np.nan,) * 4 for im in images], dtype=np.float64)
-    cam = np.array(
-        [
-            camera_names.index(im.get("camera_type"))
-            if im.get("camera_type") in camera_names
-            else -1
-            for im in images
-        ],
-        dtype=np.int64,
-    )
+    given = [im.get("x1y1x2y2") for im in images]
+    xyxy_rows = [v if v is not None else [math.nan] * 4 for v in given]
+    cam_names = [im.get("camera_type") for im in images]
+    # JSON booleans and strings would pass numpy's float conversion: check the types first
+    if not (
+        _numbers(xyz_rows)
+        and _numbers(lwh_rows)
+        and _numbers(vel_rows)
+        and _numbers(xyxy_rows)
+        and set(map(type, yaw_list)) <= _NUMBER_TYPES
+        and set(map(type, score_list)) <= _NUMBER_TYPES
+        and set(map(type, raw_list)) <= {int, float, type(None)}
+        and set(map(type, tid_list)) <= {int}
+        and set(map(type, cam_names)) <= {str, type(None)}
+    ):
+        raise TypeError("slow path names the field")
+    xyz = np.array(xyz_rows, dtype=np.float64)
+    lwh = np.array(lwh_rows, dtype=np.float64)
+    yaw = np.array(yaw_list, dtype=np.float64)
+    score = np.array(score_list, dtype=np.float64)
+    vel = np.array(vel_rows, dtype=np.float64)
+    raw = np.array([math.nan if v is None else v for v in raw_list], dtype=np.float64)
+    if any(not -1 <= t <= INT64_MAX for t in tid_list):
+        raise ValueError("slow path names the field")
+    tid = np.array(tid_list, dtype=np.int64)
+    xyxy = np.array(xyxy_rows, dtype=np.float64)
+    index = {name: i for i, name in enumerate(camera_names)}
+    cam = np.array([index.get(c, -1) if c else -1 for c in cam_names], dtype=np.int64)
     n = len(bboxes)
     shapes_ok = (
-        xyz.shape == (n, 3)
-        and lwh.shape == (n, 3)
-        and yaw.shape == (n,)
-        and score.shape == (n,)
-        and vel.shape == (n, 2)
-        and xyxy.shape == (n, 4)
+        xyz.shape == (n, 3) and lwh.shape == (n, 3) and vel.shape == (n, 2) and xyxy.shape == (n, 4)
     )
     values_ok = (
         shapes_ok
@@ -326,12 +618,18 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         and np.isfinite(yaw).all()
         and np.isfinite(score).all()
         and np.isfinite(vel).all()
-        and (lwh >= 0).all()
+        and (lwh[:, :2] > 0).all()
+        and (lwh[:, 2] >= 0).all()
         and ((score >= 0) & (score <= 1)).all()
-        and not np.isinf(xyxy).any()
+        and np.isfinite(xyxy[[v is not None for v in given]]).all()
+        and not np.isinf(raw).any()
     )
     if not values_ok:
         raise ValueError("slow path names the field")
+    if not known.all():
+        for name, ok in zip(names, known, strict=True):
+            if not ok:
+                report.skipped_categories[name] += 1
     return Boxes(
         xyz=xyz[known],
         lwh=lwh[known],
@@ -358,11 +656,13 @@ def _check_box(b: Any, at: str) -> None:
         if key not in b:
             raise InputError(f"{at}: missing key '{key}'")
     if not isinstance(b["category"], str):
-        raise InputError(f"{at}: field 'category' must be a string, got {b['category']!r}")
+        raise InputError(f"{at}: field 'category' must be a string, got {_short(b['category'])}")
     _vector(b, "global_xyz", 3, at)
     lwh = _vector(b, "lwh", 3, at)
-    if (lwh < 0).any():
-        raise InputError(f"{at}: field 'lwh' has a negative size {lwh.tolist()}")
+    if not ((lwh[:2] > 0).all() and lwh[2] >= 0):
+        raise InputError(
+            f"{at}: field 'lwh' = {lwh.tolist()}: length and width must be > 0, height >= 0"
+        )
     _vector(b, "global_yaw", None, at)
     score = _vector(b, "detection_score", None, at)
     if not 0.0 <= float(score) <= 1.0:
@@ -372,16 +672,14 @@ def _check_box(b: Any, at: str) -> None:
     if b.get("detection_score_raw") is not None:
         _vector(b, "detection_score_raw", None, at, allow_nan=True)
     if "track_id" in b:
-        _int_field(b["track_id"], at, "track_id")
+        _int_field(b["track_id"], at, "track_id", low=-1)
     image = b.get("bbox_image")
     if image is not None:
         if not isinstance(image, dict):
             raise InputError(f"{at}: field 'bbox_image' must be an object or null")
         box = image.get("x1y1x2y2")
         if box is not None:
-            arr = _vector(image, "x1y1x2y2", 4, at, prefix="bbox_image.")
-            if not np.isfinite(arr).all():
-                raise InputError(f"{at}: field 'bbox_image.x1y1x2y2' contains NaN or inf")
+            _vector(image, "x1y1x2y2", 4, at, prefix="bbox_image.")
         cam = image.get("camera_type")
         if cam is not None and not isinstance(cam, str):
             raise InputError(f"{at}: field 'bbox_image.camera_type' must be a string or null")
@@ -396,20 +694,20 @@ def _vector(
     allow_nan: bool = False,
     prefix: str = "",
 ) -> np.ndarray:
+    """A JSON number (``size`` None) or a list of ``size`` JSON numbers; booleans and strings
+    are refused (numpy would read ``"2.5"`` and ``true`` as numbers)."""
     name = prefix + key
     value = b[key]
-    if isinstance(value, bool) or (size is None and not isinstance(value, int | float)):
-        raise InputError(f"{at}: field '{name}' must be a number, got {value!r}")
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{at}: field '{name}' must be numeric, got {value!r}") from None
-    expected = () if size is None else (size,)
-    if arr.shape != expected:
-        what = "a number" if size is None else f"a list of {size} numbers"
-        raise InputError(f"{at}: field '{name}' must be {what}, got {value!r}")
+    what = "a number" if size is None else f"a list of {size} numbers"
+    if size is None:
+        ok = type(value) in _NUMBER_TYPES
+    else:
+        ok = isinstance(value, list) and len(value) == size and _numbers([value])
+    if not ok:
+        raise InputError(f"{at}: field '{name}' must be {what}, got {_short(value)}")
+    arr = np.asarray(value, dtype=np.float64)
     if not allow_nan and not np.isfinite(arr).all():
-        raise InputError(f"{at}: field '{name}' contains NaN or inf: {value!r}")
+        raise InputError(f"{at}: field '{name}' contains NaN or inf: {_short(value)}")
     return arr
 
 
@@ -441,7 +739,9 @@ def frame_to_dict(frame: Frame) -> dict[str, Any]:
             "global_velocity": b.velocity[i].tolist(),
             "global_acceleration": [0.0, 0.0],
             "bbox_image": {
-                "camera_type": names[b.camera[i]] if b.camera[i] >= 0 else None,
+                # a track's camera comes from the frame of its last detection: this frame
+                # may have fewer cameras (cameras are per frame in the input)
+                "camera_type": names[b.camera[i]] if 0 <= b.camera[i] < len(names) else None,
                 "x1y1x2y2": None if np.isnan(b.xyxy_image[i]).any() else b.xyxy_image[i].tolist(),
             },
         }
@@ -519,4 +819,7 @@ def summarize(scenes: Scenes, report: LoadReport | None = None) -> dict[str, Any
     }
     if report is not None and report.boxes_skipped:
         out["skipped_unknown_categories"] = dict(sorted(report.skipped_categories.items()))
+    escaped = {s: safe_filename(s) for s in scenes if name_is_escaped(s)}
+    if escaped:  # path separators, "..", a leading dot...: written under an escaped file name
+        out["scene_names_escaped_in_file_names"] = escaped
     return out

@@ -1,32 +1,108 @@
-"""Atomic file output: every output file is written completely or not at all."""
+"""File I/O at the trust boundary.
+
+Output: every file is written completely or not at all (a temporary file in the same folder,
+fsynced, then renamed); temporary files stranded by a killed run are removed by the next write
+to that folder. Input: ``.npz`` files are read without unrestricted pickle (:func:`load_npz`).
+"""
 
 from __future__ import annotations
 
 import gzip
+import hashlib
+import io
 import json
 import os
+import pickle
 import tempfile
-from collections.abc import Iterable
+import time
+import zipfile
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from tracker.errors import InputError
+
+TEMP_SUFFIX = ".tmp"
+# Temp names are ``.<name>.<pid>.<random>.tmp``: a temp of a process that no longer runs is
+# stranded (killed run) and removed by the next write to the folder; one of a live process
+# (another run writing there now) is kept unless older than this.
+STALE_TEMP_SECS = 3600.0
+
+
+def temp_name(path: Path) -> str:
+    """The prefix of a temporary file for ``path`` (same folder, hidden, with our pid)."""
+    return f".{path.name}.{os.getpid()}."
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True  # exists (another user's) or unparseable: keep it
+    return True
+
+
+def remove_stale_temps(folder: str | Path, *, older_than_secs: float = STALE_TEMP_SECS) -> int:
+    """Delete temporary files a killed run left in ``folder``; returns how many."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return 0
+    now = time.time()
+    removed = 0
+    for p in folder.glob(f".*{TEMP_SUFFIX}"):
+        parts = p.name.rsplit(".", 3)  # ['.<name>', '<pid>', '<random>', 'tmp']
+        pid = int(parts[1]) if len(parts) == 4 and parts[1].isdigit() else None
+        try:
+            if not p.is_file():
+                continue
+            dead = pid is not None and not _pid_alive(pid)
+            if dead or now - p.stat().st_mtime > older_than_secs:
+                p.unlink()
+                removed += 1
+        except OSError:
+            continue  # another process took it: not ours to report
+    return removed
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return  # some filesystems do not open directories; the rename is still atomic
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
 
 def write_bytes_atomic(path: str | Path, data: bytes | Iterable[bytes]) -> None:
-    """Write to a temporary file in the same folder, then rename it into place.
+    """Write to a temporary file in the same folder, fsync it, then rename it into place.
 
     ``data`` may be an iterable of chunks, so a large file assembled from parts is streamed.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    remove_stale_temps(path.parent)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=temp_name(path), suffix=TEMP_SUFFIX)
     try:
         with os.fdopen(fd, "wb") as fh:
             for chunk in [data] if isinstance(data, bytes) else data:
                 fh.write(chunk)
+            fh.flush()
+            os.fsync(fh.fileno())  # the data is on disk before the name points at it
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; use the user's normal mode
         os.replace(tmp, path)
+        _fsync_dir(path.parent)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
@@ -45,3 +121,191 @@ def write_json_atomic(path: str | Path, payload: Any) -> None:
 
 def write_text_atomic(path: str | Path, lines: list[str]) -> None:
     write_bytes_atomic(path, "".join(lines).encode())
+
+
+# ---------------------------------------------------------------------------------------------
+# npz input without code execution
+
+# The only globals a numpy object array's pickle needs: arrays, dtypes and numpy scalars.
+# Python lists, tuples, dicts, numbers, strings and None need no global at all.
+_NUMPY_GLOBALS = {
+    ("numpy._core.multiarray", "_reconstruct"),
+    ("numpy.core.multiarray", "_reconstruct"),
+    ("numpy._core.multiarray", "scalar"),
+    ("numpy.core.multiarray", "scalar"),
+    ("numpy", "ndarray"),
+    ("numpy", "dtype"),
+}
+
+
+class _NumpyOnlyUnpickler(pickle.Unpickler):
+    """Refuses every global but numpy's array/dtype/scalar constructors: a crafted file cannot
+    name ``os.system`` or any other callable, so loading it cannot run code."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        if (module, name) not in _NUMPY_GLOBALS:
+            raise pickle.UnpicklingError(f"refused global {module}.{name}")
+        if name == "ndarray":
+            return np.ndarray
+        if name == "dtype":
+            return np.dtype
+        from numpy._core import multiarray  # numpy >= 2 (pyproject pins numpy>=2)
+
+        return getattr(multiarray, name)
+
+
+class SafeNpz:
+    """The arrays of an ``.npz`` file, read eagerly; mapping-like (``files``, ``[key]``, ``in``).
+
+    Plain arrays are read with ``allow_pickle=False``. Object arrays (the ragged per-frame lists
+    of the ImmortalTracker / MCTrack Waymo files) go through :class:`_NumpyOnlyUnpickler`.
+    """
+
+    def __init__(self, arrays: dict[str, np.ndarray]) -> None:
+        self._arrays = arrays
+        self.files = list(arrays)
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self._arrays[key]
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._arrays
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._arrays)
+
+    def __enter__(self) -> SafeNpz:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+
+def _read_npy(fh: Any, where: str) -> np.ndarray:
+    version = np.lib.format.read_magic(fh)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+    elif version in ((2, 0), (3, 0)):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+    else:
+        raise ValueError(f"unsupported .npy version {version}")
+    if not dtype.hasobject:
+        data = fh.read()
+        count = int(np.prod(shape, dtype=np.int64))
+        if len(data) != count * dtype.itemsize:
+            raise ValueError(f"{where}: {len(data)} bytes for {count} items of {dtype}")
+        arr = np.frombuffer(data, dtype=dtype, count=count).copy()
+        return arr.reshape(shape, order="F" if fortran else "C")
+    arr = _NumpyOnlyUnpickler(fh).load()
+    if not isinstance(arr, np.ndarray):
+        raise ValueError(f"{where}: not an array")
+    return arr
+
+
+def load_npz(path: str | Path, what: str = "npz") -> SafeNpz:
+    """Read an ``.npz`` file without running code from it.
+
+    Raises InputError (naming the file and the member) when the file is missing, not an npz,
+    or holds anything but arrays of numbers, strings, lists and None.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: {what} file not found")
+    arrays: dict[str, np.ndarray] = {}
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                key = info.filename.removesuffix(".npy")
+                with zf.open(info) as member:
+                    arrays[key] = _read_npy(io.BufferedReader(member), f"member '{key}'")
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
+        raise InputError(f"{path}: unreadable {what} file ({exc})") from None
+    except Exception as exc:  # a malformed pickle stream can raise almost anything
+        raise InputError(f"{path}: unreadable {what} file ({type(exc).__name__})") from None
+    return SafeNpz(arrays)
+
+
+# ---------------------------------------------------------------------------------------------
+# file names from input data
+
+_SAFE_CHARS = frozenset("ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789-_.")
+_MAX_NAME_BYTES = 200  # below the usual 255-byte file-name limit, room for a suffix
+
+
+def safe_filename(name: str) -> str:
+    """A file name (one path component) for an input-data name, e.g. a scene.
+
+    Injective and reversible: characters outside ``[A-Za-z0-9._-]`` (and ``%``) become ``%XX``
+    of their UTF-8 bytes, as does a leading dot, so ``..``, ``/abs``, ``a/b``, NUL and hidden
+    names cannot leave or hide in the folder. Lone surrogates are escaped too. Overlong
+    results are cut and suffixed with a hash of the name. Safe names (``0001``, ``scene-0103``,
+    Waymo segment stems) are unchanged.
+    """
+    data = name.encode("utf-8", "surrogatepass")
+    out: list[str] = []
+    for i, byte in enumerate(data):
+        char = chr(byte)
+        if char in _SAFE_CHARS and not (i == 0 and char == "."):
+            out.append(char)
+        else:
+            out.append(f"%{byte:02X}")
+    text = "".join(out) or "%"  # the empty name: a bare % is never the escape of another
+    if len(text) > _MAX_NAME_BYTES:
+        text = text[:150] + "~" + hashlib.sha256(data).hexdigest()[:16]
+    return text
+
+
+def name_is_escaped(name: str) -> bool:
+    """True when :func:`safe_filename` changes the name (``mctrack validate`` reports these)."""
+    return safe_filename(name) != name
+
+
+def path_in(folder: str | Path, name: str, suffix: str = "") -> Path:
+    """``folder / (safe_filename(name) + suffix)``, checked to stay inside ``folder``."""
+    folder = Path(folder)
+    path = folder / (safe_filename(name) + suffix)
+    if path.resolve().parent != folder.resolve():  # cannot happen after escaping: a guard
+        raise InputError(f"name {name!r}: would leave the output folder {folder}")
+    return path
+
+
+def check_output_folder(folder: str | Path, option: str = "--out") -> Path:
+    """Create ``folder`` if needed and prove it writable, before any work (InputError if not)."""
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"{option} {folder}: exists and is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".mctrack-probe.", suffix=TEMP_SUFFIX)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise InputError(f"{option} {folder}: not writable ({exc.strerror or exc})") from None
+    return folder
+
+
+def check_output_file(path: str | Path, option: str = "--out") -> Path:
+    """An output *file* path: not a folder, and its folder writable (checked before any work)."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{option} {path}: is a folder, expected a file name")
+    check_output_folder(path.parent, option)
+    return path
+
+
+def finish_temp(tmp: Path, path: Path) -> None:
+    """Rename a completed temporary file (streamed by someone else, e.g. a recording) into
+    place, after an fsync; the name appears only when the file is complete."""
+    with open(tmp, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    _fsync_dir(path.parent)
+
+
+def output_manifest(folder: str | Path, paths: list[Path]) -> list[dict[str, Any]]:
+    """``[{"path": relative path, "bytes": size}]`` of written outputs, for a summary written
+    last: a run cut short has no summary, and a file not matching its listed size is stale."""
+    folder = Path(folder)
+    return [
+        {"path": p.relative_to(folder).as_posix(), "bytes": p.stat().st_size} for p in sorted(paths)
+    ]

@@ -10,10 +10,10 @@ Layout: ``OUT/{vehicle,pedestrian,cyclist}/<segment>.npz``, each with
 * ``timestamps``: (F,) frame timestamps in µs.
 
 Frames without a track keep an empty list, so every segment file has one entry per frame of
-``ts_info``. The ragged per-frame lists are pickled object arrays (``np.load(...,
-allow_pickle=True)``), exactly what the reference's ``pred_bin.py`` (from ImmortalTracker) reads:
-it turns these files into the ``pred.bin`` protobuf of the Waymo tracking benchmark (moving each
-box back to the vehicle frame with ``ego_info``). That step needs TensorFlow and the
+``ts_info``. The ragged per-frame lists are pickled object arrays, exactly what the reference's
+``pred_bin.py`` (from ImmortalTracker) reads (we read them back with a numpy-only unpickler): it
+turns these files into the ``pred.bin`` protobuf of the Waymo tracking benchmark (moving each box
+back to the vehicle frame with ``ego_info``). That step needs TensorFlow and the
 ``waymo-open-dataset`` package, which this project does not depend on (docs/nuscenes_waymo.md).
 """
 
@@ -29,7 +29,7 @@ import numpy as np
 from tracker.categories import CATEGORIES
 from tracker.events import TrackOutput, TrackStatus
 from tracker.frame import Frame
-from tracker.io.fileio import write_bytes_atomic
+from tracker.io.fileio import load_npz, path_in, write_bytes_atomic
 
 #: Our category → the Waymo result folder (the benchmark's object types).
 WAYMO_RESULT_DIRS: Final[dict[str, str]] = {
@@ -96,13 +96,14 @@ def write_waymo_results(
                 velos=_ragged(velos),
                 timestamps=timestamps,
             )
-            write_bytes_atomic(out_dir / result_type / f"{segment}.npz", buffer.getvalue())
+            path = path_in(out_dir / result_type, segment, ".npz")  # names are input data
+            write_bytes_atomic(path, buffer.getvalue())
     return written
 
 
 def read_waymo_results(path: str | Path) -> tuple[list[list[int]], list[np.ndarray]]:
     """``(ids, bboxes)`` per frame of one result file (rows ``[x, y, z, o, l, w, h, s]``)."""
-    with np.load(Path(path), allow_pickle=True) as npz:
+    with load_npz(Path(path), "Waymo result") as npz:  # numpy-only unpickler: no code runs
         ids = [list(map(int, row)) for row in npz["ids"]]
         bboxes = [np.asarray(row, dtype=np.float64).reshape(-1, 8) for row in npz["bboxes"]]
     return ids, bboxes

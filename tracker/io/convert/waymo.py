@@ -40,7 +40,6 @@ from __future__ import annotations
 import itertools
 import json
 import logging
-import zipfile
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -54,6 +53,7 @@ from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.io.convert.nuscenes import assign_cameras
+from tracker.io.fileio import SafeNpz, load_npz
 
 log = logging.getLogger(__name__)
 
@@ -90,13 +90,8 @@ class _EgoFrame:
     transform_matrix: dict[str, Any]
 
 
-def _load_npz(path: Path, what: str) -> Any:
-    if not path.is_file():
-        raise InputError(f"{path}: {what} file not found")
-    try:
-        return np.load(path, allow_pickle=True)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
-        raise InputError(f"{path}: unreadable {what} file ({exc})") from None
+def _load_npz(path: Path, what: str) -> SafeNpz:
+    return load_npz(path, what)  # no unrestricted pickle: input files are untrusted
 
 
 def read_timestamps(path: Path) -> list[int]:

@@ -1,0 +1,201 @@
+"""Detection fates: every input detection ends in exactly one fate, with a reason code.
+
+:class:`FateCounter` is an observer (:mod:`tracker.events`): it derives each detection's fate
+from the stage events the tracker emits anyway, so the tracker itself keeps no bookkeeping.
+
+Fates, in the order a detection meets them:
+
+* ``dropped_category`` / ``dropped_score`` / ``dropped_nms``: removed by the pre-filter;
+* ``matched_bev`` / ``matched_rv``: updated a track in stage 1 (BEV) or stage 2 (image plane);
+* ``born``: started a new (tentative) track;
+* ``unused_rv_gate``: kept, but consumed by an image-plane pair that failed the yaw/distance
+  gate (reference mode drops such detections, as the original code does);
+* ``unused_below_birth``: kept, matched no track and scored too low to start one.
+
+Unknown categories are skipped by the loader before the tracker sees them
+(:class:`tracker.io.baseversion.LoadReport`); :meth:`FateCounter.summary` reports them beside.
+Separately, ``in_unconfirmed_tracks`` counts matched/born detections whose track was never
+confirmed by the end of the scene (they are not in the online output).
+"""
+
+from __future__ import annotations
+
+import enum
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from tracker.categories import CATEGORIES
+from tracker.events import (
+    DetectionsFiltered,
+    DropReason,
+    Event,
+    FrameFinished,
+    LifecycleChanged,
+    Matched,
+    Stage,
+)
+
+
+class Fate(enum.IntEnum):
+    PENDING = -1  # internal: not decided yet (never in a summary)
+    DROPPED_CATEGORY = 0
+    DROPPED_SCORE = 1
+    DROPPED_NMS = 2
+    MATCHED_BEV = 3
+    MATCHED_RV = 4
+    BORN = 5
+    UNUSED_RV_GATE = 6
+    UNUSED_BELOW_BIRTH = 7
+
+
+FATE_NAMES: dict[Fate, str] = {f: f.name.lower() for f in Fate if f is not Fate.PENDING}
+_FROM_DROP = {
+    DropReason.CATEGORY: Fate.DROPPED_CATEGORY,
+    DropReason.SCORE: Fate.DROPPED_SCORE,
+    DropReason.NMS: Fate.DROPPED_NMS,
+}
+
+
+class FateCounter:
+    """Counts detections per fate and category over any number of frames and scenes.
+
+    Use as (or inside) the tracker's observer; ``summary()`` gives the counts. Pass
+    ``rv_gate_consumes=config.rv_reference``. Raises
+    RuntimeError if a frame's detections do not each get exactly one fate (a tracker change
+    that emits fewer events would otherwise lose detections silently).
+    """
+
+    wants_rv_costs = False  # the tracker may skip an image-plane stage that cannot match
+
+    def __init__(self, *, rv_gate_consumes: bool = False) -> None:
+        # reference mode (config.rv_reference) drops detections of gated image-plane pairs;
+        # otherwise they go back to the pool and only the birth score can leave them unused
+        self.rv_gate_consumes = rv_gate_consumes
+        self.counts: Counter[tuple[str, str]] = Counter()  # (fate, category) -> detections
+        self.detections = 0
+        self._fate: np.ndarray | None = None
+        self._category: np.ndarray | None = None
+        self._rv_rejected: np.ndarray = np.zeros(0, dtype=np.int64)
+        self._track_dets: Counter[int] = Counter()  # detections fed to each track of the scene
+        self._confirmed: set[int] = set()
+        self._scene: str | None = None
+        self.in_unconfirmed_tracks = 0
+
+    def __call__(self, event: Event) -> None:
+        if isinstance(event, DetectionsFiltered):
+            if event.frame.scene != self._scene:
+                self._close_scene()
+                self._scene = event.frame.scene
+            reason = event.reason
+            fate = np.full(len(reason), Fate.PENDING, dtype=np.int8)
+            for drop, f in _FROM_DROP.items():
+                fate[reason == drop] = f
+            self._fate, self._category = fate, event.frame.boxes.category
+            self._rv_rejected = np.zeros(0, dtype=np.int64)
+        elif isinstance(event, Matched) and self._fate is not None:
+            f = Fate.MATCHED_BEV if event.stage is Stage.BEV else Fate.MATCHED_RV
+            self._fate[event.det_rows] = f
+            self._track_dets.update(event.track_ids.tolist())
+            if event.stage is Stage.RV and self.rv_gate_consumes:
+                self._rv_rejected = event.rejected_det_rows
+        elif isinstance(event, LifecycleChanged) and self._fate is not None:
+            self._fate[event.born_det_rows] = Fate.BORN
+            self._track_dets.update(event.born.tolist())
+            self._confirmed.update(event.confirmed.tolist())
+        elif isinstance(event, FrameFinished) and self._fate is not None:
+            self._finish_frame()
+
+    def _finish_frame(self) -> None:
+        fate, category = self._fate, self._category
+        assert fate is not None and category is not None
+        pending = fate == Fate.PENDING
+        gated = np.zeros(len(fate), dtype=bool)
+        gated[self._rv_rejected] = True
+        fate[pending & gated] = Fate.UNUSED_RV_GATE
+        fate[pending & ~gated] = Fate.UNUSED_BELOW_BIRTH
+        if (fate == Fate.PENDING).any():  # cannot happen: every row was given a fate above
+            raise RuntimeError("detection fates: a detection got no fate")
+        pairs = np.stack([fate.astype(np.int64), category], axis=1)
+        keys, n = np.unique(pairs, axis=0, return_counts=True) if len(fate) else ([], [])
+        for (f, c), k in zip(keys, n, strict=True):
+            self.counts[(FATE_NAMES[Fate(int(f))], CATEGORIES[int(c)])] += int(k)
+        self.detections += len(fate)
+        self._fate = None
+
+    def _close_scene(self) -> None:
+        self.in_unconfirmed_tracks += sum(
+            n for t, n in self._track_dets.items() if t not in self._confirmed
+        )
+        self._track_dets.clear()
+        self._confirmed.clear()
+
+    def summary(self, skipped_unknown_categories: Counter[str] | None = None) -> dict[str, Any]:
+        """``{"detections": N, "per_fate": {...}, "per_fate_and_class": {...}, ...}``.
+
+        The per-fate counts sum to ``detections`` (the tracker's input). Skipped unknown
+        categories are input the tracker never saw: listed separately, with the total.
+        """
+        self._close_scene()
+        per_fate = Counter[str]()
+        per_class: dict[str, dict[str, int]] = {}
+        for (fate, cat), n in sorted(self.counts.items()):
+            per_fate[fate] += n
+            per_class.setdefault(fate, {})[cat] = n
+        skipped = sum((skipped_unknown_categories or Counter()).values())
+        return {
+            "detections": self.detections,
+            "per_fate": {name: per_fate.get(name, 0) for name in FATE_NAMES.values()},
+            "per_fate_and_class": per_class,
+            "in_unconfirmed_tracks": self.in_unconfirmed_tracks,
+            "skipped_unknown_category_at_load": skipped,
+            "input_boxes": self.detections + skipped,
+        }
+
+
+def add_summaries(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
+    """The summary of two disjoint runs (e.g. per-scene recordings): counts added key by key."""
+    out: dict[str, Any] = dict(a)
+    for key, value in b.items():
+        if isinstance(value, dict):
+            out[key] = add_summaries(a.get(key, {}), value)
+        else:
+            out[key] = a.get(key, 0) + value
+    return out
+
+
+def combine_fates(
+    summaries: list[dict[str, Any]], skipped_unknown_categories: Counter[str] | None = None
+) -> dict[str, Any]:
+    """One summary from per-scene ones (scene tasks run apart), with the loader's skips."""
+    out = FateCounter().summary()  # all keys, zero counts
+    for s in summaries:
+        out = add_summaries(out, s)
+    skipped = sum((skipped_unknown_categories or Counter()).values())
+    out["skipped_unknown_category_at_load"] = skipped
+    out["input_boxes"] = out["detections"] + skipped
+    return out
+
+
+def format_fates(summary: dict[str, Any]) -> str:
+    """One line for ``mctrack track``: the counts per fate (zeros left out)."""
+    parts = [f"{name} {n}" for name, n in summary["per_fate"].items() if n]
+    text = f"detections {summary['detections']}: " + ", ".join(parts)
+    if summary["skipped_unknown_category_at_load"]:
+        text += (
+            f"; skipped at load (unknown category) {summary['skipped_unknown_category_at_load']}"
+        )
+    return text + f"; {summary['in_unconfirmed_tracks']} in tracks never confirmed"
+
+
+class Tee:
+    """One observer calling several (None entries are skipped)."""
+
+    def __init__(self, *observers: Any) -> None:
+        self.observers = [o for o in observers if o is not None]
+        self.wants_rv_costs = any(getattr(o, "wants_rv_costs", True) for o in self.observers)
+
+    def __call__(self, event: Event) -> None:
+        for o in self.observers:
+            o(event)
