@@ -15,33 +15,46 @@ from __future__ import annotations
 import argparse
 import json
 import os
-from pathlib import Path
 from typing import Any
 
 from app.common import peak_rss_mb
+from app.inputs import (
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+    positive_int,
+)
 from tracker.config import load_config
 from tracker.io.fileio import write_text_atomic
 from tracker.io.synthetic import synthetic_scene
-from tracker.pipeline import run_scene
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--kitti-root", default="../shared/data/kitti/tracking")
-    parser.add_argument("--config", default="kitti")
-    parser.add_argument("--repeat", type=int, default=5, help="runs per case; the best is kept")
-    parser.add_argument("--frames", type=int, default=200, help="frames per synthetic scene")
+    add_kitti_root_argument(parser)
+    parser.add_argument(
+        "--config", default="kitti", help="built-in config name (kitti, ...) or a TOML file"
+    )
+    parser.add_argument(
+        "--repeat", type=positive_int, default=5, help="runs per case; the best is kept"
+    )
+    parser.add_argument(
+        "--frames", type=positive_int, default=200, help="frames per synthetic scene"
+    )
     parser.add_argument("--json", default=None, help="also write the results to this file")
 
 
 def run(args: argparse.Namespace) -> int:
     from tracker.io.convert.kitti import VALIDATION_SEQS
+    from tracker.pipeline import run_scene  # scipy: imported when running, not for --help
 
     results: dict[str, Any] = {"load_average_1min": round(os.getloadavg()[0], 2)}
     print(
         f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} (1 min); "
         f"best of {args.repeat} runs per case"
     )
-    root = Path(args.kitti_root)
+    root = args.kitti_root or default_kitti_root()
+    if args.kitti_root is not None:  # a path the user gave must exist; the default may not
+        check_kitti_root(root, seqs=VALIDATION_SEQS)
     if root.is_dir():
         from tracker.io.convert.kitti import convert_kitti
 

@@ -6,18 +6,19 @@ import argparse
 import json
 from pathlib import Path
 
-from app.kitti import DEFAULT_KITTI_ROOT
+from app.inputs import (
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.calibration import profile_toml
+from tracker.errors import InputError
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--kitti-root",
-        default=DEFAULT_KITTI_ROOT,
-        help="KITTI tracking root (default: %(default)s)",
-    )
+    add_kitti_root_argument(parser)
     parser.add_argument(
         "--detector",
         required=True,
@@ -43,12 +44,13 @@ def run(args: argparse.Namespace) -> int:
 
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]
     seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
+    root = args.kitti_root or default_kitti_root()
+    check_kitti_root(root, seqs=seqs, detector=args.detector)
     detections, gt = convert_kitti(
-        Path(args.kitti_root), seqs=seqs, detector=args.detector, classes=classes, with_gt=True
+        root, seqs=seqs, detector=args.detector, classes=classes, with_gt=True
     )
     if not gt:
-        print(f"mctrack calibrate: error: no labels for {seqs} under {args.kitti_root}")
-        return 2
+        raise InputError(f"{root / 'training' / 'label_02'}: no labels for {seqs}")
     detections = {s: f for s, f in detections.items() if s in gt}
     profile = fit_profile(args.detector, detections, gt, classes)
     write_text_atomic(Path(args.out), [profile_toml(profile)])

@@ -1,11 +1,19 @@
-"""`mctrack`: the command line. Thin: argparse and dispatch; the work lives in tracker/ and viz/."""
+"""mctrack: 3D multi-object tracking (MCTrack) for KITTI, nuScenes and Waymo, with motion
+metrics and a Rerun visual debugger.
+
+Start with `mctrack demo` (tracks a bundled KITTI sequence and writes demo.rrd); then
+`mctrack COMMAND --help` for any command below."""
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
+import json
 import logging
+import re
 import sys
+import time
 from collections.abc import Sequence
 
 from tracker.errors import InputError
@@ -39,10 +47,65 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "inspect": ("app.inspect", "open a recording in the viewer at one ID event, focused"),
 }
 
+EPILOG = """examples:
+  mctrack demo                                   track the bundled sample, write ./demo.rrd
+  mctrack kitti --out runs/kitti                 the 11 KITTI validation sequences, evaluated
+  mctrack track detections.json --out runs/t     any BaseVersion detections file
+  mctrack view detections.json --gt gt.json      the same, recorded for the Rerun viewer
+
+exit status: 0 success, 2 bad input or usage (one line on stderr: the file and what to do),
+1 an unexpected error (a bug: re-run with --debug for the traceback and report it)."""
+
+#: Exit status for bad input (a wrong path, a missing or malformed file, a wrong flag), as
+#: argparse uses for usage errors.
+EXIT_INPUT = 2
+#: Exit status for an unexpected error (a bug).
+EXIT_BUG = 1
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Shows every option's default (unless the help already says it or there is none)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (
+            "%(default)" in text
+            or "default" in text.lower()
+            or default in (None, False, argparse.SUPPRESS)
+            or not action.option_strings
+            or (isinstance(default, list | tuple) and not default)
+        ):
+            return text
+        if isinstance(default, list | tuple):
+            return f"{text} (default: {','.join(map(str, default))})"
+        return f"{text} (default: %(default)s)"
+
+
+def _add_formatter(parser: argparse.ArgumentParser) -> None:
+    """The same help formatter on a subcommand's own sub-subcommands (``convert kitti``)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for child in action.choices.values():
+                child.formatter_class = HelpFormatter
+                _add_formatter(child)
+
+
+def _plain(doc: str) -> str:
+    """A module docstring as help text: without reST roles and backquotes."""
+    return re.sub(r":\w+:`([^`]*)`", r"\1", doc).replace("`", "").strip()
+
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="mctrack", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="mctrack", description=__doc__, epilog=EPILOG, formatter_class=HelpFormatter
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    parser.add_argument(
+        "--debug",
+        action="store_true",
+        help="on an error, show the Python traceback instead of the one-line message",
+    )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
         try:
@@ -51,10 +114,98 @@ def build_parser() -> argparse.ArgumentParser:
             if exc.name != module_name:
                 raise
             continue  # a subcommand not built yet is absent, not stubbed
-        sub_parser = sub.add_parser(name, help=help_text, description=help_text)
+        sub_parser = sub.add_parser(
+            name,
+            help=help_text,
+            description=_plain(module.__doc__ or help_text),
+            formatter_class=HelpFormatter,
+        )
         module.add_arguments(sub_parser)
+        sub_parser.add_argument(  # also accepted after the subcommand
+            "--debug", action="store_true", default=argparse.SUPPRESS, help=argparse.SUPPRESS
+        )
+        _add_formatter(sub_parser)
         sub_parser.set_defaults(_run=module.run)
     return parser
+
+
+def error_message(exc: BaseException) -> tuple[str, int] | None:
+    """One line for an error a user can cause (bad path, missing or malformed file, bad flag
+    value), with its exit status; None for anything else (a bug)."""
+    if isinstance(exc, InputError):
+        return str(exc), EXIT_INPUT
+    if isinstance(exc, FileNotFoundError):
+        if exc.filename is None:  # raised with a message of our own
+            return str(exc), EXIT_INPUT
+        return f"{exc.filename}: not found (check the path)", EXIT_INPUT
+    if isinstance(exc, FileExistsError):
+        return f"{exc.filename}: exists and is not a folder; pass another --out", EXIT_INPUT
+    if isinstance(exc, IsADirectoryError):
+        return f"{exc.filename}: is a folder, expected a file", EXIT_INPUT
+    if isinstance(exc, NotADirectoryError):
+        return f"{exc.filename}: expected a folder", EXIT_INPUT
+    if isinstance(exc, PermissionError):
+        return f"{exc.filename}: permission denied", EXIT_INPUT
+    if isinstance(exc, ModuleNotFoundError) and exc.name:
+        return (
+            f"needs the Python package {exc.name!r}, which is not installed: run the README's "
+            "install line (python -m pip install -e '.[dev,nuscenes]')",
+            EXIT_INPUT,
+        )
+    if isinstance(exc, json.JSONDecodeError):
+        return f"malformed JSON ({exc})", EXIT_INPUT
+    if isinstance(exc, UnicodeDecodeError):
+        return f"not a text file ({exc.reason})", EXIT_INPUT
+    if isinstance(exc, OSError) and exc.filename:
+        return f"{exc.filename}: {exc.strerror or exc}", EXIT_INPUT
+    return None
+
+
+def kernels_cold() -> bool:
+    """True when the tracker's compiled kernels are not in numba's on-disk cache yet (the first
+    run on a machine, or after their source changed): loading them then compiles for ~20 s."""
+    import os
+    from pathlib import Path
+
+    if os.environ.get("MCTRACK_NUMBA", "1") == "0" or importlib.util.find_spec("numba") is None:
+        return False
+    package = Path(importlib.import_module("tracker").__file__ or "").parent
+    cache_root = os.environ.get("NUMBA_CACHE_DIR")
+    for source in sorted(package.rglob("*.py")):
+        if "numba.njit" not in source.read_text(encoding="utf-8", errors="replace"):
+            continue
+        if cache_root:  # numba's user-provided location mirrors the source folder
+            cache_dir = Path(cache_root) / str(source.parent.resolve()).lstrip(os.sep)
+        else:
+            cache_dir = source.parent / "__pycache__"
+        index = list(cache_dir.glob(f"{source.stem}.*.nbi"))
+        if not index or max(p.stat().st_mtime for p in index) < source.stat().st_mtime:
+            return True
+    return False
+
+
+#: Subcommands that run the tracker (and so load its compiled kernels).
+TRACKING_COMMANDS = frozenset(
+    {"demo", "track", "kitti", "nuscenes", "waymo", "view", "bench", "tune", "robustness"}
+)
+
+
+def _warm_kernels() -> None:
+    """Compile the kernels up front, saying so, instead of a silent pause in the first frame."""
+    if not kernels_cold():
+        return
+    print(
+        "mctrack: compiling the tracker kernels (first run on this machine only, 20-60 s)...",
+        file=sys.stderr,
+        flush=True,
+    )
+    from tracker.geometry import prepare_kernels
+    from tracker.kernels import load
+
+    start = time.perf_counter()
+    load()
+    prepare_kernels()
+    print(f"mctrack: kernels compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -65,10 +216,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         format="%(levelname)s %(name)s: %(message)s",
     )
     try:
+        if args.command in TRACKING_COMMANDS:
+            _warm_kernels()
         return int(args._run(args))
-    except InputError as exc:
-        print(f"mctrack {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    except KeyboardInterrupt:
+        print(f"mctrack {args.command}: interrupted", file=sys.stderr)
+        return 130
+    except Exception as exc:
+        if args.debug:
+            raise
+        known = error_message(exc)
+        if known is not None:
+            message, status = known
+            print(f"mctrack {args.command}: error: {message}", file=sys.stderr)
+            return status
+        print(
+            f"mctrack {args.command}: unexpected error: {type(exc).__name__}: {exc} "
+            "(a bug: re-run with --debug for the traceback and report it)",
+            file=sys.stderr,
+        )
+        return EXIT_BUG
 
 
 if __name__ == "__main__":

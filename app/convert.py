@@ -11,6 +11,12 @@ import sys
 import time
 from pathlib import Path
 
+from app.inputs import (
+    NO_POSES_NOTE,
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.errors import InputError
 from tracker.frame import Frame
 from tracker.io.fileio import check_output_file, check_output_folder
@@ -28,8 +34,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="KITTI tracking (labels, AB3DMOT/KITTI-object detections, ORB-SLAM3 or oxts poses)",
         description="Write OUT/detections.json and OUT/gt.json (when labels exist).",
     )
-    kitti.add_argument("--kitti-root", type=Path, required=True, help="the kitti/tracking folder")
-    kitti.add_argument("--split", default="training", choices=["training", "testing"])
+    add_kitti_root_argument(kitti)
+    kitti.add_argument(
+        "--split",
+        default="training",
+        choices=["training", "testing"],
+        help="which half of the kit (testing has no labels)",
+    )
     kitti.add_argument("--seqs", type=_csv, default=None, help="e.g. 0001,0006 (default: all)")
     kitti.add_argument("--detector", default="pointrcnn", help="folder under detections/")
     kitti.add_argument(
@@ -39,6 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--detections-layout",
         default="auto",
         choices=["auto", "ab3dmot", "kitti_tracking", "kitti_object"],
+        help="ab3dmot: <seq>.txt (CSV) or <Class>/<seq>.txt; kitti_tracking: <seq>.txt in the "
+        "label format + score; kitti_object: <seq>/<frame>.txt; auto: whichever exists",
     )
     kitti.add_argument(
         "--poses",
@@ -116,9 +129,21 @@ def _run_kitti(args: argparse.Namespace) -> int:
     from tracker.io.convert.kitti import convert_kitti
 
     start = time.perf_counter()
+    root = args.kitti_root or default_kitti_root()
     poses = None if str(args.poses).lower() == "none" else args.poses
+    if args.detections is not None and not args.detections.is_dir():
+        raise InputError(f"{args.detections}: --detections folder not found")
+    check_kitti_root(
+        root,
+        split=args.split,
+        seqs=args.seqs,
+        poses=poses,
+        detector=None if args.detections else args.detector,
+    )
+    if poses is None:
+        print(NO_POSES_NOTE, file=sys.stderr)
     detections, gt = convert_kitti(
-        args.kitti_root,
+        root,
         split=args.split,
         seqs=args.seqs,
         detector=args.detector,
@@ -186,23 +211,13 @@ def _run_waymo(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Run ``mctrack convert``; returns the exit code (2 for bad or missing input)."""
-    try:
-        # the output is checked before the (long) conversion
-        if args.dataset == "kitti":
-            check_output_folder(args.out)
-        else:
-            check_output_file(args.out)
-            if getattr(args, "gt_out", None) is not None:
-                check_output_file(args.gt_out, "--gt-out")
-        if args.dataset == "kitti":
-            return _run_kitti(args)
-        if args.dataset == "nuscenes":
-            return _run_nuscenes(args)
-        if args.dataset == "waymo":
-            return _run_waymo(args)
-    except (InputError, FileNotFoundError) as exc:
-        print(f"mctrack convert {args.dataset}: error: {exc}", file=sys.stderr)
-        return 2
-    print(f"mctrack convert: unknown dataset {args.dataset!r}", file=sys.stderr)
-    return 2
+    """Run ``mctrack convert``; bad or missing input raises (the CLI prints one line, exit 2)."""
+    # the output is checked before the (long) conversion
+    if args.dataset == "kitti":
+        check_output_folder(args.out)
+    else:
+        check_output_file(args.out)
+        if getattr(args, "gt_out", None) is not None:
+            check_output_file(args.gt_out, "--gt-out")
+    runners = {"kitti": _run_kitti, "nuscenes": _run_nuscenes, "waymo": _run_waymo}
+    return runners[args.dataset](args)

@@ -67,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_nuscenes(args)
     if args.gt is None:
         raise InputError("--gt is required for --dataset kitti")
+    if args.labels is not None and not Path(args.labels).is_dir():
+        raise InputError(f"{args.labels}: --labels folder not found (KITTI label_02)")
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +12,13 @@ from typing import Any
 
 from app import scenes
 from app.common import peak_rss_mb
+from app.inputs import (
+    NO_POSES_NOTE,
+    add_detector_argument,
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from app.scenes import SceneRecord
 from tracker.calibration import ScoreProfile, calibrate_frames, resolve_profile
 from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
@@ -22,12 +30,10 @@ from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, 
 from tracker.io.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
 from tracker.pipeline import run_scene
 
-DEFAULT_KITTI_ROOT = "../shared/data/kitti/tracking"
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--kitti-root", default=DEFAULT_KITTI_ROOT, help="KITTI tracking root")
-    parser.add_argument("--detector", default="pointrcnn")
+    add_kitti_root_argument(parser)
+    add_detector_argument(parser)
     parser.add_argument(
         "--seqs",
         default=",".join(VALIDATION_SEQS),
@@ -36,15 +42,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--labels",
         default=None,
+        metavar="DIR",
         help="label_02 folder for evaluation (default: <root>/training/label_02)",
     )
-    parser.add_argument("--classes", default="car,pedestrian,cyclist")
-    parser.add_argument("--config", default="kitti", help="kitti or a TOML path")
+    parser.add_argument(
+        "--classes",
+        default="car,pedestrian,cyclist",
+        help="comma-separated classes to track and evaluate",
+    )
+    parser.add_argument(
+        "--config", default="kitti", help="built-in config name (kitti, ...) or a TOML file"
+    )
     parser.add_argument(
         "--mode",
         choices=["online", "offline"],
         default=None,
-        help="tracking mode; offline with a built-in config uses <config>_offline",
+        help="tracking mode (default: the config's); offline with a built-in config uses "
+        "<config>_offline",
+    )
+    parser.add_argument(
+        "--poses",
+        default="orbslam3",
+        help="ego poses: orbslam3 (<root>/training/pose_orbslam3), none (no ego motion: "
+        "velocities relative to the ego vehicle) or a folder of <seq>.txt",
     )
     parser.add_argument(
         "--profile",
@@ -52,37 +72,45 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="score calibration profile (TOML from `mctrack calibrate`); default: the one shipped "
         "for --detector, if any (configs with scores = 'as_given' use none)",
     )
-    parser.add_argument("--poses", default="orbslam3", help="orbslam3, none or a pose folder")
     parser.add_argument("--no-eval", action="store_true", help="skip the evaluation")
     parser.add_argument(
         "--motion",
         action="store_true",
         help="also compute the motion metrics (summary.json 'motion', motion.md, PNG)",
     )
-    parser.add_argument("--record", default=None, help="one Rerun recording per sequence in DIR")
-    parser.add_argument("--out", required=True, help="output folder")
+    parser.add_argument(
+        "--record",
+        action="store_true",
+        help="also write a Rerun recording per sequence to OUT/recordings/<seq>.rrd",
+    )
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     scenes.add_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)  # before any work: a bad --out fails in a second, not at the end
-    if args.record:
-        check_output_folder(args.record, "--record")
     (Path(args.out) / "summary.json").unlink(missing_ok=True)  # written last: marks completion
+    root = args.kitti_root or default_kitti_root()
+    seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
+    poses = None if args.poses == "none" else args.poses
+    check_kitti_root(root, seqs=seqs, poses=poses, detector=args.detector)
+    if poses is None:
+        print(NO_POSES_NOTE, file=sys.stderr)
+    out = Path(args.out)
     summary = run_kitti(
-        kitti_root=Path(args.kitti_root),
-        seqs=[s.strip() for s in args.seqs.split(",") if s.strip()],
+        kitti_root=root,
+        seqs=seqs,
         classes=[c.strip() for c in args.classes.split(",") if c.strip()],
         config_name=args.config,
         mode=args.mode,
         detector=args.detector,
         profile=Path(args.profile) if args.profile else None,
         labels=Path(args.labels) if args.labels else None,
-        poses=None if args.poses == "none" else args.poses,
+        poses=poses,
         evaluate=not args.no_eval,
         motion=args.motion,
-        record=Path(args.record) if args.record else None,
-        out=Path(args.out),
+        record=out / "recordings" if args.record else None,
+        out=out,
         parallel=scenes.from_args(args),
     )
     _print_summary(summary)
@@ -253,17 +281,25 @@ def run_kitti(
         elif missing:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
         else:
-            from tracker.eval.kitti import evaluate_kitti
+            from tracker.eval.kitti import absent_classes, evaluate_kitti
 
             lengths = {r.scene: r.frames for r in ok}
             per_seq: dict[str, dict[str, dict[str, float]]] = {}
-            summary["metrics"] = evaluate_kitti(
+            metrics = evaluate_kitti(
                 label_dir=label_dir,
                 result_dir=data_dir,
                 seq_lengths=lengths,
                 classes=classes,
                 per_sequence=per_seq,
             )
+            absent = absent_classes(metrics)
+            summary["metrics"] = {c: m for c, m in metrics.items() if c not in absent}
+            if absent:
+                summary["metrics_absent"] = {
+                    c: f"no ground-truth {c} in these sequences; {metrics[c]['FP']} tracked "
+                    "boxes, all false positives"
+                    for c in absent
+                }
             summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
             summary["per_sequence"] = {
                 seq: {c: {k: m[k] for k in ("IDSW", "Frag")} for c, m in per.items()}
@@ -333,6 +369,8 @@ def _print_summary(summary: dict[str, Any]) -> None:
         print(f"{'class':<12}" + "".join(f"{c:>9}" for c in cols))
         for cls, m in metrics.items():
             print(f"{cls:<12}" + "".join(f"{m[c]:>9}" for c in cols))
+        for cls, why in summary.get("metrics_absent", {}).items():
+            print(f"{cls:<12}  absent: {why}")
     elif "evaluation" in summary:
         print(summary["evaluation"])
     per_seq = summary.get("per_sequence")

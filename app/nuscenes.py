@@ -86,7 +86,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", default="val", help="val, mini_val, test or a custom split")
     parser.add_argument("--detections", required=True, help="detection results JSON")
     parser.add_argument("--config", default="nuscenes", help="nuscenes or a TOML path")
-    parser.add_argument("--mode", choices=["online", "offline"], default=None)
+    parser.add_argument(
+        "--mode",
+        choices=["online", "offline"],
+        default=None,
+        help="tracking mode (default: the config's)",
+    )
     parser.add_argument(
         "--scenes",
         default=None,

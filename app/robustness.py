@@ -22,7 +22,12 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from app.kitti import DEFAULT_KITTI_ROOT
+from app.inputs import (
+    add_detector_argument,
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.calibration import calibrate_frames, resolve_profile
 from tracker.config import ScoreSource, load_config
 from tracker.errors import InputError
@@ -39,8 +44,8 @@ KEPT_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "F
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--kitti-root", default=DEFAULT_KITTI_ROOT, help="KITTI tracking root")
-    parser.add_argument("--detector", default="pointrcnn")
+    add_kitti_root_argument(parser)
+    add_detector_argument(parser)
     parser.add_argument(
         "--seqs",
         default=",".join(VALIDATION_SEQS),
@@ -70,8 +75,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
+    root = args.kitti_root or default_kitti_root()
+    check_kitti_root(root, seqs=_names(args.seqs), detector=args.detector)
     report = run_robustness(
-        kitti_root=Path(args.kitti_root),
+        kitti_root=root,
         seqs=_names(args.seqs),
         classes=_names(args.classes),
         config_name=args.config,

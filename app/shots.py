@@ -18,6 +18,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from app.inputs import positive_int
 from tracker.errors import InputError
 
 EXIT_NO_RENDERER = 3
@@ -34,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     what.add_argument("--events", choices=["all"], help="every ID switch and fragmentation")
     what.add_argument("--frame", type=int, help="one frame, in the default layout")
     parser.add_argument(
-        "--max-events", type=int, default=3, help="ID switches captured by default (3)"
+        "--max-events", type=positive_int, default=3, help="ID switches captured by default (3)"
     )
     parser.add_argument("--settle", type=float, default=2.0, help="seconds to wait per frame")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds to load the file")
@@ -46,7 +47,13 @@ def run(args: argparse.Namespace) -> int:
     recording = Path(args.recording)
     if not recording.is_file():
         raise InputError(f"{recording}: file not found")
-    index = read_shot_index(recording)
+    try:
+        index = read_shot_index(recording)
+    except RuntimeError as exc:  # rerun's reader: not an .rrd, truncated, or another version
+        raise InputError(
+            f"{recording}: not a readable Rerun recording ({exc}); pass an .rrd written by "
+            "mctrack view, demo or kitti --record"
+        ) from None
     try:
         plan = plan_shots(
             index,

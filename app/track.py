@@ -40,7 +40,12 @@ LOG = logging.getLogger("mctrack.track")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="BaseVersion detections JSON")
     parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
-    parser.add_argument("--mode", choices=["online", "offline"], default=None)
+    parser.add_argument(
+        "--mode",
+        choices=["online", "offline"],
+        default=None,
+        help="tracking mode (default: the config's)",
+    )
     parser.add_argument(
         "--profile",
         default=None,

@@ -23,7 +23,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from app.kitti import DEFAULT_KITTI_ROOT
+from app.inputs import (
+    add_kitti_root_argument,
+    check_kitti_root,
+    default_kitti_root,
+)
 from tracker.config import load_config
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
@@ -52,11 +56,7 @@ _FRAMES: dict[tuple[str, str], dict[str, list[Frame]]] = {}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--kitti-root",
-        default=DEFAULT_KITTI_ROOT,
-        help="KITTI tracking root (default: %(default)s)",
-    )
+    add_kitti_root_argument(parser)
     parser.add_argument(
         "--class",
         dest="cls",
@@ -151,9 +151,11 @@ def run(args: argparse.Namespace) -> int:
     from tracker.io.convert.kitti import convert_kitti
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    root = Path(args.kitti_root)
-    label_dir = root / "training" / "label_02"
+    root = args.kitti_root or default_kitti_root()
     detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
+    for detector in detectors:
+        check_kitti_root(root, seqs=VALIDATION_SEQS, detector=detector)
+    label_dir = root / "training" / "label_02"
     cls = args.cls
     space = OFFLINE_SPACE if args.mode == "offline" else ONLINE_SPACE
     config_name = f"{args.config}_offline" if args.mode == "offline" else args.config

@@ -19,7 +19,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="BaseVersion detections (.json or .json.gz)")
     parser.add_argument("--gt", default=None, help="BaseVersion ground truth of the same scenes")
     parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
-    parser.add_argument("--mode", choices=["online", "offline"], default=None)
+    parser.add_argument(
+        "--mode",
+        choices=["online", "offline"],
+        default=None,
+        help="tracking mode (default: the config's)",
+    )
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
     parser.add_argument(
@@ -46,8 +51,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     sink.add_argument("--spawn", action="store_true", help="stream to a new native viewer")
     sink.add_argument("--serve-web", action="store_true", help="serve a web viewer (until Ctrl-C)")
-    parser.add_argument("--web-port", type=int, default=9090)
-    parser.add_argument("--grpc-port", type=int, default=9876)
+    parser.add_argument("--web-port", type=int, default=9090, help="port of --serve-web")
+    parser.add_argument(
+        "--grpc-port",
+        type=int,
+        default=9876,
+        help="port the viewer connects to (--spawn, --serve-web)",
+    )
 
 
 def _images(specs: list[str], input_path: Path, first_camera: str | None) -> dict[str, Path]:

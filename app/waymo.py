@@ -20,7 +20,12 @@ from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.eval.fates import FateCounter, combine_fates
 from tracker.frame import Frame
-from tracker.io.fileio import check_output_folder, write_bytes_atomic, write_text_atomic
+from tracker.io.fileio import (
+    check_output_folder,
+    path_in,
+    write_bytes_atomic,
+    write_text_atomic,
+)
 from tracker.io.waymo_writer import RESULT_TYPES
 from tracker.io.writers import tracks_scene_json, write_tracks_parts
 
@@ -35,8 +40,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gt", default=None, help="folder of <segment>.npz ground truth (ids)")
     parser.add_argument("--segments", type=_csv, default=None, help="segment names (default all)")
     parser.add_argument("--config", default="waymo", help="waymo or a TOML path")
-    parser.add_argument("--mode", choices=["online", "offline"], default=None)
+    parser.add_argument(
+        "--mode",
+        choices=["online", "offline"],
+        default=None,
+        help="tracking mode (default: the config's)",
+    )
     parser.add_argument("--motion", action="store_true", help="motion metrics (needs --gt)")
+    parser.add_argument(
+        "--record",
+        action="store_true",
+        help="also write a Rerun recording per segment to OUT/recordings/<segment>.rrd",
+    )
     parser.add_argument("--out", required=True, help="output folder")
     scenes.add_arguments(parser)
 
@@ -51,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         mode=args.mode,
         motion=args.motion,
+        record=args.record,
         out=Path(args.out),
         parallel=scenes.from_args(args),
     )
@@ -71,6 +87,7 @@ class WaymoSceneJob:
     config: TrackerConfig
     out: Path
     keep: bool  # send the frames and outputs back (the motion metrics need them)
+    record: bool = False  # also a Rerun recording, OUT/recordings/<segment>.rrd
 
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
         from tracker.io.convert.waymo import convert_waymo
@@ -79,24 +96,31 @@ class WaymoSceneJob:
 
         conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
         frames = conv.detections[scene]
-        fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
-        result = run_scene(frames, self.config, observer=fates)
+        gt_frames = conv.gt[scene] if conv.gt is not None else None
+        info: dict[str, Any] = {"skipped_types": dict(conv.skipped_types)}
+        if self.record:
+            from viz.record import record_scene
+
+            path = path_in(self.out / "recordings", scene, ".rrd")  # names are input data
+            result = record_scene(frames, self.config, gt_frames, path)
+            info["recording"] = str(path)
+            info["fates"] = result.fates
+        else:
+            fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
+            result = run_scene(frames, self.config, observer=fates)
+            info["fates"] = fates.summary()
         written = write_waymo_results(self.out / "results", {scene: (frames, result.outputs)})
         write_bytes_atomic(
             scenes.part_path(self.out, index, "json"),
             tracks_scene_json(scene, frames, result.outputs),
         )
-        gt_frames = conv.gt[scene] if conv.gt is not None else None
+        info["written"] = written
         return SceneRecord(
             index,
             scene,
             frames=len(frames),
             tracker_seconds=result.tracker_seconds,
-            info={
-                "written": written,
-                "skipped_types": dict(conv.skipped_types),
-                "fates": fates.summary(),
-            },
+            info=info,
             kept=(frames, gt_frames, result.outputs) if self.keep else None,
         )
 
@@ -111,6 +135,7 @@ def run_waymo(
     config_name: str | Path = "waymo",
     mode: str | None = None,
     motion: bool = False,
+    record: bool = False,
     quiet: bool = False,
     parallel: scenes.Parallelism = scenes.SEQUENTIAL,
 ) -> dict[str, Any]:
@@ -124,7 +149,7 @@ def run_waymo(
     from tracker.io.convert.waymo import segment_names
 
     names = segment_names(data_root, detections, segments)
-    job = WaymoSceneJob(data_root, detections, gt, config, out, keep=motion)
+    job = WaymoSceneJob(data_root, detections, gt, config, out, keep=motion, record=record)
     t0 = time.perf_counter()
     records = scenes.run_scenes(job, names, parallel=parallel, quiet=quiet)
     wall_secs = time.perf_counter() - t0
@@ -153,6 +178,9 @@ def run_waymo(
         "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
         "config": config_to_dict(config),
     }
+    recordings = [r.info["recording"] for r in ok if "recording" in r.info]
+    if recordings:
+        summary["recordings"] = recordings
     if motion and gt is not None:
         from tracker.eval.motion_eval import evaluate_motion
         from tracker.io.baseversion import write_baseversion

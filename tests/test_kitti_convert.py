@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from app.cli import main
 from tracker.boxes import Boxes
 from tracker.camera import project_boxes
 from tracker.categories import category_index
@@ -421,18 +422,6 @@ def test_bad_input_names_file_line_and_field(
 # CLI
 
 
-def main(argv: list[str]) -> int:
-    """``mctrack convert ...`` through app.convert alone (app.cli imports every subcommand)."""
-    import argparse
-
-    from app import convert
-
-    parser = argparse.ArgumentParser(prog="mctrack")
-    commands = parser.add_subparsers(dest="command", required=True)
-    convert.add_arguments(commands.add_parser("convert"))
-    return convert.run(parser.parse_args(argv))
-
-
 def test_cli_convert_kitti(
     kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -460,7 +449,7 @@ def test_cli_convert_kitti(
 def test_cli_missing_input_exit_code(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     (tmp_path / "training" / "calib").mkdir(parents=True)
     (tmp_path / "training" / "calib" / "0000.txt").write_text("P2: " + " ".join(["1"] * 11) + "\n")
-    assert (
-        main(["convert", "kitti", "--kitti-root", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
-    )
+    (tmp_path / "detections" / "pointrcnn" / "training").mkdir(parents=True)
+    argv = ["convert", "kitti", "--kitti-root", str(tmp_path), "--poses", "none"]
+    assert main([*argv, "--out", str(tmp_path / "o")]) == 2
     assert "P2" in capsys.readouterr().err

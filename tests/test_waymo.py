@@ -248,3 +248,17 @@ def test_waymo_cli(segment: Path, tmp_path: Path) -> None:
     assert summary["boxes_written"]["vehicle"] == 2 * N_DET_FRAMES
     assert (run / "results" / "cyclist" / f"{SEGMENT}.npz").is_file()
     assert (run / "tracks.json").is_file()
+
+
+def test_waymo_cli_records_like_kitti_and_nuscenes(segment: Path, tmp_path: Path) -> None:
+    from rerun.chunk import RrdReader
+
+    from viz import paths
+
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--record", "--out", str(run)]) == 0
+    rrd = run / "recordings" / f"{SEGMENT}.rrd"
+    assert json.loads((run / "summary.json").read_text())["recordings"] == [str(rrd)]
+    found = {c.entity_path for c in RrdReader(str(rrd)).stream().to_chunks()}
+    assert paths.entity(paths.TRACKS_UPDATED) in found and paths.entity(paths.GT) in found

@@ -1011,8 +1011,14 @@ def summary_markdown(
         cols = ["HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "FN"]
         lines += ["TrackEval 1.3.0, KITTI 2D-box protocol.", ""]
         lines += ["| class | " + " | ".join(cols) + " |", "|---|" + "---:|" * len(cols)]
+        from tracker.eval.kitti import absent_classes
+
+        absent = absent_classes(result.kitti_metrics)
         for cls, m in result.kitti_metrics.items():
-            lines.append(f"| {cls} | " + " | ".join(str(m[c]) for c in cols) + " |")
+            if cls in absent:  # scores of false positives only: meaningless
+                lines.append(f"| {cls} | absent: no ground truth in this scene" + " |" * len(cols))
+            else:
+                lines.append(f"| {cls} | " + " | ".join(str(m[c]) for c in cols) + " |")
     elif ev is not None:
         lines += [
             f"{ev.method}: "

@@ -110,6 +110,12 @@ def evaluate_kitti(
         return out
 
 
+def absent_classes(metrics: Mapping[str, Mapping[str, float]]) -> list[str]:
+    """Classes with no ground-truth object in the evaluated frames (TP + FN = 0): their scores
+    only count false positives (MOTA -21200) and mean nothing, so reports show them as absent."""
+    return [c for c, m in metrics.items() if m["TP"] + m["FN"] == 0]
+
+
 def _summarise(res: dict[str, dict[str, Any]]) -> dict[str, float]:
     hota, clear, ident = res["HOTA"], res["CLEAR"], res["Identity"]
     pct = lambda v: round(float(np.mean(v)) * 100.0, 3)  # noqa: E731

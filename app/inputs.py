@@ -1,0 +1,116 @@
+"""Where the KITTI kit is by default, and the up-front checks that turn a wrong path or a missing
+folder into one line naming the folder and the flag that fixes it."""
+
+from __future__ import annotations
+
+import argparse
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from tracker.errors import InputError
+
+if TYPE_CHECKING:
+    pass
+
+#: Environment variable naming the KITTI tracking kit (the tests honour it too).
+KITTI_ROOT_ENV = "MCTRACK_KITTI_ROOT"
+#: The kit next to the project checkout (``<checkout>/../shared/data/kitti/tracking``), so the
+#: default does not depend on the working directory.
+CHECKOUT_KITTI_ROOT = Path(__file__).resolve().parents[2] / "shared" / "data" / "kitti" / "tracking"
+
+
+def default_kitti_root() -> Path:
+    """``$MCTRACK_KITTI_ROOT``, else the kit next to the checkout."""
+    env = os.environ.get(KITTI_ROOT_ENV)
+    return Path(env) if env else CHECKOUT_KITTI_ROOT
+
+
+def kitti_root_help() -> str:
+    return (
+        "the KITTI tracking folder (holds training/calib, detections/); default: "
+        f"${KITTI_ROOT_ENV} if set, else the kit next to the checkout "
+        f"(now: {default_kitti_root()})"
+    )
+
+
+def add_kitti_root_argument(parser: argparse.ArgumentParser) -> None:
+    """``--kitti-root DIR``; None unless given (:func:`default_kitti_root` is read at run time)."""
+    parser.add_argument(
+        "--kitti-root", type=Path, default=None, metavar="DIR", help=kitti_root_help()
+    )
+
+
+def add_detector_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--detector",
+        default="pointrcnn",
+        help="detections folder under <root>/detections/ (pointrcnn, virconv, second_iou, ...)",
+    )
+
+
+def check_kitti_root(
+    root: Path,
+    *,
+    split: str = "training",
+    seqs: Sequence[str] | None = None,
+    poses: str | None = "orbslam3",
+    detector: str | None = "pointrcnn",
+) -> None:
+    """Raise :class:`InputError` naming the first missing piece of a KITTI layout and the flag
+    that fixes it; the converter's own checks then only see files that exist."""
+    flag = f"--kitti-root (or ${KITTI_ROOT_ENV})"
+    seqs = [s.zfill(4) if s.isdigit() else s for s in (str(s).strip() for s in seqs or ())]
+    if not root.is_dir():
+        raise InputError(f"{root}: KITTI folder not found; pass {flag}")
+    calib = root / split / "calib"
+    if not calib.is_dir():
+        raise InputError(
+            f"{calib}: not found; {flag} must be the kitti/tracking folder "
+            f"(with {split}/calib, {split}/label_02, detections/)"
+        )
+    for seq in seqs:
+        if not (calib / f"{seq}.txt").is_file():
+            raise InputError(f"{calib / f'{seq}.txt'}: no calibration for sequence {seq}")
+    if detector is not None:
+        det_dir = root / "detections" / detector / split
+        if not det_dir.is_dir():
+            found = sorted(p.name for p in (root / "detections").glob("*") if p.is_dir())
+            raise InputError(
+                f"{det_dir}: detections not found; pass --detector NAME "
+                f"(found: {', '.join(found) or 'none'})"
+            )
+    if poses == "orbslam3":
+        pose_dir = root / split / "pose_orbslam3"
+        if not pose_dir.is_dir():
+            raise InputError(
+                f"{pose_dir}: not found (official KITTI downloads have no ORB-SLAM3 poses); "
+                "pass --poses none to track in the camera frame, or --poses DIR for pose files"
+            )
+        missing = [s for s in seqs if not (pose_dir / f"{s}.txt").is_file()]
+        if missing:
+            raise InputError(
+                f"{pose_dir / f'{missing[0]}.txt'}: no poses for sequence {missing[0]}; "
+                "pass --poses none or --poses DIR"
+            )
+    elif poses is not None and not Path(poses).is_dir():
+        raise InputError(f"{poses}: --poses folder not found (orbslam3, none or a folder)")
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (argparse prints the message as a usage error, exit 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}")
+    return value
+
+
+#: Printed once when a run has no ego poses.
+NO_POSES_NOTE = (
+    "note: --poses none: no ego motion, so positions and velocities are relative to the moving "
+    "ego vehicle (not the ground), and motion metrics compare against ego-relative ground truth"
+)

@@ -1,0 +1,428 @@
+"""The CLI as a newcomer meets it: help that explains every option, and every wrong path,
+missing or malformed file or wrong flag ending in one line that names the file, exit status 2,
+no traceback (``--debug`` shows it)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from app import cli
+from app.cli import SUBCOMMANDS, build_parser, main
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "sample_data" / "kitti-0001"
+SAMPLE_KIT = SAMPLE / "raw"  # a KITTI tracking layout with one sequence, 0001
+
+#: Options that name an input a user types; the generic case points them at a missing path.
+INPUT_OPTIONS = {
+    "--kitti-root",
+    "--sample",
+    "--dataroot",
+    "--data-root",
+    "--detections",
+    "--gt",
+    "--labels",
+}
+
+
+def _parsers(
+    parser: argparse.ArgumentParser, words: tuple[str, ...] = ()
+) -> Iterator[tuple[tuple[str, ...], argparse.ArgumentParser]]:
+    """Every parser that runs something (``kitti``, ``convert kitti``, ...) and its words."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield words, parser
+    for action in subs:
+        for name, child in action.choices.items():
+            yield from _parsers(child, (*words, name))
+
+
+def _commands() -> list[tuple[tuple[str, ...], argparse.ArgumentParser]]:
+    return list(_parsers(build_parser()))
+
+
+def _ids(commands: list[tuple[tuple[str, ...], argparse.ArgumentParser]]) -> list[str]:
+    return [" ".join(words) for words, _ in commands]
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    try:
+        code = main(argv)
+    except SystemExit as exc:  # argparse usage errors
+        code = int(exc.code or 0)
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def _assert_one_line_error(code: int, err: str, command: str, *fragments: str) -> None:
+    assert code == 2, err
+    assert "Traceback" not in err
+    errors = [line for line in err.splitlines() if ": error:" in line]
+    assert len(errors) == 1, err
+    assert errors[0].startswith(f"mctrack {command}: error:"), err
+    assert err.rstrip().endswith(errors[0]), err  # the error is the last thing printed
+    for fragment in fragments:
+        assert fragment in errors[0], err
+
+
+# ---------------------------------------------------------------------------------------------
+# help
+
+
+def test_top_level_help_says_what_the_tool_does_and_where_to_start() -> None:
+    text = build_parser().format_help()
+    assert "3D multi-object tracking" in text.split("positional arguments")[0]
+    assert "mctrack demo" in text and "--debug" in text and "exit status" in text
+    for name in SUBCOMMANDS:
+        assert name in text
+
+
+COMMANDS = _commands()
+
+
+@pytest.mark.parametrize(("words", "parser"), COMMANDS, ids=_ids(COMMANDS))
+def test_every_option_has_help_and_shows_its_default(
+    words: tuple[str, ...], parser: argparse.ArgumentParser
+) -> None:
+    formatter = cli.HelpFormatter(parser.prog)
+    for action in parser._actions:
+        if not action.option_strings or action.help == argparse.SUPPRESS:
+            continue  # positionals are listed in the usage; hidden options are for tests
+        text = formatter._get_help_string(action)
+        assert text and len(text) > 10, f"{' '.join(words)} {action.option_strings}: no help"
+        if action.default not in (None, False, argparse.SUPPRESS):
+            assert "default" in text, f"{' '.join(words)} {action.option_strings}: no default"
+    for action in parser._actions:
+        if not action.option_strings and action.help is None:
+            pytest.fail(f"{' '.join(words)} {action.dest}: positional without help")
+    assert parser.description and len(parser.description) > 20
+
+
+def test_kitti_help_shows_the_default_root_and_the_environment_variable(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    monkeypatch.setenv("MCTRACK_KITTI_ROOT", str(tmp_path))
+    text = " ".join(
+        build_parser()._subparsers._group_actions[0].choices["kitti"].format_help().split()
+    )
+    assert "$MCTRACK_KITTI_ROOT" in text and str(tmp_path) in text.replace("- ", "-")
+
+
+# ---------------------------------------------------------------------------------------------
+# errors: a missing input on every command
+
+
+def _missing_input_argv(
+    words: tuple[str, ...], parser: argparse.ArgumentParser, tmp_path: Path
+) -> list[str] | None:
+    """The command with every input path missing, other required options given."""
+    missing = tmp_path / "nonexistent"
+    argv, any_input = list(words), False
+    for action in parser._actions:
+        if isinstance(action, argparse._HelpAction) or action.dest == "debug":
+            continue
+        if not action.option_strings:
+            argv.append(str(missing / action.dest))
+            any_input = True
+        elif set(action.option_strings) & INPUT_OPTIONS:
+            argv += [action.option_strings[0], str(missing / action.dest)]
+            any_input = True
+        elif action.required:
+            argv += [action.option_strings[0], str(tmp_path / "out" / action.dest)]
+    return argv if any_input else None
+
+
+@pytest.mark.parametrize(("words", "parser"), COMMANDS, ids=_ids(COMMANDS))
+def test_missing_input_is_one_line_naming_the_path(
+    words: tuple[str, ...],
+    parser: argparse.ArgumentParser,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    argv = _missing_input_argv(words, parser, tmp_path)
+    if argv is None:
+        pytest.skip(f"{' '.join(words)} reads no input path")
+    code, _, err = _run(argv, capsys)
+    _assert_one_line_error(code, err, words[0], str(tmp_path / "nonexistent"))
+
+
+@pytest.mark.parametrize("name", sorted(SUBCOMMANDS))
+def test_unknown_flag_is_a_usage_error(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = _run([name, "--no-such-flag"], capsys)
+    assert code == 2 and "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("mctrack") and "error:" in last  # the flag, or a missing argument
+
+
+# ---------------------------------------------------------------------------------------------
+# errors: malformed files and wrong values, command by command
+
+
+@pytest.fixture
+def files(tmp_path: Path) -> dict[str, Path]:
+    """Bad inputs, and a stock KITTI layout: the sample kit without ORB-SLAM3 poses, as in every
+    official KITTI download."""
+    truncated = tmp_path / "truncated.json"
+    truncated.write_text('{"0001": [')
+    not_rrd = tmp_path / "notes.rrd"
+    not_rrd.write_text("not a recording\n")
+    a_file = tmp_path / "a_file"
+    a_file.write_text("x")
+    stock = tmp_path / "stock_kitti"
+    shutil.copytree(SAMPLE_KIT, stock, ignore=shutil.ignore_patterns("pose_orbslam3"))
+    bad_calib = tmp_path / "bad_calib"
+    shutil.copytree(SAMPLE_KIT, bad_calib)
+    (bad_calib / "training" / "calib" / "0001.txt").write_text("P2: 1 2 3\n")
+    bad_toml = tmp_path / "bad.toml"
+    bad_toml.write_text('base = "kitti"\n[defaults]\nno_such_key = 1\n')
+    return {
+        "truncated": truncated,
+        "not_rrd": not_rrd,
+        "a_file": a_file,
+        "stock": stock,
+        "bad_calib": bad_calib,
+        "bad_toml": bad_toml,
+        "out": tmp_path / "out",
+        "detections": SAMPLE / "detections.json.gz",
+        "gt": SAMPLE / "gt.json.gz",
+    }
+
+
+F = dict[str, Path]
+# (case id, argv from the files, fragments the error line must hold)
+CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
+    ("validate truncated", lambda f: ["validate", str(f["truncated"])], ("truncated.json",)),
+    ("validate folder", lambda f: ["validate", str(f["stock"])], ("stock_kitti",)),
+    (
+        "track truncated",
+        lambda f: ["track", str(f["truncated"]), "--out", str(f["out"])],
+        ("truncated.json", "JSON"),
+    ),
+    (
+        "track bad frames",
+        lambda f: ["track", str(f["detections"]), "--frames", "x", "--out", str(f["out"])],
+        ("--frames",),
+    ),
+    (
+        "track unknown scene",
+        lambda f: ["track", str(f["detections"]), "--scenes", "9999", "--out", str(f["out"])],
+        ("--scenes", "9999"),
+    ),
+    (
+        "track unknown config",
+        lambda f: ["track", str(f["detections"]), "--config", "nope", "--out", str(f["out"])],
+        ("nope", "kitti"),
+    ),
+    (
+        "track bad config key",
+        lambda f: ["track", str(f["detections"]), "--config", str(f["bad_toml"]), "--out", "o"],
+        ("no_such_key",),
+    ),
+    (
+        "kitti stock layout without poses",
+        lambda f: ["kitti", "--kitti-root", str(f["stock"]), "--seqs", "0001", "--out", "o"],
+        ("pose_orbslam3", "--poses none"),
+    ),
+    (
+        "kitti root is the parent folder",
+        lambda f: ["kitti", "--kitti-root", str(f["stock"].parent), "--out", "o"],
+        ("calib", "--kitti-root"),
+    ),
+    (
+        "kitti unknown detector",
+        lambda f: [
+            *("kitti", "--kitti-root", str(f["stock"]), "--seqs", "0001"),
+            *("--detector", "x", "--out", "o"),
+        ],
+        ("--detector", "pointrcnn"),
+    ),
+    (
+        "kitti unknown sequence",
+        lambda f: ["kitti", "--kitti-root", str(f["stock"]), "--seqs", "0042", "--out", "o"],
+        ("0042",),
+    ),
+    (
+        "kitti malformed calib",
+        lambda f: [
+            *("kitti", "--kitti-root", str(f["bad_calib"]), "--seqs", "0001"),
+            *("--no-eval", "--out", str(f["out"])),
+        ],
+        ("0001.txt", "P2"),
+    ),
+    (
+        "convert kitti stock layout without poses",
+        lambda f: ["convert", "kitti", "--kitti-root", str(f["stock"]), "--out", str(f["out"])],
+        ("pose_orbslam3", "--poses none"),
+    ),
+    (
+        "convert kitti missing pose folder",
+        lambda f: [
+            *("convert", "kitti", "--kitti-root", str(f["stock"])),
+            *("--poses", str(f["out"] / "poses"), "--out", str(f["out"])),
+        ],
+        ("--poses",),
+    ),
+    (
+        "eval truncated tracks",
+        lambda f: ["eval", str(f["truncated"]), "--gt", str(f["gt"])],
+        ("truncated.json",),
+    ),
+    ("eval without --gt", lambda f: ["eval", str(f["detections"])], ("--gt",)),
+    (
+        "eval missing labels",
+        lambda f: [
+            *("eval", str(f["detections"]), "--gt", str(f["gt"])),
+            *("--labels", str(f["out"] / "labels"), "--out", str(f["out"])),
+        ],
+        ("--labels",),
+    ),
+    ("view truncated", lambda f: ["view", str(f["truncated"])], ("truncated.json",)),
+    (
+        "view missing images",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:2"),
+            *("--images", str(f["out"] / "img"), "--save", str(f["out"] / "x.rrd")),
+        ],
+        ("--images",),
+    ),
+    (
+        "shots not a recording",
+        lambda f: ["shots", str(f["not_rrd"]), "--out", str(f["out"])],
+        ("notes.rrd", "recording"),
+    ),
+    (
+        "demo bad frames",
+        lambda f: ["demo", "--frames", "1:x", "--out", str(f["out"])],
+        ("--frames",),
+    ),
+    ("demo out is a file", lambda f: ["demo", "--out", str(f["a_file"])], ("a_file", "--out")),
+    ("bench zero repeats", lambda f: ["bench", "--repeat", "0"], ("--repeat",)),
+    (
+        "nuscenes truncated detections",
+        lambda f: [
+            *("nuscenes", "--dataroot", str(f["stock"]), "--version", "v1.0-mini"),
+            *("--detections", str(f["truncated"]), "--out", str(f["out"])),
+        ],
+        ("v1.0-mini",),
+    ),
+    (
+        "waymo data root without ego_info",
+        lambda f: [
+            *("waymo", "--data-root", str(f["stock"]), "--detections", str(f["stock"])),
+            *("--out", str(f["out"])),
+        ],
+        ("stock_kitti",),
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("argv_of", "fragments"), [c[1:] for c in CASES], ids=[c[0] for c in CASES]
+)
+def test_bad_input_is_one_line_naming_the_file(
+    argv_of: Callable[[F], list[str]],
+    fragments: tuple[str, ...],
+    files: F,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    tmp_path: Path,
+) -> None:
+    monkeypatch.chdir(tmp_path)  # relative --out folders land in the test's folder
+    argv = argv_of(files)
+    code, _, err = _run(argv, capsys)
+    _assert_one_line_error(code, err, argv[0], *fragments)
+
+
+# ---------------------------------------------------------------------------------------------
+# the console script: exit status, no traceback, --debug
+
+
+def _mctrack(*argv: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "app.cli", *argv],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+        check=False,
+    )
+
+
+def test_console_exit_status_and_debug_traceback(tmp_path: Path) -> None:
+    missing = str(tmp_path / "missing.json")
+    plain = _mctrack("validate", missing)
+    assert plain.returncode == 2
+    assert plain.stderr.strip().splitlines() == [
+        f"mctrack validate: error: {missing}: file not found"
+    ]
+    debug = _mctrack("validate", missing, "--debug")
+    assert debug.returncode != 0 and "Traceback" in debug.stderr and "InputError" in debug.stderr
+
+
+def test_unexpected_errors_are_one_line_with_exit_1(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from app import validate
+
+    def broken(args: argparse.Namespace) -> int:
+        raise ZeroDivisionError("boom")
+
+    monkeypatch.setattr(validate, "run", broken)
+    code, _, err = _run(["validate", "x.json"], capsys)
+    assert code == 1 and "Traceback" not in err
+    assert err.strip() == (
+        "mctrack validate: unexpected error: ZeroDivisionError: boom (a bug: re-run with "
+        "--debug for the traceback and report it)"
+    )
+    with pytest.raises(ZeroDivisionError):
+        main(["--debug", "validate", "x.json"])
+
+
+# ---------------------------------------------------------------------------------------------
+# runs that succeed but must say something
+
+
+def test_kitti_without_poses_says_so_and_shows_classes_without_ground_truth_as_absent(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    stock = tmp_path / "stock"
+    shutil.copytree(SAMPLE_KIT, stock, ignore=shutil.ignore_patterns("pose_orbslam3"))
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(stock), "--seqs", "0001", "--poses", "none"]
+    code, printed, err = _run([*argv, "--out", str(out)], capsys)
+    assert code == 0, err
+    assert "--poses none" in err and "relative to the moving ego vehicle" in err
+    summary = json.loads((out / "summary.json").read_text())
+    # sequence 0001 has no cyclist: its scores would only count false positives
+    assert set(summary["metrics"]) == {"car", "pedestrian"}
+    assert list(summary["metrics_absent"]) == ["cyclist"]
+    assert "cyclist" in printed and "absent: no ground-truth cyclist" in printed
+    assert "-200" not in printed
+
+
+def test_kitti_root_defaults_to_the_environment_variable(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.setenv("MCTRACK_KITTI_ROOT", str(tmp_path / "from_env"))
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _run(["kitti", "--out", "o"], capsys)
+    _assert_one_line_error(code, err, "kitti", str(tmp_path / "from_env"), "MCTRACK_KITTI_ROOT")
+
+
+def test_kernel_cache_check_sees_a_cold_cache(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    pytest.importorskip("numba")
+    monkeypatch.delenv("MCTRACK_NUMBA", raising=False)
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "empty"))
+    assert cli.kernels_cold()
+    monkeypatch.setenv("MCTRACK_NUMBA", "0")  # numpy only: nothing to compile
+    assert not cli.kernels_cold()
