@@ -24,7 +24,8 @@ from app.inputs import (
     default_kitti_root,
     positive_int,
 )
-from tracker.config import load_config
+from tracker.calibration import calibrate_frames, find_profile
+from tracker.config import ScoreSource, load_config
 from tracker.io.fileio import write_text_atomic
 from tracker.io.synthetic import synthetic_scene
 
@@ -62,6 +63,9 @@ def run(args: argparse.Namespace) -> int:
             args.config, overrides={"categories": ["car", "pedestrian", "cyclist"]}
         )
         scenes, _ = convert_kitti(root, seqs=VALIDATION_SEQS, with_gt=False)
+        if config.scores is ScoreSource.PROFILE:  # the units the thresholds are in
+            profile = find_profile("pointrcnn")
+            scenes = {s: calibrate_frames(f, profile) for s, f in scenes.items()}
         frames = sum(len(f) for f in scenes.values())
         best = min(
             sum(run_scene(f, config).tracker_seconds for f in scenes.values())
