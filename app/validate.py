@@ -1,11 +1,14 @@
-"""`mctrack validate FILE`: check a BaseVersion file, print a summary or the first error."""
+"""`mctrack validate FILE`: check a BaseVersion file; print a summary, or every error (up to
+--max-errors) with their count."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 
-from tracker.io.baseversion import LoadReport, read_baseversion, summarize
+from app.inputs import positive_int
+from tracker.io.baseversion import summarize, validate_baseversion
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -16,13 +19,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="frame rate used for frames whose timestamp is null (official KITTI files)",
     )
+    parser.add_argument(
+        "--max-errors", type=positive_int, default=50, help="errors listed at most (all counted)"
+    )
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    report = LoadReport()
-    scenes = read_baseversion(args.file, fallback_frame_rate_hz=args.frame_rate, report=report)
-    summary = summarize(scenes, report)
+    result = validate_baseversion(
+        args.file, max_errors=args.max_errors, fallback_frame_rate_hz=args.frame_rate
+    )
+    if not result.ok:
+        for message in result.errors:
+            print(message, file=sys.stderr)
+        shown = len(result.errors)
+        more = f" ({shown} shown)" if shown < result.error_count else ""
+        print(f"mctrack validate: {args.file}: {result.error_count} errors{more}", file=sys.stderr)
+        return 2
+    summary = summarize(result.scenes, result.report)
     if args.json:
         print(json.dumps(summary, indent=2))
         return 0

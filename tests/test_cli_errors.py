@@ -426,3 +426,24 @@ def test_kernel_cache_check_sees_a_cold_cache(
     assert cli.kernels_cold()
     monkeypatch.setenv("MCTRACK_NUMBA", "0")  # numpy only: nothing to compile
     assert not cli.kernels_cold()
+
+
+def test_validate_reports_every_error_with_the_count(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A missing lwh in one frame does not hide a score of 1.5 in another; the cap is honoured."""
+    box = {"category": "car", "global_xyz": [0, 0, 0], "lwh": [4, 2, 1.5], "global_yaw": 0}
+    frames = [
+        {"frame_id": 0, "timestamp": 0.0, "bboxes": [{**box, "detection_score": 1.5}]},
+        {"frame_id": 1, "timestamp": 0.1, "bboxes": [{**box, "detection_score": 0.5}]},
+        {"frame_id": 2, "timestamp": 0.2, "bboxes": [{"category": "car", "detection_score": 0.5,
+                                                      "global_xyz": [0, 0, 0], "global_yaw": 0}]},
+    ]  # fmt: skip
+    path = tmp_path / "two_errors.json"
+    path.write_text(json.dumps({"s": frames}))
+    code, _, err = _run(["validate", str(path)], capsys)
+    assert code == 2
+    assert "outside [0, 1]" in err and "missing key 'lwh'" in err
+    assert err.strip().splitlines()[-1].endswith("2 errors")
+    code, _, err = _run(["validate", "--max-errors", "1", str(path)], capsys)
+    assert code == 2 and "missing key 'lwh'" not in err and "2 errors (1 shown)" in err
