@@ -110,13 +110,6 @@ def settings_to_overrides(cls: str, params: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _merge(a: dict[str, Any], b: dict[str, Any]) -> dict[str, Any]:
-    out = dict(a)
-    for k, v in b.items():
-        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
-    return out
-
-
 def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
     """One detector: track ``seqs`` with the overrides, write KITTI files to ``result_dir``,
     and (when ``evaluate``) score them. Runs in a forked worker reading ``_FRAMES``."""
@@ -194,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
         with ctx.Pool(max(1, args.workers)) as pool, tqdm(total=total, unit="trial") as bar:
 
             def score(key: str, seqs: Sequence[str], params: dict[str, Any], tag: str) -> dict:
-                overrides = _merge(base, settings_to_overrides(cls, params))
+                overrides = {**base, **settings_to_overrides(cls, params)}  # disjoint keys
                 tasks = []
                 for det in detectors:
                     result_dir = work / tag / det
@@ -224,7 +217,7 @@ def run(args: argparse.Namespace) -> int:
                 train = [s for s in lengths if s not in test]
                 params, value = search(f"fold{k}", train, args.seed + k)
                 # the held-out fold, tracked with the settings its search chose
-                overrides = _merge(base, settings_to_overrides(cls, params))
+                overrides = {**base, **settings_to_overrides(cls, params)}  # disjoint keys
                 pool.map(_track_and_score, [
                     ((det, f"fold{k}"), test, config_name, overrides,
                      str(work / "heldout" / det), str(label_dir), cls, False)
