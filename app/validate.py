@@ -8,6 +8,7 @@ import json
 import sys
 
 from app.inputs import positive_int
+from tracker.errors import InputError
 from tracker.io.baseversion import summarize, validate_baseversion
 
 
@@ -29,9 +30,11 @@ def run(args: argparse.Namespace) -> int:
     result = validate_baseversion(
         args.file, max_errors=args.max_errors, fallback_frame_rate_hz=args.frame_rate
     )
+    if result.error_count == 1:  # the usual case: one line, as every other command's errors
+        raise InputError(result.errors[0])
     if not result.ok:
         for message in result.errors:
-            print(message, file=sys.stderr)
+            print(f"mctrack validate: error: {message}", file=sys.stderr)
         shown = len(result.errors)
         more = f" ({shown} shown)" if shown < result.error_count else ""
         print(f"mctrack validate: {args.file}: {result.error_count} errors{more}", file=sys.stderr)
