@@ -15,13 +15,12 @@ from app.common import peak_rss_mb
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
-from tracker.eval.fates import FateCounter, combine_fates
+from tracker.eval.fates import combine_fates
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.fileio import (
     check_output_folder,
     compact_json,
-    path_in,
     write_bytes_atomic,
     write_text_atomic,
 )
@@ -44,23 +43,13 @@ class NuscenesSceneJob:
         """``data``: the scene's detection frames and (for the recording) ground truth."""
         from tracker.io.nuscenes_writer import nuscenes_results
         from tracker.io.writers import tracks_scene_json
-        from tracker.pipeline import run_scene
 
         if data is None:
             raise ValueError("NuscenesSceneJob needs the scene's frames")
         frames, gt_frames = data
         info: dict[str, Any] = {}
-        if self.record:
-            from viz.record import record_scene
-
-            path = path_in(self.out / "recordings", scene, ".rrd")  # names are input data
-            result = record_scene(frames, self.config, gt_frames, path)
-            info["recording"] = str(path)
-            info["fates"] = result.fates
-        else:
-            fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
-            result = run_scene(frames, self.config, observer=fates)
-            info["fates"] = fates.summary()
+        result = scenes.track_or_record(frames, gt_frames, self.config, self.out, scene,
+                                        record=self.record, info=info)  # fmt: skip
         outputs = result.outputs
         per_sample = nuscenes_results(
             {scene: (frames, outputs)}, coasting_score=self.coasting_score

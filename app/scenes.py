@@ -284,3 +284,33 @@ def remove_parts(out: Path) -> None:
         for path in sorted(parts.iterdir()):
             path.unlink()
         parts.rmdir()
+
+
+def track_or_record(
+    frames: list[Any],
+    gt_frames: list[Any] | None,
+    config: Any,
+    out: Path,
+    scene: str,
+    *,
+    record: bool,
+    info: dict[str, Any],
+) -> Any:
+    """Track one scene, or track it into ``out/recordings/<scene>.rrd``; the detection fates
+    (and the recording's path) go to ``info``. Returns the run's result (``.outputs``)."""
+    from tracker.eval.fates import FateCounter
+    from tracker.io.fileio import path_in
+    from tracker.pipeline import run_scene
+
+    if record:
+        from viz.record import record_scene
+
+        path = path_in(out / "recordings", scene, ".rrd")  # names are input data
+        result = record_scene(frames, config, gt_frames, path)
+        info["recording"] = str(path)
+        info["fates"] = result.fates
+        return result
+    fates = FateCounter(rv_gate_consumes=config.rv_reference)
+    result = run_scene(frames, config, observer=fates)
+    info["fates"] = fates.summary()
+    return result

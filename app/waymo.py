@@ -18,11 +18,10 @@ from app import scenes
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
-from tracker.eval.fates import FateCounter, combine_fates
+from tracker.eval.fates import combine_fates
 from tracker.frame import Frame
 from tracker.io.fileio import (
     check_output_folder,
-    path_in,
     write_bytes_atomic,
     write_text_atomic,
 )
@@ -92,23 +91,13 @@ class WaymoSceneJob:
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
         from tracker.io.convert.waymo import convert_waymo
         from tracker.io.waymo_writer import write_waymo_results
-        from tracker.pipeline import run_scene
 
         conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
         frames = conv.detections[scene]
         gt_frames = conv.gt[scene] if conv.gt is not None else None
         info: dict[str, Any] = {"skipped_types": dict(conv.skipped_types)}
-        if self.record:
-            from viz.record import record_scene
-
-            path = path_in(self.out / "recordings", scene, ".rrd")  # names are input data
-            result = record_scene(frames, self.config, gt_frames, path)
-            info["recording"] = str(path)
-            info["fates"] = result.fates
-        else:
-            fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
-            result = run_scene(frames, self.config, observer=fates)
-            info["fates"] = fates.summary()
+        result = scenes.track_or_record(frames, gt_frames, self.config, self.out, scene,
+                                        record=self.record, info=info)  # fmt: skip
         written = write_waymo_results(self.out / "results", {scene: (frames, result.outputs)})
         write_bytes_atomic(
             scenes.part_path(self.out, index, "json"),
