@@ -98,6 +98,16 @@ def check_kitti_root(
         raise InputError(f"{poses}: --poses folder not found (orbslam3, none or a folder)")
 
 
+def add_mode_argument(parser: argparse.ArgumentParser, note: str = "") -> None:
+    """``--mode online|offline``; default: the config's own mode."""
+    parser.add_argument(
+        "--mode",
+        choices=["online", "offline"],
+        default=None,
+        help="tracking mode (default: the config's)" + note,
+    )
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer >= 1 (argparse prints the message as a usage error, exit 2)."""
     try:

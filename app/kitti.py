@@ -16,6 +16,7 @@ from app.inputs import (
     NO_POSES_NOTE,
     add_detector_argument,
     add_kitti_root_argument,
+    add_mode_argument,
     check_kitti_root,
     default_kitti_root,
 )
@@ -53,13 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config", default="kitti", help="built-in config name (kitti, ...) or a TOML file"
     )
-    parser.add_argument(
-        "--mode",
-        choices=["online", "offline"],
-        default=None,
-        help="tracking mode (default: the config's); offline with a built-in config uses "
-        "<config>_offline",
-    )
+    add_mode_argument(parser, "; offline with a built-in config uses <config>_offline")
     parser.add_argument(
         "--poses",
         default="orbslam3",

@@ -12,6 +12,7 @@ from typing import Any
 
 from app import scenes
 from app.common import peak_rss_mb
+from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
@@ -75,12 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--split", default="val", help="val, mini_val, test or a custom split")
     parser.add_argument("--detections", required=True, help="detection results JSON")
     parser.add_argument("--config", default="nuscenes", help="nuscenes or a TOML path")
-    parser.add_argument(
-        "--mode",
-        choices=["online", "offline"],
-        default=None,
-        help="tracking mode (default: the config's)",
-    )
+    add_mode_argument(parser)
     parser.add_argument(
         "--scenes",
         default=None,

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from app import scenes
+from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.calibration import calibrate_frames, load_profile
 from tracker.config import ScoreSource, TrackerConfig, load_config
@@ -40,12 +41,7 @@ LOG = logging.getLogger("mctrack.track")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="BaseVersion detections JSON")
     parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
-    parser.add_argument(
-        "--mode",
-        choices=["online", "offline"],
-        default=None,
-        help="tracking mode (default: the config's)",
-    )
+    add_mode_argument(parser)
     parser.add_argument(
         "--profile",
         default=None,

@@ -27,6 +27,7 @@ from app.inputs import (
     add_kitti_root_argument,
     check_kitti_root,
     default_kitti_root,
+    positive_int,
 )
 from tracker.config import load_config
 from tracker.frame import Frame
@@ -71,12 +72,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config", default="kitti", help="base config, name or TOML (default: %(default)s)"
     )
-    parser.add_argument("--mode", choices=["online", "offline"], default="online")
-    parser.add_argument("--trials", type=int, default=20, help="trials per search (default: 20)")
-    parser.add_argument("--folds", type=int, default=3, help="sequence folds (default: 3)")
+    parser.add_argument(
+        "--mode",
+        choices=["online", "offline"],
+        default="online",
+        help="tune the online config or <config>_offline (default: %(default)s)",
+    )
+    parser.add_argument("--trials", type=positive_int, default=20, help="trials per search")
+    parser.add_argument("--folds", type=positive_int, default=3, help="sequence folds")
     parser.add_argument("--seed", type=int, default=0, help="sampler seed (default: 0)")
     parser.add_argument(
-        "--workers", type=int, default=2, help="parallel evaluations (default: %(default)s)"
+        "--workers",
+        type=positive_int,
+        default=2,
+        help="parallel evaluations (default: %(default)s)",
     )
     parser.add_argument("--out", required=True, help="output folder (tune.json, best.toml)")
 

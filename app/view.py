@@ -11,6 +11,7 @@ import argparse
 import time
 from pathlib import Path
 
+from app.inputs import add_mode_argument
 from tracker.errors import InputError
 from tracker.io.fileio import safe_filename
 
@@ -19,12 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="BaseVersion detections (.json or .json.gz)")
     parser.add_argument("--gt", default=None, help="BaseVersion ground truth of the same scenes")
     parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
-    parser.add_argument(
-        "--mode",
-        choices=["online", "offline"],
-        default=None,
-        help="tracking mode (default: the config's)",
-    )
+    add_mode_argument(parser)
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
     parser.add_argument(

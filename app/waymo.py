@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
+from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
@@ -39,12 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gt", default=None, help="folder of <segment>.npz ground truth (ids)")
     parser.add_argument("--segments", type=_csv, default=None, help="segment names (default all)")
     parser.add_argument("--config", default="waymo", help="waymo or a TOML path")
-    parser.add_argument(
-        "--mode",
-        choices=["online", "offline"],
-        default=None,
-        help="tracking mode (default: the config's)",
-    )
+    add_mode_argument(parser)
     parser.add_argument("--motion", action="store_true", help="motion metrics (needs --gt)")
     parser.add_argument(
         "--record",
