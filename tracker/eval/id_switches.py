@@ -235,6 +235,7 @@ def kitti_id_events(
     classes: Sequence[str] = ("car", "pedestrian"),
     camera_name: str = "CAM_FRONT",
     result_file: str | Path | None = None,
+    num_timesteps: int | None = None,
 ) -> IdEvaluation:
     """ID switches and fragmentations of one KITTI sequence, as TrackEval's CLEAR counts them.
 
@@ -245,6 +246,8 @@ def kitti_id_events(
     label_file : the sequence's ``label_02/<seq>.txt``.
     classes : any of car, pedestrian, cyclist (cyclist as in :mod:`tracker.eval.kitti`).
     result_file : the KITTI result file of ``outputs`` when already written (saves writing it).
+    num_timesteps : the sequence length; default from ``frames`` and the labels (see
+        :func:`result_file_id_events` for a result file without its frames).
     """
     import trackeval  # heavy import: only when evaluating
 
@@ -253,7 +256,8 @@ def kitti_id_events(
 
     label_file = Path(label_file)
     seq = label_file.stem
-    num_timesteps = kitti_num_timesteps(label_file, frames)
+    if num_timesteps is None:
+        num_timesteps = kitti_num_timesteps(label_file, frames)
     with tempfile.TemporaryDirectory(prefix="mctrack-idsw-") as tmp:
         gt_root, trackers_root = Path(tmp) / "gt", Path(tmp) / "trackers"
         (gt_root / "label_02").mkdir(parents=True)
@@ -297,6 +301,26 @@ def kitti_id_events(
                     )
                     per_category.append((name, events, matches))
     return _assemble("trackeval Kitti2DBox + CLEAR (2D IoU)", range(num_timesteps), per_category)
+
+
+def result_file_id_events(
+    result_file: str | Path, label_file: str | Path, *, classes: Sequence[str]
+) -> IdEvaluation:
+    """:func:`kitti_id_events` of a finished run's KITTI result file (no frames at hand): the
+    sequence length is the last frame of the labels or the results, plus one."""
+    from tracker.errors import InputError
+
+    last = -1
+    for path in (label_file, result_file):
+        for n, line in enumerate(Path(path).read_text().splitlines(), 1):
+            if line.strip():
+                head = line.split(maxsplit=1)[0]
+                if not head.isdigit():
+                    raise InputError(f"{path}: line {n}: frame {head!r} is not a frame number")
+                last = max(last, int(head))
+    return kitti_id_events(
+        (), (), label_file, classes=classes, result_file=result_file, num_timesteps=last + 1
+    )
 
 
 def kitti_num_timesteps(label_file: str | Path, frames: Sequence[Frame]) -> int:
