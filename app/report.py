@@ -313,19 +313,19 @@ def build_report(
         ("metrics", "Metrics per class", _metrics_section(run_a, run_b, result)),
         ("sequences", "Per sequence", _sequence_section(run_a, run_b, result)),
         (
-            "events",
-            "ID switches and fragmentations",
-            _events_section(run_a, run_b, result, shot_files),
-        ),
-        ("causes", "Causes", _causes_section(run_a, run_b, result)),
-        ("motion", "Motion metrics", _motion_section(run_a, run_b)),
-        (
             "plots",
             "Plots",
             '<div class="plots">' + "".join(h.figure(src, cap) for src, cap in plots) + "</div>"
             if plots
             else '<p class="note">No plots: the runs have no metrics.</p>',
         ),
+        (
+            "events",
+            "ID switches and fragmentations",
+            _events_section(run_a, run_b, result, shot_files),
+        ),
+        ("causes", "Causes", _causes_section(run_a, run_b, result)),
+        ("motion", "Motion metrics", _motion_section(run_a, run_b)),
         ("shots", "Shots", _shots_section(shot_files, shots)),
         ("recordings", "Recordings", _recordings_section(run_a, run_b)),
     ]
@@ -385,25 +385,27 @@ def _metrics_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] | 
         for cls, m in ma.items():
             rows.append([h.td(cls), *[h.td(m.get(k), num=True) for k in keys]])
         return h.table(["class", *keys], rows, numeric=[False] + [True] * len(keys))
+    # one row per (class, metric): narrow at any number of metrics, sortable by the change
     for cls, m in result["metrics"].items():
-        cells = [h.td(cls)]
         for k in keys:
             d = m.get(k, {})
-            cells += [
-                h.td(d.get("a"), num=True),
-                h.td(d.get("b"), num=True),
-                h.delta_cell(k, d.get("delta"), k in LOWER_IS_BETTER),
-            ]
-        rows.append(cells)
-    headers = ["class"] + [f"{k} {x}" for k in keys for x in ("A", "B", "Δ")]
+            rows.append(
+                [
+                    h.td(cls),
+                    h.td(k),
+                    h.td(d.get("a"), num=True),
+                    h.td(d.get("b"), num=True),
+                    h.delta_cell(k, d.get("delta"), k in LOWER_IS_BETTER),
+                ]
+            )
     note = (
-        '<p class="note">A = '
-        + h.esc(run_a.name)
-        + ", B = "
-        + h.esc(run_b.name if run_b else "")
-        + '; Δ = B − A, <span class="better">green</span> is better.</p>'
+        f'<p class="note">A = {h.esc(run_a.name)}, B = {h.esc(run_b.name if run_b else "")}; '
+        'Δ = B − A, <span class="better">green</span> is better, '
+        '<span class="worse">red</span> worse.</p>'
     )
-    return note + h.table(headers, rows, numeric=[False] + [True] * (3 * len(keys)), scroll=True)
+    return note + h.table(
+        ["class", "metric", "A", "B", "Δ"], rows, numeric=[False, False, True, True, True]
+    )
 
 
 def _sequence_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] | None) -> str:
@@ -426,8 +428,8 @@ def _sequence_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] |
         return h.table(headers, rows, numeric=[False] + [True] * (len(headers) - 1), scroll=True)
     counts = result["counts"]
     for seq, per in result["per_sequence"].items():
-        cells = [h.td(seq)]
         for c in classes:
+            cells = [h.td(seq), h.td(c)]
             for k in keys:
                 d = per.get(c, {}).get(k, {})
                 cells += [
@@ -435,16 +437,17 @@ def _sequence_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] |
                     h.td(d.get("b"), num=True),
                     h.delta_cell(k, d.get("delta"), k in LOWER_IS_BETTER),
                 ]
-        sc = counts.get(seq, {})
-        for st in ("fixed", "introduced", "kept"):
-            cells.append(h.td(sum(v[st] for v in sc.values()), num=True))
-        rows.append(cells)
+            sc = counts.get(seq, {})
+            for st in ("fixed", "introduced", "kept"):
+                n = sum(v[st] for key, v in sc.items() if key.startswith(c + " "))
+                cells.append(h.td(n, num=True))
+            rows.append(cells)
     headers = (
-        ["sequence"]
-        + [f"{c} {k} {x}" for c in classes for k in keys for x in ("A", "B", "Δ")]
+        ["sequence", "class"]
+        + [f"{k} {x}" for k in keys for x in ("A", "B", "Δ")]
         + ["fixed", "introduced", "kept"]
     )
-    return h.table(headers, rows, numeric=[False] + [True] * (len(headers) - 1), scroll=True)
+    return h.table(headers, rows, numeric=[False, False] + [True] * (len(headers) - 2), scroll=True)
 
 
 def _inspect_cmd(run: Run, e: Mapping[str, Any]) -> str:
@@ -608,7 +611,7 @@ def _motion_section(run_a: Run, run_b: Run | None) -> str:
         rows = []
         for est, per in m.get("metrics", {}).items():
             for cls, v in per.items():
-                if isinstance(v, Mapping):
+                if isinstance(v, Mapping) and any(v.get(k) is not None for k in MOTION_KEYS):
                     rows.append(
                         [h.td(est), h.td(cls)]
                         + [h.td(v.get(k), num=True) for k in (*MOTION_KEYS, "n_samples")]

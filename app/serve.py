@@ -40,16 +40,33 @@ SEEK_SCRIPT = """<script>
 (function () {
   const frame = new URLSearchParams(location.search).get("frame");
   if (frame === null || !/^[0-9]+$/.test(frame)) return;
-  const request = JSON.stringify({set_time_cursor: {timeline: {name: "frame"},
-    time: {time: parseInt(frame, 10)}, play_state: "PLAY_STATE_PAUSED"}});
+  function varint(n) {  // protobuf base-128 varint of a non-negative integer
+    const out = [];
+    while (n > 127) { out.push((n % 128) | 128); n = Math.floor(n / 128); }
+    out.push(n); return out;
+  }
+  function field(tag, bytes) { return [tag, ...varint(bytes.length), ...bytes]; }
+  // ViewerControlRequest{set_time_cursor(6): {timeline(2): {name(1)}, time(3): {time(1)},
+  // play_state(5): PAUSED(1)}}, the messages of rerun/v1alpha1/viewer_control.proto
+  const name = Array.from(new TextEncoder().encode("frame"));
+  const cursor = [...field(0x12, field(0x0a, name)),
+                  ...field(0x1a, [0x08, ...varint(parseInt(frame, 10))]), 0x28, 0x01];
+  const request = new Uint8Array(field(0x32, cursor));
   const started = Date.now();
   function attempt() {
     const handle = window._handle;
-    if (Date.now() - started > 120000) return;
+    if (Date.now() - started > 180000) return;
     if (!handle) { setTimeout(attempt, 500); return; }
-    Promise.resolve(handle.viewer_control(new TextEncoder().encode(request)))
-      .then(function () { window.mctrackSeeked = parseInt(frame, 10); })
-      .catch(function () { setTimeout(attempt, 500); });
+    // Before the recording is active the call may never answer: give up on it after 5 s.
+    const timeout = new Promise((_, reject) => setTimeout(() => reject("timeout"), 5000));
+    Promise.race([handle.viewer_control(request), timeout])
+      .then(function (response) {
+        // the answer names the timeline it moved ("frame"); anything else: not loaded yet
+        const text = new TextDecoder().decode(response);
+        if (text.includes("frame")) window.mctrackSeeked = parseInt(frame, 10);
+        else setTimeout(attempt, 1000);
+      })
+      .catch(function () { setTimeout(attempt, 1000); });
   }
   attempt();
 })();
