@@ -103,6 +103,8 @@ def record_comparison(
     a, b, gt = _by_frame(frames_a), _by_frame(frames_b), _by_frame(gt_frames)
     markers: dict[int, list[tuple[str, Mapping[str, Any], str]]] = {}
     for p in pairs:
+        if p["status"] == "kept":
+            continue  # markers and log rows only for what changed
         e = p["a"] if p["status"] == "fixed" else p["b"]
         side = "a" if p["status"] == "fixed" else "b"
         markers.setdefault(int(e["frame"]), []).append((side, e, p["status"]))
