@@ -530,9 +530,14 @@ def _events_section(
         )
     rows = []
     for p in result["events"]:
-        side, run = ("a", run_a) if p["status"] == "fixed" else ("b", run_b)
-        e = p["a"] if p["status"] == "fixed" else p["b"]
-        assert run is not None
+        assert run_b is not None
+        seq = (p["a"] or p["b"])["sequence"]
+        # a kept event is shown as in B, or as in A where only A has the recording (its cause,
+        # #K and the command that opens it)
+        use_a = p["status"] == "fixed" or (
+            p["status"] == "kept" and seq in run_a.recordings and seq not in run_b.recordings
+        )
+        side, run, e = ("a", run_a, p["a"]) if use_a else ("b", run_b, p["b"])
         badge = f'<span class="badge {p["status"]}">{p["status"]}</span>'
         where = "A" if side == "a" else ("A, B" if p["status"] == "kept" else "B")
         rows.append(
@@ -549,7 +554,8 @@ def _events_section(
     note = (
         f'<p class="note">{n["fixed"]} fixed (in A only), {n["introduced"]} introduced '
         f"(in B only), {n['kept']} kept; matched on sequence, kind, class and GT id within "
-        f"{result['tolerance_frames']} frames. Kept events are shown as in B.</p>"
+        f"{result['tolerance_frames']} frames. Kept events are shown as in B (as in A where "
+        "only A was recorded).</p>"
     )
     return (
         note

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import tempfile
 from pathlib import Path
 
 import pytest
@@ -120,24 +119,6 @@ def test_compare_bad_input_is_one_line(tmp_path: Path, capsys) -> None:
 
 # ---------------------------------------------------------------------------------------------
 # Two real runs of a validation sequence: the tuned config (recorded) and kitti_reference
-
-
-@pytest.fixture(scope="module")
-def real_runs(kitti_root: Path):
-    from app.kitti import run_kitti
-
-    root = Path(tempfile.mkdtemp(prefix="mctrack-test-compare-"))
-    common = dict(kitti_root=kitti_root, seqs=["0016"], classes=["pedestrian"], quiet=True)
-    ref = run_kitti(config_name="kitti_reference", out=root / "reference", **common)
-    tuned = run_kitti(
-        config_name="kitti",
-        out=root / "kitti",
-        record=root / "kitti" / "recordings",
-        motion=True,
-        **common,
-    )
-    yield root, ref, tuned
-    shutil.rmtree(root, ignore_errors=True)
 
 
 def test_compare_real_runs_accounts_for_every_switch(real_runs, capsys) -> None:
