@@ -160,8 +160,8 @@ def _bars(
     ax.set_title(title)
     ax.set_ylabel(ylabel)
     ax.spines[["top", "right"]].set_visible(False)
-    if len(series) > 1:
-        ax.legend(frameon=False, fontsize=8)
+    if len(series) > 1:  # beside the axes: never over a bar
+        ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     _save(fig, path)
     plt.close(fig)
 
@@ -304,7 +304,7 @@ def build_report(
     title = f"MCTrack report: {run_a.name}" + (f" vs {run_b.name}" if run_b else "")
     s = run_a.summary
     subtitle = (
-        f"{len(s['sequences'])} sequences, classes {', '.join(s['classes'])}, detector "
+        f"{len(s['sequences'])} sequence(s), classes {', '.join(s['classes'])}, detector "
         f"{s.get('detector')}, mode {s.get('mode')}, config {s.get('config_name', 'n/a')}"
         + (f"; B: config {run_b.summary.get('config_name', 'n/a')}" if run_b else "")
     )
@@ -539,7 +539,7 @@ def _events_section(
         )
         side, run, e = ("a", run_a, p["a"]) if use_a else ("b", run_b, p["b"])
         badge = f'<span class="badge {p["status"]}">{p["status"]}</span>'
-        where = "A" if side == "a" else ("A, B" if p["status"] == "kept" else "B")
+        where = "A, B" if p["status"] == "kept" else side.upper()
         rows.append(
             [
                 h.td(badge, raw=True, sort=p["status"]),
@@ -582,8 +582,8 @@ def _causes_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] | N
         if not rows:
             return '<p class="note">No events.</p>'
         return (
-            '<p class="note">Fixed events by their cause in A; introduced and kept by their '
-            'cause in B ("unknown": the sequence was not recorded).</p>'
+            '<p class="note">Fixed events by their cause in A, introduced by their cause in B, '
+            'kept by their cause in B, else in A ("unknown": no run recorded the sequence).</p>'
             + h.table(
                 ["cause", "fixed", "introduced", "kept"], rows, numeric=[False, True, True, True]
             )

@@ -16,8 +16,7 @@ body { font: 14px/1.45 system-ui, -apple-system, "Segoe UI", Roboto, sans-serif;
 header { background: #1d2327; color: #fff; padding: 14px 24px; }
 header h1 { margin: 0; font-size: 20px; font-weight: 600; }
 header p { margin: 4px 0 0; color: #c5ccd2; font-size: 13px; }
-nav { padding: 8px 24px; background: #fff; border-bottom: 1px solid var(--line);
-  position: sticky; top: 0; z-index: 2; }
+nav { padding: 8px 24px; background: #fff; border-bottom: 1px solid var(--line); }
 nav a { margin-right: 16px; color: var(--a); text-decoration: none; font-weight: 500; }
 main { padding: 8px 24px 40px; max-width: 1500px; }
 section { margin-top: 22px; }
@@ -28,7 +27,8 @@ table { border-collapse: collapse; font-variant-numeric: tabular-nums; backgroun
 th, td { padding: 4px 10px; border-bottom: 1px solid var(--line); text-align: left;
   white-space: nowrap; }
 td.num, th.num { text-align: right; }
-thead th { background: var(--head); position: sticky; top: 0; cursor: pointer; user-select: none; }
+thead th { background: var(--head); cursor: pointer; user-select: none; }
+.scroll thead th { position: sticky; top: 0; z-index: 1; }
 thead th.sorted-asc::after { content: " \\25B2"; font-size: 10px; }
 thead th.sorted-desc::after { content: " \\25BC"; font-size: 10px; }
 tbody tr:nth-child(even) { background: #f7f9fa; }

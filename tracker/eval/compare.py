@@ -136,11 +136,11 @@ def status_counts(pairs: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, dic
 
 def cause_counts_by_status(pairs: Iterable[Mapping[str, Any]]) -> dict[str, dict[str, int]]:
     """{status: {cause: n}}: fixed events by their cause in A, introduced by their cause in B,
-    kept by their cause in B ("unknown" where the run has no recording with causes)."""
+    kept by their cause in B, else in A ("unknown" where no run has a recording with causes)."""
     out: dict[str, Counter[str]] = {s: Counter() for s in STATUSES}
     for p in pairs:
-        e = p["b"] if p["b"] is not None else p["a"]
-        out[p["status"]][e.get("cause") or "unknown"] += 1
+        cause = (p["b"] or {}).get("cause") or (p["a"] or {}).get("cause")
+        out[p["status"]][cause or "unknown"] += 1
     return {s: dict(sorted(c.items())) for s, c in out.items()}
 
 
