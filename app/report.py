@@ -230,6 +230,7 @@ def take_event_shots(run: Run, out: Path, per_sequence: int) -> dict[tuple[str, 
     """Focused screenshots of the first ``per_sequence`` ID switches (else fragmentations) of
     each recorded sequence; {(sequence, #K): PNG path relative to out}. Nothing (with a note on
     stderr) without a Vulkan driver."""
+    from viz.layout import VIEW_FOCUS
     from viz.shots import PlannedShot, RendererMissing, take_shots
 
     found: dict[tuple[str, int], str] = {}
@@ -246,7 +247,8 @@ def take_event_shots(run: Run, out: Path, per_sequence: int) -> dict[tuple[str, 
         ]
         folder = path_in(out / "shots", seq, "")
         try:
-            shots = take_shots(rec, folder, plan=plan, full_viewer=False)
+            # the focused 3D view only: the gallery's one picture per event
+            shots = take_shots(rec, folder, plan=plan, full_viewer=False, views=(VIEW_FOCUS,))
         except RendererMissing as exc:
             print(f"report: no shots ({exc})", file=sys.stderr)
             return found
@@ -254,9 +256,6 @@ def take_event_shots(run: Run, out: Path, per_sequence: int) -> dict[tuple[str, 
             print(f"report: shots of {seq} failed: {exc}", file=sys.stderr)
             continue
         for s in shots:
-            if s.event is not None and (seq, s.event) not in found and s.view.startswith("focus"):
-                found[(seq, s.event)] = str(s.path.relative_to(out))
-        for s in shots:  # any view of the event when no focused 3D view was captured
             if s.event is not None:
                 found.setdefault((seq, s.event), str(s.path.relative_to(out)))
     return found
@@ -326,7 +325,7 @@ def build_report(
         ),
         ("causes", "Causes", _causes_section(run_a, run_b, result)),
         ("motion", "Motion metrics", _motion_section(run_a, run_b)),
-        ("shots", "Shots", _shots_section(shot_files, shots)),
+        ("shots", "Shots", _shots_section(shot_files, shots, (run_a, run_b))),
         ("recordings", "Recordings", _recordings_section(run_a, run_b)),
     ]
     write_text_atomic(out / "index.html", [h.page(title, subtitle, sections)])
@@ -491,7 +490,7 @@ def _event_cells(
     ]
 
 
-EVENT_HEADERS = [
+EVENT_HEADERS = [  # "web": filled in when served (--serve)
     "sequence",
     "kind",
     "frame",
@@ -633,7 +632,9 @@ def _motion_section(run_a: Run, run_b: Run | None) -> str:
     return "".join(blocks)
 
 
-def _shots_section(shot_files: Mapping[tuple[str, int], str], asked: int) -> str:
+def _shots_section(
+    shot_files: Mapping[tuple[str, int], str], asked: int, runs: Sequence[Run | None]
+) -> str:
     if not shot_files:
         why = (
             "not asked for (mctrack report --shots N)"
@@ -641,7 +642,17 @@ def _shots_section(shot_files: Mapping[tuple[str, int], str], asked: int) -> str
             else "none taken (no recordings with events, or no Vulkan driver: see the log)"
         )
         return f'<p class="note">No shots: {h.esc(why)}.</p>'
-    figs = [h.figure(p, f"{seq} event #{k}") for (seq, k), p in sorted(shot_files.items())]
+    from tracker.eval.compare import event_text
+
+    captions = {}
+    for prefix, r in zip(("", "b/"), runs, strict=True):
+        for e in r.events if r is not None else ():
+            if e.get("event") is not None:
+                captions[(prefix + e["sequence"], e["event"])] = event_text(e)
+    figs = [
+        h.figure(p, f"{seq} #{k}: {captions.get((seq, k), '')}")
+        for (seq, k), p in sorted(shot_files.items())
+    ]
     return '<div class="gallery">' + "".join(figs) + "</div>"
 
 
@@ -671,8 +682,8 @@ def _recordings_section(run_a: Run, run_b: Run | None) -> str:
         )
     return (
         '<p class="note">Open a recording at event #K with the command (the native viewer, '
-        'focused on the event); <span class="live-only" hidden>or click "view" in the event '
-        "table (the web viewer served with the report)</span>.</p>"
+        'focused on the event)<span class="live-only" hidden>, or click "view" in the event '
+        "table (the web viewer served with the report, at the event's frame)</span>.</p>"
         + h.table(
             ["run", "sequence", "recording", "events", "command"],
             rows,
