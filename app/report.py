@@ -61,6 +61,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(headless viewer; needs a Vulkan driver). 0: no shots",
     )
     parser.add_argument(
+        "--link",
+        nargs=2,
+        action="append",
+        default=[],
+        metavar=("HREF", "TEXT"),
+        help="a link to another report (a relative path, e.g. kitti_0016/index.html); repeatable",
+    )
+    parser.add_argument(
         "--serve", action="store_true", help="then serve the report, recordings and web viewer"
     )
     parser.add_argument(
@@ -94,9 +102,18 @@ def run(args: argparse.Namespace) -> int:
             args.out,
         ]
     )
+    for href, _ in args.link:
+        if "://" in href or href.startswith(("/", "\\")) or ".." in Path(href).parts:
+            raise InputError(f"--link {href}: a relative path inside the report folder, please")
     t0 = time.perf_counter()
     info = build_report(
-        run_a, run_b, out, tolerance=args.tolerance, shots=args.shots, command=command
+        run_a,
+        run_b,
+        out,
+        tolerance=args.tolerance,
+        shots=args.shots,
+        command=command,
+        links=[tuple(x) for x in args.link],
     )
     print(f"report: {out / 'index.html'} ({time.perf_counter() - t0:.1f} s; {info['summary']})")
     if args.serve:
@@ -273,8 +290,10 @@ def build_report(
     tolerance: int = DEFAULT_TOLERANCE,
     shots: int = 0,
     command: str | None = None,
+    links: Sequence[tuple[str, str]] = (),
 ) -> dict[str, Any]:
-    """Write ``out/index.html`` and its files; returns {"events": n, "summary": text}."""
+    """Write ``out/index.html`` and its files; returns {"events": n, "summary": text}.
+    ``links``: (relative href, text) of other reports, listed under "Runs"."""
     shutil.rmtree(out / "plots", ignore_errors=True)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     result = None
@@ -308,7 +327,7 @@ def build_report(
         + (f"; B: config {run_b.summary.get('config_name', 'n/a')}" if run_b else "")
     )
     sections = [
-        ("runs", "Runs", _runs_section(run_a, run_b, command)),
+        ("runs", "Runs", _runs_section(run_a, run_b, command) + _links(links)),
         ("metrics", "Metrics per class", _metrics_section(run_a, run_b, result)),
         ("sequences", "Per sequence", _sequence_section(run_a, run_b, result)),
         (
@@ -332,6 +351,13 @@ def build_report(
     n = len(result["events"]) if result else len(run_a.events)
     summary = f"{n} events, {len(plots)} plots, {len(shot_files)} shots"
     return {"events": n, "summary": summary}
+
+
+def _links(links: Sequence[tuple[str, str]]) -> str:
+    if not links:
+        return ""
+    items = "".join(f'<li><a href="{h.esc(href)}">{h.esc(text)}</a></li>' for href, text in links)
+    return f'<p class="note">Other reports:</p><ul>{items}</ul>'
 
 
 def _runs_section(run_a: Run, run_b: Run | None, command: str | None) -> str:
