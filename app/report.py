@@ -64,7 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--link",
         nargs=2,
         action="append",
-        default=[],
+        default=None,
         metavar=("HREF", "TEXT"),
         help="a link to another report (a relative path, e.g. kitti_0016/index.html); repeatable",
     )
@@ -102,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
             args.out,
         ]
     )
-    for href, _ in args.link:
+    links = [tuple(x) for x in args.link or []]
+    for href, _ in links:
         if "://" in href or href.startswith(("/", "\\")) or ".." in Path(href).parts:
             raise InputError(f"--link {href}: a relative path inside the report folder, please")
     t0 = time.perf_counter()
@@ -113,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         tolerance=args.tolerance,
         shots=args.shots,
         command=command,
-        links=[tuple(x) for x in args.link],
+        links=links,
     )
     print(f"report: {out / 'index.html'} ({time.perf_counter() - t0:.1f} s; {info['summary']})")
     if args.serve:
