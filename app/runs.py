@@ -116,6 +116,16 @@ def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
             raise InputError(f"{result}: missing (sequence {seq} of {folder / 'summary.json'})")
         if not label.is_file():
             raise InputError(f"{label}: missing: no labels for sequence {seq}; pass --labels DIR")
+        rec = path_in(folder / "recordings", seq, ".rrd")
+        index = _recording_index(rec) if rec.is_file() else None
+        if index is not None:
+            recordings[seq] = rec
+        # The recording already holds this evaluation's events (made from the same result
+        # file), 5x faster to read than TrackEval's replay; used when its counts agree.
+        found = _events_from_index(seq, index, label, summary) if index is not None else None
+        if found is not None:
+            events += found
+            continue
         try:
             evaluation = result_file_id_events(result, label, classes=classes)
         except InputError:
@@ -124,12 +134,61 @@ def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
             if type(exc).__name__ != "TrackEvalException":
                 raise
             raise InputError(f"{result}: {exc}") from None
-        rec = path_in(folder / "recordings", seq, ".rrd")
-        index = _recording_index(rec) if rec.is_file() else None
-        if index is not None:
-            recordings[seq] = rec
         events += _with_causes(seq, evaluation.events, index)
     return Run(name, folder, summary, events, recordings, "kitti")
+
+
+_KITTI_CLASS = {"car": "car", "pedestrian": "pedestrian", "cyclist": "cyclist"}
+
+
+def _events_from_index(
+    seq: str, index: Any, label: Path, summary: dict[str, Any]
+) -> list[Event] | None:
+    """The recording's events, their class from the GT id's type in the label file; None when
+    the index lacks anything or its counts differ from the summary's (then: TrackEval)."""
+    n = len(index.event_frames)
+    lists = (
+        index.event_kinds,
+        index.event_gt_ids,
+        index.event_old_track_ids,
+        index.event_new_track_ids,
+        index.event_causes,
+    )
+    if any(len(x) != n for x in lists):
+        return None
+    types: dict[int, str] = {}
+    for line in label.read_text().splitlines():
+        parts = line.split()
+        if len(parts) > 2 and parts[1].lstrip("-").isdigit():
+            types[int(parts[1])] = parts[2].lower()
+    out: list[Event] = []
+    for k in range(n):
+        cls = _KITTI_CLASS.get(types.get(index.event_gt_ids[k], ""))
+        if cls is None:
+            return None
+        out.append(
+            {
+                "sequence": seq,
+                "kind": "Frag" if index.event_kinds[k] else "IDSW",
+                "frame": index.event_frames[k],
+                "class": cls,
+                "gt_id": index.event_gt_ids[k],
+                "old_track": index.event_old_track_ids[k],
+                "new_track": index.event_new_track_ids[k],
+                "last_frame": None,
+                "cause": index.event_causes[k],
+                "event": k,
+            }
+        )
+    counts = (summary.get("per_sequence") or {}).get(seq)
+    if not isinstance(counts, dict):
+        return None
+    for cls, per in counts.items():
+        for kind in ("IDSW", "Frag"):
+            got = sum(e["class"] == cls and e["kind"] == kind for e in out)
+            if not isinstance(per, dict) or per.get(kind) != got:
+                return None
+    return out
 
 
 def _recording_index(rec: Path) -> Any:

@@ -155,3 +155,27 @@ def test_compare_real_runs_accounts_for_every_switch(real_runs, capsys) -> None:
     log = entity_table(rrd, "/events")
     n_listed = sum(p["status"] != "kept" for p in result["events"])
     assert log.num_rows == n_listed > 0
+
+
+def test_events_read_from_the_recording_equal_the_trackeval_replay(real_runs) -> None:
+    """A recorded run's events come from its recording (fast); they are TrackEval's."""
+    from app import runs
+    from tracker.eval.id_switches import result_file_id_events
+
+    root, _, tuned = real_runs
+    folder = root / "kitti"
+    run = runs.load_run(folder)
+    assert run.recordings  # the fast path was available
+    label = Path(tuned["labels"]) / "0016.txt"
+    replay = result_file_id_events(folder / "data" / "0016.txt", label, classes=["pedestrian"])
+    index = runs._recording_index(run.recordings["0016"])
+    slow = runs._with_causes("0016", replay.events, index)
+
+    def key(e):
+        return tuple(
+            e[k]
+            for k in ("frame", "class", "gt_id", "kind", "old_track", "new_track", "cause", "event")
+        )
+
+    assert sorted(map(key, run.events)) == sorted(map(key, slow))
+    assert len(slow) == sum(tuned["metrics"]["pedestrian"][k] for k in ("IDSW", "Frag"))
