@@ -32,7 +32,7 @@ from tracker.io.writers import tracks_scene_json, write_kitti_sequence, write_tr
 from tracker.pipeline import run_scene
 
 #: The per-sequence metrics kept in summary.json "per_sequence_metrics".
-PER_SEQUENCE_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag")
+PER_SEQUENCE_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "TP", "FN")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -444,17 +444,38 @@ def _sequence_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] |
         for k in ("HOTA", "IDSW", "Frag")
         if any(k in per.get(c, {}) for per in per_a.values() for c in classes)
     ]
+
+    def no_gt(seq: str, c: str) -> bool:
+        """No ground-truth object of the class in the sequence: its scores mean nothing."""
+        m = per_a.get(seq, {}).get(c, {})
+        return (
+            isinstance(m.get("TP"), int)
+            and isinstance(m.get("FN"), int)
+            and not (m["TP"] + m["FN"])
+        )
+
+    note = (
+        '<p class="note">A class without ground truth in a sequence is left out (its HOTA, 0, '
+        "would mean nothing).</p>"
+    )
     rows = []
     if result is None:
         for seq, per in per_a.items():
             rows.append(
-                [h.td(seq)] + [h.td(per.get(c, {}).get(k), num=True) for c in classes for k in keys]
+                [h.td(seq)]
+                + [
+                    h.td("–" if no_gt(seq, c) else per.get(c, {}).get(k), num=True)
+                    for c in classes
+                    for k in keys
+                ]
             )
         headers = ["sequence"] + [f"{c} {k}" for c in classes for k in keys]
         return h.table(headers, rows, numeric=[False] + [True] * (len(headers) - 1), scroll=True)
     counts = result["counts"]
     for seq, per in result["per_sequence"].items():
         for c in classes:
+            if no_gt(seq, c):
+                continue
             cells = [h.td(seq), h.td(c)]
             for k in keys:
                 d = per.get(c, {}).get(k, {})
@@ -473,7 +494,10 @@ def _sequence_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] |
         + [f"{k} {x}" for k in keys for x in ("A", "B", "Δ")]
         + ["fixed", "introduced", "kept"]
     )
-    return h.table(headers, rows, numeric=[False, False] + [True] * (len(headers) - 2), scroll=True)
+    table = h.table(
+        headers, rows, numeric=[False, False] + [True] * (len(headers) - 2), scroll=True
+    )
+    return note + table
 
 
 def _inspect_cmd(run: Run, e: Mapping[str, Any]) -> str:
