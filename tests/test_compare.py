@@ -179,3 +179,38 @@ def test_events_read_from_the_recording_equal_the_trackeval_replay(real_runs) ->
 
     assert sorted(map(key, run.events)) == sorted(map(key, slow))
     assert len(slow) == sum(tuned["metrics"]["pedestrian"][k] for k in ("IDSW", "Frag"))
+
+
+def test_compare_tracks_files_against_the_same_ground_truth(tmp_path: Path) -> None:
+    """Two tracks.json with --gt: the ground truth itself (no switch) and a copy in which one
+    object changes id at frame 100 (one switch, introduced), by the BEV-IoU CLEAR replay."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from tracker.io.baseversion import read_baseversion, write_baseversion
+
+    gt_file = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001" / "gt.json.gz"
+    gt = read_baseversion(gt_file, fallback_frame_rate_hz=10.0)
+    frames = gt["0001"]
+    target = int(frames[100].boxes.track_id[0])
+    changed = []
+    for f in frames:
+        ids = f.boxes.track_id.copy()
+        if f.frame_id >= 100:
+            ids[ids == target] = 10_000
+        changed.append(replace(f, boxes=f.boxes.replace(track_id=ids)))
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    write_baseversion(tmp_path / "a" / "tracks.json", gt)
+    write_baseversion(tmp_path / "b" / "tracks.json", {"0001": changed})
+    out = tmp_path / "cmp"
+    args = ["compare", str(tmp_path / "a" / "tracks.json"), str(tmp_path / "b" / "tracks.json")]
+    assert main([*args, "--gt", str(gt_file), "--out", str(out)]) == 0
+    result = json.loads((out / "compare.json").read_text())
+    assert [p["status"] for p in result["events"]] == ["introduced"]
+    e = result["events"][0]["b"]
+    assert (e["frame"], e["gt_id"], e["new_track"], e["kind"]) == (100, target, 10_000, "IDSW")
+    assert np.isclose(result["metrics"][e["class"]]["IDSW"]["delta"], 1)
+    # without --gt: one line saying what is missing
+    assert main([*args, "--out", str(out)]) == 2
