@@ -701,7 +701,7 @@ def _shots_section(
             if e.get("event") is not None:
                 captions[(prefix + e["sequence"], e["event"])] = event_text(e)
     figs = [
-        h.figure(p, f"{seq} #{k}: {captions.get((seq, k), '')}")
+        h.figure(p, ("B " if seq.startswith("b/") else "") + f"#{k}: {captions.get((seq, k), '')}")
         for (seq, k), p in sorted(shot_files.items())
     ]
     return '<div class="gallery">' + "".join(figs) + "</div>"
