@@ -308,3 +308,38 @@ def test_kitti_0016_pedestrian_switches_explained_and_in_view(kitti_0016) -> Non
         assert _in_view(_eye(target), target + np.array([0.0, 0.0, 2.0]))
         assert index.event_causes[k] != "other"
     assert (out / "rec" / "causes.md").is_file()
+
+
+def test_fragmentation_cost_table_lists_its_track_once() -> None:
+    """A fragmentation back to the same track has one cost row, labelled "old = new"; an ID
+    switch has the old and the new track's rows."""
+    from tracker.boxes import Boxes
+    from tracker.eval.id_causes import FrameStages, StageLog
+    from tracker.eval.id_switches import IdEvent, IdEventKind
+    from tracker.events import CostComputed, Stage
+    from tracker.frame import Frame
+    from viz.record import explain_markdown
+
+    stages = StageLog()
+    cost = np.array([[0.3, np.inf, 1.9], [np.inf, 0.8, np.inf], [2.5, np.inf, 0.2]])
+    stages.frames[40] = FrameStages(
+        Frame(scene="s", frame_id=40, timestamp_secs=4.0, boxes=Boxes.empty()),
+        bev=CostComputed(
+            Stage.BEV, cost, np.array([5, 6, 7]), np.array([0, 1, 2]), np.array([1.0, 1.0, 1.2])
+        ),
+    )
+
+    def event(kind: IdEventKind, old: int, new: int) -> IdEvent:
+        return IdEvent(kind, 40, "pedestrian", 9, old, new, 0.7, 31)
+
+    frag = explain_markdown(3, event(IdEventKind.FRAGMENTATION, 5, 5), None, stages)
+    rows = [ln for ln in frag.splitlines() if ln.startswith("| T")]
+    assert rows == ["| T5 | old = new | 1.00 | 0.30 | 1.90 |"]
+    assert "| track | role | gate | d0 | d2 |" in frag
+    switch = explain_markdown(4, event(IdEventKind.ID_SWITCH, 5, 7), None, stages)
+    rows = [ln for ln in switch.splitlines() if ln.startswith("| T")]
+    assert rows == ["| T5 | old | 1.00 | 0.30 | 1.90 |", "| T7 | new | 1.20 | 2.50 | 0.20 |"]
+    lone = explain_markdown(5, event(IdEventKind.FRAGMENTATION, 6, 6), None, stages)
+    assert "| T6 | old = new | 1.00 | 0.80 |" in lone
+    gone = explain_markdown(6, event(IdEventKind.FRAGMENTATION, 8, 8), None, stages)
+    assert "the track had no comparable detection" in gone

@@ -803,16 +803,14 @@ def _log_focus(
     first = (e.last_frame_id if e.last_frame_id >= 0 else e.frame_id) - FOCUS_BEFORE_FRAMES
     last = e.frame_id + FOCUS_AFTER_FRAMES
     strips, colors, labels = [], [], []
-    for tid, rgb, name in (
-        (e.old_track_id, FOCUS_OLD_RGB, f"old T{e.old_track_id}"),
-        (e.new_track_id, FOCUS_NEW_RGB, f"new T{e.new_track_id}"),
-    ):
-        if tid >= 0:
-            p = tracks.path(tid, first, last)
-            if len(p) >= 2:
-                strips.append(p)
-                colors.append(rgb)
-                labels.append(name)
+    roles = event_track_roles(e)  # old = new (a fragmentation) is drawn once
+    role_rgb = {"old": FOCUS_OLD_RGB, "new": FOCUS_NEW_RGB, "old = new": FOCUS_OLD_RGB}
+    for tid, role in roles:
+        p = tracks.path(tid, first, last)
+        if len(p) >= 2:
+            strips.append(p)
+            colors.append(role_rgb[role])
+            labels.append(f"{role} T{tid}")
     boxes, box_colors, box_labels = [], [], []
     if gt is not None:
         sel = (gt.boxes.track_id == e.gt_id) & (gt.frame_id >= first) & (gt.frame_id <= last)
@@ -827,11 +825,11 @@ def _log_focus(
             boxes.append(gt.boxes[at[:1]])
             box_colors.append(FOCUS_GT_RGB)
             box_labels.append(f"GT {e.gt_id}")
-    for tid, rgb in ((e.old_track_id, FOCUS_OLD_RGB), (e.new_track_id, FOCUS_NEW_RGB)):
-        b = tracks.box_at_or_before(tid, e.frame_id) if tid >= 0 else None
+    for tid, role in roles:
+        b = tracks.box_at_or_before(tid, e.frame_id)
         if b is not None:
             boxes.append(b)
-            box_colors.append(rgb)
+            box_colors.append(role_rgb[role])
             box_labels.append(f"T{tid}")
     base = focus_path(k)
     if strips:
@@ -889,7 +887,8 @@ def explain_markdown(k: int, e: IdEvent, cause: EventCause | None, stages: Stage
     st = stages.frames.get(e.frame_id) if stages is not None else None
     c = st.bev if st is not None else None
     if c is not None:
-        rows = [t for t in (e.old_track_id, e.new_track_id) if np.any(c.track_ids == t)]
+        roles = event_track_roles(e)
+        rows = [t for t, _ in roles if np.any(c.track_ids == t)]
         cols = (
             np.flatnonzero(np.isfinite(c.cost[np.isin(c.track_ids, rows)]).any(axis=0))
             if rows
@@ -897,16 +896,27 @@ def explain_markdown(k: int, e: IdEvent, cause: EventCause | None, stages: Stage
         )
         lines += [f"BEV cost at frame {e.frame_id} (gate per row; - = not comparable):", ""]
         if rows and len(cols):
-            lines.append("| track | gate | " + " | ".join(f"d{c.det_rows[j]}" for j in cols) + " |")
-            lines.append("|---|---:|" + "---:|" * len(cols))
-            for t in rows:
+            head = "| track | role | gate | " + " | ".join(f"d{c.det_rows[j]}" for j in cols)
+            lines += [head + " |", "|---|---|---:|" + "---:|" * len(cols)]
+            for t, role in roles:
+                if t not in rows:
+                    continue
                 r = int(np.flatnonzero(c.track_ids == t)[0])
                 cells = [_cell(float(c.cost[r, j])) for j in cols]
                 gate = float(np.asarray(c.max_cost_per_row)[r])
-                lines.append(f"| T{t} | {gate:.2f} | " + " | ".join(cells) + " |")
+                lines.append(f"| T{t} | {role} | {gate:.2f} | " + " | ".join(cells) + " |")
         else:
-            lines.append("neither track had a comparable detection")
+            what = "the track" if len(roles) == 1 else "neither track"
+            lines.append(f"{what} had no comparable detection")
     return "\n".join(lines)
+
+
+def event_track_roles(e: IdEvent) -> list[tuple[int, str]]:
+    """The event's tracks with their role: old and new, or one row "old = new" when the GT
+    comes back to the same track (a fragmentation without an ID switch)."""
+    if e.old_track_id == e.new_track_id:
+        return [(e.old_track_id, "old = new")]
+    return [(t, role) for t, role in ((e.old_track_id, "old"), (e.new_track_id, "new")) if t >= 0]
 
 
 def _cell(v: object) -> str:
