@@ -10,15 +10,13 @@ focuses the velocity views on the tracks of the largest lag and of the first ID 
 
 from __future__ import annotations
 
-import contextlib
-import io
 import itertools
 import json
 import logging
 import tempfile
 import time
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,9 +42,9 @@ from tracker.eval.id_switches import (
     IdEvent,
     IdEventKind,
     bev_id_events,
-    kitti_id_events,
-    kitti_num_timesteps,
+    kitti_evaluation_and_id_events,
 )
+from tracker.eval.kitti import SequenceEvaluation
 from tracker.eval.motion_metrics import gt_velocity_central
 from tracker.events import Observer, TrackOutput
 from tracker.frame import Frame
@@ -160,6 +158,10 @@ class RecordResult:
     cpu_seconds: dict[str, float] = field(default_factory=dict)
     #: detections per fate and class (tracker.eval.fates.FateCounter.summary)
     fates: dict[str, Any] = field(default_factory=dict)
+    #: TrackEval's per-sequence results (KITTI labels), for combining a run's sequences
+    evaluation: SequenceEvaluation | None = None
+    #: offline post-processing's removed tracks (tracker.pipeline.SceneResult.removed_offline)
+    removed_offline: list[Any] = field(default_factory=list)
 
     @property
     def recording_seconds(self) -> float:
@@ -216,6 +218,7 @@ def record_scene(
     kitti_metrics: dict[str, dict[str, float]] | None = None,
     result_file: str | Path | None = None,
     progress: Observer | None = None,
+    on_tracked: Callable[[list[TrackOutput]], None] | None = None,
 ) -> RecordResult:
     """Track one scene with the Rerun observer and write the full debug recording.
 
@@ -236,8 +239,10 @@ def record_scene(
         hundred (slightly more overhead, no visible lag).
     kitti_metrics : this sequence's TrackEval metrics when the caller has them already
         (``mctrack kitti`` evaluates all sequences in one run); else computed here.
-    result_file : the KITTI result file of this very run when already written.
+    result_file : the KITTI result file of this very run, written by then (see ``on_tracked``).
     progress : also gets every stage event (a progress bar counts ``FrameStarted``).
+    on_tracked : called with the outputs as soon as tracking ends, before the evaluation (a
+        caller writes its result files there: ``mctrack kitti`` tracks once, with the recording).
 
     Returns
     -------
@@ -282,24 +287,27 @@ def record_scene(
         outputs=outputs,
         tracker_seconds=scene_result.tracker_seconds,
         total_seconds=0.0,
+        removed_offline=list(scene_result.removed_offline),
     )
 
+    if on_tracked is not None:
+        on_tracked(outputs)
     gt_index = _GtIndex(gt_frames) if gt_frames else None
     with tempfile.TemporaryDirectory(prefix="mctrack-record-") as tmp:
         if label_file is not None:
-            label_file = _labels_for_frames(label_file, frames, Path(tmp))
+            restricted = _labels_for_frames(label_file, frames, Path(tmp))
             classes = [c for c in config.categories if c in KITTI_EVAL_CLASSES]
-            result.id_evaluation = kitti_id_events(
+            # one TrackEval loading and preprocessing gives the metrics and the ID events
+            evaluation, result.id_evaluation = kitti_evaluation_and_id_events(
                 outputs,
                 frames,
-                label_file,
+                restricted,
                 classes=classes,
                 camera_name=camera_names[0],
-                result_file=result_file,
+                result_file=result_file if restricted == label_file else None,
             )
-            result.kitti_metrics = kitti_metrics or _kitti_metrics(
-                outputs, frames, label_file, classes, camera_names[0], Path(tmp)
-            )
+            result.evaluation = evaluation.without_id_inputs()
+            result.kitti_metrics = kitti_metrics or evaluation.metrics
         elif gt_frames:
             result.id_evaluation = bev_id_events(
                 outputs, gt_frames, categories=list(config.categories)
@@ -421,29 +429,6 @@ def _labels_for_frames(label_file: Path, frames: Sequence[Frame], tmp: Path) -> 
     target.parent.mkdir(parents=True, exist_ok=True)
     target.write_text("".join(kept))
     return target
-
-
-def _kitti_metrics(
-    outputs: Sequence[TrackOutput],
-    frames: Sequence[Frame],
-    label_file: Path,
-    classes: Sequence[str],
-    camera_name: str,
-    tmp: Path,
-) -> dict[str, dict[str, float]]:
-    from tracker.eval.kitti import evaluate_kitti
-    from tracker.io.writers import write_kitti_sequence
-
-    seq = label_file.stem
-    result_dir = tmp / "results"
-    write_kitti_sequence(result_dir / f"{seq}.txt", outputs, frames, camera_name)
-    with contextlib.redirect_stdout(io.StringIO()):  # TrackEval prints its metric configs
-        return evaluate_kitti(
-            label_dir=label_file.parent,
-            result_dir=result_dir,
-            seq_lengths={seq: kitti_num_timesteps(label_file, frames)},
-            classes=classes,
-        )
 
 
 def _motion_metrics(
