@@ -166,8 +166,41 @@ def test_inspect_prints_the_url_and_the_event(capsys: pytest.CaptureFixture[str]
     out = capsys.readouterr().out
     assert f"event #{k}: ID switch at frame {e.frame_id}" in out
     assert f"T{e.old_track_id} -> T{e.new_track_id} ({result.causes[k].cause.value})" in out
-    assert f"viewer URL: {path.resolve().as_uri()}#when=frame@{e.frame_id}" in out
+    assert f"recording: {path.resolve().as_uri()}\n" in out  # no #when: 0.41 ignores it
     assert main(["inspect", str(path), "--event", "100000", "--print"]) == 2
+
+
+def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> None:
+    """``mctrack inspect``'s viewer driving on Rerun's headless native viewer: the viewer's own
+    time cursor (read back with ViewerClient.get_state) is on the event's frame and the
+    focused layout is shown; for --frame, on that frame in the default layout."""
+    from rerun.experimental import ViewerClient
+
+    from app.inspect import drive_viewer, inspect_target
+    from viz.shots import _free_port, _private_home, _rerun_executable, renderer_available
+
+    ok, why = renderer_available()
+    if not ok:
+        pytest.skip(f"no software renderer: {why}")
+    path, result = recording()
+    k = next(i for i, e in enumerate(result.id_evaluation.events) if e.frame_id > 0)
+    frame = result.id_evaluation.events[k].frame_id
+    with (
+        _private_home(),
+        ViewerClient.spawn(
+            headless=True,
+            port=_free_port(),
+            hide_welcome_screen=True,
+            executable_path=_rerun_executable(),
+        ) as client,
+    ):
+        assert drive_viewer(client, path, inspect_target(path, k, None), tmp_path) == frame
+        state = client.get_state()
+        cursor = [(r.current_timeline, r.current_time) for r in state.recordings]
+        assert (paths.FRAME, frame) in cursor
+        assert any(v.name.startswith(layout.VIEW_FOCUS) for v in state.views)
+        target = inspect_target(path, None, 7)
+        assert drive_viewer(client, path, target, tmp_path) == 7
 
 
 def test_focused_blueprint_of_an_event_targets_it(monkeypatch: pytest.MonkeyPatch) -> None:
