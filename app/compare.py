@@ -78,11 +78,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def compare(
-    run_a: Run, run_b: Run, out: Path, *, tolerance: int, command: str | None = None
-) -> dict[str, Any]:
-    """Compare and write ``out/compare.json`` and ``out/compare.md``; returns the result."""
-    result = compare_runs(
+def compare_result(run_a: Run, run_b: Run, *, tolerance: int) -> dict[str, Any]:
+    """The A/B comparison of two loaded runs (:func:`tracker.eval.compare.compare_runs`)."""
+    return compare_runs(
         run_a.summary,
         run_b.summary,
         run_a.events,
@@ -90,6 +88,13 @@ def compare(
         tolerance=tolerance,
         names=(run_a.name, run_b.name),
     )
+
+
+def compare(
+    run_a: Run, run_b: Run, out: Path, *, tolerance: int, command: str | None = None
+) -> dict[str, Any]:
+    """Compare and write ``out/compare.json`` and ``out/compare.md``; returns the result."""
+    result = compare_result(run_a, run_b, tolerance=tolerance)
     if command:
         result["command"] = command
     write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])

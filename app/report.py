@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from app import report_html as h
+from app.compare import compare_result
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -32,7 +33,6 @@ from tracker.eval.compare import (
     DEFAULT_TOLERANCE,
     LOWER_IS_BETTER,
     MOTION_KEYS,
-    compare_runs,
 )
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
 
@@ -299,14 +299,7 @@ def build_report(
     (out / "plots").mkdir(parents=True, exist_ok=True)
     result = None
     if run_b is not None:
-        result = compare_runs(
-            run_a.summary,
-            run_b.summary,
-            run_a.events,
-            run_b.events,
-            tolerance=tolerance,
-            names=(run_a.name, run_b.name),
-        )
+        result = compare_result(run_a, run_b, tolerance=tolerance)
         write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
     plots = make_plots(run_a, run_b, out)
     motion_png = run_a.folder / "motion_velocity.png"

@@ -14,7 +14,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from viz.shots import _free_port, _private_home, _rerun_executable, _wait_loaded
+from viz.shots import _wait_loaded, headless_viewer
 
 
 def cursor(client: object) -> list[tuple[str | None, int | None]]:
@@ -23,18 +23,9 @@ def cursor(client: object) -> list[tuple[str | None, int | None]]:
 
 
 def main() -> int:
-    from rerun.experimental import ViewerClient
 
     rec = Path(sys.argv[1]).resolve()
-    with (
-        _private_home(),
-        ViewerClient.spawn(
-            headless=True,
-            port=_free_port(),
-            hide_welcome_screen=True,
-            executable_path=_rerun_executable(),
-        ) as client,
-    ):
+    with headless_viewer() as client:
         print("viewer", client.get_state().viewer_version)
         client.open(rec.as_uri() + "#when=frame@25")
         _wait_loaded(client, rec, 60.0)

@@ -174,10 +174,9 @@ def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> No
     """``mctrack inspect``'s viewer driving on Rerun's headless native viewer: the viewer's own
     time cursor (read back with ViewerClient.get_state) is on the event's frame and the
     focused layout is shown; for --frame, on that frame in the default layout."""
-    from rerun.experimental import ViewerClient
 
     from app.inspect import drive_viewer, inspect_target
-    from viz.shots import _free_port, _private_home, _rerun_executable, renderer_available
+    from viz.shots import headless_viewer, renderer_available
 
     ok, why = renderer_available()
     if not ok:
@@ -185,15 +184,7 @@ def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> No
     path, result = recording()
     k = next(i for i, e in enumerate(result.id_evaluation.events) if e.frame_id > 0)
     frame = result.id_evaluation.events[k].frame_id
-    with (
-        _private_home(),
-        ViewerClient.spawn(
-            headless=True,
-            port=_free_port(),
-            hide_welcome_screen=True,
-            executable_path=_rerun_executable(),
-        ) as client,
-    ):
+    with headless_viewer() as client:
         assert drive_viewer(client, path, inspect_target(path, k, None), tmp_path) == frame
         state = client.get_state()
         cursor = [(r.current_timeline, r.current_time) for r in state.recordings]

@@ -219,6 +219,24 @@ def _rerun_executable() -> str | None:
 
 
 @contextlib.contextmanager
+def headless_viewer() -> Iterator[Any]:
+    """A headless native Rerun viewer (``ViewerClient``) on a free loopback port, with a
+    private $HOME; closed on exit."""
+    from rerun.experimental import ViewerClient
+
+    with (
+        _private_home(),
+        ViewerClient.spawn(
+            headless=True,
+            port=_free_port(),
+            hide_welcome_screen=True,
+            executable_path=_rerun_executable(),
+        ) as client,
+    ):
+        yield client
+
+
+@contextlib.contextmanager
 def _private_home() -> Iterator[None]:
     """The viewer and Mesa write state under $HOME; keep screenshots reproducible and the
     user's home untouched."""
@@ -281,7 +299,6 @@ def take_shots(
     ok, why = renderer_available()
     if not ok:
         raise RendererMissing(why)
-    from rerun.experimental import ViewerClient
 
     recording = Path(recording).resolve()
     out = Path(out_dir)
@@ -292,14 +309,8 @@ def take_shots(
     planned = [p if isinstance(p, PlannedShot) else PlannedShot(*p) for p in plan]
     shots: list[Shot] = []
     with (
-        _private_home(),
         tempfile.TemporaryDirectory(prefix="mctrack-shots-") as tmp,
-        ViewerClient.spawn(
-            headless=True,
-            port=_free_port(),
-            hide_welcome_screen=True,
-            executable_path=_rerun_executable(),
-        ) as client,
+        headless_viewer() as client,
     ):
         client.open(str(recording))
         _wait_loaded(client, recording, timeout_secs)
