@@ -19,7 +19,8 @@ import multiprocessing
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,7 @@ from app.inputs import (
     positive_int,
 )
 from tracker.config import load_config
+from tracker.errors import InputError
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
@@ -87,7 +89,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=2,
         help="parallel evaluations (default: %(default)s)",
     )
+    parser.add_argument(
+        "--seqs",
+        default=",".join(VALIDATION_SEQS),
+        help="labelled sequences the folds are made of (default: the 11 validation sequences)",
+    )
     parser.add_argument("--out", required=True, help="output folder (tune.json, best.toml)")
+    parser.add_argument(
+        "--ray",
+        nargs="?",
+        const="local",
+        default=None,
+        metavar="ADDRESS",
+        help="run the trials on Ray Tune: no ADDRESS starts a local instance (--workers CPUs), "
+        "'auto' joins the running cluster; the same --out again resumes (docs/scale.md)",
+    )
+    parser.add_argument(
+        "--max-concurrent",
+        type=positive_int,
+        default=None,
+        help="with --ray: trials at once (default: the cluster's CPUs)",
+    )
 
 
 def folds_by_frames(lengths: dict[str, int], k: int) -> list[list[str]]:
@@ -117,6 +139,67 @@ def settings_to_overrides(cls: str, params: dict[str, Any]) -> dict[str, Any]:
             node = node.setdefault(p, {})
         node[leaf] = value
     return out
+
+
+#: Random trials before TPE models the results (both backends: one sampler, :func:`make_sampler`)
+STARTUP_TRIALS = 8
+
+Trials = list[tuple[dict[str, Any], float]]  # (settings, objective) per trial, in trial order
+
+
+def make_sampler(seed: int) -> Any:
+    """The search algorithm of every backend: Optuna's TPE, seeded."""
+    import optuna
+
+    return optuna.samplers.TPESampler(seed=seed, n_startup_trials=STARTUP_TRIALS)
+
+
+def best_trial(trials: Trials) -> tuple[dict[str, Any], float]:
+    """The first trial with the highest objective (Optuna's own rule for ties)."""
+    params, value = trials[0]
+    for p, v in trials[1:]:
+        if v > value:
+            params, value = p, v
+    return params, value
+
+
+@dataclass(frozen=True, slots=True)
+class Objective:
+    """The searched objective: HOTA averaged over the detectors, each tracking ``seqs`` with a
+    trial's settings. One definition for the local pool and the Ray Tune trials (app/tune_ray)."""
+
+    detectors: tuple[str, ...]
+    config_name: str
+    base: dict[str, Any]
+    cls: str
+    label_dir: str
+
+    def overrides(self, params: dict[str, Any]) -> dict[str, Any]:
+        return {**self.base, **settings_to_overrides(self.cls, params)}  # disjoint keys
+
+    def tasks(
+        self, key: str, seqs: Sequence[str], params: dict[str, Any], work: Path, evaluate: bool
+    ) -> list[tuple[Any, ...]]:
+        """One :func:`_track_and_score` task per detector (frames from ``_FRAMES[(det, key)]``)."""
+        return [((det, key), list(seqs), self.config_name, self.overrides(params),
+                 str(work / det), self.label_dir, self.cls, evaluate)
+                for det in self.detectors]  # fmt: skip
+
+    def metrics(
+        self,
+        key: str,
+        seqs: Sequence[str],
+        params: dict[str, Any],
+        work: Path,
+        map_fn: Callable[[Callable, Iterable], Iterable] = map,
+    ) -> dict[str, dict[str, Any]]:
+        """Each detector's metrics on ``seqs`` (result files under ``work/<detector>``)."""
+        results = map_fn(_track_and_score, self.tasks(key, seqs, params, work, True))
+        return dict(zip(self.detectors, results, strict=True))
+
+    @staticmethod
+    def value(metrics: dict[str, dict[str, Any]]) -> float:
+        return sum(m["HOTA"] for m in metrics.values()) / len(metrics)
 
 
 def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
@@ -155,19 +238,36 @@ def run(args: argparse.Namespace) -> int:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     root = args.kitti_root or default_kitti_root()
     detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
+    seqs = [s.strip().zfill(4) for s in args.seqs.split(",") if s.strip()]
+    if len(seqs) < args.folds:
+        raise InputError(f"--folds {args.folds} needs at least as many --seqs (got {len(seqs)})")
     for detector in detectors:
-        check_kitti_root(root, seqs=VALIDATION_SEQS, detector=detector)
+        check_kitti_root(root, seqs=seqs, detector=detector)
     label_dir = root / "training" / "label_02"
     cls = args.cls
     space = OFFLINE_SPACE if args.mode == "offline" else ONLINE_SPACE
     config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
     base = {"categories": [cls], "mode": args.mode}
     load_config(config_name, overrides=base)  # fail early on a bad config
+    out = Path(args.out)
+    ray_search = None
+    if args.ray is not None:
+        from app.scenes import import_ray
+
+        import_ray()  # the one-line error when the extra is not installed
+        try:
+            from app.tune_ray import RaySearch
+        except ImportError:  # Ray without Ray Tune's dependencies
+            raise InputError("--ray needs Ray Tune: pip install -e '.[ray]'") from None
+
+        ray_search = RaySearch.from_args(args, out, root, seqs)  # refuses a changed command
+    elif args.max_concurrent is not None:
+        raise InputError("--max-concurrent needs --ray (local trials run one at a time)")
 
     raw: dict[str, dict[str, list[Frame]]] = {}
     gt: dict[str, dict[str, list[Frame]]] = {}
     for det in detectors:
-        raw[det], labels = convert_kitti(root, seqs=VALIDATION_SEQS, detector=det, classes=[cls])
+        raw[det], labels = convert_kitti(root, seqs=seqs, detector=det, classes=[cls])
         gt[det] = labels or {}
     lengths = {s: len(f) for s, f in raw[detectors[0]].items()}
     folds = folds_by_frames(lengths, args.folds)
@@ -182,7 +282,8 @@ def run(args: argparse.Namespace) -> int:
         shipped = find_profile(det)
         _FRAMES[(det, "all")] = {s: calibrate_frames(raw[det][s], shipped) for s in lengths}
 
-    out = Path(args.out)
+    objective = Objective(tuple(detectors), config_name, base, cls, str(label_dir))
+    first = _current(config_name, base, cls, space)
     work = Path(tempfile.mkdtemp(prefix="mctrack-tune-"))
     total = args.trials * (len(folds) + 1)
     ctx = multiprocessing.get_context("fork")
@@ -193,63 +294,65 @@ def run(args: argparse.Namespace) -> int:
     }  # fmt: skip
     start = time.perf_counter()
     try:
+        # the pool forks before Ray starts (a forked Ray driver is unsafe)
         with ctx.Pool(max(1, args.workers)) as pool, tqdm(total=total, unit="trial") as bar:
 
-            def score(key: str, seqs: Sequence[str], params: dict[str, Any], tag: str) -> dict:
-                overrides = {**base, **settings_to_overrides(cls, params)}  # disjoint keys
-                tasks = []
-                for det in detectors:
-                    result_dir = work / tag / det
-                    result_dir.mkdir(parents=True, exist_ok=True)
-                    tasks.append(((det, key), list(seqs), config_name, overrides,
-                                  str(result_dir), str(label_dir), cls, True))  # fmt: skip
-                return dict(zip(detectors, pool.map(_track_and_score, tasks), strict=True))
+            def local_search(key: str, seqs: Sequence[str], seed: int) -> Trials:
+                study = optuna.create_study(direction="maximize", sampler=make_sampler(seed))
+                study.enqueue_trial(first)
 
-            def search(key: str, seqs: Sequence[str], seed: int) -> tuple[dict, float]:
-                study = optuna.create_study(
-                    direction="maximize",
-                    sampler=optuna.samplers.TPESampler(seed=seed, n_startup_trials=8),
-                )
-                study.enqueue_trial(_current(config_name, base, cls, space))
-
-                def objective(trial: optuna.Trial) -> float:
-                    params = _suggest(trial, space)
-                    metrics = score(key, seqs, params, f"{key}-trial")
+                def trial_value(trial: optuna.Trial) -> float:
+                    params = suggest(trial, space)
+                    metrics = objective.metrics(key, seqs, params, work / f"{key}-trial", pool.map)
                     bar.update(1)
-                    return sum(m["HOTA"] for m in metrics.values()) / len(metrics)
+                    return objective.value(metrics)
 
-                study.optimize(objective, n_trials=args.trials)
-                return study.best_params, study.best_value
+                study.optimize(trial_value, n_trials=args.trials)
+                return [(t.params, t.value) for t in study.trials]
+
+            if ray_search is None:
+                search: Callable[[str, Sequence[str], int], Trials] = local_search
+            else:
+                search = ray_search.start(objective, space, first, _FRAMES, bar.update)
 
             record["cv"] = []
             for k, test in enumerate(folds):
                 train = [s for s in lengths if s not in test]
-                params, value = search(f"fold{k}", train, args.seed + k)
+                trials = search(f"fold{k}", train, args.seed + k)
+                params, value = best_trial(trials)
                 # the held-out fold, tracked with the settings its search chose
-                overrides = {**base, **settings_to_overrides(cls, params)}  # disjoint keys
-                pool.map(_track_and_score, [
-                    ((det, f"fold{k}"), test, config_name, overrides,
-                     str(work / "heldout" / det), str(label_dir), cls, False)
-                    for det in detectors
-                ])  # fmt: skip
-                record["cv"].append({"test": test, "best": params, "train_hota": round(value, 3)})
+                heldout = objective.tasks(f"fold{k}", test, params, work / "heldout", False)
+                pool.map(_track_and_score, heldout)
+                record["cv"].append({"test": test, "best": params, "train_hota": round(value, 3),
+                                     "trials": _trial_list(trials)})  # fmt: skip
             record["cross_validated"] = {
                 det: _evaluate_dir(work / "heldout" / det, label_dir, lengths, cls)
                 for det in detectors
             }
-            params, value = search("all", list(lengths), args.seed + 100)
+            trials = search("all", list(lengths), args.seed + 100)
+            params, value = best_trial(trials)
             record["final"] = {
                 "best": params,
                 "overrides": settings_to_overrides(cls, params),
-                "in_sample": score("all", list(lengths), params, "final"),
-            }
+                "in_sample": objective.metrics("all", list(lengths), params, work / "final",
+                                               pool.map),
+                "trials": _trial_list(trials),
+            }  # fmt: skip
+            if ray_search is not None:
+                record["ray"] = ray_search.describe()
     finally:
+        if ray_search is not None:
+            ray_search.stop()
         shutil.rmtree(work, ignore_errors=True)
     record["seconds"] = round(time.perf_counter() - start, 1)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "tune.json", [json.dumps(record, indent=2)])
     _print(record)
     return 0
+
+
+def _trial_list(trials: Trials) -> list[dict[str, Any]]:
+    return [{"params": p, "hota": round(v, 3)} for p, v in trials]
 
 
 def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> dict[str, Any]:
@@ -274,13 +377,13 @@ def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> d
     return values
 
 
-def _suggest(trial: Any, space: dict[str, tuple[str, float, float]]) -> dict[str, Any]:
-    suggest: dict[str, Callable[..., Any]] = {
+def suggest(trial: Any, space: dict[str, tuple[str, float, float]]) -> dict[str, Any]:
+    draw: dict[str, Callable[..., Any]] = {
         "int": lambda k, lo, hi: trial.suggest_int(k, int(lo), int(hi)),
         "float": lambda k, lo, hi: trial.suggest_float(k, lo, hi),
         "log": lambda k, lo, hi: trial.suggest_float(k, lo, hi, log=True),
     }
-    return {key: suggest[kind](key, lo, hi) for key, (kind, lo, hi) in space.items()}
+    return {key: draw[kind](key, lo, hi) for key, (kind, lo, hi) in space.items()}
 
 
 def _evaluate_dir(
