@@ -236,6 +236,12 @@ def run(args: argparse.Namespace) -> int:
     from tracker.io.convert.kitti import convert_kitti
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
+    if args.ray is not None:
+        from app.scenes import import_ray
+
+        import_ray()  # the one-line error when the extra is not installed, before any work
+    elif args.max_concurrent is not None:
+        raise InputError("--max-concurrent needs --ray (local trials run one at a time)")
     root = args.kitti_root or default_kitti_root()
     detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
     seqs = [s.strip().zfill(4) for s in args.seqs.split(",") if s.strip()]
@@ -252,17 +258,12 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     ray_search = None
     if args.ray is not None:
-        from app.scenes import import_ray
-
-        import_ray()  # the one-line error when the extra is not installed
         try:
             from app.tune_ray import RaySearch
         except ImportError:  # Ray without Ray Tune's dependencies
             raise InputError("--ray needs Ray Tune: pip install -e '.[ray]'") from None
 
         ray_search = RaySearch.from_args(args, out, root, seqs)  # refuses a changed command
-    elif args.max_concurrent is not None:
-        raise InputError("--max-concurrent needs --ray (local trials run one at a time)")
 
     raw: dict[str, dict[str, list[Frame]]] = {}
     gt: dict[str, dict[str, list[Frame]]] = {}

@@ -46,6 +46,9 @@ from tracker.frame import Frame
 from tracker.io.fileio import write_text_atomic
 
 METRIC = "hota"  # the objective's name in a trial's result
+# The Optuna trial number, added to each trial's config: a restored ResultGrid does not keep the
+# order of proposal, and the best trial is the first of the best (as Optuna's own rule).
+NUMBER = "optuna_trial"
 STATE_DIR = "ray_tune"  # under --out: one Ray Tune experiment per search, and run.json
 MAX_FAILURES = 3  # re-runs of a trial whose worker process died
 # Ray Tune saves an experiment's state at most every 10 s by default; a hard kill then loses
@@ -64,6 +67,11 @@ class _Progress(tune.Callback):
             _PROGRESS[0](1)
 
 
+def _suggest_numbered(trial: Any, space: dict[str, tuple[str, float, float]]) -> dict[str, Any]:
+    """:func:`app.tune.suggest` (the one search space), plus the trial's number."""
+    return {**suggest(trial, space), NUMBER: trial.number}
+
+
 def _trial(
     config: dict[str, Any],
     *,
@@ -80,7 +88,8 @@ def _trial(
         local._FRAMES[(det, key)] = by_seq
     work = Path(tempfile.mkdtemp(prefix="mctrack-trial-"))
     try:
-        metrics = objective.metrics(key, seqs, config, work)
+        params = {k: v for k, v in config.items() if k != NUMBER}
+        metrics = objective.metrics(key, seqs, params, work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     tune.report({METRIC: objective.value(metrics)}
@@ -174,7 +183,7 @@ class RaySearch:
                 tuner = tune.Tuner.restore(str(path), trainable=trainable, restart_errored=True)
             else:
                 searcher = OptunaSearch(
-                    space=functools.partial(suggest, space=space),
+                    space=functools.partial(_suggest_numbered, space=space),
                     metric=METRIC,
                     mode="max",
                     points_to_evaluate=[first],
@@ -204,8 +213,8 @@ class RaySearch:
 
     def _trials(self, grid: Any, key: str) -> Trials:
         """(settings, objective) per trial, in the order the searcher proposed them."""
-        trials: Trials = []
-        for result in grid:  # a ResultGrid keeps the experiment's trial order
+        numbered: list[tuple[int, dict[str, Any], float]] = []
+        for result in grid:
             if result.error is not None:
                 raise RuntimeError(
                     f"a Ray Tune trial of search {key} failed "
@@ -213,7 +222,9 @@ class RaySearch:
                     f"its log is under {self.state / key}"
                 )
             if result.metrics and METRIC in result.metrics:
-                trials.append((dict(result.config), float(result.metrics[METRIC])))
+                params = {k: v for k, v in result.config.items() if k != NUMBER}
+                numbered.append((result.config[NUMBER], params, float(result.metrics[METRIC])))
+        trials: Trials = [(params, value) for _, params, value in sorted(numbered)]
         if len(trials) < self.trials:  # stopped (Ctrl-C) before the search finished
             print(
                 f"mctrack tune: search {key} stopped after {len(trials)} of {self.trials} trials;"
