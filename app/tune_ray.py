@@ -39,7 +39,7 @@ from ray.tune.search import ConcurrencyLimiter
 from ray.tune.search.optuna import OptunaSearch
 
 from app import scenes
-from app.tune import Objective, Trials, make_sampler, suggest
+from app.tune import Objective, Trials, make_sampler, objective_value, suggest
 from tracker.config import config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
@@ -78,22 +78,22 @@ def _trial(
     objective: Objective,
     key: str,
     seqs: list[str],
-    frames: dict[str, dict[str, list[Frame]]],
+    frames: dict[tuple[str, str], dict[str, list[Frame]]],
 ) -> None:
     """One Ray Tune trial: the objective of one proposal, in a Ray worker process."""
     from app import tune as local
 
     local._FRAMES.clear()  # a reused worker holds another search's frames
-    for det, by_seq in frames.items():
-        local._FRAMES[(det, key)] = by_seq
+    for (det, level), by_seq in frames.items():
+        local._FRAMES[(det, key, level)] = by_seq
     work = Path(tempfile.mkdtemp(prefix="mctrack-trial-"))
     try:
         params = {k: v for k, v in config.items() if k != NUMBER}
         metrics = objective.metrics(key, seqs, params, work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    tune.report({METRIC: objective.value(metrics)}
-                | {f"{METRIC}_{det}": m["HOTA"] for det, m in metrics.items()})  # fmt: skip
+    each = {f"{METRIC}_{det}_{level}": m["HOTA"] for (det, level), m in metrics.items()}
+    tune.report({METRIC: objective_value(metrics), **each})
 
 
 def _trial_dirname(trial: Any) -> str:
@@ -140,6 +140,8 @@ class RaySearch:
             "trials": args.trials,
             "folds": args.folds,
             "seed": args.seed,
+            "noise": args.noise,
+            "noise_seed": args.noise_seed,
             "seqs": list(seqs),
             "max_concurrent": args.max_concurrent,
             "kitti_root": str(root.resolve()),
@@ -153,7 +155,8 @@ class RaySearch:
         objective: Objective,
         space: dict[str, tuple[str, float, float]],
         first: dict[str, Any],
-        frames: dict[tuple[str, str], dict[str, list[Frame]]],
+        n_startup: int,
+        frames: dict[tuple[str, str, str], dict[str, list[Frame]]],
         progress: Callable[[int], Any],
     ) -> Callable[[str, Sequence[str], int], Trials]:
         """Connects to Ray and returns the search function (key, sequences, seed) -> trials."""
@@ -173,7 +176,7 @@ class RaySearch:
                     objective=objective,
                     key=key,
                     seqs=list(seqs),
-                    frames={det: frames[(det, key)] for det in objective.detectors},
+                    frames={run: frames[(run[0], key, run[1])] for run in objective.runs},
                 ),
                 {"cpu": 1},
             )
@@ -187,7 +190,7 @@ class RaySearch:
                     metric=METRIC,
                     mode="max",
                     points_to_evaluate=[first],
-                    sampler=make_sampler(seed),
+                    sampler=make_sampler(seed, n_startup),
                 )
                 tuner = tune.Tuner(
                     trainable,

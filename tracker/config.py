@@ -146,6 +146,9 @@ class CategoryConfig:
 class OfflineConfig:
     track_score_min: float = 1.4  # a track is kept iff its mean detection logit > this
     interpolate_max_gap: int = 30  # interior gaps up to this many frames are filled
+    # offline only: each track's positions smoothed by a centred local quadratic fit over this
+    # many seconds (Savitzky-Golay; 0 = off): no filter lag, and the box noise averages out
+    smooth_seconds: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)

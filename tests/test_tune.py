@@ -1,0 +1,82 @@
+"""`mctrack tune`'s pieces: the noise levels of the objective, the objective, and the mapping
+from searched values to config overrides (the search itself runs on real data: docs/tune/)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+from app.tune import (
+    ONLINE_SPACE,
+    _current,
+    noise_levels,
+    objective_value,
+    settings_to_overrides,
+)
+from tracker.config import load_config
+from tracker.errors import InputError
+
+
+def test_noise_levels_parse_and_reject_unknown_names() -> None:
+    assert noise_levels("noise") == ["noise"]
+    assert noise_levels("noise, double,noise") == ["noise", "double"]
+    assert noise_levels("none") == [] and noise_levels("clean") == [] and noise_levels("") == []
+    with pytest.raises(InputError, match="loud"):
+        noise_levels("noise,loud")
+
+
+def test_objective_averages_hota_over_every_detector_and_level() -> None:
+    metrics = {
+        ("a", "clean"): {"HOTA": 80.0},
+        ("a", "noise"): {"HOTA": 70.0},
+        ("b", "clean"): {"HOTA": 60.0},
+        ("b", "noise"): {"HOTA": 30.0},
+    }
+    assert objective_value(metrics) == pytest.approx(60.0)
+
+
+def test_searched_values_become_overrides_the_config_accepts() -> None:
+    params = {
+        "score_min": 0.1,
+        "lifecycle.confirm_nines": 2.0,
+        "lifecycle.max_misses_output": 2,
+        "pose.ca.r": 0.35,
+    }
+    overrides = settings_to_overrides("pedestrian", params)
+    cat = load_config("kitti", overrides=overrides).per_category["pedestrian"]
+    assert cat.score_min == 0.1
+    assert cat.lifecycle.confirm_prob == pytest.approx(0.99)
+    assert cat.lifecycle.max_misses_output == 2
+    assert cat.pose.ca.r == (0.35, 0.35)
+    # the rest of the filter is the base config's, not a default
+    assert cat.pose.ca.q == load_config("kitti").per_category["pedestrian"].pose.ca.q
+
+
+@pytest.mark.parametrize("cls", ["car", "pedestrian"])
+def test_the_first_trial_is_the_base_config_itself(cls: str) -> None:
+    """Trial 0 of every search is the shipped setting: mapping its values back to overrides
+    leaves the config unchanged."""
+    base = {"categories": [cls]}
+    values = _current("kitti", base, cls, ONLINE_SPACE)
+    assert set(values) == set(ONLINE_SPACE)
+    for key, (_, low, high) in ONLINE_SPACE.items():
+        assert low <= values[key] <= high, key
+    before = load_config("kitti", overrides=base).per_category[cls]
+    after = load_config(
+        "kitti", overrides={**base, **settings_to_overrides(cls, values)}
+    ).per_category[cls]
+    assert after.pose == before.pose and after.bev == before.bev
+    assert after.lifecycle.min_hits == before.lifecycle.min_hits
+    assert after.lifecycle.confirm_prob == pytest.approx(before.lifecycle.confirm_prob, abs=1e-6)
+
+
+def test_unknown_noise_level_is_a_one_line_error(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(["tune", "--noise", "loud", "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    assert err.strip().splitlines()[-1].startswith("mctrack tune: error: --noise: unknown")
+    assert not (tmp_path / "t").exists()
