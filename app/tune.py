@@ -404,6 +404,10 @@ def run(args: argparse.Namespace) -> int:
             }
             if ray_search is not None:
                 record["ray"] = ray_search.describe()
+    except KeyboardInterrupt:
+        if ray_search is not None:
+            ray_search.interrupted()  # says how to resume
+        raise
     finally:
         if ray_search is not None:
             ray_search.stop()

@@ -27,8 +27,10 @@ import hashlib
 import json
 import os
 import shutil
+import signal
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -96,6 +98,30 @@ def _trial(
     tune.report({METRIC: objective_value(metrics), **each})
 
 
+def _ctrl_c(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _fit(tuner: Any) -> tuple[Any, bool]:
+    """``tuner.fit()``, and whether Ctrl-C stopped it.
+
+    Ray Tune catches Ctrl-C, saves the experiment and returns normally: when the search was
+    nearly done its results can even look complete, and the next search would start. Its
+    handler puts back the one it found, so finding ours in place afterwards means it ran.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return tuner.fit(), False  # no signal handlers outside the main thread
+    previous = signal.signal(signal.SIGINT, _ctrl_c)
+    try:
+        grid = tuner.fit()
+    finally:
+        ran = signal.getsignal(signal.SIGINT) is _ctrl_c and not int(
+            os.environ.get("TUNE_DISABLE_SIGINT_HANDLER", "0")  # Ray left ours alone
+        )
+        signal.signal(signal.SIGINT, previous)  # not Ray's handler of a finished run
+    return grid, ran
+
+
 def _trial_dirname(trial: Any) -> str:
     return f"trial_{trial.trial_id}"  # not Ray's default, which lists every setting
 
@@ -120,6 +146,7 @@ class RaySearch:
         self.options = options
         self.started = False
         self.resumed: list[str] = []
+        self.stopped = ""
 
     @classmethod
     def from_args(
@@ -210,7 +237,12 @@ class RaySearch:
                         callbacks=[_Progress()],
                     ),
                 )
-            return self._trials(tuner.fit(), key)
+            grid, ctrl_c = _fit(tuner)
+            trials = self._trials(grid, key)
+            if ctrl_c or len(trials) < self.trials:
+                self.stopped = f"search {key} stopped after {len(trials)} of {self.trials} trials"
+                raise KeyboardInterrupt
+            return trials
 
         return search
 
@@ -228,14 +260,15 @@ class RaySearch:
                 params = {k: v for k, v in result.config.items() if k != NUMBER}
                 numbered.append((result.config[NUMBER], params, float(result.metrics[METRIC])))
         trials: Trials = [(params, value) for _, params, value in sorted(numbered)]
-        if len(trials) < self.trials:  # stopped (Ctrl-C) before the search finished
-            print(
-                f"mctrack tune: search {key} stopped after {len(trials)} of {self.trials} trials;"
-                f" run the same command again to resume it (state: {self.state})",
-                file=sys.stderr,
-            )
-            raise KeyboardInterrupt
         return trials
+
+    def interrupted(self) -> None:
+        """Says how to resume (the command was stopped by Ctrl-C)."""
+        print(
+            f"mctrack tune: {self.stopped or 'stopped'}; the finished trials are saved: run the "
+            f"same command again to resume (state: {self.state})",
+            file=sys.stderr,
+        )
 
     def describe(self) -> dict[str, Any]:
         return {

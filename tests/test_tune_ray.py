@@ -148,16 +148,16 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     trials = 4
     args = _tune_args(kitti_root, tmp_path, trials, "--ray", "--max-concurrent", "1")
 
-    # 1. Ctrl-C once two trials of the first search are done: Ray Tune saves, the run stops
+    # 1. Ctrl-C once a trial of the first search is done: Ray Tune saves, the run stops
     proc = _start(args)
-    _wait_until(proc, lambda: len(_finished(tmp_path, "fold0")) >= 2)
+    _wait_until(proc, lambda: len(_finished(tmp_path, "fold0")) >= 1)
     proc.send_signal(signal.SIGINT)
     status, output = _finish(proc)
     assert status == 130, output[-3000:]
     assert "run the same command again to resume" in output
     assert not (tmp_path / "tune.json").exists()
     before_ctrl_c = _finished(tmp_path, "fold0")
-    assert 2 <= len(before_ctrl_c) < trials
+    assert len(before_ctrl_c) >= 1
 
     # 2. resumed, then killed outright (the whole process group) during the second search
     proc = _start(args)
@@ -169,6 +169,8 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     assert len(fold0) == trials
     assert {k: fold0[k] for k in before_ctrl_c} == before_ctrl_c  # not run again
     before_kill = _finished(tmp_path, "fold1")
+    # (trials take about a second: at least one of the two stops lands inside a search)
+    assert len(before_ctrl_c) < trials or len(before_kill) < trials
 
     # 3. resumed to the end, with the trial process killed once during the last search: Ray
     # Tune runs that trial again (FailureConfig)
