@@ -53,8 +53,8 @@ METRIC = "hota"  # the objective's name in a trial's result
 NUMBER = "optuna_trial"
 STATE_DIR = "ray_tune"  # under --out: one Ray Tune experiment per search, and run.json
 MAX_FAILURES = 3  # re-runs of a trial whose worker process died
-# Ray Tune saves an experiment's state at most every 10 s by default; a hard kill then loses
-# the trials finished since. One second costs a few small file writes per second.
+# By default Ray Tune saves an experiment's state no more often than every 10 s; a hard kill
+# then loses the trials finished since. Every second costs one small state write per second.
 CHECKPOINT_SECONDS = "1"
 
 # the driver's progress bar; a module global because Ray Tune pickles its callbacks
