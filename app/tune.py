@@ -292,6 +292,9 @@ def run(args: argparse.Namespace) -> int:
     for detector in detectors:
         check_kitti_root(root, seqs=seqs, detector=detector)
     label_dir = root / "training" / "label_02"
+    unlabelled = [s for s in seqs if not (label_dir / f"{s}.txt").is_file()]
+    if unlabelled:
+        raise InputError(f"--seqs: no labels for {', '.join(unlabelled)} in {label_dir}")
     cls = args.cls
     space = OFFLINE_SPACE if args.mode == "offline" else ONLINE_SPACE
     config_name = f"{args.config}_offline" if args.mode == "offline" else args.config

@@ -216,3 +216,16 @@ def test_max_concurrent_needs_ray(capsys: pytest.CaptureFixture[str], tmp_path: 
     assert main(["tune", "--max-concurrent", "2", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--max-concurrent needs --ray" in err[0], err
+
+
+def test_seqs_must_be_labelled_and_at_least_one_per_fold(
+    kitti_root: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    root = str(kitti_root)
+    args = ["tune", "--kitti-root", root, "--folds", "2", "--out", str(tmp_path)]
+    assert main([*args, "--seqs", "0000,0001"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--seqs: no labels for 0000" in err[0], err
+    assert main(["tune", "--seqs", "0001", "--folds", "2", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--folds 2 needs at least as many --seqs (got 1)" in err[0], err
