@@ -3,19 +3,24 @@
 With ``--event K`` (``#K`` in the recording's summary) the viewer opens in that event's focused
 layout (old and new track and the GT object highlighted, everything else dimmed, the 3D eye on
 the event, the explanation and cost rows beside it) with the time cursor on the event's frame.
-Rerun 0.41 has no blueprint field for the time cursor, and the ``#when=frame@N`` fragment of a
-viewer URL did not move it in our tests, so the cursor and the layout are set through
-``rerun.experimental.ViewerClient`` on a native viewer this command spawns. ``--print`` only
-prints what it would do (the URL, the frame, the event) without starting anything.
+
+How the cursor gets there (Rerun 0.41, docs/debugger.md "Landing on the moment"): the blueprint's
+``TimePanel`` has no cursor field (timeline, play state, speed, loop, selection only), and a
+viewer URL's ``#when=frame@N`` fragment is ignored for a file (checked on a headless viewer: the
+cursor stays at 0). What works is ``rerun.experimental.ViewerClient.set_time`` on a native viewer
+this command spawns: :func:`drive_viewer` opens the recording, applies the focused layout, sets
+the cursor and reads the viewer's own cursor back, failing loudly when it is not on the frame.
+``--print`` only prints the target (the event, its frame, the recording) without starting
+anything.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from tracker.errors import InputError
 
@@ -36,20 +41,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 class InspectTarget:
     """Where the viewer goes: a frame, and for an event its focused layout's target."""
 
-    url: str
+    url: str  # the recording (a file URI: a #when fragment does not move the cursor in 0.41)
     frame: int
     event: int | None
     description: str
 
 
 def inspect_target(recording: Path, event: int | None, frame: int | None) -> InspectTarget:
-    """The frame (the event's own), the viewer URL with its ``#when`` fragment, a description."""
+    """The frame (the event's own), the recording's URI, a description."""
     from viz.shots import read_shot_index
 
     url = recording.resolve().as_uri()
     if event is None:
         f = frame if frame is not None else 0
-        return InspectTarget(f"{url}#when=frame@{f}", f, None, f"frame {f}")
+        return InspectTarget(url, f, None, f"frame {f}")
     index = read_shot_index(recording)
     n = len(index.event_frames)
     if not 0 <= event < n:
@@ -61,7 +66,35 @@ def inspect_target(recording: Path, event: int | None, frame: int | None) -> Ins
         f"event #{event}: {kind} at frame {f}, GT {index.event_gt_ids[event]}, "
         f"T{index.event_old_track_ids[event]} -> T{index.event_new_track_ids[event]} ({cause})"
     )
-    return InspectTarget(f"{url}#when=frame@{f}", f, event, text)
+    return InspectTarget(url, f, event, text)
+
+
+def drive_viewer(client: Any, recording: Path, target: InspectTarget, tmp: Path) -> int:
+    """Open ``recording`` in the viewer ``client`` drives, apply the event's focused layout, put
+    the time cursor on the target frame (paused) and return where the viewer says its cursor is.
+
+    Raises RuntimeError when the viewer's own cursor is not on the frame afterwards."""
+    from viz import paths
+    from viz.shots import _wait_loaded, focus_layout_json, read_shot_index
+
+    rec = recording.resolve()
+    layout = None
+    if target.event is not None:
+        layout = focus_layout_json(client, rec, read_shot_index(rec), target.event, tmp)
+    client.open(str(rec))
+    _wait_loaded(client, rec, 120.0)
+    store = client.get_state().active_recording
+    if layout is not None:
+        client.set_blueprint(layout, store_id=store)
+    client.set_time(paths.FRAME, sequence=target.frame, play_state="paused")
+    state = client.get_state()
+    cursor = next(
+        (r.current_time for r in state.recordings if r.store_id == store),
+        None,
+    )
+    if cursor != target.frame:
+        raise RuntimeError(f"the viewer's time cursor is at {cursor}, not at frame {target.frame}")
+    return int(cursor)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,15 +103,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{recording}: file not found")
     target = inspect_target(recording, args.event, args.frame)
     print(target.description)
-    print(f"viewer URL: {target.url}")
+    print(f"recording: {target.url}")
     if args.print:
         return 0
     import tempfile
 
     from rerun.experimental import ViewerClient
 
-    from viz import paths
-    from viz.shots import _free_port, _rerun_executable, focus_layout_json, read_shot_index
+    from viz.shots import _free_port, _rerun_executable
 
     try:
         client = ViewerClient.spawn(
@@ -89,20 +121,9 @@ def run(args: argparse.Namespace) -> int:
             executable_path=_rerun_executable(),
         )
         with tempfile.TemporaryDirectory(prefix="mctrack-inspect-") as tmp:
-            layout = None
-            if target.event is not None:
-                index = read_shot_index(recording)
-                rec = recording.resolve()
-                layout = focus_layout_json(client, rec, index, target.event, Path(tmp))
-            client.open(str(recording.resolve()))
-            while client.get_state().loading:
-                time.sleep(0.1)
-            store = client.get_state().active_recording
-            if layout is not None:
-                client.set_blueprint(layout, store_id=store)
-            client.set_time(paths.FRAME, sequence=target.frame, play_state="paused")
-    except (RuntimeError, TimeoutError, OSError) as exc:
+            frame = drive_viewer(client, recording, target, Path(tmp))
+    except (RuntimeError, TimeoutError, OSError, ConnectionError) as exc:
         print(f"mctrack inspect: could not start or drive the viewer: {exc}", file=sys.stderr)
         return EXIT_VIEWER_FAILED
-    print("viewer started (close its window to quit)")
+    print(f"viewer started at frame {frame} (close its window to quit)")
     return 0

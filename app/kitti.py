@@ -24,6 +24,13 @@ from app.scenes import SceneRecord
 from tracker.calibration import ScoreProfile, calibrate_frames, resolve_profile
 from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
 from tracker.eval.fates import FateCounter, combine_fates
+from tracker.eval.kitti import (
+    SUPPORTED_CLASSES,
+    SequenceEvaluation,
+    absent_classes,
+    combine_sequences,
+    evaluate_kitti_sequence,
+)
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
@@ -128,6 +135,8 @@ class KittiSceneJob:
     record: Path | None
     calibrate: bool = False  # recompute the scores from the raw ones (score_source)
     profile: ScoreProfile | None = None
+    evaluate: bool = False  # evaluate the sequence (TrackEval) in the task, when it has labels
+    eval_classes: tuple[str, ...] = ()
 
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
         from tracker.io.convert.kitti import convert_kitti
@@ -146,42 +155,65 @@ class KittiSceneJob:
         if self.calibrate:
             frames = calibrate_frames(frames, self.profile)
         gt_frames = (gt or {}).get(seq)
-        fates = FateCounter(rv_gate_consumes=self.config.rv_reference)
-        result = run_scene(frames, self.config, observer=fates)
-        t1 = time.perf_counter()
-        write_kitti_sequence(path_in(self.out / "data", seq, ".txt"), result.outputs, frames)
-        write_bytes_atomic(
-            scenes.part_path(self.out, index, "json"),
-            tracks_scene_json(seq, frames, result.outputs),
-        )
-        write_secs = time.perf_counter() - t1
-        info: dict[str, Any] = {
-            "convert_seconds": convert_secs,
-            "write_seconds": write_secs,
-            "fates": fates.summary(),
-            "offline_removed_tracks": len(result.removed_offline),
-        }
-        if self.record is not None:  # outside the timed tracker region
+        result_file = path_in(self.out / "data", seq, ".txt")
+        write_secs = 0.0
+
+        def write(outputs: list[TrackOutput]) -> None:
+            nonlocal write_secs
+            t1 = time.perf_counter()
+            write_kitti_sequence(result_file, outputs, frames)
+            write_bytes_atomic(
+                scenes.part_path(self.out, index, "json"), tracks_scene_json(seq, frames, outputs)
+            )
+            write_secs += time.perf_counter() - t1
+
+        label_file = path_in(self.label_dir, seq, ".txt")
+        info: dict[str, Any] = {"convert_seconds": convert_secs}
+        evaluation: SequenceEvaluation | None = None
+        if self.record is not None:
+            # tracked once, with the recording's observers; the recording's evaluation of the
+            # result file is the run's too (combined by the caller)
             from app.kitti_record import record_sequence
 
-            info.update(
-                record_sequence(
-                    frames,
-                    gt_frames,
-                    self.config,
-                    self.record,
-                    self.kitti_root,
-                    self.label_dir,
-                    path_in(self.out / "data", seq, ".txt"),
-                )
+            recorded, more = record_sequence(
+                frames,
+                gt_frames,
+                self.config,
+                self.record,
+                self.kitti_root,
+                self.label_dir,
+                result_file,
+                on_tracked=write,
             )
+            outputs, tracker_secs = recorded.outputs, recorded.tracker_seconds
+            fates, removed = recorded.fates, len(recorded.removed_offline)
+            evaluation = recorded.evaluation
+            info.update(more)
+        else:
+            counter = FateCounter(rv_gate_consumes=self.config.rv_reference)
+            result = run_scene(frames, self.config, observer=counter)
+            outputs, tracker_secs = result.outputs, result.tracker_seconds
+            fates, removed = counter.summary(), len(result.removed_offline)
+            write(outputs)
+        if self.evaluate and label_file.is_file():
+            if evaluation is None or evaluation.num_timesteps != len(frames):
+                t1 = time.perf_counter()
+                evaluation = evaluate_kitti_sequence(
+                    label_file=label_file,
+                    result_file=result_file,
+                    num_timesteps=len(frames),
+                    classes=self.eval_classes,
+                )
+                info["evaluate_seconds"] = time.perf_counter() - t1
+            info["evaluation"] = evaluation
+        info.update(write_seconds=write_secs, fates=fates, offline_removed_tracks=removed)
         return SceneRecord(
             index,
             seq,
             frames=len(frames),
-            tracker_seconds=result.tracker_seconds,
+            tracker_seconds=tracker_secs,
             info=info,
-            kept=(frames, gt_frames, result.outputs) if self.keep else None,
+            kept=(frames, gt_frames, outputs) if self.keep else None,
         )
 
 
@@ -238,12 +270,13 @@ def run_kitti(
         record=record,
         calibrate=calibrate,
         profile=found,
+        evaluate=evaluate,
+        eval_classes=tuple(c for c in classes if c in SUPPORTED_CLASSES),
     )
     t0 = time.perf_counter()
     records = scenes.run_scenes(job, seqs, parallel=parallel, quiet=quiet)
     wall_secs = time.perf_counter() - t0
     ok = [r for r in records if r.error is None]
-    data_dir = out / "data"
     write_tracks_parts(
         out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
     )
@@ -260,9 +293,13 @@ def run_kitti(
         "frames": total_frames,
         "tracker_seconds": round(tracker_secs, 4),
         "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
+        "tracker_timing": "tracker with the recording's observers (--record tracks once)"
+        if record is not None
+        else "tracker alone",
         "score_calibration": calibration,
         "convert_seconds": round(sum(r.info["convert_seconds"] for r in ok), 3),
         "write_seconds": round(sum(r.info["write_seconds"] for r in ok), 3),
+        "evaluate_seconds": round(sum(r.info.get("evaluate_seconds", 0.0) for r in ok), 3),
         "peak_rss_mb": peak_rss_mb(),
         **scenes.summary_fields(records, parallel, wall_secs),
         "detection_fates": combine_fates([r.info["fates"] for r in ok]),
@@ -276,16 +313,11 @@ def run_kitti(
         elif missing:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
         else:
-            from tracker.eval.kitti import absent_classes, evaluate_kitti
-
-            lengths = {r.scene: r.frames for r in ok}
+            # each task evaluated its own sequence (TrackEval, once); combined here as
+            # TrackEval's Evaluator combines them
             per_seq: dict[str, dict[str, dict[str, float]]] = {}
-            metrics = evaluate_kitti(
-                label_dir=label_dir,
-                result_dir=data_dir,
-                seq_lengths=lengths,
-                classes=classes,
-                per_sequence=per_seq,
+            metrics = combine_sequences(
+                [r.info["evaluation"] for r in ok], job.eval_classes, per_sequence=per_seq
             )
             absent = absent_classes(metrics)
             summary["metrics"] = {c: m for c, m in metrics.items() if c not in absent}

@@ -1,21 +1,27 @@
 """`mctrack kitti --record DIR`: one debug recording per sequence, and the causes of the run's
 ID switches and fragmentations (``DIR/causes.md``, ``summary.json`` "causes").
 
-:func:`record_sequence` runs inside each sequence's task (:class:`app.kitti.KittiSceneJob`),
-after the timed tracking, and reuses the KITTI result file that task just wrote;
+:func:`record_sequence` runs inside each sequence's task (:class:`app.kitti.KittiSceneJob`): it
+tracks the sequence once, with the recording's observers, hands the outputs to the task (which
+writes the KITTI result file), evaluates that file once (TrackEval's metrics and the ID events
+from one loading; the run's combined metrics are made from these) and finishes the recording;
 :func:`recording_summary` gathers the tasks' results into the summary.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from tracker.config import TrackerConfig
+from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.fileio import path_in, write_text_atomic
+
+if TYPE_CHECKING:
+    from viz.record import RecordResult
 
 
 def record_sequence(
@@ -26,11 +32,16 @@ def record_sequence(
     kitti_root: Path,
     label_dir: Path,
     result_file: Path,
-) -> dict[str, Any]:
-    """Record one sequence (its camera images too, where ``image_02/<seq>`` exists).
+    on_tracked: Callable[[list[TrackOutput]], None],
+) -> tuple[RecordResult, dict[str, Any]]:
+    """Track and record one sequence (its camera images too, where ``image_02/<seq>`` exists).
 
-    Returns plain data for the task's ``info``: "recording" (path), "recording_seconds" (per
-    phase) and, with labels, "causes" ({class: {"IDSW"|"Frag": {cause: n}}})."""
+    The sequence is tracked once, with the recording's observers; ``on_tracked`` gets the
+    outputs right after tracking (the task writes ``result_file`` there), and the recording's
+    TrackEval evaluation of that file (metrics and ID events from one loading) comes back in
+    the result for the run's combined metrics. Returns the result and plain data for the
+    task's ``info``: "recording" (path), "recording_seconds" (per phase) and, with labels,
+    "causes" ({class: {"IDSW"|"Frag": {cause: n}}})."""
     from tracker.eval.id_causes import cause_counts
     from viz.record import record_scene
 
@@ -49,12 +60,13 @@ def record_sequence(
         images=images,
         input_description=f"KITTI tracking sequence {seq} ({kitti_root})",
         motion_metrics=False,
-        result_file=result_file if result_file.is_file() else None,
+        result_file=result_file,
+        on_tracked=on_tracked,
     )
     info: dict[str, Any] = {"recording": str(path), "recording_seconds": dict(r.seconds)}
     if r.id_evaluation is not None and r.causes:
         info["causes"] = cause_counts(r.causes)
-    return info
+    return r, info
 
 
 def recording_summary(

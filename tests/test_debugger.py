@@ -166,8 +166,41 @@ def test_inspect_prints_the_url_and_the_event(capsys: pytest.CaptureFixture[str]
     out = capsys.readouterr().out
     assert f"event #{k}: ID switch at frame {e.frame_id}" in out
     assert f"T{e.old_track_id} -> T{e.new_track_id} ({result.causes[k].cause.value})" in out
-    assert f"viewer URL: {path.resolve().as_uri()}#when=frame@{e.frame_id}" in out
+    assert f"recording: {path.resolve().as_uri()}\n" in out  # no #when: 0.41 ignores it
     assert main(["inspect", str(path), "--event", "100000", "--print"]) == 2
+
+
+def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> None:
+    """``mctrack inspect``'s viewer driving on Rerun's headless native viewer: the viewer's own
+    time cursor (read back with ViewerClient.get_state) is on the event's frame and the
+    focused layout is shown; for --frame, on that frame in the default layout."""
+    from rerun.experimental import ViewerClient
+
+    from app.inspect import drive_viewer, inspect_target
+    from viz.shots import _free_port, _private_home, _rerun_executable, renderer_available
+
+    ok, why = renderer_available()
+    if not ok:
+        pytest.skip(f"no software renderer: {why}")
+    path, result = recording()
+    k = next(i for i, e in enumerate(result.id_evaluation.events) if e.frame_id > 0)
+    frame = result.id_evaluation.events[k].frame_id
+    with (
+        _private_home(),
+        ViewerClient.spawn(
+            headless=True,
+            port=_free_port(),
+            hide_welcome_screen=True,
+            executable_path=_rerun_executable(),
+        ) as client,
+    ):
+        assert drive_viewer(client, path, inspect_target(path, k, None), tmp_path) == frame
+        state = client.get_state()
+        cursor = [(r.current_timeline, r.current_time) for r in state.recordings]
+        assert (paths.FRAME, frame) in cursor
+        assert any(v.name.startswith(layout.VIEW_FOCUS) for v in state.views)
+        target = inspect_target(path, None, 7)
+        assert drive_viewer(client, path, target, tmp_path) == 7
 
 
 def test_focused_blueprint_of_an_event_targets_it(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -308,3 +341,38 @@ def test_kitti_0016_pedestrian_switches_explained_and_in_view(kitti_0016) -> Non
         assert _in_view(_eye(target), target + np.array([0.0, 0.0, 2.0]))
         assert index.event_causes[k] != "other"
     assert (out / "rec" / "causes.md").is_file()
+
+
+def test_fragmentation_cost_table_lists_its_track_once() -> None:
+    """A fragmentation back to the same track has one cost row, labelled "old = new"; an ID
+    switch has the old and the new track's rows."""
+    from tracker.boxes import Boxes
+    from tracker.eval.id_causes import FrameStages, StageLog
+    from tracker.eval.id_switches import IdEvent, IdEventKind
+    from tracker.events import CostComputed, Stage
+    from tracker.frame import Frame
+    from viz.record import explain_markdown
+
+    stages = StageLog()
+    cost = np.array([[0.3, np.inf, 1.9], [np.inf, 0.8, np.inf], [2.5, np.inf, 0.2]])
+    stages.frames[40] = FrameStages(
+        Frame(scene="s", frame_id=40, timestamp_secs=4.0, boxes=Boxes.empty()),
+        bev=CostComputed(
+            Stage.BEV, cost, np.array([5, 6, 7]), np.array([0, 1, 2]), np.array([1.0, 1.0, 1.2])
+        ),
+    )
+
+    def event(kind: IdEventKind, old: int, new: int) -> IdEvent:
+        return IdEvent(kind, 40, "pedestrian", 9, old, new, 0.7, 31)
+
+    frag = explain_markdown(3, event(IdEventKind.FRAGMENTATION, 5, 5), None, stages)
+    rows = [ln for ln in frag.splitlines() if ln.startswith("| T")]
+    assert rows == ["| T5 | old = new | 1.00 | 0.30 | 1.90 |"]
+    assert "| track | role | gate | d0 | d2 |" in frag
+    switch = explain_markdown(4, event(IdEventKind.ID_SWITCH, 5, 7), None, stages)
+    rows = [ln for ln in switch.splitlines() if ln.startswith("| T")]
+    assert rows == ["| T5 | old | 1.00 | 0.30 | 1.90 |", "| T7 | new | 1.20 | 2.50 | 0.20 |"]
+    lone = explain_markdown(5, event(IdEventKind.FRAGMENTATION, 6, 6), None, stages)
+    assert "| T6 | old = new | 1.00 | 0.80 |" in lone
+    gone = explain_markdown(6, event(IdEventKind.FRAGMENTATION, 8, 8), None, stages)
+    assert "the track had no comparable detection" in gone

@@ -91,15 +91,15 @@ def _malicious_npz(path: Path, marker: Path) -> None:
     buffer = io.BytesIO()
     np.save(buffer, arr, allow_pickle=True)
     with zipfile.ZipFile(path, "w") as zf:
-        zf.writestr("ids.npy", buffer.getvalue())
-        zf.writestr("bboxes.npy", buffer.getvalue())
+        for name in ("ids", "bboxes", "box_ids"):  # box_ids: a member our result reader reads
+            zf.writestr(f"{name}.npy", buffer.getvalue())
 
 
 def test_malicious_npz_runs_no_code(tmp_path: Path) -> None:
     bad, marker = tmp_path / "bad.npz", tmp_path / "PWNED"
     _malicious_npz(bad, marker)
     for load in (load_npz, read_waymo_results):
-        with pytest.raises(InputError, match=r"bad\.npz.*refused global"):
+        with pytest.raises(InputError, match=r"bad\.npz: member '\w+'.*pickled object arrays"):
             load(bad)
     assert not marker.exists()
     # the payload is real: numpy's own loader with pickle enabled runs it
@@ -108,17 +108,88 @@ def test_malicious_npz_runs_no_code(tmp_path: Path) -> None:
     assert marker.exists()
 
 
-def test_object_npz_of_arrays_and_lists_loads(tmp_path: Path) -> None:
+def test_object_arrays_are_refused_plain_arrays_load(tmp_path: Path) -> None:
+    """Even a harmless object array (lists, arrays) is never unpickled; the error says how to
+    convert one's own files. Plain and fixed-width string arrays load."""
     ragged = np.empty(2, dtype=object)
     ragged[0], ragged[1] = [1, 2], np.zeros((1, 8))
-    path = tmp_path / "ok.npz"
-    np.savez_compressed(path, ids=ragged, ts=np.arange(3, dtype=np.int64))
-    npz = load_npz(path)
-    assert npz["ids"][0] == [1, 2] and npz["ids"][1].shape == (1, 8)
+    path = tmp_path / "ragged.npz"
+    np.savez_compressed(path, ts=np.arange(3, dtype=np.int64), ids=ragged)
+    with pytest.raises(InputError) as err:
+        load_npz(path, "detections")
+    assert str(err.value).startswith(f"{path}: member 'ids' of the detections file: pickled")
+    assert "bench/waymo_flatten_npz.py" in str(err.value)
+    ok = tmp_path / "ok.npz"
+    np.savez_compressed(ok, ts=np.arange(3, dtype=np.int64), ids=np.array(["a", "bc"]))
+    npz = load_npz(ok)
     np.testing.assert_array_equal(npz["ts"], [0, 1, 2])
+    assert npz["ids"].dtype == np.dtype("<U2") and list(npz["ids"]) == ["a", "bc"]
     (tmp_path / "junk.npz").write_bytes(b"PK\x03\x04 not a zip")
     with pytest.raises(InputError, match=r"junk\.npz"):
         load_npz(tmp_path / "junk.npz")
+
+
+def _set_declared_sizes(path: Path, size: int) -> None:
+    """Make every member of a (stored, small) zip declare ``size`` uncompressed bytes, in the
+    local headers and the central directory, as a crafted bomb would."""
+    data = bytearray(path.read_bytes())
+    for signature, offset in ((b"PK\x03\x04", 22), (b"PK\x01\x02", 24)):
+        at = data.find(signature)
+        while at >= 0:
+            data[at + offset : at + offset + 4] = size.to_bytes(4, "little")
+            at = data.find(signature, at + 4)
+    path.write_bytes(bytes(data))
+
+
+def test_npz_bombs_are_refused_before_decompressing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An npz is a zip: the members' declared sizes and the arrays' headers are checked against
+    the cap (MCTRACK_MAX_INPUT_BYTES, default 4 GiB) before any member is decompressed."""
+    # a real bomb: 64 MiB of zeros in a 65 KB file, under a 16 MiB cap
+    bomb = tmp_path / "bomb.npz"
+    np.savez_compressed(bomb, a=np.zeros(8 * 2**20))
+    assert bomb.stat().st_size < 100_000
+    monkeypatch.setenv("MCTRACK_MAX_INPUT_BYTES", str(16 * 2**20))
+    with pytest.raises(InputError, match=r"bomb\.npz: npz members declare 67108992 bytes, over"):
+        load_npz(bomb)
+    assert load_npz(bomb, max_bytes=2**27)["a"].shape == (8 * 2**20,)  # a cap that fits
+    monkeypatch.delenv("MCTRACK_MAX_INPUT_BYTES")
+    # a crafted one: two tiny members that each declare ~4 GiB (8 GiB over the default cap)
+    crafted = tmp_path / "crafted.npz"
+    np.savez(crafted, a=np.zeros(1), b=np.zeros(1))
+    _set_declared_sizes(crafted, 2**32 - 2)
+    with pytest.raises(InputError, match=r"crafted\.npz: npz members declare 8589934588 bytes"):
+        load_npz(crafted)
+
+
+def _npz_with_header(path: Path, shape: tuple[int, ...], payload: bytes) -> None:
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(
+        header, {"descr": "<f8", "fortran_order": False, "shape": shape}
+    )
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("bboxes.npy", header.getvalue() + payload)
+
+
+def test_npz_headers_that_lie_are_refused(tmp_path: Path) -> None:
+    """A header claiming more (or fewer) items than its member holds, or a terabyte array in a
+    few bytes: refused by the header check, naming the file and the member; numpy would
+    allocate the claimed array first."""
+    lies = {
+        "more.npz": ((1000,), np.zeros(10).tobytes(), r"header says \(1000,\) float64 .* 208"),
+        "fewer.npz": ((2,), np.zeros(10).tobytes(), r"header says \(2,\) float64"),
+        "huge.npz": ((10**6, 10**6), b"\0" * 80, r"declares 8000000000000 bytes"),
+        "overflow.npz": ((2**40, 2**40, 2**40), b"", r"declares \d{30,} bytes"),
+    }
+    for name, (shape, payload, match) in lies.items():
+        path = tmp_path / name
+        _npz_with_header(path, shape, payload)
+        with pytest.raises(InputError, match=rf"{name}: member 'bboxes'.*{match}"):
+            load_npz(path)
+    # the honest twin loads
+    _npz_with_header(tmp_path / "honest.npz", (10,), np.arange(10.0).tobytes())
+    np.testing.assert_array_equal(load_npz(tmp_path / "honest.npz")["bboxes"], np.arange(10.0))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import json
 import math
+import sys
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -19,8 +21,11 @@ from tracker.errors import InputError
 from tracker.io.baseversion import read_baseversion, write_baseversion
 from tracker.io.convert.waymo import WAYMO_CAMERAS, convert_waymo
 from tracker.io.fileio import load_npz
-from tracker.io.waymo_writer import read_waymo_results, write_waymo_results
+from tracker.io.waymo_writer import FLAT_MEMBERS, read_waymo_results, write_waymo_results
 from tracker.pipeline import run_scene
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from waymo_flatten_npz import main as flatten_main
 
 SEGMENT = "segment-1234_5678_with_camera_labels"
 N_FRAMES = 20
@@ -73,11 +78,20 @@ def object_yaw_world(vel: tuple[float, float]) -> float:
     return EGO_HEADING + (math.atan2(vel[1], vel[0]) if any(vel) else 0.3)
 
 
-def write_segment(root: Path, *, mctrack_layout: bool = True, with_gt: bool = True) -> Path:
-    """ts_info, ego_info and detections (and GT) of one segment, as the preprocessing writes."""
+def write_segment(
+    root: Path, *, mctrack_layout: bool = True, with_gt: bool = True, pickled: bool = False
+) -> Path:
+    """ts_info, ego_info and detections (and GT) of one segment: written as the preprocessing
+    writes them (pickled per-frame object arrays, kept under ``root/pickled/``) and turned into
+    the pickle-free layout by ``bench/waymo_flatten_npz.py``, as a user would; with ``pickled``
+    the preprocessing's files themselves are where the converter looks."""
+    final = root
+    if not pickled:
+        root = root / "pickled"
     for sub in ("ts_info", "ego_info", "dets", "gt"):
         (root / sub).mkdir(parents=True, exist_ok=True)
-    (root / "ts_info" / f"{SEGMENT}.json").write_text(
+    (final / "ts_info").mkdir(parents=True, exist_ok=True)
+    (final / "ts_info" / f"{SEGMENT}.json").write_text(
         json.dumps([T0_MICROS + 100_000 * i for i in range(N_FRAMES)])
     )
     if mctrack_layout:
@@ -133,7 +147,11 @@ def write_segment(root: Path, *, mctrack_layout: bool = True, with_gt: bool = Tr
             ids=ragged(ids),
             velos=ragged(velos),
         )
-    return root
+    if not pickled:
+        for sub in ("ego_info", "dets", "gt"):
+            if any((root / sub).iterdir()):
+                assert flatten_main([str(root / sub), str(final / sub)]) == 0
+    return final
 
 
 @pytest.fixture
@@ -219,9 +237,61 @@ def test_tracking_and_result_writer(segment: Path, tmp_path: Path) -> None:
     np.testing.assert_allclose(row[:3], object_world(10, OBJECTS[0][2], OBJECTS[0][3]), atol=0.3)
     np.testing.assert_allclose(row[4:7], OBJECTS[0][4], atol=0.2)
     assert row[7] == pytest.approx(0.9)
-    with load_npz(tmp_path / "results" / "vehicle" / f"{SEGMENT}.npz") as npz:
-        assert set(npz.files) >= {"ids", "bboxes", "states", "timestamps"}
+    result = tmp_path / "results" / "vehicle" / f"{SEGMENT}.npz"
+    # the reference's per-frame object arrays (for pred_bin.py) are there, never read by us
+    assert {"ids.npy", "bboxes.npy", "states.npy"} <= set(zipfile.ZipFile(result).namelist())
+    with pytest.raises(InputError, match=r"member 'ids'.*pickled object arrays are not read"):
+        load_npz(result)
+    with load_npz(result, members=FLAT_MEMBERS) as npz:
         assert npz["timestamps"][0] == T0_MICROS
+        assert npz["box_states"].dtype.kind == "U" and set(npz["box_states"]) == {"confirmed"}
+        assert len(npz["box_velos"]) == len(npz["box_ids"]) == 2 * N_DET_FRAMES
+    # the pickled members hold the same boxes as the flat ones (what pred_bin.py reads)
+    with np.load(result, allow_pickle=True) as npz:  # our own output, written just above
+        assert [list(map(int, r)) for r in npz["ids"]] == ids
+        for a, b in zip(npz["bboxes"], bboxes, strict=True):
+            np.testing.assert_array_equal(np.asarray(a).reshape(-1, 8), b)
+
+
+def test_pickled_preprocessing_files_are_refused_with_the_fix(tmp_path: Path) -> None:
+    """The ImmortalTracker/MCTrack object arrays are never unpickled: one line naming the file,
+    the member and the converter to run on one's own files."""
+    root = write_segment(tmp_path / "w", pickled=True)
+    with pytest.raises(InputError) as err:
+        convert_waymo(root, root / "dets")
+    text = str(err.value)
+    assert f"ego_info/{SEGMENT}.npz: member 'ego_infos'" in text and "\n" not in text
+    assert "bench/waymo_flatten_npz.py" in text
+    assert main(["convert", "waymo", "--data-root", str(root), "--detections",
+                 str(root / "dets"), "--out", str(tmp_path / "o.json")]) == 2  # fmt: skip
+    # with flattened ego info, the pickled detections are refused in turn
+    flat = write_segment(tmp_path / "flat")
+    (root / "ego_info" / f"{SEGMENT}.npz").unlink()
+    (flat / "ego_info" / f"{SEGMENT}.npz").rename(root / "ego_info" / f"{SEGMENT}.npz")
+    with pytest.raises(InputError, match=rf"dets/{SEGMENT}\.npz: member 'bboxes'.*flatten"):
+        convert_waymo(root, root / "dets")
+
+
+def test_flat_layout_is_checked(segment: Path) -> None:
+    """Malformed pickle-free files: one InputError naming the file and the array."""
+    path = segment / "dets" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))  # plain arrays only: allow_pickle=False by default
+    cases = {
+        "no frame_index": ({k: v for k, v in good.items() if k != "frame_index"}, "frame_index"),
+        "frame beyond ts_info": ({**good, "frame_index": good["frame_index"] + 99}, "ts_info"),
+        "short types": ({**good, "types": good["types"][:3]}, "'types'"),
+        "strings as boxes": ({**good, "bboxes": good["bboxes"].astype(str)}, "'bboxes'"),
+        "NaN box": ({**good, "bboxes": np.where(good["bboxes"] > 1e9, 0, np.nan)}, "finite"),
+        "per-frame (F, K, 8) boxes": (
+            {"bboxes": good["bboxes"][:68].reshape(17, 4, 8), "types": good["types"]},
+            "per-frame arrays",
+        ),
+    }  # fmt: skip
+    for name, (arrays, match) in cases.items():
+        np.savez_compressed(path, **arrays)
+        with pytest.raises(InputError, match=match) as err:
+            convert_waymo(segment, segment / "dets")
+        assert str(path) in str(err.value), name
 
 
 def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
@@ -229,7 +299,7 @@ def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
     with pytest.raises(InputError, match=rf"ts_info/{SEGMENT}\.json: ts_info file not found"):
         convert_waymo(segment, segment / "dets")
     (segment / "ts_info" / f"{SEGMENT}.json").write_text(json.dumps([T0_MICROS, T0_MICROS + 1]))
-    with pytest.raises(InputError, match=r"ego_infos|17 frames"):
+    with pytest.raises(InputError, match=r"npz: frame_index row 10: frame 2, but ts_info has 2"):
         convert_waymo(segment, segment / "dets")
     with pytest.raises(InputError, match="detections folder not found"):
         convert_waymo(segment, segment / "nope")

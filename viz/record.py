@@ -10,15 +10,13 @@ focuses the velocity views on the tracks of the largest lag and of the first ID 
 
 from __future__ import annotations
 
-import contextlib
-import io
 import itertools
 import json
 import logging
 import tempfile
 import time
 import uuid
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,9 +42,9 @@ from tracker.eval.id_switches import (
     IdEvent,
     IdEventKind,
     bev_id_events,
-    kitti_id_events,
-    kitti_num_timesteps,
+    kitti_evaluation_and_id_events,
 )
+from tracker.eval.kitti import SequenceEvaluation
 from tracker.eval.motion_metrics import gt_velocity_central
 from tracker.events import Observer, TrackOutput
 from tracker.frame import Frame
@@ -160,6 +158,10 @@ class RecordResult:
     cpu_seconds: dict[str, float] = field(default_factory=dict)
     #: detections per fate and class (tracker.eval.fates.FateCounter.summary)
     fates: dict[str, Any] = field(default_factory=dict)
+    #: TrackEval's per-sequence results (KITTI labels), for combining a run's sequences
+    evaluation: SequenceEvaluation | None = None
+    #: offline post-processing's removed tracks (tracker.pipeline.SceneResult.removed_offline)
+    removed_offline: list[Any] = field(default_factory=list)
 
     @property
     def recording_seconds(self) -> float:
@@ -216,6 +218,7 @@ def record_scene(
     kitti_metrics: dict[str, dict[str, float]] | None = None,
     result_file: str | Path | None = None,
     progress: Observer | None = None,
+    on_tracked: Callable[[list[TrackOutput]], None] | None = None,
 ) -> RecordResult:
     """Track one scene with the Rerun observer and write the full debug recording.
 
@@ -236,8 +239,10 @@ def record_scene(
         hundred (slightly more overhead, no visible lag).
     kitti_metrics : this sequence's TrackEval metrics when the caller has them already
         (``mctrack kitti`` evaluates all sequences in one run); else computed here.
-    result_file : the KITTI result file of this very run when already written.
+    result_file : the KITTI result file of this very run, written by then (see ``on_tracked``).
     progress : also gets every stage event (a progress bar counts ``FrameStarted``).
+    on_tracked : called with the outputs as soon as tracking ends, before the evaluation (a
+        caller writes its result files there: ``mctrack kitti`` tracks once, with the recording).
 
     Returns
     -------
@@ -282,24 +287,27 @@ def record_scene(
         outputs=outputs,
         tracker_seconds=scene_result.tracker_seconds,
         total_seconds=0.0,
+        removed_offline=list(scene_result.removed_offline),
     )
 
+    if on_tracked is not None:
+        on_tracked(outputs)
     gt_index = _GtIndex(gt_frames) if gt_frames else None
     with tempfile.TemporaryDirectory(prefix="mctrack-record-") as tmp:
         if label_file is not None:
-            label_file = _labels_for_frames(label_file, frames, Path(tmp))
+            restricted = _labels_for_frames(label_file, frames, Path(tmp))
             classes = [c for c in config.categories if c in KITTI_EVAL_CLASSES]
-            result.id_evaluation = kitti_id_events(
+            # one TrackEval loading and preprocessing gives the metrics and the ID events
+            evaluation, result.id_evaluation = kitti_evaluation_and_id_events(
                 outputs,
                 frames,
-                label_file,
+                restricted,
                 classes=classes,
                 camera_name=camera_names[0],
-                result_file=result_file,
+                result_file=result_file if restricted == label_file else None,
             )
-            result.kitti_metrics = kitti_metrics or _kitti_metrics(
-                outputs, frames, label_file, classes, camera_names[0], Path(tmp)
-            )
+            result.evaluation = evaluation.without_id_inputs()
+            result.kitti_metrics = kitti_metrics or evaluation.metrics
         elif gt_frames:
             result.id_evaluation = bev_id_events(
                 outputs, gt_frames, categories=list(config.categories)
@@ -421,29 +429,6 @@ def _labels_for_frames(label_file: Path, frames: Sequence[Frame], tmp: Path) -> 
     target.parent.mkdir(parents=True, exist_ok=True)
     target.write_text("".join(kept))
     return target
-
-
-def _kitti_metrics(
-    outputs: Sequence[TrackOutput],
-    frames: Sequence[Frame],
-    label_file: Path,
-    classes: Sequence[str],
-    camera_name: str,
-    tmp: Path,
-) -> dict[str, dict[str, float]]:
-    from tracker.eval.kitti import evaluate_kitti
-    from tracker.io.writers import write_kitti_sequence
-
-    seq = label_file.stem
-    result_dir = tmp / "results"
-    write_kitti_sequence(result_dir / f"{seq}.txt", outputs, frames, camera_name)
-    with contextlib.redirect_stdout(io.StringIO()):  # TrackEval prints its metric configs
-        return evaluate_kitti(
-            label_dir=label_file.parent,
-            result_dir=result_dir,
-            seq_lengths={seq: kitti_num_timesteps(label_file, frames)},
-            classes=classes,
-        )
 
 
 def _motion_metrics(
@@ -803,16 +788,14 @@ def _log_focus(
     first = (e.last_frame_id if e.last_frame_id >= 0 else e.frame_id) - FOCUS_BEFORE_FRAMES
     last = e.frame_id + FOCUS_AFTER_FRAMES
     strips, colors, labels = [], [], []
-    for tid, rgb, name in (
-        (e.old_track_id, FOCUS_OLD_RGB, f"old T{e.old_track_id}"),
-        (e.new_track_id, FOCUS_NEW_RGB, f"new T{e.new_track_id}"),
-    ):
-        if tid >= 0:
-            p = tracks.path(tid, first, last)
-            if len(p) >= 2:
-                strips.append(p)
-                colors.append(rgb)
-                labels.append(name)
+    roles = event_track_roles(e)  # old = new (a fragmentation) is drawn once
+    role_rgb = {"old": FOCUS_OLD_RGB, "new": FOCUS_NEW_RGB, "old = new": FOCUS_OLD_RGB}
+    for tid, role in roles:
+        p = tracks.path(tid, first, last)
+        if len(p) >= 2:
+            strips.append(p)
+            colors.append(role_rgb[role])
+            labels.append(f"{role} T{tid}")
     boxes, box_colors, box_labels = [], [], []
     if gt is not None:
         sel = (gt.boxes.track_id == e.gt_id) & (gt.frame_id >= first) & (gt.frame_id <= last)
@@ -827,11 +810,11 @@ def _log_focus(
             boxes.append(gt.boxes[at[:1]])
             box_colors.append(FOCUS_GT_RGB)
             box_labels.append(f"GT {e.gt_id}")
-    for tid, rgb in ((e.old_track_id, FOCUS_OLD_RGB), (e.new_track_id, FOCUS_NEW_RGB)):
-        b = tracks.box_at_or_before(tid, e.frame_id) if tid >= 0 else None
+    for tid, role in roles:
+        b = tracks.box_at_or_before(tid, e.frame_id)
         if b is not None:
             boxes.append(b)
-            box_colors.append(rgb)
+            box_colors.append(role_rgb[role])
             box_labels.append(f"T{tid}")
     base = focus_path(k)
     if strips:
@@ -889,7 +872,8 @@ def explain_markdown(k: int, e: IdEvent, cause: EventCause | None, stages: Stage
     st = stages.frames.get(e.frame_id) if stages is not None else None
     c = st.bev if st is not None else None
     if c is not None:
-        rows = [t for t in (e.old_track_id, e.new_track_id) if np.any(c.track_ids == t)]
+        roles = event_track_roles(e)
+        rows = [t for t, _ in roles if np.any(c.track_ids == t)]
         cols = (
             np.flatnonzero(np.isfinite(c.cost[np.isin(c.track_ids, rows)]).any(axis=0))
             if rows
@@ -897,16 +881,27 @@ def explain_markdown(k: int, e: IdEvent, cause: EventCause | None, stages: Stage
         )
         lines += [f"BEV cost at frame {e.frame_id} (gate per row; - = not comparable):", ""]
         if rows and len(cols):
-            lines.append("| track | gate | " + " | ".join(f"d{c.det_rows[j]}" for j in cols) + " |")
-            lines.append("|---|---:|" + "---:|" * len(cols))
-            for t in rows:
+            head = "| track | role | gate | " + " | ".join(f"d{c.det_rows[j]}" for j in cols)
+            lines += [head + " |", "|---|---|---:|" + "---:|" * len(cols)]
+            for t, role in roles:
+                if t not in rows:
+                    continue
                 r = int(np.flatnonzero(c.track_ids == t)[0])
                 cells = [_cell(float(c.cost[r, j])) for j in cols]
                 gate = float(np.asarray(c.max_cost_per_row)[r])
-                lines.append(f"| T{t} | {gate:.2f} | " + " | ".join(cells) + " |")
+                lines.append(f"| T{t} | {role} | {gate:.2f} | " + " | ".join(cells) + " |")
         else:
-            lines.append("neither track had a comparable detection")
+            what = "the track" if len(roles) == 1 else "neither track"
+            lines.append(f"{what} had no comparable detection")
     return "\n".join(lines)
+
+
+def event_track_roles(e: IdEvent) -> list[tuple[int, str]]:
+    """The event's tracks with their role: old and new, or one row "old = new" when the GT
+    comes back to the same track (a fragmentation without an ID switch)."""
+    if e.old_track_id == e.new_track_id:
+        return [(e.old_track_id, "old = new")]
+    return [(t, role) for t, role in ((e.old_track_id, "old"), (e.new_track_id, "new")) if t >= 0]
 
 
 def _cell(v: object) -> str:

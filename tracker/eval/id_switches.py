@@ -11,9 +11,10 @@ IDSW and Frag by construction, and tests/test_id_switches.py checks it on the sa
 
 Two inputs:
 
-* KITTI with label_02 files: :func:`kitti_id_events` runs TrackEval's own ``Kitti2DBox``
-  loading and preprocessing (2D IoU, DontCare, occlusion/truncation, distractor classes) on the
-  tracker's KITTI result file, so the matching is the evaluator's, not a re-implementation.
+* KITTI with label_02 files: :func:`kitti_id_events` replays TrackEval's own ``Kitti2DBox``
+  loading and preprocessing (2D IoU, DontCare, occlusion/truncation, distractor classes; the
+  same evaluation that gives the metrics, :func:`tracker.eval.kitti.evaluate_kitti_sequence`) on
+  the tracker's KITTI result file, so the matching is the evaluator's, not a re-implementation.
 * Anything else with 3D ground truth: :func:`bev_id_events`, the same CLEAR replay with rotated
   BEV IoU of the 3D boxes as similarity (one pass per category).
 
@@ -23,15 +24,12 @@ GT's velocity beside the track's.
 
 from __future__ import annotations
 
-import contextlib
 import enum
-import io
-import shutil
 import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -41,10 +39,12 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 
+if TYPE_CHECKING:
+    from tracker.eval.kitti import SequenceEvaluation
+
 #: TrackEval's CLEAR default similarity threshold for a true positive.
 CLEAR_THRESHOLD = 0.5
 _EPS = np.finfo("float").eps
-_TRACKER_NAME = "mctrack"
 
 
 class IdEventKind(enum.Enum):
@@ -246,57 +246,55 @@ def kitti_id_events(
     classes : any of car, pedestrian, cyclist (cyclist as in :mod:`tracker.eval.kitti`).
     result_file : the KITTI result file of ``outputs`` when already written (saves writing it).
     """
-    import trackeval  # heavy import: only when evaluating
+    return kitti_evaluation_and_id_events(
+        outputs, frames, label_file, classes=classes, camera_name=camera_name,
+        result_file=result_file,
+    )[1]  # fmt: skip
 
-    from tracker.eval.kitti import _cyclist_dataset
+
+def kitti_evaluation_and_id_events(
+    outputs: Sequence[TrackOutput],
+    frames: Sequence[Frame],
+    label_file: str | Path,
+    *,
+    classes: Sequence[str] = ("car", "pedestrian"),
+    camera_name: str = "CAM_FRONT",
+    result_file: str | Path | None = None,
+) -> tuple[SequenceEvaluation, IdEvaluation]:
+    """One TrackEval evaluation of a sequence and its ID events from the same loading and
+    preprocessing (:func:`tracker.eval.kitti.evaluate_kitti_sequence`)."""
+    from tracker.eval.kitti import evaluate_kitti_sequence
     from tracker.io.writers import write_kitti_sequence
 
     label_file = Path(label_file)
-    seq = label_file.stem
+    unknown = [c for c in classes if c not in ("car", "pedestrian", "cyclist")]
+    if unknown:
+        raise ValueError(f"cannot evaluate classes {unknown} on KITTI labels")
     num_timesteps = kitti_num_timesteps(label_file, frames)
     with tempfile.TemporaryDirectory(prefix="mctrack-idsw-") as tmp:
-        gt_root, trackers_root = Path(tmp) / "gt", Path(tmp) / "trackers"
-        (gt_root / "label_02").mkdir(parents=True)
-        shutil.copyfile(label_file, gt_root / "label_02" / f"{seq}.txt")
-        (gt_root / "evaluate_tracking.seqmap.val").write_text(
-            f"{seq} empty 000000 {num_timesteps:06d}\n"
+        if result_file is None:
+            result_file = Path(tmp) / f"{label_file.stem}.txt"
+            write_kitti_sequence(result_file, outputs, frames, camera_name)
+        evaluation = evaluate_kitti_sequence(
+            label_file=label_file,
+            result_file=Path(result_file),
+            num_timesteps=num_timesteps,
+            classes=classes,
+            keep_id_inputs=True,
         )
-        target = trackers_root / _TRACKER_NAME / "data" / f"{seq}.txt"
-        if result_file is not None:
-            target.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(result_file, target)
-        else:
-            write_kitti_sequence(target, outputs, frames, camera_name)
-        ds_config = {
-            "GT_FOLDER": str(gt_root),
-            "TRACKERS_FOLDER": str(trackers_root),
-            "OUTPUT_FOLDER": str(Path(tmp) / "out"),
-            "TRACKERS_TO_EVAL": [_TRACKER_NAME],
-            "SPLIT_TO_EVAL": "val",
-            "PRINT_CONFIG": False,
-        }
-        unknown = [c for c in classes if c not in ("car", "pedestrian", "cyclist")]
-        if unknown:
-            raise ValueError(f"cannot evaluate classes {unknown} on KITTI labels")
-        standard = [c for c in classes if c != "cyclist"]
-        per_category = []
-        with contextlib.redirect_stdout(io.StringIO()):
-            # one dataset (one raw load) for car + pedestrian; cyclist as in tracker.eval.kitti
-            runs: list[tuple[Any, list[tuple[str, str]]]] = []
-            if standard:
-                dataset = trackeval.datasets.Kitti2DBox({**ds_config, "CLASSES_TO_EVAL": standard})
-                runs.append((dataset, [(c, c) for c in standard]))
-            if "cyclist" in classes:
-                runs.append((_cyclist_dataset(trackeval, ds_config), [("cyclist", "car")]))
-            for dataset, names in runs:
-                raw = dataset.get_raw_seq_data(_TRACKER_NAME, seq)
-                for name, eval_cls in names:
-                    gt_ids, trk_ids, sims = _preprocess_keeping_ids(dataset, raw, eval_cls)
-                    events, matches = clear_id_events(
-                        gt_ids, trk_ids, sims, frame_ids=range(num_timesteps), category=name
-                    )
-                    per_category.append((name, events, matches))
-    return _assemble("trackeval Kitti2DBox + CLEAR (2D IoU)", range(num_timesteps), per_category)
+    return evaluation, id_events_of(evaluation)
+
+
+def id_events_of(evaluation: SequenceEvaluation) -> IdEvaluation:
+    """The CLEAR replay on an evaluation's kept id inputs (``keep_id_inputs=True``)."""
+    if evaluation.id_inputs is None:
+        raise ValueError("the evaluation was made without keep_id_inputs")
+    n = evaluation.num_timesteps
+    per_category = []
+    for name, (gt_ids, trk_ids, sims) in evaluation.id_inputs.items():
+        events, matches = clear_id_events(gt_ids, trk_ids, sims, frame_ids=range(n), category=name)
+        per_category.append((name, events, matches))
+    return _assemble("trackeval Kitti2DBox + CLEAR (2D IoU)", range(n), per_category)
 
 
 def kitti_num_timesteps(label_file: str | Path, frames: Sequence[Frame]) -> int:
@@ -308,39 +306,6 @@ def kitti_num_timesteps(label_file: str | Path, frames: Sequence[Frame]) -> int:
     ]
     last_frame = max([f.frame_id for f in frames] + label_frames, default=-1)
     return last_frame + 1
-
-
-def _preprocess_keeping_ids(
-    dataset: Any, raw: dict[str, Any], cls: str
-) -> tuple[list[IntArray], list[IntArray], list[FloatArray]]:
-    """TrackEval preprocessing, with the original (file) ids instead of its contiguous ones.
-
-    The preprocessing relabels ids 0..n-1. It carries ``tracker_confidences`` and ``gt_dets``
-    row-aligned through every deletion without using them for CLEAR, so the original ids ride
-    along there: confidences are replaced by the tracker ids, and GT boxes get an id column
-    (only similarity scores, computed before this, and the tracker boxes are ever measured).
-    """
-    raw = dict(raw)
-    raw["tracker_confidences"] = [ids.astype(np.float64) for ids in raw["tracker_ids"]]
-    raw["gt_dets"] = [
-        np.column_stack([np.asarray(d, dtype=np.float64).reshape(-1, 4), ids.astype(np.float64)])
-        for d, ids in zip(raw["gt_dets"], raw["gt_ids"], strict=True)
-    ]
-    data = dataset.get_preprocessed_seq_data(raw, cls)
-    gt_ids = [
-        np.asarray(d, dtype=np.float64).reshape(-1, 5)[:, 4].astype(np.int64)
-        for d in data["gt_dets"]
-    ]
-    trk_ids = [
-        np.asarray(c, dtype=np.float64).astype(np.int64) for c in data["tracker_confidences"]
-    ]
-    sims = [np.asarray(s, dtype=np.float64) for s in data["similarity_scores"]]
-    # the recovered ids must be a relabelling of TrackEval's, else the replay would differ
-    for ours, theirs in ((gt_ids, data["gt_ids"]), (trk_ids, data["tracker_ids"])):
-        for a, b in zip(ours, theirs, strict=True):
-            if len(a) != len(b):
-                raise RuntimeError("TrackEval preprocessing changed; cannot recover ids")
-    return gt_ids, trk_ids, sims
 
 
 # ---------------------------------------------------------------------------------------------

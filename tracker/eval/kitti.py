@@ -13,6 +13,7 @@ import io
 import shutil
 import tempfile
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +22,142 @@ import numpy as np
 from tracker.io.fileio import path_in
 
 SUPPORTED_CLASSES = ("car", "pedestrian", "cyclist")
+
+
+#: The metrics computed per sequence (TrackEval's own classes, default settings).
+METRIC_NAMES = ("HOTA", "CLEAR", "Identity")
+_TRACKER_NAME = "mctrack"
+#: Per class and sequence: (GT ids, track ids, similarity) per timestep, with the files' own ids
+#: (TrackEval's preprocessed data, relabelled back); what the CLEAR replay of
+#: :mod:`tracker.eval.id_switches` reads.
+IdInputs = tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]
+
+
+@dataclass
+class SequenceEvaluation:
+    """TrackEval's per-sequence results of one KITTI sequence, before combining.
+
+    ``results[class][metric]`` is what ``metric.eval_sequence`` returned (small arrays, cheap to
+    send back from a scene task); :func:`combine_sequences` turns a run's sequences into the
+    combined metrics exactly as ``trackeval.Evaluator`` does. ``id_inputs`` (when asked for)
+    feed the ID-switch replay from the same loading and preprocessing.
+    """
+
+    seq: str
+    num_timesteps: int
+    results: dict[str, dict[str, Any]]
+    id_inputs: dict[str, IdInputs] | None = None
+
+    @property
+    def metrics(self) -> dict[str, dict[str, float]]:
+        """Per class, the summary numbers of this sequence alone."""
+        return {c: _summarise(r) for c, r in self.results.items()}
+
+    def without_id_inputs(self) -> SequenceEvaluation:
+        return SequenceEvaluation(self.seq, self.num_timesteps, self.results)
+
+
+def evaluate_kitti_sequence(
+    *,
+    label_file: Path,
+    result_file: Path | None,
+    num_timesteps: int,
+    classes: Sequence[str] = ("car", "pedestrian"),
+    keep_id_inputs: bool = False,
+) -> SequenceEvaluation:
+    """Evaluate one sequence's result file (None: no tracks) against its ``label_02`` file.
+
+    TrackEval loads the sequence once per dataset (car and pedestrian share one; cyclist is its
+    own, see :func:`_cyclist_dataset`), preprocesses it once per class and runs HOTA, CLEAR and
+    Identity on it. With ``keep_id_inputs`` the preprocessed ids are the files' own (see
+    :func:`preprocess_keeping_ids`; the metrics are the same) and are kept for the ID-switch
+    replay, so a recording needs no second evaluation.
+    """
+    import trackeval  # heavy import: only when evaluating
+
+    unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
+    if unknown:
+        raise ValueError(f"cannot evaluate classes {unknown}; supported: {SUPPORTED_CLASSES}")
+    seq = label_file.stem
+    results: dict[str, dict[str, Any]] = {}
+    id_inputs: dict[str, IdInputs] = {}
+    with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
+        gt_root, trackers_root = Path(tmp) / "gt", Path(tmp) / "trackers"
+        (gt_root / "label_02").mkdir(parents=True)
+        target = trackers_root / _TRACKER_NAME / "data" / f"{seq}.txt"
+        target.parent.mkdir(parents=True)
+        shutil.copyfile(label_file, gt_root / "label_02" / f"{seq}.txt")
+        if result_file is not None and result_file.is_file():
+            shutil.copyfile(result_file, target)
+        else:
+            target.write_text("")
+        (gt_root / "evaluate_tracking.seqmap.val").write_text(
+            f"{seq} empty 000000 {num_timesteps:06d}\n"
+        )
+        ds_config = {
+            "GT_FOLDER": str(gt_root),
+            "TRACKERS_FOLDER": str(trackers_root),
+            "OUTPUT_FOLDER": str(Path(tmp) / "out"),
+            "TRACKERS_TO_EVAL": [_TRACKER_NAME],
+            "SPLIT_TO_EVAL": "val",
+            "PRINT_CONFIG": False,
+        }
+        metrics = [
+            trackeval.metrics.HOTA(),
+            trackeval.metrics.CLEAR({"PRINT_CONFIG": False}),
+            trackeval.metrics.Identity({"PRINT_CONFIG": False}),
+        ]
+        runs: list[tuple[Any, list[tuple[str, str]]]] = []
+        with contextlib.redirect_stdout(io.StringIO()):  # TrackEval prints its configs
+            standard = [c for c in classes if c in ("car", "pedestrian")]
+            if standard:
+                dataset = trackeval.datasets.Kitti2DBox({**ds_config, "CLASSES_TO_EVAL": standard})
+                runs.append((dataset, [(c, c) for c in standard]))
+            if "cyclist" in classes:
+                runs.append((_cyclist_dataset(trackeval, ds_config), [("cyclist", "car")]))
+            for dataset, names in runs:
+                raw = dataset.get_raw_seq_data(_TRACKER_NAME, seq)
+                for name, eval_cls in names:
+                    if keep_id_inputs:
+                        data, id_inputs[name] = preprocess_keeping_ids(dataset, raw, eval_cls)
+                    else:
+                        data = dataset.get_preprocessed_seq_data(raw, eval_cls)
+                    results[name] = {
+                        m.get_name(): m.eval_sequence(data)
+                        for m in metrics  # names: METRIC_NAMES
+                    }
+    ordered = {c: results[c] for c in classes}
+    return SequenceEvaluation(seq, num_timesteps, ordered, id_inputs if keep_id_inputs else None)
+
+
+def combine_sequences(
+    evaluations: Sequence[SequenceEvaluation],
+    classes: Sequence[str],
+    per_sequence: dict[str, dict[str, dict[str, float]]] | None = None,
+) -> dict[str, dict[str, float]]:
+    """The combined metrics of several sequences (``trackeval.Evaluator``'s COMBINED_SEQ: each
+    metric's ``combine_sequences`` over the per-sequence results), per class; a
+    ``per_sequence`` dict given is filled with each sequence's own."""
+    import trackeval
+
+    metric_of = {
+        "HOTA": trackeval.metrics.HOTA(),
+        "CLEAR": trackeval.metrics.CLEAR({"PRINT_CONFIG": False}),
+        "Identity": trackeval.metrics.Identity({"PRINT_CONFIG": False}),
+    }
+    ordered = sorted(evaluations, key=lambda e: e.seq)  # TrackEval's seqmap order
+    out: dict[str, dict[str, float]] = {}
+    for cls in classes:
+        combined = {
+            name: metric.combine_sequences({e.seq: e.results[cls][name] for e in ordered})
+            for name, metric in metric_of.items()
+        }
+        out[cls] = _summarise(combined)
+    if per_sequence is not None:
+        for e in ordered:
+            for cls in classes:
+                per_sequence.setdefault(e.seq, {})[cls] = _summarise(e.results[cls])
+    return out
 
 
 def evaluate_kitti(
@@ -37,77 +174,52 @@ def evaluate_kitti(
     TP (counts) over the combined sequences. A ``per_sequence`` dict given is filled with the
     same per sequence (``{seq: {class: metrics}}``; TrackEval computes them anyway).
     """
-    import trackeval  # heavy import: only when evaluating
-
     unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
     if unknown:
         raise ValueError(f"cannot evaluate classes {unknown}; supported: {SUPPORTED_CLASSES}")
-    with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
-        gt_root, trackers_root = Path(tmp) / "gt", Path(tmp) / "trackers"
-        (gt_root / "label_02").mkdir(parents=True)
-        (trackers_root / "mctrack" / "data").mkdir(parents=True)
-        seqmap = []
-        for seq, length in sorted(seq_lengths.items()):
-            shutil.copyfile(
-                path_in(label_dir, seq, ".txt"), path_in(gt_root / "label_02", seq, ".txt")
-            )
-            result = path_in(result_dir, seq, ".txt")
-            target = path_in(trackers_root / "mctrack" / "data", seq, ".txt")
-            if result.is_file():
-                shutil.copyfile(result, target)
-            else:
-                target.write_text("")
-            seqmap.append(f"{seq} empty 000000 {length:06d}\n")
-        (gt_root / "evaluate_tracking.seqmap.val").write_text("".join(seqmap))
-
-        eval_config = trackeval.Evaluator.get_default_eval_config()
-        eval_config.update(
-            PRINT_RESULTS=False,
-            PRINT_CONFIG=False,
-            TIME_PROGRESS=False,
-            OUTPUT_SUMMARY=False,
-            OUTPUT_DETAILED=False,
-            PLOT_CURVES=False,
-            USE_PARALLEL=False,
-            DISPLAY_LESS_PROGRESS=True,
+    evaluations = [
+        evaluate_kitti_sequence(
+            label_file=path_in(label_dir, seq, ".txt"),
+            result_file=path_in(result_dir, seq, ".txt"),
+            num_timesteps=length,
+            classes=classes,
         )
-        metrics = [
-            trackeval.metrics.HOTA(),
-            trackeval.metrics.CLEAR({"PRINT_CONFIG": False}),
-            trackeval.metrics.Identity({"PRINT_CONFIG": False}),
-        ]
-        out: dict[str, dict[str, float]] = {}
-        standard = [c for c in classes if c in ("car", "pedestrian")]
-        runs: list[tuple[Any, list[str]]] = []
-        ds_config = {
-            "GT_FOLDER": str(gt_root),
-            "TRACKERS_FOLDER": str(trackers_root),
-            "OUTPUT_FOLDER": str(Path(tmp) / "out"),
-            "TRACKERS_TO_EVAL": ["mctrack"],
-            "SPLIT_TO_EVAL": "val",
-            "PRINT_CONFIG": False,
-        }
-        if standard:
-            runs.append(
-                (
-                    trackeval.datasets.Kitti2DBox({**ds_config, "CLASSES_TO_EVAL": standard}),
-                    standard,
-                )
-            )
-        if "cyclist" in classes:
-            runs.append((_cyclist_dataset(trackeval, ds_config), ["cyclist"]))
-        for dataset, names in runs:
-            with contextlib.redirect_stdout(io.StringIO()):
-                evaluator = trackeval.Evaluator(eval_config)
-                results, _messages = evaluator.evaluate([dataset], metrics)
-            by_seq = results[dataset.get_name()]["mctrack"]
-            for name in names:
-                key = "car" if name == "cyclist" else name  # see _cyclist_dataset
-                out[name] = _summarise(by_seq["COMBINED_SEQ"][key])
-                if per_sequence is not None:
-                    for seq in sorted(seq_lengths):
-                        per_sequence.setdefault(seq, {})[name] = _summarise(by_seq[seq][key])
-        return out
+        for seq, length in sorted(seq_lengths.items())
+    ]
+    return combine_sequences(evaluations, classes, per_sequence)
+
+
+def preprocess_keeping_ids(dataset: Any, raw: dict[str, Any], cls: str) -> tuple[Any, IdInputs]:
+    """TrackEval preprocessing, also returning the original (file) ids instead of its
+    contiguous ones.
+
+    The preprocessing relabels ids 0..n-1. It carries ``tracker_confidences`` and ``gt_dets``
+    row-aligned through every deletion without using them for the metrics, so the original ids
+    ride along there: confidences are replaced by the tracker ids, and GT boxes get an id column
+    (only similarity scores, computed before this, and the tracker boxes are ever measured).
+    Returns the preprocessed data (for the metrics) and (GT ids, track ids, similarity).
+    """
+    raw = dict(raw)
+    raw["tracker_confidences"] = [ids.astype(np.float64) for ids in raw["tracker_ids"]]
+    raw["gt_dets"] = [
+        np.column_stack([np.asarray(d, dtype=np.float64).reshape(-1, 4), ids.astype(np.float64)])
+        for d, ids in zip(raw["gt_dets"], raw["gt_ids"], strict=True)
+    ]
+    data = dataset.get_preprocessed_seq_data(raw, cls)
+    gt_ids = [
+        np.asarray(d, dtype=np.float64).reshape(-1, 5)[:, 4].astype(np.int64)
+        for d in data["gt_dets"]
+    ]
+    trk_ids = [
+        np.asarray(c, dtype=np.float64).astype(np.int64) for c in data["tracker_confidences"]
+    ]
+    sims = [np.asarray(s, dtype=np.float64) for s in data["similarity_scores"]]
+    # the recovered ids must be a relabelling of TrackEval's, else the replay would differ
+    for ours, theirs in ((gt_ids, data["gt_ids"]), (trk_ids, data["tracker_ids"])):
+        for a, b in zip(ours, theirs, strict=True):
+            if len(a) != len(b):
+                raise RuntimeError("TrackEval preprocessing changed; cannot recover ids")
+    return data, (gt_ids, trk_ids, sims)
 
 
 def absent_classes(metrics: Mapping[str, Mapping[str, float]]) -> list[str]:

@@ -24,7 +24,6 @@ from dataclasses import dataclass, fields
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import find_peaks, savgol_filter
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -426,6 +425,8 @@ def velocity_delay_secs(
 
     w, max_shift = params.vde_half_window_samples, params.vde_max_shift_samples
     dt_secs = float(np.median(np.diff(t)))
+    from scipy.signal import find_peaks  # imported here: scipy.signal takes ~1 s
+
     peaks, _ = find_peaks(
         gt,
         width=1,
@@ -547,6 +548,8 @@ def motion_metrics(
             n_skipped += 1
             continue
         v = ve_by_est[start : start + count]
+        from scipy.signal import savgol_filter  # imported here, as find_peaks
+
         smoothed = savgol_filter(v, shape[0], shape[1], axis=0, mode="mirror")
         smooth_errors.append(np.linalg.norm(v - smoothed, axis=1))
     vse_errors = np.concatenate(smooth_errors) if smooth_errors else np.zeros(0)

@@ -12,7 +12,6 @@ import itertools
 import json
 import logging
 import math
-import os
 import zlib
 from collections import Counter
 from dataclasses import dataclass, field
@@ -26,7 +25,13 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
-from tracker.io.fileio import name_is_escaped, safe_filename, write_json_atomic
+from tracker.io.fileio import (
+    MAX_INPUT_BYTES_ENV,
+    max_input_bytes,
+    name_is_escaped,
+    safe_filename,
+    write_json_atomic,
+)
 
 log = logging.getLogger(__name__)
 
@@ -52,11 +57,6 @@ class LoadReport:
 # ---------------------------------------------------------------------------------------------
 # reading
 
-# Decompressed (or plain) input larger than this is refused before parsing: a 1 MB .json.gz can
-# expand to gigabytes. Generous for real files (a full nuScenes val split is ~0.5 GB); override
-# per call or with the MCTRACK_MAX_INPUT_BYTES environment variable.
-DEFAULT_MAX_INPUT_BYTES = 4 * 1024**3
-MAX_INPUT_BYTES_ENV = "MCTRACK_MAX_INPUT_BYTES"
 # Integers in the schema fit in int64 (ids, frame ids) or are exact in float64 (timestamps, µs);
 # longer literals are refused in the parser (before Python's 4,300-digit conversion limit).
 MAX_INT_DIGITS = 19
@@ -68,20 +68,6 @@ MAX_SCENE_NAME_CHARS = 200  # scene names become file names (at most 255 bytes o
 
 class _Refused(ValueError):
     """Raised inside the JSON parser's hooks; turned into an InputError with a location."""
-
-
-def max_input_bytes() -> int:
-    """The decompressed-size cap: ``MCTRACK_MAX_INPUT_BYTES`` if set, else the default."""
-    value = os.environ.get(MAX_INPUT_BYTES_ENV)
-    if not value:
-        return DEFAULT_MAX_INPUT_BYTES
-    try:
-        cap = int(value)
-    except ValueError:
-        raise InputError(f"{MAX_INPUT_BYTES_ENV}={value!r}: must be a number of bytes") from None
-    if cap <= 0:
-        raise InputError(f"{MAX_INPUT_BYTES_ENV}={value!r}: must be positive")
-    return cap
 
 
 def read_input_bytes(path: Path, cap: int | None = None) -> bytes:

@@ -2,7 +2,8 @@
 
 Output: every file is written completely or not at all (a temporary file in the same folder,
 fsynced, then renamed); temporary files stranded by a killed run are removed by the next write
-to that folder. Input: ``.npz`` files are read without unrestricted pickle (:func:`load_npz`).
+to that folder. Input: ``.npz`` files are read without pickle and with a size cap
+(:func:`load_npz`).
 """
 
 from __future__ import annotations
@@ -11,12 +12,13 @@ import gzip
 import hashlib
 import io
 import json
+import math
 import os
-import pickle
 import tempfile
 import time
 import zipfile
-from collections.abc import Iterable, Iterator
+import zlib
+from collections.abc import Collection, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -124,42 +126,41 @@ def write_text_atomic(path: str | Path, lines: list[str]) -> None:
 
 
 # ---------------------------------------------------------------------------------------------
-# npz input without code execution
+# input size cap
 
-# The only globals a numpy object array's pickle needs: arrays, dtypes and numpy scalars.
-# Python lists, tuples, dicts, numbers, strings and None need no global at all.
-_NUMPY_GLOBALS = {
-    ("numpy._core.multiarray", "_reconstruct"),
-    ("numpy.core.multiarray", "_reconstruct"),
-    ("numpy._core.multiarray", "scalar"),
-    ("numpy.core.multiarray", "scalar"),
-    ("numpy", "ndarray"),
-    ("numpy", "dtype"),
-}
+# Input larger than this (decompressed) is refused before parsing: a 1 MB .json.gz or .npz can
+# expand to gigabytes. Generous for real files (a full nuScenes val split is ~0.5 GB); override
+# per call or with the MCTRACK_MAX_INPUT_BYTES environment variable.
+DEFAULT_MAX_INPUT_BYTES = 4 * 1024**3
+MAX_INPUT_BYTES_ENV = "MCTRACK_MAX_INPUT_BYTES"
 
 
-class _NumpyOnlyUnpickler(pickle.Unpickler):
-    """Refuses every global but numpy's array/dtype/scalar constructors: a crafted file cannot
-    name ``os.system`` or any other callable, so loading it cannot run code."""
+def max_input_bytes() -> int:
+    """The decompressed-size cap: ``MCTRACK_MAX_INPUT_BYTES`` if set, else the default."""
+    value = os.environ.get(MAX_INPUT_BYTES_ENV)
+    if not value:
+        return DEFAULT_MAX_INPUT_BYTES
+    try:
+        cap = int(value)
+    except ValueError:
+        raise InputError(f"{MAX_INPUT_BYTES_ENV}={value!r}: must be a number of bytes") from None
+    if cap <= 0:
+        raise InputError(f"{MAX_INPUT_BYTES_ENV}={value!r}: must be positive")
+    return cap
 
-    def find_class(self, module: str, name: str) -> Any:
-        if (module, name) not in _NUMPY_GLOBALS:
-            raise pickle.UnpicklingError(f"refused global {module}.{name}")
-        if name == "ndarray":
-            return np.ndarray
-        if name == "dtype":
-            return np.dtype
-        from numpy._core import multiarray  # numpy >= 2 (pyproject pins numpy>=2)
 
-        return getattr(multiarray, name)
+# ---------------------------------------------------------------------------------------------
+# npz input: no pickle, sizes checked before anything is decompressed
+
+#: What to tell the owner of a pickled (object-array) npz: how to convert their own files.
+OBJECT_ARRAY_HINT = (
+    "pickled object arrays are not read (loading one can run code); convert your own, trusted "
+    "files with: python bench/waymo_flatten_npz.py IN_FOLDER OUT_FOLDER (docs/nuscenes_waymo.md)"
+)
 
 
 class SafeNpz:
-    """The arrays of an ``.npz`` file, read eagerly; mapping-like (``files``, ``[key]``, ``in``).
-
-    Plain arrays are read with ``allow_pickle=False``. Object arrays (the ragged per-frame lists
-    of the ImmortalTracker / MCTrack Waymo files) go through :class:`_NumpyOnlyUnpickler`.
-    """
+    """The arrays of an ``.npz`` file, read eagerly; mapping-like (``files``, ``[key]``, ``in``)."""
 
     def __init__(self, arrays: dict[str, np.ndarray]) -> None:
         self._arrays = arrays
@@ -181,47 +182,84 @@ class SafeNpz:
         return None
 
 
-def _read_npy(fh: Any, where: str) -> np.ndarray:
+def _npy_header(fh: Any) -> tuple[tuple[int, ...], np.dtype, int]:
+    """Shape, dtype and header length of the ``.npy`` stream ``fh`` (read from its start)."""
     version = np.lib.format.read_magic(fh)
     if version == (1, 0):
-        shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh)
+        shape, _fortran, dtype = np.lib.format.read_array_header_1_0(fh)
     elif version in ((2, 0), (3, 0)):
-        shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
+        shape, _fortran, dtype = np.lib.format.read_array_header_2_0(fh)
     else:
         raise ValueError(f"unsupported .npy version {version}")
-    if not dtype.hasobject:
-        data = fh.read()
-        count = int(np.prod(shape, dtype=np.int64))
-        if len(data) != count * dtype.itemsize:
-            raise ValueError(f"{where}: {len(data)} bytes for {count} items of {dtype}")
-        arr = np.frombuffer(data, dtype=dtype, count=count).copy()
-        return arr.reshape(shape, order="F" if fortran else "C")
-    arr = _NumpyOnlyUnpickler(fh).load()
-    if not isinstance(arr, np.ndarray):
-        raise ValueError(f"{where}: not an array")
-    return arr
+    return shape, dtype, fh.tell()
 
 
-def load_npz(path: str | Path, what: str = "npz") -> SafeNpz:
-    """Read an ``.npz`` file without running code from it.
+def check_npz(
+    path: Path, fh: Any, what: str, cap: int, members: Collection[str] | None = None
+) -> None:
+    """Refuse an npz before decompressing it: members' declared sizes (the zip directory) and
+    the arrays' declared sizes (each ``.npy`` header) over ``cap`` in total, a header that
+    disagrees with its member's size (a lie either way), or an object (pickled) array.
+    ``members``: check only these (the others are never read)."""
+    hint = f"(the cap; raise it with {MAX_INPUT_BYTES_ENV})"
+    with zipfile.ZipFile(fh) as zf:
+        infos = [
+            i
+            for i in zf.infolist()
+            if members is None or i.filename.removesuffix(".npy") in members
+        ]
+        declared = sum(i.file_size for i in infos)
+        if declared > cap:
+            raise InputError(f"{path}: {what} members declare {declared} bytes, over {cap} {hint}")
+        for info in infos:
+            key = info.filename.removesuffix(".npy")
+            with zf.open(info) as member:
+                # only the header is decompressed here (a few hundred bytes)
+                shape, dtype, header_len = _npy_header(io.BufferedReader(member, 1024))
+            if dtype.hasobject:
+                raise InputError(f"{path}: member '{key}' of the {what} file: {OBJECT_ARRAY_HINT}")
+            data_bytes = math.prod(shape) * dtype.itemsize  # Python ints: no overflow
+            if data_bytes > cap:
+                raise InputError(
+                    f"{path}: member '{key}' declares {data_bytes} bytes, over {cap} {hint}"
+                )
+            if header_len + data_bytes != info.file_size:
+                raise InputError(
+                    f"{path}: member '{key}': its header says {shape} {dtype} "
+                    f"({header_len + data_bytes} bytes), the zip says {info.file_size} bytes"
+                )
 
-    Raises InputError (naming the file and the member) when the file is missing, not an npz,
-    or holds anything but arrays of numbers, strings, lists and None.
+
+def load_npz(
+    path: str | Path,
+    what: str = "npz",
+    *,
+    max_bytes: int | None = None,
+    members: Collection[str] | None = None,
+) -> SafeNpz:
+    """Read an ``.npz`` file of plain arrays: no pickle (``allow_pickle=False``), sizes checked
+    against ``max_bytes`` (default :func:`max_input_bytes`) before decompressing
+    (:func:`check_npz`).
+    ``members``: read only these arrays (when present); the others are not even decompressed.
+
+    Raises InputError (naming the file, and the member where it applies) when the file is
+    missing, not an npz, too large, lies about its sizes, or holds an object array.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: {what} file not found")
-    arrays: dict[str, np.ndarray] = {}
+    cap = max_input_bytes() if max_bytes is None else max_bytes
     try:
-        with zipfile.ZipFile(path) as zf:
-            for info in zf.infolist():
-                key = info.filename.removesuffix(".npy")
-                with zf.open(info) as member:
-                    arrays[key] = _read_npy(io.BufferedReader(member), f"member '{key}'")
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
+        with open(path, "rb") as fh:
+            check_npz(path, fh, what, cap, members)
+            fh.seek(0)
+            with np.load(fh, allow_pickle=False) as npz:
+                keys = [k for k in npz.files if members is None or k in members]
+                arrays = {key: npz[key] for key in keys}
+    except InputError:
+        raise
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
         raise InputError(f"{path}: unreadable {what} file ({exc})") from None
-    except Exception as exc:  # a malformed pickle stream can raise almost anything
-        raise InputError(f"{path}: unreadable {what} file ({type(exc).__name__})") from None
     return SafeNpz(arrays)
 
 

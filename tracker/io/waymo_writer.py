@@ -10,16 +10,22 @@ Layout: ``OUT/{vehicle,pedestrian,cyclist}/<segment>.npz``, each with
 * ``timestamps``: (F,) frame timestamps in µs.
 
 Frames without a track keep an empty list, so every segment file has one entry per frame of
-``ts_info``. The ragged per-frame lists are pickled object arrays, exactly what the reference's
-``pred_bin.py`` (from ImmortalTracker) reads (we read them back with a numpy-only unpickler): it
-turns these files into the ``pred.bin`` protobuf of the Waymo tracking benchmark (moving each box
-back to the vehicle frame with ``ego_info``). That step needs TensorFlow and the
-``waymo-open-dataset`` package, which this project does not depend on (docs/nuscenes_waymo.md).
+``ts_info``. These ragged per-frame lists are pickled object arrays, exactly what the reference's
+``pred_bin.py`` (from ImmortalTracker) reads: it turns these files into the ``pred.bin`` protobuf
+of the Waymo tracking benchmark (moving each box back to the vehicle frame with ``ego_info``).
+That step needs TensorFlow and the ``waymo-open-dataset`` package, which this project does not
+depend on (docs/nuscenes_waymo.md).
+
+The same boxes are also stored without pickle, one row per box: ``frame_index`` (N,),
+``box_ids`` (N,), ``box_bboxes`` (N, 8), ``box_states`` (N,) and ``box_velos`` (N, 2).
+:func:`read_waymo_results` reads only these (``allow_pickle=False``); the pickled members are
+for ``pred_bin.py`` and never loaded here.
 """
 
 from __future__ import annotations
 
 import io
+import itertools
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Final
@@ -27,6 +33,7 @@ from typing import Final
 import numpy as np
 
 from tracker.categories import CATEGORIES
+from tracker.errors import InputError
 from tracker.events import TrackOutput, TrackStatus
 from tracker.frame import Frame
 from tracker.io.fileio import load_npz, path_in, write_bytes_atomic
@@ -61,7 +68,8 @@ def write_waymo_results(
         timestamps = np.array([round(f.timestamp_secs * 1e6) for f in frames], dtype=np.int64)
         for result_type in RESULT_TYPES:
             ids, bboxes, states, velos = [], [], [], []
-            for frame in frames:
+            frame_index: list[int] = []
+            for f, frame in enumerate(frames):
                 output = by_frame.get(frame.frame_id)
                 if output is None:
                     ids.append([])
@@ -86,6 +94,7 @@ def write_waymo_results(
                     ]
                 )
                 velos.append(b.velocity[rows].reshape(-1, 2))
+                frame_index += [f] * len(rows)
                 written[result_type] += len(rows)
             buffer = io.BytesIO()
             np.savez_compressed(
@@ -95,15 +104,43 @@ def write_waymo_results(
                 states=_ragged(states),
                 velos=_ragged(velos),
                 timestamps=timestamps,
+                frame_index=np.array(frame_index, dtype=np.int64),
+                box_ids=np.array([i for row in ids for i in row], dtype=np.int64),
+                box_bboxes=np.concatenate(bboxes).reshape(-1, 8),
+                box_states=np.array([s for row in states for s in row], dtype="<U9"),
+                box_velos=np.concatenate(velos).reshape(-1, 2),
             )
             path = path_in(out_dir / result_type, segment, ".npz")  # names are input data
             write_bytes_atomic(path, buffer.getvalue())
     return written
 
 
+#: The pickle-free members of a result file (the only ones read back).
+FLAT_MEMBERS: Final[tuple[str, ...]] = (
+    "timestamps",
+    "frame_index",
+    "box_ids",
+    "box_bboxes",
+    "box_states",
+    "box_velos",
+)
+
+
 def read_waymo_results(path: str | Path) -> tuple[list[list[int]], list[np.ndarray]]:
-    """``(ids, bboxes)`` per frame of one result file (rows ``[x, y, z, o, l, w, h, s]``)."""
-    with load_npz(Path(path), "Waymo result") as npz:  # numpy-only unpickler: no code runs
-        ids = [list(map(int, row)) for row in npz["ids"]]
-        bboxes = [np.asarray(row, dtype=np.float64).reshape(-1, 8) for row in npz["bboxes"]]
+    """``(ids, bboxes)`` per frame of one result file (rows ``[x, y, z, o, l, w, h, s]``), from
+    its pickle-free members (``allow_pickle=False``; the pickled ones are never touched)."""
+    path = Path(path)
+    npz = load_npz(path, "Waymo result", members=FLAT_MEMBERS)
+    missing = [k for k in ("timestamps", "frame_index", "box_ids", "box_bboxes") if k not in npz]
+    if missing:
+        raise InputError(f"{path}: not a result file of this writer (no {', '.join(missing)})")
+    n_frames, frame = len(npz["timestamps"]), npz["frame_index"]
+    box_ids, box_bboxes = npz["box_ids"], npz["box_bboxes"].reshape(-1, 8)
+    if not (len(frame) == len(box_ids) == len(box_bboxes)) or (
+        len(frame) and (frame.min() < 0 or frame.max() >= n_frames)
+    ):
+        raise InputError(f"{path}: frame_index, box_ids and box_bboxes do not agree")
+    bounds = np.searchsorted(frame, np.arange(n_frames + 1))  # written in frame order
+    ids = [box_ids[a:b].astype(int).tolist() for a, b in itertools.pairwise(bounds)]
+    bboxes = [box_bboxes[a:b].astype(np.float64) for a, b in itertools.pairwise(bounds)]
     return ids, bboxes

@@ -1,20 +1,27 @@
 """Waymo Open Dataset, ImmortalTracker-style files → world-frame Frame sequences.
 
-Inputs (the layout of ImmortalTracker / MCTrack's ``preprocess`` scripts, one file per segment)
-----------------------------------------------------------------------------------------------
+Inputs (the layout of ImmortalTracker / MCTrack's ``preprocess`` scripts, without pickle)
+----------------------------------------------------------------------------------------
+Every ``.npz`` is read with ``allow_pickle=False`` and a size cap
+(:func:`tracker.io.fileio.load_npz`): plain numeric and fixed-width string arrays only. The
+preprocessing scripts of ImmortalTracker and MCTrack write ragged per-frame lists as pickled
+object arrays; loading one can run code, so such a file is refused with a one-line error that
+names ``bench/waymo_flatten_npz.py``, which turns a user's own (trusted) files into this layout
+once.
+
 * ``DATA/ts_info/<segment>.json``: the frame timestamps, a list of integer microseconds.
 * ``DATA/ego_info/<segment>.npz``, either
-  - MCTrack's layout (``preprocess/ego_info.py``): ``ego_infos`` with, per frame, ``[[ego2global
-    (4x4), 5 camera extrinsics (camera→vehicle, 4x4), 5 intrinsics (f_u, f_v, c_u, c_v, k1, k2,
-    p1, p2, k3), 5 lidar extrinsics]]`` in the camera order FRONT, FRONT_LEFT, FRONT_RIGHT,
-    SIDE_LEFT, SIDE_RIGHT; or
-  - ImmortalTracker's layout: one key per frame index (``"0"``, ``"1"``, ...) holding ego2global;
-    there are no cameras then.
-* ``DETS/<segment>.npz``: ``bboxes`` (per frame, a list of ``[x, y, z, heading, l, w, h, score]``
-  in the **vehicle (ego) frame**) and ``types`` (per frame, Waymo type codes: 1 vehicle,
-  2 pedestrian, 3 sign, 4 cyclist). Ground truth has the same layout plus ``ids`` (per frame,
-  the object id strings) and optionally ``velos`` (vehicle-frame speed_x, speed_y).
-  These files are pickled object arrays (ragged lists): only read files you trust.
+  - ``ego2global`` (F, 4, 4), and for cameras ``cam_extrinsics`` (F, 5, 4, 4, camera→vehicle)
+    and ``cam_intrinsics`` (F, 5, 9: f_u, f_v, c_u, c_v, k1, k2, p1, p2, k3) in the camera order
+    FRONT, FRONT_LEFT, FRONT_RIGHT, SIDE_LEFT, SIDE_RIGHT, NaN for a camera a frame lacks
+    (MCTrack's ``preprocess/ego_info.py`` layout ``ego_infos``, flattened); or
+  - ImmortalTracker's layout: one key per frame index (``"0"``, ``"1"``, ...) holding ego2global
+    (already plain arrays); there are no cameras then.
+* ``DETS/<segment>.npz``: one row per box, all frames: ``bboxes`` (N, 7 or 8) ``[x, y, z,
+  heading, l, w, h(, score)]`` in the **vehicle (ego) frame**, ``types`` (N,) Waymo type codes
+  (1 vehicle, 2 pedestrian, 3 sign, 4 cyclist) and ``frame_index`` (N,) the frame of each row
+  (0-based, into ``ts_info``). Ground truth has the same plus ``ids`` (N,) object ids (fixed-width
+  strings ``<U..`` or integers) and optionally ``velos`` (N, 2) vehicle-frame speed_x, speed_y.
 
 Output
 ------
@@ -41,7 +48,7 @@ import itertools
 import json
 import logging
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -91,7 +98,7 @@ class _EgoFrame:
 
 
 def _load_npz(path: Path, what: str) -> SafeNpz:
-    return load_npz(path, what)  # no unrestricted pickle: input files are untrusted
+    return load_npz(path, what)  # allow_pickle=False and a size cap: input files are untrusted
 
 
 def read_timestamps(path: Path) -> list[int]:
@@ -124,22 +131,30 @@ def camera_model(name: str, extrinsic: Any, intrinsic: Any, world_from_ego: Floa
 
 
 def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
-    """Ego poses (and cameras, for MCTrack's layout) of every frame of a segment."""
+    """Ego poses (and cameras, when the file has them) of every frame of a segment."""
     ego = _load_npz(path, "ego_info")
     out: list[_EgoFrame] = []
-    if "ego_infos" in ego.files:
-        infos = ego["ego_infos"]
-        if len(infos) < n_frames:
-            raise InputError(f"{path}: {len(infos)} frames of ego_infos, ts_info has {n_frames}")
+    if "ego2global" in ego.files:
+        poses = _float_array(ego, "ego2global", path, (None, 4, 4))
+        if len(poses) < n_frames:
+            raise InputError(f"{path}: {len(poses)} frames of ego2global, ts_info has {n_frames}")
+        extrinsics = intrinsics = None
+        if "cam_extrinsics" in ego.files or "cam_intrinsics" in ego.files:
+            n_cam = len(WAYMO_CAMERAS)
+            extrinsics = _float_array(ego, "cam_extrinsics", path, (len(poses), n_cam, 4, 4))
+            intrinsics = _float_array(ego, "cam_intrinsics", path, (len(poses), n_cam, None))
+            if intrinsics.shape[2] < 4:
+                raise InputError(f"{path}: cam_intrinsics needs f_u, f_v, c_u, c_v per camera")
         for i in range(n_frames):
-            row = infos[i][0]
-            world_from_ego = _matrix4(row[0], path, f"ego_infos[{i}] ego2global")
+            world_from_ego = _matrix4(poses[i], path, f"ego2global[{i}]")
             cameras = []
             records: dict[str, Any] = {}
             for k, (name, _waymo, width, height) in enumerate(WAYMO_CAMERAS):
-                extrinsic, intrinsic = row[1 + k], row[6 + k]
-                if extrinsic is None or intrinsic is None:
-                    continue
+                if extrinsics is None or intrinsics is None:
+                    break
+                extrinsic, intrinsic = extrinsics[i, k], intrinsics[i, k]
+                if not (np.isfinite(extrinsic).all() and np.isfinite(intrinsic[:4]).all()):
+                    continue  # NaN: this frame has no such camera
                 cam = camera_model(name, extrinsic, intrinsic, world_from_ego)
                 cameras.append(cam)
                 camera2image = np.eye(4)
@@ -149,8 +164,8 @@ def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
                     # in our camera axes (x right, y down, z forward), unlike the reference
                     "ego2camera": (cam.camera_from_world @ world_from_ego).tolist(),
                     "camera2image": camera2image.tolist(),
-                    "intrinsic": np.asarray(intrinsic, dtype=np.float64).tolist(),
-                    "extrinsic": np.asarray(extrinsic, dtype=np.float64).reshape(4, 4).tolist(),
+                    "intrinsic": [float(v) if np.isfinite(v) else 0.0 for v in intrinsic],
+                    "extrinsic": extrinsic.tolist(),
                     "lidar2camera": None,
                 }
             out.append(
@@ -160,11 +175,25 @@ def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
         for i in range(n_frames):
             if str(i) not in ego.files:
                 raise InputError(
-                    f"{path}: no ego pose for frame {i} (neither 'ego_infos' nor key '{i}')"
+                    f"{path}: no ego pose for frame {i} (neither 'ego2global' nor key '{i}')"
                 )
             world_from_ego = _matrix4(ego[str(i)], path, f"frame {i} ego2global")
             out.append(_EgoFrame(world_from_ego, (), _transform(world_from_ego, {})))
     return out
+
+
+def _float_array(npz: SafeNpz, key: str, path: Path, shape: tuple[int | None, ...]) -> FloatArray:
+    """``npz[key]`` as float64, checked against ``shape`` (None: any length)."""
+    if key not in npz.files:
+        raise InputError(f"{path}: missing array '{key}'")
+    arr = npz[key]
+    ok = arr.dtype.kind in "fiu" and arr.ndim == len(shape)
+    if not ok or any(w is not None and n != w for n, w in zip(arr.shape, shape, strict=True)):
+        want_text = ", ".join("N" if n is None else str(n) for n in shape)
+        raise InputError(
+            f"{path}: '{key}' must be numbers of shape ({want_text}), got {arr.dtype} {arr.shape}"
+        )
+    return arr.astype(np.float64)
 
 
 def _transform(world_from_ego: FloatArray, cameras: dict[str, Any]) -> dict[str, Any]:
@@ -197,16 +226,72 @@ def boxes_ego_to_world(
     return xyz, np.arctan2(world_dir[:, 1], world_dir[:, 0])
 
 
-def _frame_rows(npz: Any, key: str, i: int) -> list[Any]:
-    values = npz[key]
-    if i >= len(values):
-        return []
-    row = values[i]
-    return [] if row is None else list(row)
+@dataclass(frozen=True, slots=True)
+class _BoxTable:
+    """The rows of a detection (or ground-truth) file, ordered by frame: frame ``i`` is rows
+    ``bounds[i]:bounds[i + 1]`` (in file order within the frame)."""
+
+    bboxes: FloatArray  # (N, 7 or 8), vehicle frame
+    types: np.ndarray  # (N,) Waymo type codes
+    bounds: np.ndarray  # (F + 1,)
+    ids: np.ndarray | None = None  # (N,) object ids as str (ground truth)
+    velos: FloatArray | None = None  # (N, 2) vehicle-frame velocity (ground truth, optional)
+
+
+def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _BoxTable:
+    """Check a detection / GT file's arrays (see the module docstring) and group them by frame."""
+    for key in ("bboxes", "types", "frame_index", *(("ids",) if gt else ())):
+        if key not in npz.files:
+            if key == "frame_index" and npz["bboxes"].ndim != 2:
+                raise InputError(
+                    f"{path}: per-frame arrays (the pickled ImmortalTracker/MCTrack layout); "
+                    "flatten them with: python bench/waymo_flatten_npz.py IN_FOLDER OUT_FOLDER"
+                )
+            raise InputError(f"{path}: missing array '{key}'")
+    bboxes = npz["bboxes"]
+    if bboxes.dtype.kind not in "fiu" or bboxes.ndim != 2 or bboxes.shape[1] not in (7, 8):
+        raise InputError(
+            f"{path}: 'bboxes' must be numbers of shape (N, 7 or 8), got {bboxes.dtype} "
+            f"{bboxes.shape}"
+        )
+    n = len(bboxes)
+    bboxes = bboxes.astype(np.float64)
+    bad = np.flatnonzero(~np.isfinite(bboxes).all(axis=1))
+    if len(bad):
+        raise InputError(f"{path}: bboxes row {bad[0]}: must be finite [x,y,z,o,l,w,h(,score)]")
+
+    def column(key: str, kinds: str) -> np.ndarray:
+        arr = npz[key]
+        if arr.dtype.kind not in kinds or arr.shape != (n,):
+            raise InputError(
+                f"{path}: '{key}' must be one value per box ({n},) of kind {kinds!r}, got "
+                f"{arr.dtype} {arr.shape}"
+            )
+        return arr
+
+    types = column("types", "iu").astype(np.int64)
+    frame_index = column("frame_index", "iu").astype(np.int64)
+    outside = np.flatnonzero((frame_index < 0) | (frame_index >= n_frames))
+    if len(outside):
+        k = outside[0]
+        raise InputError(
+            f"{path}: frame_index row {k}: frame {frame_index[k]}, but ts_info has {n_frames}"
+        )
+    order = np.argsort(frame_index, kind="stable")
+    bounds = np.searchsorted(frame_index[order], np.arange(n_frames + 1))
+    ids = velos = None
+    if gt:
+        ids = column("ids", "iuU").astype(str)[order]
+        if "velos" in npz.files:
+            velos = npz["velos"]
+            if velos.dtype.kind not in "fiu" or velos.shape != (n, 2):
+                raise InputError(f"{path}: 'velos' must be numbers of shape ({n}, 2)")
+            velos = velos.astype(np.float64)[order]
+    return _BoxTable(bboxes[order], types[order], bounds, ids, velos)
 
 
 def _segment_boxes(
-    npz: Any,
+    table: _BoxTable,
     i: int,
     path: Path,
     world_from_ego: FloatArray,
@@ -215,19 +300,11 @@ def _segment_boxes(
     ids: dict[str, int] | None,
 ) -> Boxes:
     """Frame ``i`` of a detection (or, with ``ids``, ground-truth) file as world Boxes."""
-    rows = _frame_rows(npz, "bboxes", i)
-    types = _frame_rows(npz, "types", i)
-    if len(rows) != len(types):
-        raise InputError(f"{path}: frame {i}: {len(rows)} bboxes but {len(types)} types")
-    if not rows:
+    a, b = int(table.bounds[i]), int(table.bounds[i + 1])
+    if a == b:
         return Boxes.empty()
-    try:
-        arr = np.asarray(rows, dtype=np.float64).reshape(len(rows), -1)
-    except ValueError:
-        raise InputError(f"{path}: frame {i}: bboxes must be rows of 7 or 8 numbers") from None
-    if arr.shape[1] not in (7, 8) or not np.isfinite(arr).all():
-        raise InputError(f"{path}: frame {i}: bboxes must be finite [x,y,z,o,l,w,h(,score)]")
-    codes = np.asarray(types).astype(np.int64).reshape(-1)
+    arr = table.bboxes[a:b]
+    codes = table.types[a:b]
     names = [WAYMO_TYPES.get(int(c)) for c in codes]
     for c, n in zip(codes, names, strict=True):
         if n is None:
@@ -237,12 +314,10 @@ def _segment_boxes(
     xyz, yaw = boxes_ego_to_world(arr, world_from_ego)
     velocity = None
     track_id = None
-    if ids is not None:
-        raw_ids = [str(v) for v, k in zip(_frame_rows(npz, "ids", i), keep, strict=True) if k]
-        track_id = [ids.setdefault(v, len(ids)) for v in raw_ids]
-        if "velos" in npz.files:
-            velos = np.asarray(_frame_rows(npz, "velos", i), dtype=np.float64).reshape(-1, 2)
-            velocity = velos[keep] @ world_from_ego[:2, :2].T  # vehicle → world axes
+    if ids is not None and table.ids is not None:
+        track_id = [ids.setdefault(str(v), len(ids)) for v in table.ids[a:b][keep]]
+        if table.velos is not None:
+            velocity = table.velos[a:b][keep] @ world_from_ego[:2, :2].T  # vehicle → world axes
     score = arr[:, 7] if arr.shape[1] == 8 and ids is None else np.ones(len(arr))
     if ((score < 0) | (score > 1)).any():
         raise InputError(f"{path}: frame {i}: scores must be in [0, 1]")
@@ -327,29 +402,23 @@ def convert_waymo(
         timestamps = read_timestamps(data_root / "ts_info" / f"{name}.json")
         ego = read_ego_info(data_root / "ego_info" / f"{name}.npz", len(timestamps))
         det_path = det_dir / f"{name}.npz"
-        dets = _load_npz(det_path, "detections")
+        dets = read_box_table(
+            _load_npz(det_path, "detections"), det_path, len(timestamps), gt=False
+        )
         gt_path = Path(gt) / f"{name}.npz" if gt is not None else None
-        gt_npz = _load_npz(gt_path, "ground-truth") if gt_path is not None else None
-        for npz, path in ((dets, det_path), (gt_npz, gt_path)):
-            if npz is None or path is None:
-                continue
-            for key in ("bboxes", "types"):
-                if key not in npz.files:
-                    raise InputError(f"{path}: missing array '{key}'")
-            if len(npz["bboxes"]) > len(timestamps):
-                raise InputError(
-                    f"{path}: {len(npz['bboxes'])} frames, but ts_info has {len(timestamps)}"
-                )
-        if gt_npz is not None and "ids" not in gt_npz.files:
-            raise InputError(f"{gt_path}: ground truth needs the 'ids' array")
+        gt_table = (
+            read_box_table(_load_npz(gt_path, "ground-truth"), gt_path, len(timestamps), gt=True)
+            if gt_path is not None
+            else None
+        )
         ids: dict[str, int] = {}
         det_frames, gt_frames = [], []
         for i, (t_micros, e) in enumerate(zip(timestamps, ego, strict=True)):
             boxes = _segment_boxes(dets, i, det_path, e.world_from_ego, e.cameras, skipped, None)
             det_frames.append(_frame(name, i, t_micros, e, boxes))
-            if gt_npz is not None and gt_path is not None:
+            if gt_table is not None and gt_path is not None:
                 boxes = _segment_boxes(
-                    gt_npz, i, gt_path, e.world_from_ego, e.cameras, Counter(), ids
+                    gt_table, i, gt_path, e.world_from_ego, e.cameras, Counter(), ids
                 )
                 gt_frames.append(_frame(name, i, t_micros, e, boxes))
         det_scenes[name] = det_frames
@@ -358,3 +427,56 @@ def convert_waymo(
     if skipped:
         log.info("skipped detections of untracked Waymo types: %s", dict(sorted(skipped.items())))
     return WaymoConversion(det_scenes, gt_scenes, skipped)
+
+
+def flatten_per_frame(arrays: Mapping[str, Any]) -> dict[str, np.ndarray]:
+    """The pickle-free layout of one preprocessing file whose arrays are already in memory.
+
+    ``arrays``: the members of an ImmortalTracker / MCTrack file as loaded by their owner
+    (``bench/waymo_flatten_npz.py`` loads the user's own trusted files): ``ego_infos`` (per frame
+    ``[[ego2global, 5 extrinsics, 5 intrinsics, 5 lidar extrinsics]]``) becomes ``ego2global``,
+    ``cam_extrinsics`` and ``cam_intrinsics`` (NaN for a missing camera); per-frame lists
+    ``bboxes``, ``types`` (and ``ids``, ``velos``) become one row per box with ``frame_index``.
+    Other members (e.g. ImmortalTracker's per-frame ego keys) are kept as plain arrays.
+    """
+    out: dict[str, np.ndarray] = {}
+    rest = dict(arrays)
+    if "ego_infos" in rest:
+        infos = rest.pop("ego_infos")
+        n, n_cam = len(infos), len(WAYMO_CAMERAS)
+        out["ego2global"] = np.stack(
+            [np.asarray(infos[i][0][0], dtype=np.float64).reshape(4, 4) for i in range(n)]
+        ).reshape(n, 4, 4)
+        extrinsics = np.full((n, n_cam, 4, 4), np.nan)
+        intrinsics = np.full((n, n_cam, 9), np.nan)
+        for i in range(n):
+            row = infos[i][0]
+            for k in range(n_cam):
+                if row[1 + k] is not None and row[6 + k] is not None:
+                    extrinsics[i, k] = np.asarray(row[1 + k], dtype=np.float64).reshape(4, 4)
+                    values = np.asarray(row[6 + k], dtype=np.float64).reshape(-1)[:9]
+                    intrinsics[i, k, : len(values)] = values
+        out["cam_extrinsics"], out["cam_intrinsics"] = extrinsics, intrinsics
+    if "bboxes" in rest:
+        per_frame = {k: rest.pop(k) for k in ("bboxes", "types", "ids", "velos") if k in rest}
+        frames = range(len(per_frame["bboxes"]))
+        rows = [
+            np.asarray([] if per_frame["bboxes"][i] is None else per_frame["bboxes"][i])
+            for i in frames
+        ]
+        counts = [len(r) for r in rows]
+        width = max((r.shape[1] for r in rows if r.ndim == 2 and len(r)), default=8)
+        out["bboxes"] = np.concatenate(
+            [np.asarray(r, dtype=np.float64).reshape(-1, width) for r in rows]
+            or [np.zeros((0, width))]
+        )
+        out["frame_index"] = np.repeat(np.arange(len(rows), dtype=np.int64), counts)
+        for key, dtype in (("types", np.int64), ("ids", str), ("velos", np.float64)):
+            if key not in per_frame:
+                continue
+            parts = [np.asarray([] if v is None else list(v)).astype(dtype) for v in per_frame[key]]
+            flat = np.concatenate(parts) if parts else np.zeros(0, dtype)
+            out[key] = flat.reshape(-1, 2) if key == "velos" else flat
+    for key, value in rest.items():
+        out[key] = np.asarray(value)
+    return out
