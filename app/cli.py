@@ -45,6 +45,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "view": ("app.view", "run the tracker with the Rerun visual debugger (file, viewer or web)"),
     "shots": ("app.shots", "headless screenshots of a recording at its ID switches and lag"),
     "inspect": ("app.inspect", "open a recording in the viewer at one ID event, focused"),
+    "compare": ("app.compare", "A/B diff of two runs: ID events fixed / introduced / kept"),
+    "report": ("app.report", "a static HTML report of a run (optionally vs another; --serve)"),
 }
 
 EPILOG = """examples:

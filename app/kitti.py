@@ -38,6 +38,9 @@ from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, 
 from tracker.io.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
 from tracker.pipeline import run_scene
 
+#: The per-sequence metrics kept in summary.json "per_sequence_metrics".
+PER_SEQUENCE_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "TP", "FN")
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_kitti_root_argument(parser)
@@ -287,6 +290,9 @@ def run_kitti(
     summary: dict[str, Any] = {
         "dataset": "kitti",
         "detector": detector,
+        "config_name": str(config_name),
+        "kitti_root": str(kitti_root),
+        "labels": str(label_dir),
         "sequences": [r.scene for r in records],
         "mode": config.mode.value,
         "classes": classes,
@@ -330,6 +336,10 @@ def run_kitti(
             summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
             summary["per_sequence"] = {
                 seq: {c: {k: m[k] for k in ("IDSW", "Frag")} for c, m in per.items()}
+                for seq, per in per_seq.items()
+            }
+            summary["per_sequence_metrics"] = {  # for mctrack compare / report
+                seq: {c: {k: m[k] for k in PER_SEQUENCE_METRICS} for c, m in per.items()}
                 for seq, per in per_seq.items()
             }
     if record is not None:

@@ -235,6 +235,7 @@ def kitti_id_events(
     classes: Sequence[str] = ("car", "pedestrian"),
     camera_name: str = "CAM_FRONT",
     result_file: str | Path | None = None,
+    num_timesteps: int | None = None,
 ) -> IdEvaluation:
     """ID switches and fragmentations of one KITTI sequence, as TrackEval's CLEAR counts them.
 
@@ -245,10 +246,12 @@ def kitti_id_events(
     label_file : the sequence's ``label_02/<seq>.txt``.
     classes : any of car, pedestrian, cyclist (cyclist as in :mod:`tracker.eval.kitti`).
     result_file : the KITTI result file of ``outputs`` when already written (saves writing it).
+    num_timesteps : the sequence length; default from ``frames`` and the labels (see
+        :func:`result_file_id_events` for a result file without its frames).
     """
     return kitti_evaluation_and_id_events(
         outputs, frames, label_file, classes=classes, camera_name=camera_name,
-        result_file=result_file,
+        result_file=result_file, num_timesteps=num_timesteps,
     )[1]  # fmt: skip
 
 
@@ -260,6 +263,7 @@ def kitti_evaluation_and_id_events(
     classes: Sequence[str] = ("car", "pedestrian"),
     camera_name: str = "CAM_FRONT",
     result_file: str | Path | None = None,
+    num_timesteps: int | None = None,
 ) -> tuple[SequenceEvaluation, IdEvaluation]:
     """One TrackEval evaluation of a sequence and its ID events from the same loading and
     preprocessing (:func:`tracker.eval.kitti.evaluate_kitti_sequence`)."""
@@ -270,7 +274,8 @@ def kitti_evaluation_and_id_events(
     unknown = [c for c in classes if c not in ("car", "pedestrian", "cyclist")]
     if unknown:
         raise ValueError(f"cannot evaluate classes {unknown} on KITTI labels")
-    num_timesteps = kitti_num_timesteps(label_file, frames)
+    if num_timesteps is None:
+        num_timesteps = kitti_num_timesteps(label_file, frames)
     with tempfile.TemporaryDirectory(prefix="mctrack-idsw-") as tmp:
         if result_file is None:
             result_file = Path(tmp) / f"{label_file.stem}.txt"
@@ -295,6 +300,26 @@ def id_events_of(evaluation: SequenceEvaluation) -> IdEvaluation:
         events, matches = clear_id_events(gt_ids, trk_ids, sims, frame_ids=range(n), category=name)
         per_category.append((name, events, matches))
     return _assemble("trackeval Kitti2DBox + CLEAR (2D IoU)", range(n), per_category)
+
+
+def result_file_id_events(
+    result_file: str | Path, label_file: str | Path, *, classes: Sequence[str]
+) -> IdEvaluation:
+    """:func:`kitti_id_events` of a finished run's KITTI result file (no frames at hand): the
+    sequence length is the last frame of the labels or the results, plus one."""
+    from tracker.errors import InputError
+
+    last = -1
+    for path in (label_file, result_file):
+        for n, line in enumerate(Path(path).read_text().splitlines(), 1):
+            if line.strip():
+                head = line.split(maxsplit=1)[0]
+                if not head.isdigit():
+                    raise InputError(f"{path}: line {n}: frame {head!r} is not a frame number")
+                last = max(last, int(head))
+    return kitti_id_events(
+        (), (), label_file, classes=classes, result_file=result_file, num_timesteps=last + 1
+    )
 
 
 def kitti_num_timesteps(label_file: str | Path, frames: Sequence[Frame]) -> int:

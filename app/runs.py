@@ -1,0 +1,281 @@
+"""A finished run, read back for `mctrack compare` and `mctrack report`.
+
+A run is either a `mctrack kitti` output folder (``summary.json``, ``data/<seq>.txt``, and with
+``--record`` ``recordings/<seq>.rrd``) or a ``tracks.json`` (BaseVersion + velocity) evaluated
+against a BaseVersion ground-truth file (``--gt``). Its ID events are recomputed from the
+result files with TrackEval's own matching (:func:`tracker.eval.id_switches.result_file_id_events`,
+the events the run's evaluation counted); where the run has a recording of a sequence, each
+event gets its cause and its ``#K`` from the recording's ``summary/index``.
+
+Everything read here is untrusted input: sequence names from ``summary.json`` only ever name
+files inside the run folder (:func:`tracker.io.fileio.path_in`), and the absolute paths a
+summary holds are not followed.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tracker.errors import InputError
+from tracker.eval.compare import Event, event_record
+from tracker.io.fileio import path_in
+
+
+@dataclass
+class Run:
+    """One run: its summary (as written, plus "path"), events and recordings per sequence."""
+
+    name: str
+    path: Path
+    summary: dict[str, Any]
+    events: list[Event]
+    recordings: dict[str, Path] = field(default_factory=dict)
+    kind: str = "kitti"  # "kitti" (a run folder) or "tracks" (a tracks.json with --gt)
+
+    @property
+    def folder(self) -> Path:
+        return self.path if self.path.is_dir() else self.path.parent
+
+
+def load_run(
+    path: str | Path, *, labels: Path | None = None, gt: Path | None = None, name: str | None = None
+) -> Run:
+    """Read a run folder or a tracks file (InputError naming the file and field when bad)."""
+    path = Path(path)
+    if path.is_dir():
+        return _load_kitti_run(path, labels, name or path.name)
+    if path.is_file():
+        if gt is None:
+            raise InputError(
+                f"{path}: a tracks file needs its ground truth: pass --gt GT.json "
+                "(or pass a `mctrack kitti --out` folder)"
+            )
+        return _load_tracks_run(path, gt, name or path.parent.name or path.name)
+    raise InputError(f"{path}: not found (pass a `mctrack kitti --out` folder or a tracks.json)")
+
+
+def read_summary(folder: Path) -> dict[str, Any]:
+    file = folder / "summary.json"
+    if not file.is_file():
+        raise InputError(
+            f"{folder}: no summary.json (not a finished `mctrack kitti --out` folder; an "
+            "interrupted run has none)"
+        )
+    try:
+        summary = json.loads(file.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise InputError(f"{file}: malformed JSON ({exc})") from None
+    if not isinstance(summary, dict):
+        raise InputError(f"{file}: expected a JSON object")
+    seqs = summary.get("sequences")
+    if not isinstance(seqs, list) or not all(isinstance(s, str) for s in seqs):
+        raise InputError(f"{file}: field 'sequences': expected a list of sequence names")
+    classes = summary.get("classes")
+    if not isinstance(classes, list) or not all(isinstance(c, str) for c in classes):
+        raise InputError(f"{file}: field 'classes': expected a list of class names")
+    for key in ("metrics", "per_sequence", "per_sequence_metrics", "motion", "causes"):
+        if key in summary and not isinstance(summary[key], dict | str):
+            raise InputError(f"{file}: field {key!r}: expected an object")
+    return summary
+
+
+def _label_dir(summary: dict[str, Any], labels: Path | None, file: Path) -> Path:
+    if labels is not None:
+        found = labels
+    elif isinstance(summary.get("labels"), str):
+        found = Path(summary["labels"])
+    else:
+        from app.inputs import default_kitti_root
+
+        found = default_kitti_root() / "training" / "label_02"
+    if not found.is_dir():
+        raise InputError(
+            f"{file}: labels folder {found} not found: pass --labels DIR (KITTI's label_02)"
+        )
+    return found
+
+
+def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
+    from tracker.eval.id_switches import result_file_id_events
+
+    summary = read_summary(folder)
+    summary["path"] = str(folder)
+    label_dir = _label_dir(summary, labels, folder / "summary.json")
+    classes = [c for c in summary["classes"] if c in ("car", "pedestrian", "cyclist")]
+    events: list[Event] = []
+    recordings: dict[str, Path] = {}
+    for seq in summary["sequences"]:
+        if seq in (summary.get("failed") or {}):
+            continue
+        result = path_in(folder / "data", seq, ".txt")
+        label = path_in(label_dir, seq, ".txt")
+        if not result.is_file():
+            raise InputError(f"{result}: missing (sequence {seq} of {folder / 'summary.json'})")
+        if not label.is_file():
+            raise InputError(f"{label}: missing: no labels for sequence {seq}; pass --labels DIR")
+        rec = path_in(folder / "recordings", seq, ".rrd")
+        index = _recording_index(rec) if rec.is_file() else None
+        if index is not None:
+            recordings[seq] = rec
+        # The recording already holds this evaluation's events (made from the same result
+        # file), 5x faster to read than TrackEval's replay; used when its counts agree.
+        found = _events_from_index(seq, index, label, summary) if index is not None else None
+        if found is not None:
+            events += found
+            continue
+        try:
+            evaluation = result_file_id_events(result, label, classes=classes)
+        except InputError:
+            raise
+        except Exception as exc:  # TrackEval's own exception for a malformed result file
+            if type(exc).__name__ != "TrackEvalException":
+                raise
+            raise InputError(f"{result}: {exc}") from None
+        events += _with_causes(seq, evaluation.events, index)
+    return Run(name, folder, summary, events, recordings, "kitti")
+
+
+_KITTI_CLASS = {"car": "car", "pedestrian": "pedestrian", "cyclist": "cyclist"}
+
+
+def _events_from_index(
+    seq: str, index: Any, label: Path, summary: dict[str, Any]
+) -> list[Event] | None:
+    """The recording's events, their class from the GT id's type in the label file; None when
+    the index lacks anything or its counts differ from the summary's (then: TrackEval)."""
+    n = len(index.event_frames)
+    lists = (
+        index.event_kinds,
+        index.event_gt_ids,
+        index.event_old_track_ids,
+        index.event_new_track_ids,
+        index.event_causes,
+    )
+    if any(len(x) != n for x in lists):
+        return None
+    types: dict[int, str] = {}
+    for line in label.read_text().splitlines():
+        parts = line.split()
+        if len(parts) > 2 and parts[1].lstrip("-").isdigit():
+            types[int(parts[1])] = parts[2].lower()
+    out: list[Event] = []
+    for k in range(n):
+        cls = _KITTI_CLASS.get(types.get(index.event_gt_ids[k], ""))
+        if cls is None:
+            return None
+        out.append(
+            {
+                "sequence": seq,
+                "kind": "Frag" if index.event_kinds[k] else "IDSW",
+                "frame": index.event_frames[k],
+                "class": cls,
+                "gt_id": index.event_gt_ids[k],
+                "old_track": index.event_old_track_ids[k],
+                "new_track": index.event_new_track_ids[k],
+                "last_frame": None,
+                "cause": index.event_causes[k],
+                "event": k,
+            }
+        )
+    counts = (summary.get("per_sequence") or {}).get(seq)
+    if not isinstance(counts, dict):
+        return None
+    for cls, per in counts.items():
+        for kind in ("IDSW", "Frag"):
+            got = sum(e["class"] == cls and e["kind"] == kind for e in out)
+            if not isinstance(per, dict) or per.get(kind) != got:
+                return None
+    return out
+
+
+def _recording_index(rec: Path) -> Any:
+    """The recording's ``summary/index`` (None when unreadable: the events then lack causes)."""
+    from viz.shots import read_shot_index
+
+    try:
+        return read_shot_index(rec)
+    except (RuntimeError, OSError, ValueError):
+        return None
+
+
+def _with_causes(seq: str, evts: Any, index: Any) -> list[Event]:
+    """Events as records; cause and ``#K`` from the recording index where its event matches
+    (same frame, GT id, kind, old and new track)."""
+    where: dict[tuple[int, int, int, int, int], int] = {}
+    if index is not None:
+        for k, f in enumerate(index.event_frames):
+            key = (
+                f,
+                index.event_gt_ids[k],
+                index.event_kinds[k],
+                index.event_old_track_ids[k],
+                index.event_new_track_ids[k],
+            )
+            where.setdefault(key, k)
+    out = []
+    for e in evts:
+        kind = 0 if e.kind.value == "id_switch" else 1
+        k = where.get((e.frame_id, e.gt_id, kind, e.old_track_id, e.new_track_id))
+        cause = index.event_causes[k] if k is not None and k < len(index.event_causes) else None
+        out.append(event_record(seq, e, cause=cause, index=k))
+    return out
+
+
+def _load_tracks_run(path: Path, gt: Path, name: str) -> Run:
+    """A tracks.json against a BaseVersion GT: events by the CLEAR replay with BEV IoU."""
+    import numpy as np
+
+    from tracker.eval.id_switches import bev_id_events
+    from tracker.events import TrackOutput
+    from tracker.io.baseversion import read_baseversion
+
+    tracks = read_baseversion(path)
+    truth = read_baseversion(gt)
+    events: list[Event] = []
+    counts: dict[str, dict[str, dict[str, int]]] = {}
+    for scene, frames in tracks.items():
+        if scene not in truth:
+            raise InputError(f"{gt}: no scene {scene!r} (it is in {path})")
+        outputs = [
+            TrackOutput(
+                scene,
+                f.frame_id,
+                f.timestamp_secs,
+                f.boxes,
+                np.zeros((len(f.boxes), 2)),
+                np.zeros(len(f.boxes), np.int8),
+                np.full(len(f.boxes), -1, np.int64),
+                np.zeros(len(f.boxes), np.int8),
+            )
+            for f in frames
+        ]
+        evaluation = bev_id_events(outputs, truth[scene])
+        counts[scene] = evaluation.counts
+        events += [event_record(scene, e) for e in evaluation.events]
+    totals: dict[str, dict[str, int]] = {}
+    for per in counts.values():
+        for cls, c in per.items():
+            t = totals.setdefault(cls, {"IDSW": 0, "Frag": 0})
+            t["IDSW"] += c["IDSW"]
+            t["Frag"] += c["Frag"]
+    summary = {
+        "path": str(path),
+        "dataset": "tracks",
+        "sequences": sorted(tracks),
+        "classes": sorted(totals),
+        "metrics": totals,
+        "per_sequence": counts,
+        "evaluator": "CLEAR replay with BEV IoU of the 3D boxes (IDSW, Frag only; no HOTA)",
+    }
+    return Run(name, path, summary, events, {}, "tracks")
+
+
+def run_names(a: Path, b: Path) -> tuple[str, str]:
+    """Short distinct names for two runs (their folder names, else their paths)."""
+    na, nb = a.name if a.is_dir() else a.parent.name, b.name if b.is_dir() else b.parent.name
+    if na and nb and na != nb:
+        return na, nb
+    return str(a), str(b)

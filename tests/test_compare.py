@@ -1,0 +1,216 @@
+"""`mctrack compare`: event matching, hand-made runs with known differences, and two real runs
+of a KITTI validation sequence with different configs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+from tests.report_fixtures import SEQ, make_runs
+from tracker.eval.compare import match_events
+
+
+def _event(frame: int, gt: int = 1, kind: str = "IDSW", seq: str = "0001", cls: str = "car"):
+    return {
+        "sequence": seq,
+        "kind": kind,
+        "frame": frame,
+        "class": cls,
+        "gt_id": gt,
+        "old_track": 1,
+        "new_track": 2,
+        "cause": None,
+        "event": None,
+    }
+
+
+def _statuses(pairs):
+    return [(p["status"], (p["a"] or p["b"])["frame"]) for p in pairs]
+
+
+def test_match_events_tolerance_is_inclusive_and_closest_first() -> None:
+    a = [_event(10), _event(20)]
+    b = [_event(12), _event(19), _event(40)]
+    pairs = match_events(a, b, tolerance=2)
+    # 20 pairs with 19 (1 apart), 10 with 12 (2 apart: inside), 40 has no partner
+    kept = sorted((p["a"]["frame"], p["b"]["frame"]) for p in pairs if p["status"] == "kept")
+    assert kept == [(10, 12), (20, 19)]
+    assert [p["b"]["frame"] for p in pairs if p["status"] == "introduced"] == [40]
+    assert not [p for p in pairs if p["status"] == "fixed"]
+    # one frame less tolerance: 10 and 12 are different events
+    pairs = match_events(a, b, tolerance=1)
+    assert sorted(_statuses(pairs)) == [
+        ("fixed", 10),
+        ("introduced", 12),
+        ("introduced", 40),
+        ("kept", 20),
+    ]
+
+
+def test_match_events_needs_same_sequence_kind_class_and_gt() -> None:
+    a = [_event(5), _event(5, gt=2), _event(5, kind="Frag"), _event(5, seq="0002")]
+    b = [_event(5, gt=3), _event(5, cls="pedestrian")]
+    pairs = match_events(a, b)
+    assert [p["status"] for p in pairs].count("kept") == 0
+    assert [p["status"] for p in pairs].count("fixed") == 4
+    assert [p["status"] for p in pairs].count("introduced") == 2
+    with pytest.raises(ValueError):
+        match_events(a, b, tolerance=-1)
+
+
+def test_compare_hand_made_runs(tmp_path: Path, capsys) -> None:
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    result = json.loads((out / "compare.json").read_text())
+    got = {
+        p["status"]: (
+            (p["a"] or p["b"])["gt_id"],
+            p["a"] and p["a"]["frame"],
+            p["b"] and p["b"]["frame"],
+        )
+        for p in result["events"]
+    }
+    assert len(result["events"]) == 3
+    assert got == {"fixed": (1, 5, None), "kept": (2, 3, 4), "introduced": (3, None, 6)}
+    fixed = next(p["a"] for p in result["events"] if p["status"] == "fixed")
+    assert (fixed["old_track"], fixed["new_track"], fixed["kind"]) == (1, 2, "IDSW")
+    assert result["counts"][SEQ]["car IDSW"] == {"fixed": 1, "introduced": 1, "kept": 1}
+    assert result["metrics"]["car"]["HOTA"] == {"a": 90.0, "b": 95.0, "delta": 5.0}
+    assert (
+        result["metrics"]["car"]["IDSW"]["delta"] == 0
+    )  # 2 -> 2: the same count, not the same switches
+    md = (out / "compare.md").read_text()
+    assert "- 0001 f5 car GT1 T1->T2 IDSW" in md and "- 0001 f6 car GT3 T5->T6 IDSW" in md
+    # a tolerance of 0: the kept switch moved one frame, so it counts as fixed + introduced
+    assert main(["compare", str(a), str(b), "--out", str(out), "--tolerance", "0"]) == 0
+    result = json.loads((out / "compare.json").read_text())
+    assert result["counts"]["total"]["car IDSW"] == {"fixed": 2, "introduced": 2, "kept": 0}
+
+
+def test_compare_bad_input_is_one_line(tmp_path: Path, capsys) -> None:
+    a, b, _ = make_runs(tmp_path)
+    (b / "summary.json").write_text('{"sequences": "0001"}')
+    assert main(["compare", str(a), str(b), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "summary.json" in err and "'sequences'" in err
+    shutil.rmtree(b)
+    assert main(["compare", str(a), str(b), "--out", str(tmp_path / "o")]) == 2
+    assert "not found" in capsys.readouterr().err
+    # a result file with a non-numeric frame names the file and the line
+    a2, b2, _ = make_runs(tmp_path / "again")
+    data = b2 / "data" / f"{SEQ}.txt"
+    data.write_text("x" + data.read_text())
+    assert main(["compare", str(a2), str(b2), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"{SEQ}.txt" in err and "line 1" in err
+    # a sequence name from summary.json never leaves the run folder
+    a3, b3, _ = make_runs(tmp_path / "third")
+    s = json.loads((b3 / "summary.json").read_text())
+    s["sequences"] = ["../../etc/passwd"]
+    (b3 / "summary.json").write_text(json.dumps(s))
+    assert main(["compare", str(a3), str(b3), "--out", str(tmp_path / "o")]) == 2
+    assert "missing" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------------------------------------
+# Two real runs of a validation sequence: the tuned config (recorded) and kitti_reference
+
+
+def test_compare_real_runs_accounts_for_every_switch(real_runs, capsys) -> None:
+    root, ref, tuned = real_runs
+    out = root / "cmp"
+    args = ["compare", str(root / "reference"), str(root / "kitti"), "--out", str(out), "--record"]
+    assert main(args) == 0
+    result = json.loads((out / "compare.json").read_text())
+    total = result["counts"]["total"]
+    for kind in ("IDSW", "Frag"):
+        c = total.get(f"pedestrian {kind}", {"fixed": 0, "introduced": 0, "kept": 0})
+        # every event of A is fixed or kept, every event of B introduced or kept
+        assert c["fixed"] + c["kept"] == ref["metrics"]["pedestrian"][kind]
+        assert c["introduced"] + c["kept"] == tuned["metrics"]["pedestrian"][kind]
+    assert ref["metrics"]["pedestrian"]["IDSW"] != tuned["metrics"]["pedestrian"]["IDSW"]
+    hota = result["metrics"]["pedestrian"]["HOTA"]
+    assert hota["delta"] == pytest.approx(
+        tuned["metrics"]["pedestrian"]["HOTA"] - ref["metrics"]["pedestrian"]["HOTA"], abs=1e-3
+    )
+    assert result["per_sequence"]["0016"]["pedestrian"]["HOTA"]["a"] == pytest.approx(
+        ref["metrics"]["pedestrian"]["HOTA"]
+    )
+    # B was recorded: its events carry causes and their #K in the recording; A's do not
+    b_events = [p["b"] for p in result["events"] if p["b"] is not None]
+    assert b_events and all(e["cause"] and e["event"] is not None for e in b_events)
+    assert all(p["a"]["cause"] is None for p in result["events"] if p["a"] is not None)
+    # the side-by-side recording: both runs' tracks and the fixed / introduced events
+    from tests.test_viz import entity_table
+
+    rrd = Path(result["recordings"]["0016"])
+    assert rrd.is_file()
+    for entity in ("/world/a/tracks", "/world/b/tracks", "/world/gt"):
+        assert entity_table(rrd, entity).num_rows > 100
+    log = entity_table(rrd, "/events")
+    n_listed = sum(p["status"] != "kept" for p in result["events"])
+    assert log.num_rows == n_listed > 0
+
+
+def test_events_read_from_the_recording_equal_the_trackeval_replay(real_runs) -> None:
+    """A recorded run's events come from its recording (fast); they are TrackEval's."""
+    from app import runs
+    from tracker.eval.id_switches import result_file_id_events
+
+    root, _, tuned = real_runs
+    folder = root / "kitti"
+    run = runs.load_run(folder)
+    assert run.recordings  # the fast path was available
+    label = Path(tuned["labels"]) / "0016.txt"
+    replay = result_file_id_events(folder / "data" / "0016.txt", label, classes=["pedestrian"])
+    index = runs._recording_index(run.recordings["0016"])
+    slow = runs._with_causes("0016", replay.events, index)
+
+    def key(e):
+        return tuple(
+            e[k]
+            for k in ("frame", "class", "gt_id", "kind", "old_track", "new_track", "cause", "event")
+        )
+
+    assert sorted(map(key, run.events)) == sorted(map(key, slow))
+    assert len(slow) == sum(tuned["metrics"]["pedestrian"][k] for k in ("IDSW", "Frag"))
+
+
+def test_compare_tracks_files_against_the_same_ground_truth(tmp_path: Path) -> None:
+    """Two tracks.json with --gt: the ground truth itself (no switch) and a copy in which one
+    object changes id at frame 100 (one switch, introduced), by the BEV-IoU CLEAR replay."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from tracker.io.baseversion import read_baseversion, write_baseversion
+
+    gt_file = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001" / "gt.json.gz"
+    gt = read_baseversion(gt_file, fallback_frame_rate_hz=10.0)
+    frames = gt["0001"]
+    target = int(frames[100].boxes.track_id[0])
+    changed = []
+    for f in frames:
+        ids = f.boxes.track_id.copy()
+        if f.frame_id >= 100:
+            ids[ids == target] = 10_000
+        changed.append(replace(f, boxes=f.boxes.replace(track_id=ids)))
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    write_baseversion(tmp_path / "a" / "tracks.json", gt)
+    write_baseversion(tmp_path / "b" / "tracks.json", {"0001": changed})
+    out = tmp_path / "cmp"
+    args = ["compare", str(tmp_path / "a" / "tracks.json"), str(tmp_path / "b" / "tracks.json")]
+    assert main([*args, "--gt", str(gt_file), "--out", str(out)]) == 0
+    result = json.loads((out / "compare.json").read_text())
+    assert [p["status"] for p in result["events"]] == ["introduced"]
+    e = result["events"][0]["b"]
+    assert (e["frame"], e["gt_id"], e["new_track"], e["kind"]) == (100, target, 10_000, "IDSW")
+    assert np.isclose(result["metrics"][e["class"]]["IDSW"]["delta"], 1)
+    # without --gt: one line saying what is missing
+    assert main([*args, "--out", str(out)]) == 2

@@ -1,0 +1,258 @@
+"""`mctrack report`: the static page, in a real browser (headless Chromium driven by
+Playwright), and `--serve` (page, recordings and Rerun's web viewer on loopback).
+
+The browser tests skip with the reason where Chromium or Playwright is absent (`.ci/run`
+installs Debian's chromium; Playwright comes with the `dev` extra and drives the system
+browser, it downloads none). Set MCTRACK_REPORT_SCREENSHOT=DIR to keep the screenshots."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+from tests.report_fixtures import SEQ, make_runs
+
+
+def chromium_path() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome"):
+        found = shutil.which(name)
+        if found:
+            return found
+    return None
+
+
+@pytest.fixture(scope="module")
+def browser():
+    exe = chromium_path()
+    if exe is None:
+        pytest.skip("no Chromium (apt-get install -y chromium): browser tests skipped")
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        pytest.skip("playwright not installed (pip install -e '.[dev]'): browser tests skipped")
+    with sync_playwright() as pw:
+        b = pw.chromium.launch(
+            executable_path=exe,
+            # the web viewer needs WebGL: Chromium's software renderer, explicitly allowed
+            args=["--no-sandbox", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"],
+        )
+        yield b
+        b.close()
+
+
+def _keep_screenshot(path: Path) -> None:
+    keep = os.environ.get("MCTRACK_REPORT_SCREENSHOT")
+    if keep:
+        Path(keep).mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path, Path(keep) / path.name)
+
+
+def check_page(browser, index: Path, screenshot: Path) -> dict:
+    """Open ``index`` from disk; every image loaded, no console error; a full-page screenshot.
+    Returns what the page shows: event rows, images."""
+    page = browser.new_page(viewport={"width": 1400, "height": 900})
+    errors: list[str] = []
+    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.on("requestfailed", lambda r: errors.append(f"request failed: {r.url}"))
+    page.goto(index.resolve().as_uri())
+    page.wait_for_load_state("load")
+    images = page.eval_on_selector_all(
+        "img", "els => els.map(e => [e.getAttribute('src'), e.complete, e.naturalWidth])"
+    )
+    rows = page.eval_on_selector_all(
+        "#events-table tbody tr", "els => els.map(r => Array.from(r.cells, c => c.innerText))"
+    )
+    headers = page.eval_on_selector_all(
+        "#events-table thead th", "els => els.map(e => e.innerText)"
+    )
+    # sorting: a click on "frame" orders the rows by frame, a second one reverses them
+    sorted_frames = []
+    if rows:
+        col = headers.index("frame")
+        for _ in range(2):
+            page.click(f"#events-table thead th:nth-child({col + 1})")
+            sorted_frames.append(
+                page.eval_on_selector_all(
+                    "#events-table tbody tr",
+                    f"els => els.map(r => parseInt(r.cells[{col}].innerText))",
+                )
+            )
+    page.screenshot(path=str(screenshot), full_page=True)
+    _keep_screenshot(screenshot)
+    page.close()
+    assert not errors, errors
+    assert images, "no images on the page"
+    bad = [src for src, complete, width in images if not complete or width <= 0]
+    assert not bad, f"images not loaded: {bad}"
+    assert screenshot.stat().st_size > 20_000
+    return {"rows": rows, "headers": headers, "images": images, "sorted": sorted_frames}
+
+
+def test_report_hand_made_compare(tmp_path: Path, browser) -> None:
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 0
+    assert (out / "index.html").is_file() and (out / "compare.json").is_file()
+    assert (out / "plots" / "idsw_per_sequence.svg").is_file()
+    seen = check_page(browser, out / "index.html", tmp_path / "report_hand_made.png")
+    rows, headers = seen["rows"], seen["headers"]
+    assert len(rows) == 3
+    status, gt, frame = headers.index("status"), headers.index("GT"), headers.index("frame")
+    got = sorted((r[status], r[gt], r[frame]) for r in rows)
+    # the kept switch is shown as in B (frame 4; A had it at 3)
+    assert got == [("fixed", "1", "5"), ("introduced", "3", "6"), ("kept", "2", "4")]
+    asc, desc = seen["sorted"]
+    assert asc == sorted(asc) and desc == sorted(asc, reverse=True)
+
+
+def test_report_of_one_run_is_self_contained(tmp_path: Path) -> None:
+    a, _, _ = make_runs(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    html = (out / "index.html").read_text()
+    assert "http://" not in html and "https://" not in html  # no network
+    assert html.count("<tr>") >= 2 + 1  # two events (header rows aside)
+    assert "mctrack kitti --record" in html  # says how to get recordings, causes and links
+    files = {p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()}
+    assert files == {"index.html", "plots/hota.svg", "plots/idsw_per_sequence.svg"}
+
+
+def test_report_real_runs_in_browser(real_runs, tmp_path: Path, browser) -> None:
+    root, _, _ = real_runs
+    out = tmp_path / "report"
+    t0 = time.perf_counter()
+    assert (
+        main(
+            ["report", str(root / "kitti"), "--compare", str(root / "reference"), "--out", str(out)]
+        )
+        == 0
+    )
+    assert time.perf_counter() - t0 < 30
+    result = json.loads((out / "compare.json").read_text())
+    seen = check_page(browser, out / "index.html", tmp_path / "report_0016.png")
+    assert len(seen["rows"]) == len(result["events"]) > 20
+    srcs = {src for src, _, _ in seen["images"]}
+    assert {"plots/hota.svg", "plots/idsw_per_sequence.svg", "plots/motion_velocity.png"} <= srcs
+    # A (the tuned run) was recorded: each of its events has the command that opens it
+    headers = seen["headers"]
+    cmd = headers.index("open at the event")
+    a_rows = [r for r in seen["rows"] if r[headers.index("run")].startswith("A")]
+    assert a_rows and all("mctrack inspect" in r[cmd] and "--event" in r[cmd] for r in a_rows)
+
+
+# ---------------------------------------------------------------------------------------------
+# --serve
+
+
+def _tiny_recording(path: Path, frames: int = 20) -> Path:
+    import rerun as rr
+
+    rec = rr.RecordingStream("mctrack_studio", recording_id="tiny")
+    rec.save(str(path))
+    for f in range(frames):
+        rec.set_time("frame", sequence=f)
+        rec.log("world/box", rr.Boxes3D(centers=[[f, 0, 0]], half_sizes=[[1, 1, 1]]))
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
+def _get(url: str) -> tuple[int, bytes]:
+    try:
+        with urllib.request.urlopen(url, timeout=60) as r:
+            return r.status, r.read()
+    except urllib.error.HTTPError as exc:
+        return exc.code, b""
+
+
+@pytest.fixture
+def served_report(tmp_path: Path):
+    from app.runs import load_run
+    from app.serve import report_server
+
+    a, _, _ = make_runs(tmp_path)
+    (a / "recordings").mkdir()
+    rec = _tiny_recording(a / "recordings" / f"{SEQ}.rrd")
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    run = load_run(a)
+    assert run.recordings == {SEQ: rec}
+    with report_server(out, {f"a/{SEQ}": rec}) as (server, url):
+        yield server, url, rec, out
+
+
+def test_serve_answers_on_loopback(served_report) -> None:
+    server, url, rec, _ = served_report
+    assert url.startswith("http://127.0.0.1:")
+    assert server.server_address[0] == "127.0.0.1"
+    status, page = _get(url)
+    assert status == 200 and b"MCTrack report" in page
+    status, info = _get(url + "serve.json")
+    assert status == 200 and json.loads(info)["recordings"] == [f"a/{SEQ}"]
+    status, data = _get(f"{url}recordings/a/{SEQ}.rrd")
+    assert status == 200 and data == rec.read_bytes()
+    status, viewer = _get(url + "viewer/")
+    assert status == 200 and b"re_viewer.js" in viewer and b"set_time_cursor" in viewer
+    assert b"fonts.googleapis" not in viewer  # no network
+    status, js = _get(url + "viewer/re_viewer.js")
+    assert status == 200 and b"WebHandle" in js
+    status, wasm = _get(url + "viewer/re_viewer_bg.wasm")
+    assert status == 200 and wasm[:4] == b"\0asm"
+    # nothing outside the report folder and the listed recordings
+    for bad in (
+        "../../etc/passwd",
+        "%2e%2e/%2e%2e/etc/passwd",
+        f"recordings/a/..%2f{SEQ}.rrd",
+        "recordings/b/0001.rrd",
+        "viewer/..%2f..%2fetc%2fpasswd",
+    ):
+        assert _get(url + bad)[0] == 404, bad
+
+
+def test_serve_event_link_opens_the_viewer_at_the_frame(served_report, browser) -> None:
+    _, url, _, _ = served_report
+    page = browser.new_page(viewport={"width": 1200, "height": 800})
+    page.goto(url)
+    link = page.wait_for_selector("a.live:not([hidden])", timeout=10_000)
+    frame = int(link.get_attribute("data-frame"))
+    assert frame == 3  # the first event: GT2's switch at frame 3 (rows in frame order)
+    link.click()
+    page.wait_for_function("window.mctrackSeeked !== undefined", timeout=150_000)
+    assert page.evaluate("window.mctrackSeeked") == frame
+    # the viewer's own state (GetStateResponse protobuf): timeline "frame" with the cursor at
+    # the frame (TimelineTime{time: frame} = 0x08 varint)
+    state = bytes(page.evaluate("Array.from(window._handle.viewer_state())"))
+    assert b"\n\x05frame" in state and bytes([0x08, frame]) in state
+    page.close()
+
+
+def test_serve_stops_cleanly(tmp_path: Path, monkeypatch) -> None:
+    """After the ``with``: the port refuses connections and the viewer process has ended."""
+    from app import serve
+
+    made: list = []
+    original = serve.ViewerAssets.__init__
+
+    def spy(self, *args, **kwargs):
+        original(self, *args, **kwargs)
+        made.append(self)
+
+    monkeypatch.setattr(serve.ViewerAssets, "__init__", spy)
+    a, _, _ = make_runs(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    with serve.report_server(out, {}) as (_, url):
+        assert _get(url)[0] == 200 and _get(url + "viewer/")[0] == 200
+        assert made[0].process.poll() is None
+    with pytest.raises(urllib.error.URLError):
+        urllib.request.urlopen(url, timeout=5)
+    assert len(made) == 1 and made[0].process.poll() is not None
