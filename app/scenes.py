@@ -209,26 +209,41 @@ def _run_pool(
         done(SceneRecord(i, scene, error=f"worker process died {MAX_RETRIES + 1} times"))
 
 
-def _run_ray(
-    job: SceneJob, items: list[Item], parallel: Parallelism, done: Callable[[SceneRecord], None]
-) -> None:
-    """Ray tasks (one per scene, one CPU each, retried when their worker dies)."""
+def import_ray() -> Any:
+    """The ``ray`` module, or the one-line error saying how to install the extra."""
     try:
         import ray
     except ImportError:
         raise InputError("--ray needs Ray, an optional extra: pip install -e '.[ray]'") from None
-    started = False
-    if not ray.is_initialized():  # a caller (or a test) may have connected already
-        if parallel.ray == LOCAL:
-            ray.init(
-                address="local",
-                num_cpus=parallel.workers if parallel.workers > 1 else None,
-                include_dashboard=False,
-                _node_ip_address="127.0.0.1",  # a local instance listens on loopback only
-            )
-        else:
-            ray.init(address=parallel.ray)
-        started = True
+    return ray
+
+
+def connect_ray(address: str, num_cpus: int | None) -> bool:
+    """Connect to Ray: :data:`LOCAL` starts an instance on loopback with ``num_cpus`` (None: all
+    of this machine's), anything else joins a cluster. True when this call started the
+    connection (the caller then shuts it down); False when one was already open (a caller or
+    a test connected first)."""
+    ray = import_ray()
+    if ray.is_initialized():
+        return False
+    if address == LOCAL:
+        ray.init(
+            address="local",
+            num_cpus=num_cpus,
+            include_dashboard=False,
+            _node_ip_address="127.0.0.1",  # a local instance listens on loopback only
+        )
+    else:
+        ray.init(address=address)
+    return True
+
+
+def _run_ray(
+    job: SceneJob, items: list[Item], parallel: Parallelism, done: Callable[[SceneRecord], None]
+) -> None:
+    """Ray tasks (one per scene, one CPU each, retried when their worker dies)."""
+    ray = import_ray()
+    started = connect_ray(parallel.ray or LOCAL, parallel.workers if parallel.workers > 1 else None)
     try:
         task = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)(run_task)
         job_ref = ray.put(job)  # shipped once, not once per scene

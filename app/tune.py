@@ -26,7 +26,8 @@ import multiprocessing
 import shutil
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -109,7 +110,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=2,
         help="parallel evaluations (default: %(default)s)",
     )
+    parser.add_argument(
+        "--seqs",
+        default=",".join(VALIDATION_SEQS),
+        help="labelled sequences the folds are made of (default: the 11 validation sequences)",
+    )
     parser.add_argument("--out", required=True, help="output folder (tune.json, best.toml)")
+    parser.add_argument(
+        "--ray",
+        nargs="?",
+        const="local",
+        default=None,
+        metavar="ADDRESS",
+        help="run the trials on Ray Tune: no ADDRESS starts a local instance (--workers CPUs), "
+        "'auto' joins the running cluster; the same --out again resumes (docs/scale.md)",
+    )
+    parser.add_argument(
+        "--max-concurrent",
+        type=positive_int,
+        default=None,
+        help="with --ray: trials at once (default: the cluster's CPUs)",
+    )
 
 
 def folds_by_frames(lengths: dict[str, int], k: int) -> list[list[str]]:
@@ -158,6 +179,70 @@ def settings_to_overrides(cls: str, params: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+Trials = list[tuple[dict[str, Any], float]]  # (settings, objective) per trial, in trial order
+
+
+def startup_trials(trials: int) -> int:
+    """Random trials before TPE models the objective: a third of the budget, at least 4."""
+    return max(4, trials // 3)
+
+
+def make_sampler(seed: int, n_startup: int) -> Any:
+    """The search algorithm of every backend (local and Ray Tune): Optuna's TPE, seeded."""
+    import optuna
+
+    return optuna.samplers.TPESampler(seed=seed, n_startup_trials=n_startup)
+
+
+def best_trial(trials: Trials) -> tuple[dict[str, Any], float]:
+    """The first trial with the highest objective (Optuna's own rule for ties)."""
+    params, value = trials[0]
+    for p, v in trials[1:]:
+        if v > value:
+            params, value = p, v
+    return params, value
+
+
+@dataclass(frozen=True, slots=True)
+class Objective:
+    """What a trial computes: each (detector, noise level) tracks ``seqs`` with the trial's
+    settings and is scored; :func:`objective_value` averages them. One definition for the local
+    pool and the Ray Tune trials (app/tune_ray.py)."""
+
+    detectors: tuple[str, ...]
+    levels: tuple[str, ...]
+    config_name: str
+    base: dict[str, Any]
+    cls: str
+    label_dir: str
+
+    @property
+    def runs(self) -> list[tuple[str, str]]:
+        return [(det, level) for det in self.detectors for level in self.levels]
+
+    def tasks(
+        self, key: str, seqs: Sequence[str], params: dict[str, Any], work: Path, evaluate: bool
+    ) -> list[tuple[Any, ...]]:
+        """One :func:`_track_and_score` task per run, reading ``_FRAMES[(det, key, level)]``
+        and writing ``work/<detector>/<level>``."""
+        overrides = {**self.base, **settings_to_overrides(self.cls, params)}  # disjoint keys
+        return [((det, key, level), list(seqs), self.config_name, overrides,
+                 str(work / det / level), self.label_dir, self.cls, evaluate)
+                for det, level in self.runs]  # fmt: skip
+
+    def metrics(
+        self,
+        key: str,
+        seqs: Sequence[str],
+        params: dict[str, Any],
+        work: Path,
+        map_fn: Callable[[Callable, Iterable], Iterable] = map,
+    ) -> dict[tuple[str, str], dict[str, Any]]:
+        """{(detector, level): metrics} of one setting on ``seqs``."""
+        results = map_fn(_track_and_score, self.tasks(key, seqs, params, work, True))
+        return dict(zip(self.runs, results, strict=True))
+
+
 def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
     """One detector: track ``seqs`` with the overrides, write KITTI files to ``result_dir``,
     and (when ``evaluate``) score them. Runs in a forked worker reading ``_FRAMES``."""
@@ -193,21 +278,42 @@ def run(args: argparse.Namespace) -> int:
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     levels = [CLEAN, *noise_levels(args.noise)]  # before any work: a typo fails at once
+    if args.ray is not None:
+        from app.scenes import import_ray
+
+        import_ray()  # the one-line error when the extra is not installed, before any work
+    elif args.max_concurrent is not None:
+        raise InputError("--max-concurrent needs --ray (local trials run one at a time)")
     root = args.kitti_root or default_kitti_root()
     detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
+    seqs = [s.strip().zfill(4) for s in args.seqs.split(",") if s.strip()]
+    if len(seqs) < args.folds:
+        raise InputError(f"--folds {args.folds} needs at least as many --seqs (got {len(seqs)})")
     for detector in detectors:
-        check_kitti_root(root, seqs=VALIDATION_SEQS, detector=detector)
+        check_kitti_root(root, seqs=seqs, detector=detector)
     label_dir = root / "training" / "label_02"
+    unlabelled = [s for s in seqs if not (label_dir / f"{s}.txt").is_file()]
+    if unlabelled:
+        raise InputError(f"--seqs: no labels for {', '.join(unlabelled)} in {label_dir}")
     cls = args.cls
     space = OFFLINE_SPACE if args.mode == "offline" else ONLINE_SPACE
     config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
     base = {"categories": [cls], "mode": args.mode}
     load_config(config_name, overrides=base)  # fail early on a bad config
+    out = Path(args.out)
+    ray_search = None
+    if args.ray is not None:
+        try:
+            from app.tune_ray import RaySearch
+        except ImportError:  # Ray without Ray Tune's dependencies
+            raise InputError("--ray needs Ray Tune: pip install -e '.[ray]'") from None
+
+        ray_search = RaySearch.from_args(args, out, root, seqs)  # refuses a changed command
 
     raw: dict[str, dict[str, list[Frame]]] = {}
     gt: dict[str, dict[str, list[Frame]]] = {}
     for det in detectors:
-        raw[det], labels = convert_kitti(root, seqs=VALIDATION_SEQS, detector=det, classes=[cls])
+        raw[det], labels = convert_kitti(root, seqs=seqs, detector=det, classes=[cls])
         gt[det] = labels or {}
     lengths = {s: len(f) for s, f in raw[detectors[0]].items()}
     folds = folds_by_frames(lengths, args.folds)
@@ -233,12 +339,11 @@ def run(args: argparse.Namespace) -> int:
                     }
                 )
 
-    out = Path(args.out)
+    objective = Objective(tuple(detectors), tuple(levels), config_name, base, cls, str(label_dir))
+    first = _current(config_name, base, cls, space)
+    n_startup = startup_trials(args.trials)
     work = Path(tempfile.mkdtemp(prefix="mctrack-tune-"))
     total = args.trials * (len(folds) + 1)
-    # random trials before TPE models the objective: a third of the budget, at least 4
-    n_startup = max(4, args.trials // 3)
-    runs = [(det, level) for det in detectors for level in levels]
     ctx = multiprocessing.get_context("fork")
     record: dict[str, Any] = {
         "class": cls, "mode": args.mode, "config": config_name, "detectors": detectors,
@@ -249,68 +354,76 @@ def run(args: argparse.Namespace) -> int:
     }  # fmt: skip
     start = time.perf_counter()
     try:
+        # the pool forks before Ray starts (a forked Ray driver is unsafe)
         with ctx.Pool(max(1, args.workers)) as pool, tqdm(total=total, unit="trial") as bar:
 
-            def score(key: str, seqs: Sequence[str], params: dict[str, Any], tag: str) -> dict:
-                """{(detector, level): metrics} of one setting on ``seqs``."""
-                overrides = {**base, **settings_to_overrides(cls, params)}  # disjoint keys
-                tasks = [((det, key, level), list(seqs), config_name, overrides,
-                          str(work / tag / det / level), str(label_dir), cls, True)
-                         for det, level in runs]  # fmt: skip
-                return dict(zip(runs, pool.map(_track_and_score, tasks), strict=True))
-
-            def search(key: str, seqs: Sequence[str], seed: int) -> tuple[dict, float]:
+            def local_search(key: str, seqs: Sequence[str], seed: int) -> Trials:
                 study = optuna.create_study(
-                    direction="maximize",
-                    sampler=optuna.samplers.TPESampler(seed=seed, n_startup_trials=n_startup),
+                    direction="maximize", sampler=make_sampler(seed, n_startup)
                 )
-                study.enqueue_trial(_current(config_name, base, cls, space))
+                study.enqueue_trial(first)
 
-                def objective(trial: optuna.Trial) -> float:
-                    params = _suggest(trial, space)
-                    metrics = score(key, seqs, params, f"{key}-trial")
+                def trial_value(trial: optuna.Trial) -> float:
+                    params = suggest(trial, space)
+                    metrics = objective.metrics(key, seqs, params, work / f"{key}-trial", pool.map)
                     bar.update(1)
                     return objective_value(metrics)
 
-                study.optimize(objective, n_trials=args.trials)
-                return study.best_params, study.best_value
+                study.optimize(trial_value, n_trials=args.trials)
+                return [(t.params, t.value) for t in study.trials]
+
+            if ray_search is None:
+                search: Callable[[str, Sequence[str], int], Trials] = local_search
+            else:
+                search = ray_search.start(objective, space, first, n_startup, _FRAMES, bar.update)
 
             record["cv"] = []
             for k, test in enumerate(folds):
                 train = [s for s in lengths if s not in test]
-                params, value = search(f"fold{k}", train, args.seed + k)
+                trials = search(f"fold{k}", train, args.seed + k)
+                params, value = best_trial(trials)
                 # the held-out fold, tracked with the settings its search chose
-                overrides = {**base, **settings_to_overrides(cls, params)}  # disjoint keys
-                pool.map(_track_and_score, [
-                    ((det, f"fold{k}", level), test, config_name, overrides,
-                     str(work / "heldout" / det / level), str(label_dir), cls, False)
-                    for det, level in runs
-                ])  # fmt: skip
-                record["cv"].append(
-                    {"test": test, "best": params, "train_objective": round(value, 3)}
-                )
+                heldout_tasks = objective.tasks(f"fold{k}", test, params, work / "heldout", False)
+                pool.map(_track_and_score, heldout_tasks)
+                record["cv"].append({"test": test, "best": params,
+                                     "train_objective": round(value, 3),
+                                     "trials": _trial_list(trials)})  # fmt: skip
             heldout = {
                 (det, level): _evaluate_dir(work / "heldout" / det / level, label_dir, lengths, cls)
-                for det, level in runs
+                for det, level in objective.runs
             }
             record["cross_validated"] = {det: heldout[(det, CLEAN)] for det in detectors}
             record["cross_validated_noise"] = _by_level(heldout, levels)
-            params, value = search("all", list(lengths), args.seed + 100)
-            final = score("all", list(lengths), params, "final")
+            trials = search("all", list(lengths), args.seed + 100)
+            params, value = best_trial(trials)
+            final = objective.metrics("all", list(lengths), params, work / "final", pool.map)
             record["final"] = {
                 "best": params,
                 "overrides": settings_to_overrides(cls, params),
                 "objective": round(value, 3),
                 "in_sample": {det: final[(det, CLEAN)] for det in detectors},
                 "in_sample_noise": _by_level(final, levels),
+                "trials": _trial_list(trials),
             }
+            if ray_search is not None:
+                record["ray"] = ray_search.describe()
+    except KeyboardInterrupt:
+        if ray_search is not None:
+            ray_search.interrupted()  # says how to resume
+        raise
     finally:
+        if ray_search is not None:
+            ray_search.stop()
         shutil.rmtree(work, ignore_errors=True)
     record["seconds"] = round(time.perf_counter() - start, 1)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "tune.json", [json.dumps(record, indent=2)])
     _print(record)
     return 0
+
+
+def _trial_list(trials: Trials) -> list[dict[str, Any]]:
+    return [{"params": p, "objective": round(v, 3)} for p, v in trials]
 
 
 def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> dict[str, Any]:
@@ -337,13 +450,15 @@ def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> d
     return values
 
 
-def _suggest(trial: Any, space: dict[str, tuple[str, float, float]]) -> dict[str, Any]:
-    suggest: dict[str, Callable[..., Any]] = {
+def suggest(trial: Any, space: dict[str, tuple[str, float, float]]) -> dict[str, Any]:
+    """The search space, drawn by an Optuna trial (define-by-run: Ray Tune's OptunaSearch calls
+    the same function, app/tune_ray.py)."""
+    draw: dict[str, Callable[..., Any]] = {
         "int": lambda k, lo, hi: trial.suggest_int(k, int(lo), int(hi)),
         "float": lambda k, lo, hi: trial.suggest_float(k, lo, hi),
         "log": lambda k, lo, hi: trial.suggest_float(k, lo, hi, log=True),
     }
-    return {key: suggest[kind](key, lo, hi) for key, (kind, lo, hi) in space.items()}
+    return {key: draw[kind](key, lo, hi) for key, (kind, lo, hi) in space.items()}
 
 
 def _by_level(

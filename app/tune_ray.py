@@ -1,0 +1,306 @@
+"""`mctrack tune --ray [ADDRESS]`: the tuning searches as Ray Tune experiments.
+
+Same search as the local path (app/tune.py), not a copy of it: the same Optuna TPE sampler and
+seed (:func:`app.tune.make_sampler`, wrapped by Ray's ``OptunaSearch``), the same search space
+(:func:`app.tune.suggest`, a define-by-run function), the same first trial (the base config's
+values), and the same objective (:class:`app.tune.Objective`). What differs is where trials
+run: one Ray Tune trial per Optuna trial, up to ``--max-concurrent`` at once, each on one CPU
+and tracking its detectors and sequences one after another. With ``--max-concurrent 1`` the
+proposals are the local path's, trial for trial; with more, TPE proposes while earlier trials
+are still running, so the trials depend on which finish first.
+
+Resume: each search is one Ray Tune experiment, ``OUT/ray_tune/<search>`` (fold0, fold1, ...,
+all). Run the same command again after an interruption and a finished search is read back, an
+unfinished one continues from its saved state (``Tuner.restore``): finished trials are kept and
+the trials that were running start again. ``OUT/ray_tune/run.json`` holds the options the run
+was started with; a different command line on the same ``--out`` is refused. Ray Tune saves its
+state with pickle, so resume only from a folder this command wrote.
+
+This module imports Ray; app/tune.py imports it only for ``--ray``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import hashlib
+import json
+import os
+import shutil
+import signal
+import sys
+import tempfile
+import threading
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import ray
+from ray import tune
+from ray.tune.search import ConcurrencyLimiter
+from ray.tune.search.optuna import OptunaSearch
+
+from app import scenes
+from app.tune import Objective, Trials, make_sampler, objective_value, suggest
+from tracker.config import config_to_dict, load_config
+from tracker.errors import InputError
+from tracker.frame import Frame
+from tracker.io.fileio import write_text_atomic
+
+METRIC = "hota"  # the objective's name in a trial's result
+# The Optuna trial number, added to each trial's config: a restored ResultGrid does not keep the
+# order of proposal, and the best trial is the first of the best (as Optuna's own rule).
+NUMBER = "optuna_trial"
+STATE_DIR = "ray_tune"  # under --out: one Ray Tune experiment per search, and run.json
+MAX_FAILURES = 3  # re-runs of a trial whose worker process died
+# By default Ray Tune saves an experiment's state no more often than every 10 s; a hard kill
+# then loses the trials finished since. Every second costs one small state write per second.
+CHECKPOINT_SECONDS = "1"
+
+# the driver's progress bar; a module global because Ray Tune pickles its callbacks
+_PROGRESS: list[Callable[[int], Any]] = []
+
+
+class _Progress(tune.Callback):
+    """Moves the driver's progress bar by one per finished trial."""
+
+    def on_trial_complete(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
+        if _PROGRESS:
+            _PROGRESS[0](1)
+
+
+def _suggest_numbered(trial: Any, space: dict[str, tuple[str, float, float]]) -> dict[str, Any]:
+    """:func:`app.tune.suggest` (the one search space), plus the trial's number."""
+    return {**suggest(trial, space), NUMBER: trial.number}
+
+
+def _trial(
+    config: dict[str, Any],
+    *,
+    objective: Objective,
+    key: str,
+    seqs: list[str],
+    frames: dict[tuple[str, str], dict[str, list[Frame]]],
+) -> None:
+    """One Ray Tune trial: the objective of one proposal, in a Ray worker process."""
+    from app import tune as local
+
+    local._FRAMES.clear()  # a reused worker holds another search's frames
+    for (det, level), by_seq in frames.items():
+        local._FRAMES[(det, key, level)] = by_seq
+    work = Path(tempfile.mkdtemp(prefix="mctrack-trial-"))
+    try:
+        params = {k: v for k, v in config.items() if k != NUMBER}
+        metrics = objective.metrics(key, seqs, params, work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    each = {f"{METRIC}_{det}_{level}": m["HOTA"] for (det, level), m in metrics.items()}
+    tune.report({METRIC: objective_value(metrics), **each})
+
+
+def _ctrl_c(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def _fit(tuner: Any) -> tuple[Any, bool]:
+    """``tuner.fit()``, and whether Ctrl-C stopped it.
+
+    Ray Tune catches Ctrl-C, saves the experiment and returns normally: when the search was
+    nearly done its results can even look complete, and the next search would start. Its
+    handler puts back the one it found, so finding ours in place afterwards means it ran.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        return tuner.fit(), False  # no signal handlers outside the main thread
+    previous = signal.signal(signal.SIGINT, _ctrl_c)
+    try:
+        grid = tuner.fit()
+    finally:
+        ran = signal.getsignal(signal.SIGINT) is _ctrl_c and not int(
+            os.environ.get("TUNE_DISABLE_SIGINT_HANDLER", "0")  # Ray left ours alone
+        )
+        signal.signal(signal.SIGINT, previous)  # not Ray's handler of a finished run
+    return grid, ran
+
+
+def _trial_dirname(trial: Any) -> str:
+    return f"trial_{trial.trial_id}"  # not Ray's default, which lists every setting
+
+
+class RaySearch:
+    """Runs each search of a tune as a Ray Tune experiment under ``OUT/ray_tune``."""
+
+    def __init__(
+        self,
+        address: str,
+        num_cpus: int,
+        max_concurrent: int | None,
+        trials: int,
+        state: Path,
+        options: dict[str, Any],
+    ) -> None:
+        self.address = address
+        self.num_cpus = num_cpus
+        self.max_concurrent = max_concurrent
+        self.trials = trials
+        self.state = state.resolve()  # Ray Tune wants an absolute storage path
+        self.options = options
+        self.started = False
+        self.resumed: list[str] = []
+        self.stopped = ""
+
+    @classmethod
+    def from_args(
+        cls, args: argparse.Namespace, out: Path, root: Path, seqs: Sequence[str]
+    ) -> RaySearch:
+        """Checks ``OUT/ray_tune/run.json`` against this command line (a different one is
+        refused) and writes it for a new run."""
+        config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
+        config = config_to_dict(load_config(config_name, overrides={"mode": args.mode}))
+        options = {
+            "class": args.cls,
+            "detectors": args.detectors,
+            "config": config_name,
+            "config_sha256": hashlib.sha256(
+                json.dumps(config, sort_keys=True).encode()
+            ).hexdigest(),
+            "mode": args.mode,
+            "trials": args.trials,
+            "folds": args.folds,
+            "seed": args.seed,
+            "noise": args.noise,
+            "noise_seed": args.noise_seed,
+            "seqs": list(seqs),
+            "max_concurrent": args.max_concurrent,
+            "kitti_root": str(root.resolve()),
+        }
+        state = out / STATE_DIR
+        check_options(state / "run.json", options)
+        return cls(args.ray, args.workers, args.max_concurrent, args.trials, state, options)
+
+    def start(
+        self,
+        objective: Objective,
+        space: dict[str, tuple[str, float, float]],
+        first: dict[str, Any],
+        n_startup: int,
+        frames: dict[tuple[str, str, str], dict[str, list[Frame]]],
+        progress: Callable[[int], Any],
+    ) -> Callable[[str, Sequence[str], int], Trials]:
+        """Connects to Ray and returns the search function (key, sequences, seed) -> trials."""
+        self.state.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(self.state / "run.json", [json.dumps(self.options, indent=2)])
+        os.environ.setdefault("TUNE_GLOBAL_CHECKPOINT_S", CHECKPOINT_SECONDS)
+        os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # our progress bar, not Tune's tables
+        self.started = scenes.connect_ray(self.address, self.num_cpus)
+        if self.max_concurrent is None:
+            self.max_concurrent = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        _PROGRESS[:] = [progress]
+
+        def search(key: str, seqs: Sequence[str], seed: int) -> Trials:
+            trainable = tune.with_resources(
+                tune.with_parameters(
+                    _trial,
+                    objective=objective,
+                    key=key,
+                    seqs=list(seqs),
+                    frames={run: frames[(run[0], key, run[1])] for run in objective.runs},
+                ),
+                {"cpu": 1},
+            )
+            path = self.state / key
+            if tune.Tuner.can_restore(str(path)):
+                self.resumed.append(key)
+                tuner = tune.Tuner.restore(str(path), trainable=trainable, restart_errored=True)
+            else:
+                searcher = OptunaSearch(
+                    space=functools.partial(_suggest_numbered, space=space),
+                    metric=METRIC,
+                    mode="max",
+                    points_to_evaluate=[first],
+                    sampler=make_sampler(seed, n_startup),
+                )
+                tuner = tune.Tuner(
+                    trainable,
+                    tune_config=tune.TuneConfig(
+                        search_alg=ConcurrencyLimiter(searcher, self.max_concurrent),
+                        num_samples=self.trials,
+                        # a new worker process per trial would reload the tracker and its
+                        # compiled kernels each time (seconds); a reused one holds them
+                        reuse_actors=True,
+                        trial_dirname_creator=_trial_dirname,
+                    ),
+                    run_config=tune.RunConfig(
+                        name=key,
+                        storage_path=str(self.state),
+                        verbose=0,
+                        failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),
+                        callbacks=[_Progress()],
+                    ),
+                )
+            grid, ctrl_c = _fit(tuner)
+            trials = self._trials(grid, key)
+            if ctrl_c or len(trials) < self.trials:
+                self.stopped = f"search {key} stopped after {len(trials)} of {self.trials} trials"
+                raise KeyboardInterrupt
+            return trials
+
+        return search
+
+    def _trials(self, grid: Any, key: str) -> Trials:
+        """(settings, objective) per trial, in the order the searcher proposed them."""
+        numbered: list[tuple[int, dict[str, Any], float]] = []
+        for result in grid:
+            if result.error is not None:
+                raise RuntimeError(
+                    f"a Ray Tune trial of search {key} failed "
+                    f"({type(result.error).__name__}: {result.error}); "
+                    f"its log is under {self.state / key}"
+                )
+            if result.metrics and METRIC in result.metrics:
+                params = {k: v for k, v in result.config.items() if k != NUMBER}
+                numbered.append((result.config[NUMBER], params, float(result.metrics[METRIC])))
+        trials: Trials = [(params, value) for _, params, value in sorted(numbered)]
+        return trials
+
+    def interrupted(self) -> None:
+        """Says how to resume (the command was stopped by Ctrl-C)."""
+        print(
+            f"mctrack tune: {self.stopped or 'stopped'}; the finished trials are saved: run the "
+            f"same command again to resume (state: {self.state})",
+            file=sys.stderr,
+        )
+
+    def describe(self) -> dict[str, Any]:
+        return {
+            "address": self.address,
+            "max_concurrent": self.max_concurrent,
+            "cluster_cpus": ray.cluster_resources().get("CPU"),
+            "state": str(self.state),
+            "resumed_searches": self.resumed,
+        }
+
+    def stop(self) -> None:
+        _PROGRESS.clear()
+        if self.started:
+            ray.shutdown()
+            self.started = False
+
+
+def check_options(path: Path, options: dict[str, Any]) -> None:
+    """Refuse to resume a run that was started with other options."""
+    if not path.is_file():
+        return
+    try:
+        saved = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: unreadable ({exc}); pass another --out") from None
+    if not isinstance(saved, dict):
+        raise InputError(f"{path}: not a tune run's options; pass another --out")
+    changed = [
+        f"{k} {saved.get(k)!r} -> {options[k]!r}" for k in options if saved.get(k) != options[k]
+    ]
+    if changed:
+        raise InputError(
+            f"{path.parent.parent}: holds a --ray tune run started with other options "
+            f"({'; '.join(changed)}); to resume it run the same command, else pass another --out"
+        )

@@ -1,0 +1,247 @@
+"""`mctrack tune --ray`: the same trials as the local search; resume after Ctrl-C or a kill,
+without redoing finished trials; a killed trial process run again; the one-line errors.
+
+The runs are tiny (car, PointRCNN, the two shortest labelled sequences, 2 folds) and each runs
+in its own process, as a user would: the Ray runs start a local instance on 127.0.0.1 with 2
+CPUs (``--ray --workers 2``), and a test can interrupt or kill them."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from app.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+SEQS = "0012,0014"  # 78 + 106 frames: a trial takes about a second
+TRIALS = 6  # 4 random start-up trials (app.tune.startup_trials), then 2 proposed by TPE
+
+
+def _tune_args(kitti_root: Path, out: Path, trials: int, *extra: str) -> list[str]:
+    return ["tune", "--kitti-root", str(kitti_root), "--class", "car", "--detectors",
+            "pointrcnn", "--seqs", SEQS, "--folds", "2", "--trials", str(trials),
+            "--workers", "2", "--out", str(out), *extra]  # fmt: skip
+
+
+def _start(args: list[str]) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "app.cli", *args],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,  # its own process group, so a test can kill the whole run
+    )
+
+
+def _finish(proc: subprocess.Popen, timeout: float = 600) -> tuple[int, str]:
+    try:
+        output, _ = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        raise
+    return proc.returncode, output
+
+
+def _run(args: list[str]) -> tuple[int, str]:
+    return _finish(_start(args))
+
+
+def _finished(out: Path, search: str) -> dict[str, str]:
+    """Each finished trial's result file (Ray Tune's record of it: pid, time, objective)."""
+    found = {}
+    for path in sorted((out / "ray_tune" / search).glob("trial_*/result.json")):
+        text = path.read_text()
+        if text.strip():
+            found[path.parent.name] = text
+    return found
+
+
+def _saved(out: Path, search: str) -> set[str]:
+    """The trials finished as of Ray Tune's last saved experiment state: what a resume keeps.
+    (Its result file is written first, so a trial that finished just before a hard kill may
+    not be in the state yet: docs/scale.md, Resume.)"""
+    states = sorted((out / "ray_tune" / search).glob("experiment_state-*.json"))
+    if not states:
+        return set()
+    try:
+        trials = [json.loads(t[0]) for t in json.loads(states[-1].read_text())["trial_data"]]
+    except ValueError:  # being written right now
+        return set()
+    return {f"trial_{t['trial_id']}" for t in trials if t["status"] == "TERMINATED"}
+
+
+def _wait_until(proc: subprocess.Popen, ready: Callable[[], bool], timeout: float = 300) -> None:
+    start = time.monotonic()
+    while not ready():
+        if proc.poll() is not None:
+            pytest.fail(f"the run ended first:\n{proc.communicate()[0][-3000:]}")
+        if time.monotonic() - start > timeout:
+            os.killpg(proc.pid, signal.SIGKILL)
+            pytest.fail("timed out waiting for the run")
+        time.sleep(0.1)
+
+
+def _searches(record: dict[str, Any]) -> list[list[dict[str, Any]]]:
+    """The trials (settings and objective) of every search, in order: folds, then final."""
+    return [fold["trials"] for fold in record["cv"]] + [record["final"]["trials"]]
+
+
+def _prefix(record: dict[str, Any], n: int) -> list[list[dict[str, Any]]]:
+    return [trials[:n] for trials in _searches(record)]
+
+
+def _descendants(pid: int) -> list[tuple[int, str]]:
+    """(pid, command line) of every process below ``pid``."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = Path(f"/proc/{entry}/stat").read_text()
+            except OSError:
+                continue
+            children.setdefault(int(stat.rsplit(")", 1)[1].split()[1]), []).append(int(entry))
+    found, todo = [], list(children.get(pid, []))
+    while todo:
+        child = todo.pop()
+        try:
+            cmdline = Path(f"/proc/{child}/cmdline").read_text().replace("\0", " ")
+        except OSError:
+            continue
+        found.append((child, cmdline))
+        todo += children.get(child, [])
+    return found
+
+
+@pytest.fixture(scope="module")
+def ray_installed() -> None:
+    pytest.importorskip("ray.tune", reason="Ray Tune is an optional extra: pip install -e '.[ray]'")
+
+
+@pytest.fixture(scope="module")
+def local_record(kitti_root: Path, ray_installed: None, tmp_path_factory: Any) -> dict[str, Any]:
+    """The local search (Optuna in this process, a process pool), the reference."""
+    out = tmp_path_factory.mktemp("tune-local")
+    status, output = _run(_tune_args(kitti_root, out, TRIALS))
+    assert status == 0, output[-3000:]
+    return json.loads((out / "tune.json").read_text())
+
+
+def test_ray_proposes_the_local_trials_and_finds_the_same_best(
+    kitti_root: Path, local_record: dict[str, Any], tmp_path: Path
+) -> None:
+    status, output = _run(
+        _tune_args(kitti_root, tmp_path, TRIALS, "--ray", "--max-concurrent", "1")
+    )
+    assert status == 0, output[-3000:]
+    record = json.loads((tmp_path / "tune.json").read_text())
+    assert record["ray"]["max_concurrent"] == 1 and record["ray"]["cluster_cpus"] == 2
+    # trial for trial: the same settings proposed and the same objective, in every search
+    assert _searches(record) == _searches(local_record)
+    assert all(len(trials) == TRIALS for trials in _searches(record))
+    assert len({json.dumps(t["params"], sort_keys=True) for t in _searches(record)[0]}) == TRIALS
+    assert [f["best"] for f in record["cv"]] == [f["best"] for f in local_record["cv"]]
+    assert record["final"]["best"] == local_record["final"]["best"]
+    assert record["cross_validated"] == local_record["cross_validated"]
+    assert record["final"]["in_sample"] == local_record["final"]["in_sample"]
+
+
+def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
+    kitti_root: Path, local_record: dict[str, Any], tmp_path: Path
+) -> None:
+    trials = 4
+    args = _tune_args(kitti_root, tmp_path, trials, "--ray", "--max-concurrent", "1")
+
+    # 1. Ctrl-C once a trial of the first search is done: Ray Tune saves, the run stops
+    proc = _start(args)
+    _wait_until(proc, lambda: len(_finished(tmp_path, "fold0")) >= 1)
+    proc.send_signal(signal.SIGINT)
+    status, output = _finish(proc)
+    assert status == 130, output[-3000:]
+    assert "run the same command again to resume" in output
+    assert not (tmp_path / "tune.json").exists()
+    before_ctrl_c = _finished(tmp_path, "fold0")
+    assert len(before_ctrl_c) >= 1
+    assert _saved(tmp_path, "fold0") == set(before_ctrl_c)  # Ctrl-C: saved one last time
+
+    # 2. resumed, then killed outright (the whole process group) during the second search
+    proc = _start(args)
+    _wait_until(proc, lambda: len(_saved(tmp_path, "fold1")) >= 1)
+    os.killpg(proc.pid, signal.SIGKILL)
+    _finish(proc)
+    assert not (tmp_path / "tune.json").exists()
+    fold0 = _finished(tmp_path, "fold0")
+    assert len(fold0) == trials
+    assert {k: fold0[k] for k in before_ctrl_c} == before_ctrl_c  # not run again
+    before_kill = {k: v for k, v in _finished(tmp_path, "fold1").items()
+                   if k in _saved(tmp_path, "fold1")}  # fmt: skip
+    assert before_kill  # (trials take about a second: the kill lands inside the search)
+    assert len(before_ctrl_c) < trials or len(before_kill) < trials
+
+    # 3. resumed to the end, with the trial process killed once during the last search: Ray
+    # Tune runs that trial again (FailureConfig)
+    proc = _start(args)
+    _wait_until(proc, lambda: len(_finished(tmp_path, "all")) >= 1)
+    workers = [pid for pid, cmd in _descendants(proc.pid) if cmd.startswith("ray::ImplicitFunc")]
+    assert workers, _descendants(proc.pid)
+    for pid in workers:  # this run's trial process (reused from trial to trial)
+        os.kill(pid, signal.SIGKILL)
+    status, output = _finish(proc)
+    assert status == 0, output[-3000:]
+    record = json.loads((tmp_path / "tune.json").read_text())
+    assert record["ray"]["resumed_searches"] == ["fold0", "fold1"]
+    assert list((tmp_path / "ray_tune" / "all").glob("trial_*/error.txt"))  # the killed trial
+    assert _finished(tmp_path, "fold0") == fold0
+    fold1 = _finished(tmp_path, "fold1")
+    assert {k: fold1[k] for k in before_kill} == before_kill
+    for search in ("fold0", "fold1", "all"):  # every trial ran once: no repeats, none missing
+        assert len(list((tmp_path / "ray_tune" / search).glob("trial_*"))) == trials
+    # and the interruptions changed nothing: the trials of an uninterrupted search (the first 4
+    # of the reference's 6: both have 4 random start-up trials, and a proposal depends only on
+    # the trials before it)
+    assert _searches(record) == _prefix(local_record, trials)
+
+    # 4. the same --out with another command line is refused, naming what changed
+    status, output = _run(_tune_args(kitti_root, tmp_path, trials + 1, "--ray"))
+    assert status == 2, output[-3000:]
+    lines = [line for line in output.splitlines() if "error" in line]
+    assert len(lines) == 1 and "trials 4 -> 5" in lines[0] and "another --out" in lines[0]
+
+
+def test_ray_without_the_extra_is_a_one_line_error(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails as when not installed
+    assert main(["tune", "--ray", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install -e '.[ray]'" in err[0], err
+    assert not any(tmp_path.iterdir())
+
+
+def test_max_concurrent_needs_ray(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["tune", "--max-concurrent", "2", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--max-concurrent needs --ray" in err[0], err
+
+
+def test_seqs_must_be_labelled_and_at_least_one_per_fold(
+    kitti_root: Path, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    root = str(kitti_root)
+    args = ["tune", "--kitti-root", root, "--folds", "2", "--out", str(tmp_path)]
+    assert main([*args, "--seqs", "0000,0001"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--seqs: no labels for 0000" in err[0], err
+    assert main(["tune", "--seqs", "0001", "--folds", "2", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--folds 2 needs at least as many --seqs (got 1)" in err[0], err
