@@ -31,13 +31,12 @@ from app.inputs import (
 from tracker.calibration import calibrate_frames, resolve_profile
 from tracker.config import ScoreSource, load_config
 from tracker.errors import InputError
-from tracker.eval.perturb import NOISE_LEVELS, Rescore, perturb_frames
+from tracker.eval.perturb import CLEAN, NOISE_LEVELS, Rescore, perturb_frames
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
 from tracker.io.writers import write_kitti_sequence
 from tracker.pipeline import run_scene
 
-CLEAN = "clean"
 EVALUATOR = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
 #: Metrics kept per run in the json (the table shows HOTA).
 KEPT_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "FN")

@@ -39,7 +39,7 @@ from app.inputs import (
 )
 from tracker.config import load_config
 from tracker.errors import InputError
-from tracker.eval.perturb import NOISE_LEVELS, perturb_frames
+from tracker.eval.perturb import CLEAN, NOISE_LEVELS, perturb_frames
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
@@ -67,7 +67,6 @@ OFFLINE_SPACE: dict[str, tuple[str, float, float]] = {
 # shared with the forked evaluation workers (set before the pool starts; never pickled), keyed
 # by (detector, profile key, noise level)
 _FRAMES: dict[tuple[str, str, str], dict[str, list[Frame]]] = {}
-CLEAN = "clean"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -73,9 +73,12 @@ class PerturbSpec:
         return all(getattr(self, f.name) == 0 for f in dataclasses.fields(self))
 
 
+#: The name of the unperturbed level.
+CLEAN = "clean"
+
 #: The benchmark's named levels (issue #11); score noise is off in all, ``--score-sigma`` sets it.
 NOISE_LEVELS: dict[str, PerturbSpec] = {
-    "clean": PerturbSpec(),
+    CLEAN: PerturbSpec(),
     "noise": PerturbSpec(drop_rate=0.10, centre_sigma_m=0.15, yaw_sigma_deg=2.0, fp_rate=0.02),
     "double": PerturbSpec(drop_rate=0.20, centre_sigma_m=0.30, yaw_sigma_deg=5.0, fp_rate=0.05),
 }
