@@ -259,3 +259,82 @@ def set_frame_time(rec: rr.RecordingStream, frame_id: int, time_secs: float) -> 
             rec.set_time(paths.TIME, timestamp=float(time_secs))
         else:
             rec.set_time(paths.TIME, duration=float(time_secs))
+
+
+class _ReadyColumn:
+    """A ready ``list<...>`` arrow column (one list per row) for ``send_columns``: the
+    component-column protocol (descriptor, arrow array) without Rerun's per-call conversion."""
+
+    __slots__ = ("array", "descriptor")
+
+    def __init__(self, descriptor: Any, array: pa.Array) -> None:
+        self.descriptor, self.array = descriptor, array
+
+    def component_descriptor(self) -> Any:
+        return self.descriptor
+
+    def as_arrow_array(self) -> pa.Array:
+        return self.array
+
+
+class _ReadyTimes:
+    """A ready arrow time column (the ``TimeColumnLike`` protocol of ``send_columns``)."""
+
+    __slots__ = ("array", "name")
+
+    def __init__(self, name: str, array: pa.Array) -> None:
+        self.name, self.array = name, array
+
+    def timeline_name(self) -> str:
+        return self.name
+
+    def as_arrow_array(self) -> pa.Array:
+        return self.array
+
+
+class SeriesColumns:
+    """Many scalar series sent one ``send_columns`` each, from arrays built once.
+
+    The rows of all series are given together, grouped by series (``starts`` / ``counts``: the
+    rows of each series); every arrow array is built once over all rows and each call sends
+    zero-copy slices of it. Building the arrays per series cost ~0.3 ms per entity, ~1 s for the
+    ~1,100 curves of a KITTI sequence with GT.
+    """
+
+    def __init__(self, frame_ids: Any, times_secs: Any, starts: Any, counts: Any) -> None:
+        frames = np.asarray(frame_ids, dtype=np.int64)
+        times = np.asarray(times_secs, dtype=np.float64)
+        self.starts = np.asarray(starts, dtype=np.int64)
+        self.counts = np.asarray(counts, dtype=np.int64)
+        self._frame = pa.array(frames, pa.int64())
+        # a series gets the time timeline when all its times are finite (as time_columns)
+        finite = np.isfinite(times)
+        bad = np.r_[0, np.cumsum(~finite)]
+        self._timed = bad[self.starts + self.counts] == bad[self.starts]
+        if self._timed.any():
+            t = np.where(finite, times, 0.0)
+            if time_kind(times[finite]) == "timestamp":
+                self._time: pa.Array | None = rr.TimeColumn(paths.TIME, timestamp=t).times
+            else:
+                self._time = rr.TimeColumn(paths.TIME, duration=t).times
+        else:
+            self._time = None
+
+    def send(
+        self, rec: rr.RecordingStream, k: int, path: str, columns: list[tuple[Any, pa.Array]]
+    ) -> None:
+        """Series ``k`` to ``path``; ``columns``: (descriptor, one-list-per-row array over all
+        rows) pairs (see :func:`unit_lists`)."""
+        a, n = int(self.starts[k]), int(self.counts[k])
+        indexes: list[Any] = [_ReadyTimes(paths.FRAME, self._frame.slice(a, n))]
+        if self._timed[k] and self._time is not None:
+            indexes.append(_ReadyTimes(paths.TIME, self._time.slice(a, n)))
+        cols = [_ReadyColumn(desc, array.slice(a, n)) for desc, array in columns]
+        rec.send_columns(path, indexes=indexes, columns=cols)  # type: ignore[arg-type]
+
+
+def unit_lists(values: Any, type_: pa.DataType | None = None) -> pa.Array:
+    """``values`` (numpy, list or arrow) as one single-value list per row."""
+    array = values if isinstance(values, pa.Array) else pa.array(values, type=type_)
+    offsets = pa.array(np.arange(len(array) + 1, dtype=np.int32))
+    return pa.ListArray.from_arrays(offsets, array)

@@ -58,7 +58,7 @@ from viz.archetypes import (
     quaternions_xyzw,
     track_colors_u32,
 )
-from viz.columns import ColumnBuffer, arrow_column, time_columns
+from viz.columns import ColumnBuffer, SeriesColumns, unit_lists
 from viz.layout import debug_blueprint
 from viz.observer import RerunObserver
 
@@ -406,16 +406,11 @@ class _GtIndex:
             keep = np.r_[True, np.diff(t) > 0]  # a GT id twice in one frame: first one wins
             rows, t = rows[keep], t[keep]
             self.velocity[rows] = gt_velocity_central(t, self.boxes.xyz[rows, :2])
-        self._row = {
-            (int(f), int(i)): r for r, (f, i) in enumerate(zip(self.frame_id, ids, strict=True))
-        }
+        self._keys = _pair_key(self.frame_id, ids)
 
     def rows(self, frame_ids: IntArray, gt_ids: IntArray) -> IntArray:
         """Row of each (frame, GT id); -1 when absent."""
-        return np.array(
-            [self._row.get((int(f), int(g)), -1) for f, g in zip(frame_ids, gt_ids, strict=True)],
-            dtype=np.int64,
-        )
+        return _lookup(self._keys, np.arange(len(self._keys)), _pair_key(frame_ids, gt_ids))
 
 
 def _labels_for_frames(label_file: Path, frames: Sequence[Frame], tmp: Path) -> Path:
@@ -466,32 +461,6 @@ def _frame_times(
     return times
 
 
-def _send_series(
-    rec: rr.RecordingStream,
-    path: str,
-    name: str,
-    color_u32: int,
-    indexes: list[rr.TimeColumn],
-    values: FloatArray,
-) -> None:
-    """One scalar series in one ``send_columns`` call, columns built straight in arrow.
-
-    The style (colour, legend name) rides along as per-row components instead of a static
-    ``SeriesLines`` log: a static log per entity costs ~0.3 ms each for hundreds of entities
-    (and mixes static and temporal data on one entity), and Rerun's own column converters
-    cost more than the data here."""
-    n = len(values)
-    columns = [
-        arrow_column(rr.Scalars.descriptor_scalars(), pa.array(values, type=pa.float64())),
-        arrow_column(
-            rr.SeriesLines.descriptor_colors(),
-            pa.array(np.full(n, color_u32, dtype=np.uint32), type=pa.uint32()),
-        ),
-        arrow_column(rr.SeriesLines.descriptor_names(), pa.array([name] * n, type=pa.utf8())),
-    ]
-    rec.send_columns(path, indexes=indexes, columns=columns)
-
-
 def _log_velocity_series(
     rec: rr.RecordingStream,
     outputs: Sequence[TrackOutput],
@@ -502,88 +471,153 @@ def _log_velocity_series(
     """tracks/<id>/{speed, velocity_x, velocity_y, heading, acceleration_x, acceleration_y}
     and the matched GT's curves (no GT acceleration).
 
+    One ``send_columns`` per curve, sliced from arrow arrays built once for all tracks
+    (:class:`viz.columns.SeriesColumns`). The style (colour, legend name) rides along as per-row
+    components instead of a static ``SeriesLines`` log: a static log per entity costs ~0.3 ms
+    each for hundreds of entities (and mixes static and temporal data on one entity).
+
     Returns the largest lag and the number of tracks given curves.
     """
     if not outputs:
         return None, 0
     boxes = Boxes.concat([o.boxes for o in outputs])
-    frame_ids = np.concatenate([np.full(len(o), o.frame_id, dtype=np.int64) for o in outputs])
-    time_of = np.array([times[int(f)] for f in frame_ids])
+    lengths = np.array([len(o) for o in outputs], dtype=np.int64)
+    out_frames = np.array([o.frame_id for o in outputs], dtype=np.int64)
+    frame_ids = np.repeat(out_frames, lengths)
+    time_of = np.repeat(np.array([times[int(f)] for f in out_frames.tolist()]), lengths)
+    ids = boxes.track_id
     # GT matched to each output row (CLEAR matches of its frame)
     gt_row = np.full(len(boxes), -1, dtype=np.int64)
     gt_id = np.full(len(boxes), -1, dtype=np.int64)
     if evaluation is not None and gt is not None:
-        matches = {m.frame_id: m for m in evaluation.matches}
-        start = 0
-        for o in outputs:
-            m = matches.get(o.frame_id)
-            if m is not None and len(m.track_ids):
-                lookup = dict(zip(m.track_ids.tolist(), m.gt_ids.tolist(), strict=True))
-                g = np.array([lookup.get(int(t), -1) for t in o.boxes.track_id], dtype=np.int64)
-                gt_id[start : start + len(o)] = g
-            start += len(o)
+        matched = [m for m in evaluation.matches if len(m.track_ids)]
+        if matched:
+            m_frame = np.concatenate([np.full(len(m.track_ids), m.frame_id) for m in matched])
+            m_track = np.concatenate([m.track_ids for m in matched])
+            m_gt = np.concatenate([m.gt_ids for m in matched])
+            gt_id = _lookup(_pair_key(m_frame, m_track), m_gt, _pair_key(frame_ids, ids))
         has = gt_id >= 0
         gt_row[has] = gt.rows(frame_ids[has], gt_id[has])
 
     speed = np.hypot(boxes.velocity[:, 0], boxes.velocity[:, 1])
     acceleration = np.concatenate([o.acceleration for o in outputs])
-    ids = boxes.track_id
     order = np.lexsort((frame_ids, ids))
     bounds = np.flatnonzero(np.r_[True, ids[order][1:] != ids[order][:-1], True])
-    samples: list[tuple[np.ndarray, ...]] = []
-    n_tracks = 0
-    for a, b in itertools.pairwise(bounds):
-        rows = order[a:b]
-        if len(rows) < MIN_SERIES_SAMPLES:
-            continue
-        tid = int(ids[rows[0]])
-        n_tracks += 1
-        color = int(track_colors_u32(np.array([tid]))[0])
-        f, t = frame_ids[rows], time_of[rows]
-        indexes = time_columns(f, t)
-        values = {
-            paths.SPEED: speed[rows],
-            paths.VELOCITY_X: boxes.velocity[rows, 0],
-            paths.VELOCITY_Y: boxes.velocity[rows, 1],
-            paths.HEADING: boxes.yaw[rows],
-        }
-        acc = acceleration[rows]
-        if np.isfinite(acc).all():  # (a constant-velocity track has none: NaN)
-            values[paths.ACCELERATION_X], values[paths.ACCELERATION_Y] = acc[:, 0], acc[:, 1]
-        for series, v in values.items():
-            _send_series(
-                rec, paths.track_series(tid, series), f"T{tid} {series}", color, indexes, v
+    group_len = np.diff(bounds)
+    keep = group_len >= MIN_SERIES_SAMPLES
+    rows = order[np.repeat(keep, group_len)]  # the kept tracks' rows, by track then frame
+    counts = group_len[keep]
+    n_tracks = len(counts)
+    if not n_tracks:
+        return None, 0
+    starts = np.r_[0, np.cumsum(counts)[:-1]]
+    track_ids = ids[rows[starts]]
+    group = np.repeat(np.arange(n_tracks), counts)  # track (series) index of every row
+    f, t = frame_ids[rows], time_of[rows]
+    own = SeriesColumns(f, t, starts, counts)
+    colors = unit_lists(np.repeat(track_colors_u32(track_ids), counts), pa.uint32())
+    scalars, names, gt_names = {}, {}, {}
+    values = {
+        paths.SPEED: speed[rows],
+        paths.VELOCITY_X: boxes.velocity[rows, 0],
+        paths.VELOCITY_Y: boxes.velocity[rows, 1],
+        paths.HEADING: boxes.yaw[rows],
+        paths.ACCELERATION_X: acceleration[rows, 0],
+        paths.ACCELERATION_Y: acceleration[rows, 1],
+    }
+    index = pa.array(group)
+    for series, v in values.items():
+        scalars[series] = unit_lists(np.asarray(v, dtype=np.float64), pa.float64())
+        labels = pa.array([f"T{i} {series}" for i in track_ids.tolist()], pa.utf8())
+        names[series] = unit_lists(labels.take(index))
+    # (a constant-velocity track has no acceleration: NaN)
+    with_acc = np.logical_and.reduceat(np.isfinite(acceleration[rows]).all(axis=1), starts)
+    desc_scalars = rr.Scalars.descriptor_scalars()
+    desc_colors = rr.SeriesLines.descriptor_colors()
+    desc_names = rr.SeriesLines.descriptor_names()
+    for k, tid in enumerate(track_ids.tolist()):
+        for series in values if with_acc[k] else paths.SERIES:
+            own.send(
+                rec,
+                k,
+                paths.track_series(tid, series),
+                [
+                    (desc_scalars, scalars[series]),
+                    (desc_colors, colors),
+                    (desc_names, names[series]),
+                ],
             )
-        if gt is None:
+    if gt is None:
+        return None, n_tracks
+
+    g = gt_row[rows]
+    on = g >= 0
+    if not on.any():
+        return find_velocity_lag([]), n_tracks
+    gt_counts = np.add.reduceat(on.astype(np.int64), starts)
+    gt_starts = np.r_[0, np.cumsum(gt_counts)[:-1]]
+    gv = gt.velocity[g[on]]
+    gt_series = SeriesColumns(f[on], t[on], gt_starts, gt_counts)
+    gt_colors = unit_lists(np.full(int(on.sum()), GT_SERIES_U32, np.uint32), pa.uint32())
+    gt_values = {
+        paths.SPEED: np.hypot(gv[:, 0], gv[:, 1]),
+        paths.VELOCITY_X: gv[:, 0],
+        paths.VELOCITY_Y: gv[:, 1],
+        paths.HEADING: gt.boxes.yaw[g[on]],
+    }
+    gt_index = pa.array(group[on])
+    gt_scalars = {}
+    for series, v in gt_values.items():
+        gt_scalars[series] = unit_lists(np.asarray(v, dtype=np.float64), pa.float64())
+        labels = pa.array([f"GT of T{i} {series}" for i in track_ids.tolist()], pa.utf8())
+        gt_names[series] = unit_lists(labels.take(gt_index))
+    for k, tid in enumerate(track_ids.tolist()):
+        if not gt_counts[k]:
             continue
-        g = gt_row[rows]
-        on = g >= 0
-        if not on.any():
-            continue
-        gv = gt.velocity[g[on]]
-        gt_values = {
-            paths.SPEED: np.hypot(gv[:, 0], gv[:, 1]),
-            paths.VELOCITY_X: gv[:, 0],
-            paths.VELOCITY_Y: gv[:, 1],
-            paths.HEADING: gt.boxes.yaw[g[on]],
-        }
-        gt_indexes = time_columns(f[on], t[on])
-        for series, v in gt_values.items():
-            path = paths.track_series(tid, paths.GT_PREFIX + series)
-            _send_series(rec, path, f"GT of T{tid} {series}", GT_SERIES_U32, gt_indexes, v)
-        warm = np.flatnonzero(on) >= LAG_WARMUP_SAMPLES
-        samples.append(
-            (
-                f[on][warm],
-                t[on][warm],
-                np.full(int(warm.sum()), tid),
-                gt_id[rows][on][warm],
-                speed[rows][on][warm],
-                gv[warm],
-                gt.boxes.xyz[g[on][warm], :2],
+        for series in gt_values:
+            gt_series.send(
+                rec,
+                k,
+                paths.track_series(tid, paths.GT_PREFIX + series),
+                [
+                    (desc_scalars, gt_scalars[series]),
+                    (desc_colors, gt_colors),
+                    (desc_names, gt_names[series]),
+                ],
             )
-        )
-    return find_velocity_lag(samples), n_tracks
+    # the lag search skips each track's first outputs (its position among all its rows)
+    position = np.arange(len(rows)) - np.repeat(starts, counts)
+    warm = position[on] >= LAG_WARMUP_SAMPLES
+    sample = (
+        f[on][warm],
+        t[on][warm],
+        track_ids[group[on][warm]],
+        gt_id[rows][on][warm],
+        speed[rows][on][warm],
+        gv[warm],
+        gt.boxes.xyz[g[on][warm], :2],
+    )
+    return find_velocity_lag([sample]), n_tracks
+
+
+def _pair_key(a: IntArray, b: IntArray) -> IntArray:
+    """One int64 per (frame id, object id) pair (both < 2**31)."""
+    return (np.asarray(a, dtype=np.int64) << 32) | (np.asarray(b, dtype=np.int64) & 0xFFFFFFFF)
+
+
+def _lookup(keys: IntArray, values: IntArray, wanted: IntArray) -> IntArray:
+    """``values`` at each ``wanted`` key (the last one of equal keys, as a dict built in order
+    would keep), -1 where absent."""
+    if not len(keys):
+        return np.full(len(wanted), -1, dtype=np.int64)
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    at = np.searchsorted(sorted_keys, wanted, side="right") - 1
+    ok = at >= 0
+    ok[ok] = sorted_keys[at[ok]] == wanted[ok]
+    out = np.full(len(wanted), -1, dtype=np.int64)
+    out[ok] = np.asarray(values, dtype=np.int64)[order[at[ok]]]
+    return out
 
 
 def find_velocity_lag(samples: Sequence[tuple[np.ndarray, ...]]) -> LagSample | None:
