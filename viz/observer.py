@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import functools
 import os
-from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,7 +53,7 @@ from viz.archetypes import (
     solid,
     track_colors_u32,
 )
-from viz.columns import Built, ColumnBuffer, set_frame_time
+from viz.columns import Built, ColumnBuffer, pair_key, set_frame_time
 from viz.projection import drawable_segments
 
 _DROP_LABEL = {
@@ -118,7 +117,8 @@ class RerunObserver:
         self._image_shown: set[str] = set()
         self._rv_shown = False
         self._cost_shown = {paths.COST_BEV: False, paths.COST_RV: False}
-        self._trails: dict[int, deque[tuple[int, np.ndarray]]] = {}
+        # (frame id, track ids, positions) of the last ``trail_frames`` frames already sent
+        self._trail_history: list[tuple[int, IntArray, np.ndarray]] = []
         self._state: _FrameState | None = None
         # kept for the post-run part of the recording (small per frame)
         self.ego_xyz: list[np.ndarray] = []
@@ -277,14 +277,12 @@ class RerunObserver:
                 text = f"{kind}: " + ", ".join(f"T{i}" for i in ids.tolist())
                 level = "DEBUG" if kind == "born" else "INFO"
                 self._add(paths.EVENTS_LIFECYCLE, rr.TextLog, 1, text=[text], level=[level])
-        for i in event.deleted.tolist():
-            self._trails.pop(i, None)
 
     def _on_frame_finished(self, event: FrameFinished) -> None:
         state, out = self._require_state(), event.output
         self._defer(paths.TRACKS_UPDATED, rr.Boxes3D, out, _build_updated)
         self._defer(paths.TRACKS_VELOCITY, rr.Arrows3D, out, _build_velocity)
-        self._log_trails(out)
+        self._defer(paths.TRAILS, rr.LineStrips3D, out, self._build_trails)
         self._log_unmatched(state)
         for cam in state.frame.cameras:
             path = paths.camera_tracks(cam.name)
@@ -372,30 +370,34 @@ class RerunObserver:
                 **boxes2d_fields(t_xyxy, colors=colors, labels=[""] * k, ui_points=2.0),
             )
 
-    def _log_trails(self, out: TrackOutput) -> None:
-        frame_id = out.frame_id
-        horizon = frame_id - self.trail_frames
-        strips = []
-        xyz = out.boxes.xyz.astype(np.float32)
-        ids = out.boxes.track_id
-        for tid, p in zip(ids.tolist(), xyz, strict=True):
-            trail = self._trails.get(tid)
-            if trail is None:
-                trail = self._trails[tid] = deque(maxlen=self.trail_frames)
-            trail.append((frame_id, p))
-            strips.append(np.array([q for f, q in trail if f > horizon], dtype=np.float32))
-        # tracks that stopped being output long ago are forgotten (memory stays flat)
-        if len(self._trails) > 4 * max(len(ids), 16):
-            for tid in [t for t, tr in self._trails.items() if tr[-1][0] <= horizon]:
-                del self._trails[tid]
-        self._add(
-            paths.TRAILS,
-            rr.LineStrips3D,
-            len(strips),
-            strips=strips,
-            colors=track_colors_u32(ids),
-            radii=np.full(len(strips), 0.04, np.float32),
-        )
+    def _build_trails(self, outputs: list[TrackOutput]) -> Built:
+        """Each output track's positions over the last ``trail_frames`` frames (this one
+        included), for all buffered frames at once: one table of the recent outputs sorted by
+        (track, frame), and a window of it per (frame, track)."""
+        recent = self._trail_history + [
+            (o.frame_id, o.boxes.track_id, o.boxes.xyz.astype(np.float32)) for o in outputs
+        ]
+        lengths = np.array([len(ids) for _, ids, _ in recent], dtype=np.int64)
+        frames = np.repeat(np.array([f for f, _, _ in recent], dtype=np.int64), lengths)
+        ids = np.concatenate([i for _, i, _ in recent])
+        xyz = np.concatenate([x for _, _, x in recent]).reshape(-1, 3)
+        order = np.lexsort((frames, ids))
+        keys = pair_key(ids[order], frames[order])
+        start = int(lengths[: len(self._trail_history)].sum())
+        q_ids, q_frames = ids[start:], frames[start:]
+        hi = np.searchsorted(keys, pair_key(q_ids, q_frames), side="right")
+        lo = np.searchsorted(keys, pair_key(q_ids, q_frames - self.trail_frames), side="right")
+        counts = hi - lo
+        firsts = lo - (np.cumsum(counts) - counts)
+        points = xyz[order][np.repeat(firsts, counts) + np.arange(int(counts.sum()))]
+        # the next flush's trails reach back into these frames
+        self._trail_history = recent[-self.trail_frames :]
+        fields = {
+            "strips": (points, counts),
+            "colors": track_colors_u32(q_ids),
+            "radii": np.full(len(q_ids), 0.04, np.float32),
+        }
+        return fields, lengths[len(recent) - len(outputs) :], {}
 
     def _log_unmatched(self, state: _FrameState) -> None:
         matched = [m for m in (state.bev_matched, state.rv_matched) if m is not None]

@@ -58,7 +58,7 @@ from viz.archetypes import (
     quaternions_xyzw,
     track_colors_u32,
 )
-from viz.columns import ColumnBuffer, SeriesColumns, unit_lists
+from viz.columns import ColumnBuffer, SeriesColumns, pair_key, unit_lists
 from viz.layout import debug_blueprint
 from viz.observer import RerunObserver
 
@@ -406,11 +406,11 @@ class _GtIndex:
             keep = np.r_[True, np.diff(t) > 0]  # a GT id twice in one frame: first one wins
             rows, t = rows[keep], t[keep]
             self.velocity[rows] = gt_velocity_central(t, self.boxes.xyz[rows, :2])
-        self._keys = _pair_key(self.frame_id, ids)
+        self._keys = pair_key(self.frame_id, ids)
 
     def rows(self, frame_ids: IntArray, gt_ids: IntArray) -> IntArray:
         """Row of each (frame, GT id); -1 when absent."""
-        return _lookup(self._keys, np.arange(len(self._keys)), _pair_key(frame_ids, gt_ids))
+        return _lookup(self._keys, np.arange(len(self._keys)), pair_key(frame_ids, gt_ids))
 
 
 def _labels_for_frames(label_file: Path, frames: Sequence[Frame], tmp: Path) -> Path:
@@ -495,7 +495,7 @@ def _log_velocity_series(
             m_frame = np.concatenate([np.full(len(m.track_ids), m.frame_id) for m in matched])
             m_track = np.concatenate([m.track_ids for m in matched])
             m_gt = np.concatenate([m.gt_ids for m in matched])
-            gt_id = _lookup(_pair_key(m_frame, m_track), m_gt, _pair_key(frame_ids, ids))
+            gt_id = _lookup(pair_key(m_frame, m_track), m_gt, pair_key(frame_ids, ids))
         has = gt_id >= 0
         gt_row[has] = gt.rows(frame_ids[has], gt_id[has])
 
@@ -536,17 +536,21 @@ def _log_velocity_series(
     desc_colors = rr.SeriesLines.descriptor_colors()
     desc_names = rr.SeriesLines.descriptor_names()
     for k, tid in enumerate(track_ids.tolist()):
-        for series in values if with_acc[k] else paths.SERIES:
-            own.send(
-                rec,
-                k,
-                paths.track_series(tid, series),
-                [
-                    (desc_scalars, scalars[series]),
-                    (desc_colors, colors),
-                    (desc_names, names[series]),
-                ],
-            )
+        own.add_group(
+            k,
+            [
+                (
+                    paths.track_series(tid, series),
+                    [
+                        (desc_scalars, scalars[series]),
+                        (desc_colors, colors),
+                        (desc_names, names[series]),
+                    ],
+                )
+                for series in (values if with_acc[k] else paths.SERIES)
+            ],
+        )
+    own.send(rec)
     if gt is None:
         return None, n_tracks
 
@@ -572,19 +576,22 @@ def _log_velocity_series(
         labels = pa.array([f"GT of T{i} {series}" for i in track_ids.tolist()], pa.utf8())
         gt_names[series] = unit_lists(labels.take(gt_index))
     for k, tid in enumerate(track_ids.tolist()):
-        if not gt_counts[k]:
-            continue
-        for series in gt_values:
-            gt_series.send(
-                rec,
+        if gt_counts[k]:
+            gt_series.add_group(
                 k,
-                paths.track_series(tid, paths.GT_PREFIX + series),
                 [
-                    (desc_scalars, gt_scalars[series]),
-                    (desc_colors, gt_colors),
-                    (desc_names, gt_names[series]),
+                    (
+                        paths.track_series(tid, paths.GT_PREFIX + series),
+                        [
+                            (desc_scalars, gt_scalars[series]),
+                            (desc_colors, gt_colors),
+                            (desc_names, gt_names[series]),
+                        ],
+                    )
+                    for series in gt_values
                 ],
             )
+    gt_series.send(rec)
     # the lag search skips each track's first outputs (its position among all its rows)
     position = np.arange(len(rows)) - np.repeat(starts, counts)
     warm = position[on] >= LAG_WARMUP_SAMPLES
@@ -598,11 +605,6 @@ def _log_velocity_series(
         gt.boxes.xyz[g[on][warm], :2],
     )
     return find_velocity_lag([sample]), n_tracks
-
-
-def _pair_key(a: IntArray, b: IntArray) -> IntArray:
-    """One int64 per (frame id, object id) pair (both < 2**31)."""
-    return (np.asarray(a, dtype=np.int64) << 32) | (np.asarray(b, dtype=np.int64) & 0xFFFFFFFF)
 
 
 def _lookup(keys: IntArray, values: IntArray, wanted: IntArray) -> IntArray:
@@ -782,21 +784,32 @@ def _shot_frame(frame_id: int, image_frames: IntArray) -> int:
 
 
 class _TrackPaths:
-    """Output positions and boxes per track id, in frame order."""
+    """Output positions and boxes per track id, in frame order (one sorted table)."""
 
     def __init__(self, outputs: Sequence[TrackOutput]) -> None:
-        self._rows: dict[int, list[tuple[int, Boxes, int]]] = {}
-        for o in outputs:
-            for r, t in enumerate(o.boxes.track_id.tolist()):
-                self._rows.setdefault(t, []).append((o.frame_id, o.boxes, r))
+        boxes = Boxes.concat([o.boxes for o in outputs]) if outputs else Boxes.empty()
+        frames = np.repeat(
+            np.array([o.frame_id for o in outputs], dtype=np.int64),
+            np.array([len(o) for o in outputs], dtype=np.int64),
+        )
+        order = np.lexsort((frames, boxes.track_id))
+        self._boxes = boxes[order]
+        self._keys = pair_key(self._boxes.track_id, frames[order])
+
+    def _range(self, track_id: int, first: int, last: int) -> tuple[int, int]:
+        lo, hi = pair_key(np.array([track_id, track_id]), np.array([first, last]))
+        return (
+            int(np.searchsorted(self._keys, lo, side="left")),
+            int(np.searchsorted(self._keys, hi, side="right")),
+        )
 
     def path(self, track_id: int, first: int, last: int) -> np.ndarray:
-        rows = [(b, r) for f, b, r in self._rows.get(track_id, []) if first <= f <= last]
-        return np.array([b.xyz[r] for b, r in rows]).reshape(-1, 3)
+        a, b = self._range(track_id, first, last)
+        return np.asarray(self._boxes.xyz[a:b]).reshape(-1, 3)
 
     def box_at_or_before(self, track_id: int, frame_id: int) -> Boxes | None:
-        rows = [(b, r) for f, b, r in self._rows.get(track_id, []) if f <= frame_id]
-        return rows[-1][0][np.array([rows[-1][1]])] if rows else None
+        a, b = self._range(track_id, -(2**31), frame_id)
+        return self._boxes[np.array([b - 1])] if b > a else None
 
 
 #: Colours of the focused view: old track, new track, GT (bright on the dark background).
