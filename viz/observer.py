@@ -302,13 +302,10 @@ class RerunObserver:
                 self._cost_shown[path] = False
             return
         self._cost_shown[path] = True
-        rows = _comparable_rows(cost)
-        shown = _CostRows(cost, rows, _comparable_cols(cost, rows))
-        self._defer(path, rr.Image, shown, _build_cost_image)
-        self._defer(f"{path}/{paths.COST_LABELS}", rr.Points2D, shown, _build_cost_labels)
-        self._defer(
-            f"{path}/{paths.COST_MATCHED}", rr.Boxes2D, (shown, matched), _build_cost_matched
-        )
+        part = _CostPart(cost, matched)
+        self._defer(path, rr.Image, part, _build_cost_image)
+        self._defer(f"{path}/{paths.COST_LABELS}", rr.Points2D, part, _build_cost_labels)
+        self._defer(f"{path}/{paths.COST_MATCHED}", rr.Boxes2D, part, _build_cost_matched)
 
     def _log_matches_rv(self, state: _FrameState) -> None:
         """The image-plane stage: track box used -> detection box, labelled with the SDIoU."""
@@ -658,147 +655,227 @@ _build_unmatched_detections = functools.partial(
 )
 
 
-def _comparable_rows(c: CostComputed) -> IntArray:
-    """The rows (tracks) worth showing: those with a feasible detection (cost within the row's
-    threshold). The others cannot match anything this frame, and there are many: KITTI keeps
-    lost tracks for 30 frames, so ~50-90 rows against ~15 detections would bury the few that
-    compete. Without any feasible pair, the rows with any comparable (finite) cost."""
-    with np.errstate(invalid="ignore"):
-        feasible = (c.cost <= np.asarray(c.max_cost_per_row)[:, None]).any(axis=1)
-    if feasible.any():
-        return np.flatnonzero(feasible)
-    return np.flatnonzero(np.isfinite(c.cost).any(axis=1))
-
-
 #: Up to this many detections every column is shown; beyond, only the columns with a feasible
 #: (or at least comparable) cost in the shown rows, so 30 x 30 stays legible.
 MAX_ALL_COLUMNS = 12
 
 
-def _comparable_cols(c: CostComputed, rows: IntArray) -> IntArray:
-    n = c.cost.shape[1]
-    if n <= MAX_ALL_COLUMNS or not len(rows):
-        return np.arange(n)
-    sub = c.cost[rows]
-    with np.errstate(invalid="ignore"):
-        feasible = (sub <= np.asarray(c.max_cost_per_row)[rows][:, None]).any(axis=0)
-    cols = np.flatnonzero(feasible)
-    return cols if len(cols) else np.flatnonzero(np.isfinite(sub).any(axis=0))
+@dataclass(frozen=True, slots=True)
+class _CostPart:
+    """One frame's matrix of a stage and its accepted pairs (None: no Matched event)."""
+
+    event: CostComputed
+    matched: Matched | None
 
 
 @dataclass(frozen=True, slots=True)
-class _CostRows:
-    """A stage's cost matrix and the rows and columns of it that are shown."""
+class _CostTables:
+    """The shown part of every buffered matrix of one stage, as flat tables.
 
-    event: CostComputed
-    rows: IntArray
-    cols: IntArray
+    Rows shown: the tracks with a feasible detection (cost within the row's threshold). The
+    others cannot match anything this frame, and there are many: KITTI keeps lost tracks for 30
+    frames, so ~50-90 rows against ~15 detections would bury the few that compete. Without any
+    feasible pair, the rows with any comparable (finite) cost. Columns: all up to
+    :data:`MAX_ALL_COLUMNS` detections; beyond, those with a feasible (else a comparable) cost
+    in the shown rows."""
 
-    @property
-    def shown(self) -> FloatArray:
-        return self.event.cost[np.ix_(self.rows, self.cols)]
+    m: IntArray  # shown rows per matrix
+    n: IntArray  # shown columns per matrix
+    hidden_rows: IntArray  # per matrix
+    hidden_cols: IntArray
+    row_track: IntArray  # per shown row (all matrices, in order): its track id
+    row_part: IntArray  # ... and its matrix
+    row_pos: IntArray  # ... and its position among the matrix's shown rows
+    col_det: IntArray  # per shown column: its detection row
+    col_part: IntArray
+    col_pos: IntArray
+    cost: FloatArray  # per shown cell, row-major per matrix
+    limit: FloatArray  # ... the cell's row threshold
+    cell_part: IntArray
+    cell_row: IntArray  # ... index into the shown rows
+    cell_pos: tuple[IntArray, IntArray]  # ... (row, column) position in its matrix
 
 
-def _build_cost_image(parts: list[_CostRows]) -> Built:
-    """One RGB pixel per cell (rows tracks, columns detections); see :func:`cost_colors`.
+#: One-slot cache of :func:`_cost_tables` (the image, labels and outlines of a stage are built
+#: one after the other from the same rows).
+_LAST_COST_TABLES: list[Any] = []
 
-    One colour pass over the cells of all rows at once (per-matrix numpy calls dominate)."""
-    shapes = [(len(p.rows), len(p.cols)) for p in parts]
-    costs = np.concatenate([p.shown.ravel() for p in parts])
-    limits = np.concatenate(
-        [
-            np.repeat(np.asarray(p.event.max_cost_per_row)[p.rows], n)
-            for p, (_, n) in zip(parts, shapes, strict=True)
-        ]
+
+def _cost_tables(parts: Sequence[_CostPart]) -> _CostTables:
+    """All matrices of the buffered frames at once: the per-matrix numpy calls of a few hundred
+    small matrices cost more than the cells."""
+    key = tuple(id(p) for p in parts)
+    if _LAST_COST_TABLES and _LAST_COST_TABLES[0] == key:
+        return _LAST_COST_TABLES[1]
+    n_parts = len(parts)
+    events = [p.event for p in parts]
+    t_n = np.array([e.cost.shape[0] for e in events], dtype=np.int64)
+    d_n = np.array([e.cost.shape[1] for e in events], dtype=np.int64)
+    cost = np.concatenate([e.cost.ravel() for e in events]).astype(np.float64, copy=False)
+    max_cost = np.concatenate([np.asarray(e.max_cost_per_row, np.float64) for e in events])
+    track_ids = np.concatenate([e.track_ids for e in events])
+    det_rows = np.concatenate([e.det_rows for e in events])
+    sizes = t_n * d_n
+    cell_part = np.repeat(np.arange(n_parts), sizes)
+    local = np.arange(len(cost)) - np.repeat(np.cumsum(sizes) - sizes, sizes)
+    cell_grow = np.repeat(np.cumsum(t_n) - t_n, sizes) + local // d_n[cell_part]
+    cell_gcol = np.repeat(np.cumsum(d_n) - d_n, sizes) + local % d_n[cell_part]
+    with np.errstate(invalid="ignore"):
+        feasible = cost <= max_cost[cell_grow]
+    finite = np.isfinite(cost)
+    rows_total, cols_total = int(t_n.sum()), int(d_n.sum())
+    row_part = np.repeat(np.arange(n_parts), t_n)
+    col_part = np.repeat(np.arange(n_parts), d_n)
+    row_feasible = np.bincount(cell_grow[feasible], minlength=rows_total) > 0
+    row_finite = np.bincount(cell_grow[finite], minlength=rows_total) > 0
+    any_feasible = np.bincount(row_part[row_feasible], minlength=n_parts) > 0
+    row_shown = np.where(any_feasible[row_part], row_feasible, row_finite)
+    in_rows = row_shown[cell_grow]
+    col_feasible = np.bincount(cell_gcol[feasible & in_rows], minlength=cols_total) > 0
+    col_finite = np.bincount(cell_gcol[finite & in_rows], minlength=cols_total) > 0
+    any_col = np.bincount(col_part[col_feasible], minlength=n_parts) > 0
+    m = np.bincount(row_part[row_shown], minlength=n_parts)
+    select = (d_n > MAX_ALL_COLUMNS) & (m > 0)
+    col_shown = np.where(
+        select[col_part], np.where(any_col[col_part], col_feasible, col_finite), True
     )
-    flat = cost_colors(costs, limits)  # (cells, 3)
-    ends = np.cumsum([m * n for m, n in shapes])
-    buffers = [chunk.tobytes() for chunk in np.split(flat, ends[:-1])]
-    formats = [
-        rr.components.ImageFormat(width=n, height=m, color_model="RGB", channel_datatype="U8")
-        for m, n in shapes
-    ]
-    return {}, np.zeros(len(parts), np.int64), {"buffer": buffers, "format": formats}
+    n = np.bincount(col_part[col_shown], minlength=n_parts)
+    cell_shown = in_rows & col_shown[cell_gcol]
+    row_rank = np.cumsum(row_shown) - 1
+    col_rank = np.cumsum(col_shown) - 1
+    row_pos = row_rank - (np.cumsum(m) - m)[row_part]
+    col_pos = col_rank - (np.cumsum(n) - n)[col_part]
+    cells = np.flatnonzero(cell_shown)
+    tables = _CostTables(
+        m=m,
+        n=n,
+        hidden_rows=t_n - m,
+        hidden_cols=d_n - n,
+        row_track=track_ids[row_shown],
+        row_part=row_part[row_shown],
+        row_pos=row_pos[row_shown],
+        col_det=det_rows[col_shown],
+        col_part=col_part[col_shown],
+        col_pos=col_pos[col_shown],
+        cost=cost[cells],
+        limit=max_cost[cell_grow[cells]],
+        cell_part=cell_part[cells],
+        cell_row=row_rank[cell_grow[cells]],
+        cell_pos=(row_pos[cell_grow[cells]], col_pos[cell_gcol[cells]]),
+    )
+    # keeping ``parts`` alive keeps the ids in the key from being reused by new objects
+    _LAST_COST_TABLES[:] = [key, tables, parts]
+    return tables
 
 
-def _build_cost_labels(parts: list[_CostRows]) -> Built:
+def _build_cost_image(parts: list[_CostPart]) -> Built:
+    """One RGB pixel per cell (rows tracks, columns detections); see :func:`cost_colors`."""
+    t = _cost_tables(parts)
+    flat = cost_colors(t.cost, t.limit)  # (cells, 3)
+    sizes = t.m * t.n
+    ends = np.cumsum(sizes)
+    data = np.ascontiguousarray(flat, dtype=np.uint8).ravel()
+    buffers = (data, ends * 3)
+    formats = [(int(w), int(h)) for h, w in zip(t.m.tolist(), t.n.tolist(), strict=True)]
+    return {}, np.zeros(len(parts), np.int64), {"buffer": [buffers], "format": formats}
+
+
+def _build_cost_labels(parts: list[_CostPart]) -> Built:
     """Row ids "T<track>" left of the matrix, column ids "d<detection row>" above it (in two
     staggered lines when there are many, so they do not run together), cell values, and a
     note on the rows and columns not shown (above the matrix, where the view never clips)."""
-    positions, labels, colors, lengths = [], [], [], []
-    for part in parts:
-        c, kept = part.event, part.rows
-        cost, max_cost, ids = part.shown, c.max_cost_per_row[kept], c.track_ids[kept]
-        m, n = cost.shape
-        # values only where a match was allowed: dark red cells (over the threshold) say enough,
-        # and their numbers would crowd out the ones that decide; with many columns only each
-        # row's cheapest (a cell is ~4 characters wide at most)
-        with np.errstate(invalid="ignore"):
-            ok = cost <= max_cost[:, None]
-            if n > MAX_ALL_COLUMNS:
-                ok &= cost == np.min(np.where(ok, cost, np.inf), axis=1, initial=np.inf)[:, None]
-        r, k = np.nonzero(ok)
-        if len(r) > MAX_CELL_LABELS:
-            r, k = r[:0], k[:0]
-        values = cost[r, k]
-        stagger = n > 8
-        col_y = np.where(stagger & (np.arange(n) % 2 == 1), -1.7, -0.8)
-        positions += [
-            np.column_stack([np.full(m, -1.2), np.arange(m) + 0.5]),
-            np.column_stack([np.arange(n) + 0.5, col_y]),
+    t = _cost_tables(parts)
+    n_parts = len(parts)
+    # values only where a match was allowed: dark red cells (over the threshold) say enough,
+    # and their numbers would crowd out the ones that decide; with many columns only each
+    # row's cheapest (a cell is ~4 characters wide at most)
+    with np.errstate(invalid="ignore"):
+        ok = t.cost <= t.limit
+    many = t.n[t.cell_part] > MAX_ALL_COLUMNS
+    if many.any():
+        best = np.full(len(t.row_track), np.inf)
+        np.minimum.at(best, t.cell_row[ok], t.cost[ok])
+        ok &= ~many | (t.cost == best[t.cell_row])
+    per_part = np.bincount(t.cell_part[ok], minlength=n_parts)
+    ok &= per_part[t.cell_part] <= MAX_CELL_LABELS
+    values = t.cost[ok]
+    r, k = t.cell_pos[0][ok], t.cell_pos[1][ok]
+    value_part = t.cell_part[ok]
+    stagger = (t.n[t.col_part] > 8) & (t.col_pos % 2 == 1)
+    has_note = (t.hidden_rows > 0) | (t.hidden_cols > 0)
+    note_part = np.flatnonzero(has_note)
+    notes = []
+    hidden = zip(t.hidden_rows[note_part].tolist(), t.hidden_cols[note_part].tolist(), strict=True)
+    for hr, hc in hidden:
+        note = ([f"+{hr} tracks"] if hr else []) + ([f"+{hc} detections"] if hc else [])
+        notes.append(" and ".join(note) + " without a feasible pair")
+    # order per matrix: row ids, column ids, cell values, then the note on what is not shown
+    kind_part = np.concatenate([t.row_part, t.col_part, value_part, note_part])
+    kind = np.repeat(np.arange(4), [len(t.row_part), len(t.col_part), len(values), len(notes)])
+    order = np.lexsort((np.arange(len(kind)), kind, kind_part))
+    positions = np.concatenate(
+        [
+            np.column_stack([np.full(len(t.row_pos), -1.2), t.row_pos + 0.5]),
+            np.column_stack([t.col_pos + 0.5, np.where(stagger, -1.7, -0.8)]),
             np.column_stack([k + 0.5, r + 0.5]),
+            np.column_stack([t.n[note_part] / 2.0, np.full(len(notes), -2.8)]),
         ]
-        hidden_rows = len(c.track_ids) - m
-        hidden_cols = c.cost.shape[1] - n
-        note = []
-        if hidden_rows:
-            note.append(f"+{hidden_rows} tracks")
-        if hidden_cols:
-            note.append(f"+{hidden_cols} detections")
-        positions.append(np.array([[n / 2.0, -2.8]] if note else np.zeros((0, 2))))
-        # order: row ids, column ids, cell values, then the note on what is not shown
-        labels += [f"T{i}" for i in ids.tolist()]
-        labels += [f"d{i}" for i in c.det_rows[part.cols].tolist()]
-        labels += [f"{v:.2f}" for v in values.tolist()]
-        labels += [" and ".join(note) + " without a feasible pair"] if note else []
-        colors += [
-            track_colors_u32(ids),
-            solid(DETECTION_KEPT_RGB, n),
+    )
+    colors = np.concatenate(
+        [
+            track_colors_u32(t.row_track),
+            solid(DETECTION_KEPT_RGB, len(t.col_part)),
             solid((255, 255, 255), len(values)),
-            solid((190, 190, 190), 1 if note else 0),
+            solid((190, 190, 190), len(notes)),
         ]
-        lengths.append(m + n + len(r) + (1 if note else 0))
-    total = int(sum(lengths))
+    )
+    labels = (
+        [f"T{i}" for i in t.row_track.tolist()]
+        + [f"d{i}" for i in t.col_det.tolist()]
+        + [f"{v:.2f}" for v in values.tolist()]
+        + notes
+    )
+    total = len(labels)
     fields = {
-        "positions": np.concatenate(positions).astype(np.float32),
+        "positions": positions[order].astype(np.float32),
         "radii": np.full(total, 0.03, np.float32),
-        "colors": np.concatenate(colors),
-        "labels": labels,
+        "colors": colors[order],
+        "labels": [labels[i] for i in order.tolist()],
     }
-    return fields, np.array(lengths), {"show_labels": [True] * len(parts)}
+    return fields, np.bincount(kind_part, minlength=n_parts), {"show_labels": [True] * n_parts}
 
 
-def _build_cost_matched(parts: list[tuple[_CostRows, Matched | None]]) -> Built:
+def _build_cost_matched(parts: list[_CostPart]) -> Built:
     """White outlines of the accepted cells."""
-    centres, lengths = [], []
-    for shown, matched in parts:
-        c = shown.event
-        if matched is None:
-            centres.append(np.zeros((0, 2)))
-            lengths.append(0)
-            continue
-        rows = _positions(c.track_ids[shown.rows], matched.track_ids)
-        cols = _positions(c.det_rows[shown.cols], matched.det_rows)
-        centres.append(np.column_stack([cols, rows]) + 0.5)
-        lengths.append(len(rows))
-    total = int(sum(lengths))
+    t = _cost_tables(parts)
+    n_parts = len(parts)
+    pairs = [
+        (i, p.matched)
+        for i, p in enumerate(parts)
+        if p.matched is not None and len(p.matched.track_ids)
+    ]
+    if pairs:
+        part = np.concatenate([np.full(len(mt.track_ids), i) for i, mt in pairs])
+        tracks = np.concatenate([mt.track_ids for _, mt in pairs])
+        dets = np.concatenate([mt.det_rows for _, mt in pairs])
+        rows = t.row_pos[_find(pair_key(t.row_part, t.row_track), pair_key(part, tracks))]
+        cols = t.col_pos[_find(pair_key(t.col_part, t.col_det), pair_key(part, dets))]
+    else:
+        part = rows = cols = _EMPTY_INT
+    total = len(part)
     fields = {
-        "centers": np.concatenate(centres).astype(np.float32),
+        "centers": (np.column_stack([cols, rows]) + 0.5).astype(np.float32).reshape(-1, 2),
         "half_sizes": np.full((total, 2), 0.45, np.float32),
         "colors": solid((255, 255, 255), total),
         "radii": np.full(total, -2.0, np.float32),
     }
-    return fields, np.array(lengths), {}
+    return fields, np.bincount(part, minlength=n_parts), {}
+
+
+def _find(keys: IntArray, wanted: IntArray) -> IntArray:
+    """Index of each ``wanted`` key in ``keys`` (all present)."""
+    order = np.argsort(keys, kind="stable")
+    return order[np.searchsorted(keys, wanted, sorter=order)]
 
 
 def _not_in(values: IntArray, exclude: IntArray) -> np.ndarray:
