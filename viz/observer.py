@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import rerun as rr
+from numpy.typing import NDArray
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.camera import project_boxes_batched
@@ -324,48 +325,11 @@ class RerunObserver:
             return
         assert cost is not None and event is not None and cost.track_xyxy is not None
         self._rv_shown = True
-        ids = np.concatenate([event.track_ids, event.rejected_track_ids])
-        det_rows = np.concatenate([event.det_rows, event.rejected_det_rows])
-        accepted = np.arange(len(det_rows)) < len(event.track_ids)
-        sdiou = np.concatenate([1.0 - event.costs, np.full(len(event.rejected_track_ids), np.nan)])
         for c, cam in enumerate(frame.cameras):
-            on_cam = frame.boxes.camera[det_rows] == c
-            t_xyxy = cost.track_xyxy[_positions(cost.track_ids, ids[on_cam])]
-            d_xyxy = frame.boxes.xyxy_image[det_rows[on_cam]]
-            centres = np.stack(
-                [(t_xyxy[:, :2] + t_xyxy[:, 2:]) / 2, (d_xyxy[:, :2] + d_xyxy[:, 2:]) / 2], axis=1
-            )
-            ok = accepted[on_cam]
-            labels = [
-                f"T{t}-d{d} SDIoU {s:.2f}" if a else f"T{t}-d{d} gated"
-                for t, d, s, a in zip(
-                    ids[on_cam].tolist(),
-                    det_rows[on_cam].tolist(),
-                    sdiou[on_cam].tolist(),
-                    ok.tolist(),
-                    strict=True,
-                )
-            ]
-            colors = np.where(ok, track_colors_u32(ids[on_cam]), pack_rgb(REJECTED_RGB))
-            colors = colors.astype(np.uint32)
-            k = len(labels)
             path = paths.camera_matches_rv(cam.name)
-            self._add(
-                path,
-                rr.LineStrips2D,
-                k,
-                mono={"show_labels": [True]},
-                strips=centres.astype(np.float32),
-                colors=colors,
-                labels=labels,
-                radii=np.full(k, -2.0, np.float32),
-            )
-            self._add(
-                path,
-                rr.Boxes2D,
-                k,
-                **boxes2d_fields(t_xyxy, colors=colors, labels=[""] * k, ui_points=2.0),
-            )
+            part = _RvPart(cost, event, frame, c)
+            self._defer(path, rr.LineStrips2D, part, _build_rv_lines)
+            self._defer(path, rr.Boxes2D, part, _build_rv_boxes)
 
     def _build_trails(self, outputs: list[TrackOutput]) -> Built:
         """Each output track's positions over the last ``trail_frames`` frames (this one
@@ -653,6 +617,104 @@ _build_unmatched_tracks = functools.partial(
 _build_unmatched_detections = functools.partial(
     _build_unmatched, prefix="d", radius=0.3, rgb=UNMATCHED_DETECTION_RGB
 )
+
+
+@dataclass(frozen=True, slots=True)
+class _RvPart:
+    """One frame's image-plane stage (its costs and pairs) as seen by camera ``camera``."""
+
+    cost: CostComputed
+    matched: Matched
+    frame: Frame
+    camera: int
+
+
+#: One-slot cache of :func:`_rv_pairs` (the lines and the boxes are built from the same rows).
+_LAST_RV_PAIRS: list[Any] = []
+
+
+def _rv_pairs(parts: Sequence[_RvPart]) -> tuple[Any, ...]:
+    """The stage-2 pairs (accepted, then gated) of every buffered frame whose detection is in
+    the part's camera: track ids, detection rows, accepted, SDIoU, the track's box used and the
+    detection's box (image xyxy), and the pairs per frame."""
+    key = tuple(id(p) for p in parts)
+    if _LAST_RV_PAIRS and _LAST_RV_PAIRS[0] == key:
+        return _LAST_RV_PAIRS[1]
+    ids = np.concatenate(
+        [np.concatenate([p.matched.track_ids, p.matched.rejected_track_ids]) for p in parts]
+    )
+    det_rows = np.concatenate(
+        [np.concatenate([p.matched.det_rows, p.matched.rejected_det_rows]) for p in parts]
+    )
+    n_ok = np.array([len(p.matched.track_ids) for p in parts], dtype=np.int64)
+    n_all = n_ok + np.array([len(p.matched.rejected_track_ids) for p in parts], dtype=np.int64)
+    part = np.repeat(np.arange(len(parts)), n_all)
+    accepted = np.arange(len(ids)) - np.repeat(np.cumsum(n_all) - n_all, n_all) < n_ok[part]
+    sdiou = np.concatenate(
+        [
+            np.concatenate(
+                [1.0 - p.matched.costs, np.full(len(p.matched.rejected_track_ids), np.nan)]
+            )
+            for p in parts
+        ]
+    )
+    # detection rows index the frame's boxes: offset them into the concatenated boxes
+    det_n = np.array([len(p.frame.boxes) for p in parts], dtype=np.int64)
+    det_at = det_rows + (np.cumsum(det_n) - det_n)[part]
+    det_camera = np.concatenate([p.frame.boxes.camera for p in parts])[det_at]
+    det_xyxy = np.concatenate([p.frame.boxes.xyxy_image for p in parts]).reshape(-1, 4)[det_at]
+    on_cam = det_camera == np.array([p.camera for p in parts], dtype=np.int64)[part]
+    cost_part = np.repeat(np.arange(len(parts)), [len(p.cost.track_ids) for p in parts])
+    cost_ids = np.concatenate([p.cost.track_ids for p in parts])
+    track_xyxy = np.concatenate([p.cost.track_xyxy for p in parts]).reshape(-1, 4)
+    at = _find(pair_key(cost_part, cost_ids), pair_key(part[on_cam], ids[on_cam]))
+    result = (
+        ids[on_cam],
+        det_rows[on_cam],
+        accepted[on_cam],
+        sdiou[on_cam],
+        track_xyxy[at],
+        det_xyxy[on_cam],
+        np.bincount(part[on_cam], minlength=len(parts)),
+    )
+    # keeping ``parts`` alive keeps the ids in the key from being reused by new objects
+    _LAST_RV_PAIRS[:] = [key, result, parts]
+    return result
+
+
+def _rv_style(ids: IntArray, ok: np.ndarray) -> NDArray[np.uint32]:
+    return np.where(ok, track_colors_u32(ids), pack_rgb(REJECTED_RGB)).astype(np.uint32)
+
+
+def _build_rv_lines(parts: list[_RvPart]) -> Built:
+    """The image-plane stage: track box used -> detection box, labelled with the SDIoU."""
+    ids, det_rows, ok, sdiou, t_xyxy, d_xyxy, lengths = _rv_pairs(parts)
+    centres = np.stack(
+        [(t_xyxy[:, :2] + t_xyxy[:, 2:]) / 2, (d_xyxy[:, :2] + d_xyxy[:, 2:]) / 2], axis=1
+    )
+    labels = [
+        f"T{t}-d{d} SDIoU {v:.2f}" if a else f"T{t}-d{d} gated"
+        for t, d, v, a in zip(
+            ids.tolist(), det_rows.tolist(), sdiou.tolist(), ok.tolist(), strict=True
+        )
+    ]
+    k = len(labels)
+    fields = {
+        "strips": centres.astype(np.float32).reshape(-1, 2, 2),
+        "colors": _rv_style(ids, ok),
+        "labels": labels,
+        "radii": np.full(k, -2.0, np.float32),
+    }
+    return fields, lengths, {"show_labels": [True] * len(parts)}
+
+
+def _build_rv_boxes(parts: list[_RvPart]) -> Built:
+    """The track boxes the image-plane stage compared (same rows as :func:`_build_rv_lines`)."""
+    ids, _, ok, _, t_xyxy, _, lengths = _rv_pairs(parts)
+    fields = boxes2d_fields(
+        t_xyxy, colors=_rv_style(ids, ok), labels=[""] * len(ids), ui_points=2.0
+    )
+    return fields, lengths, {}
 
 
 #: Up to this many detections every column is shown; beyond, only the columns with a feasible
