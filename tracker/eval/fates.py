@@ -73,7 +73,8 @@ class FateCounter:
         # reference mode (config.rv_reference) drops detections of gated image-plane pairs;
         # otherwise they go back to the pool and only the birth score can leave them unused
         self.rv_gate_consumes = rv_gate_consumes
-        self.counts: Counter[tuple[str, str]] = Counter()  # (fate, category) -> detections
+        # detections per (fate, category index): one bincount per frame, names at the end
+        self._counts = np.zeros((len(FATE_NAMES), len(CATEGORIES)), dtype=np.int64)
         self.detections = 0
         self._fate: np.ndarray | None = None
         self._category: np.ndarray | None = None
@@ -117,12 +118,22 @@ class FateCounter:
         fate[pending & ~gated] = Fate.UNUSED_BELOW_BIRTH
         if (fate == Fate.PENDING).any():  # cannot happen: every row was given a fate above
             raise RuntimeError("detection fates: a detection got no fate")
-        pairs = np.stack([fate.astype(np.int64), category], axis=1)
-        keys, n = np.unique(pairs, axis=0, return_counts=True) if len(fate) else ([], [])
-        for (f, c), k in zip(keys, n, strict=True):
-            self.counts[(FATE_NAMES[Fate(int(f))], CATEGORIES[int(c)])] += int(k)
+        n_cat = self._counts.shape[1]
+        flat = fate.astype(np.int64) * n_cat + np.asarray(category, dtype=np.int64)
+        self._counts += np.bincount(flat, minlength=self._counts.size).reshape(self._counts.shape)
         self.detections += len(fate)
         self._fate = None
+
+    @property
+    def counts(self) -> Counter[tuple[str, str]]:
+        """(fate, category) -> detections, the pairs seen."""
+        f, c = np.nonzero(self._counts)
+        return Counter(
+            {
+                (FATE_NAMES[Fate(int(i))], CATEGORIES[int(j)]): int(self._counts[i, j])
+                for i, j in zip(f.tolist(), c.tolist(), strict=True)
+            }
+        )
 
     def _close_scene(self) -> None:
         self.in_unconfirmed_tracks += sum(
