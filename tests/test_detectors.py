@@ -12,6 +12,7 @@ import pytest
 
 from tracker.boxes import Boxes
 from tracker.calibration import (
+    RangeTerm,
     ScoreMap,
     ScoreProfile,
     builtin_profiles,
@@ -185,3 +186,94 @@ def test_labels_and_fit_on_real_sequences(kitti_root: Path) -> None:
     profile = fit_profile("virconv", dets, gt, ["car"])
     high, low = profile.maps["car"](np.array([6.0])), profile.maps["car"](np.array([-2.0]))
     assert high > 0.95 and low < 0.2
+
+
+def _range_scene(n_frames: int, rng: np.random.Generator) -> tuple[list[Frame], list[Frame]]:
+    """Detections whose P(true positive | raw) rises with range: a far box with a low score is
+    a real object more often than a near one (the effect the range term is for)."""
+    dets, truth = [], []
+    for i in range(n_frames):
+        n = 60
+        rng_m = rng.uniform(5, 70, n)
+        ang = rng.uniform(-0.6, 0.6, n)
+        xyz = np.column_stack([rng_m * np.cos(ang), rng_m * np.sin(ang), np.zeros(n)])
+        raw = rng.uniform(-4, 6, n)
+        p_true = 1.0 / (1.0 + np.exp(-(raw - 1.0 + 3.0 * (rng_m / 50.0))))
+        real = rng.uniform(size=n) < p_true
+        ones = np.ones((n, 3))
+        dets.append(Frame(f"s{i % 4}", i, 0.1 * i, Boxes.create(
+            xyz=xyz, lwh=ones, yaw=np.zeros(n), score=np.zeros(n), category=np.full(n, CAR),
+            score_raw=raw,
+        ), world_from_ego=np.eye(4)))  # fmt: skip
+        k = int(real.sum())
+        truth.append(Frame(f"s{i % 4}", i, 0.1 * i, Boxes.create(
+            xyz=xyz[real], lwh=ones[real], yaw=np.zeros(k), score=np.ones(k),
+            category=np.full(k, CAR),
+        )))  # fmt: skip
+    return dets, truth
+
+
+def test_range_term_is_fitted_where_score_meaning_changes_with_range() -> None:
+    dets, truth = _range_scene(400, np.random.default_rng(0))
+    by_scene: dict[str, list[Frame]] = {}
+    gt: dict[str, list[Frame]] = {}
+    for d, t in zip(dets, truth, strict=True):
+        by_scene.setdefault(d.scene, []).append(d)
+        gt.setdefault(t.scene, []).append(t)
+    profile = fit_profile("toy", by_scene, gt, ["car"])
+    score_map = profile.maps["car"]
+    assert score_map.range_term is not None, profile.quality["car"]["range_term"]
+    assert profile.quality["car"]["range_term"].startswith("kept")
+    raw = np.full(3, 0.5)
+    near, far, unknown = score_map(raw, np.array([10.0, 60.0, np.nan]))
+    truth_near, truth_far = (1 / (1 + np.exp(-(0.5 - 1 + 3 * r / 50))) for r in (10.0, 60.0))
+    assert abs(near - truth_near) < 0.08 and abs(far - truth_far) < 0.08
+    assert unknown == pytest.approx(float(score_map(raw[:1])[0]))  # no range: isotonic only
+    grid = np.linspace(-4, 6, 50)
+    assert np.all(np.diff(score_map(grid, np.full(50, 40.0))) >= 0)  # monotone in raw
+    # calibrate_frames uses the range from the ego pose
+    scored = calibrate_frames(dets[:1], profile)[0].boxes.score
+    r = np.hypot(dets[0].boxes.xyz[:, 0], dets[0].boxes.xyz[:, 1])
+    np.testing.assert_allclose(scored, score_map(dets[0].boxes.score_raw, r))
+
+
+def test_range_term_is_left_out_when_range_tells_nothing() -> None:
+    rng = np.random.default_rng(1)
+    dets, truth = _range_scene(300, rng)
+    del truth  # relabelled below: the truth depends on the raw score only
+    by_scene: dict[str, list[Frame]] = {}
+    gt: dict[str, list[Frame]] = {}
+    for d in dets:
+        p = 1.0 / (1.0 + np.exp(-(d.boxes.score_raw - 1.0)))
+        real = rng.uniform(size=len(p)) < p
+        k = int(real.sum())
+        by_scene.setdefault(d.scene, []).append(d)
+        gt.setdefault(d.scene, []).append(Frame(d.scene, d.frame_id, d.timestamp_secs, Boxes.create(
+            xyz=d.boxes.xyz[real], lwh=np.ones((k, 3)), yaw=np.zeros(k), score=np.ones(k),
+            category=np.full(k, CAR),
+        )))  # fmt: skip
+    profile = fit_profile("toy", by_scene, gt, ["car"])
+    assert profile.maps["car"].range_term is None
+    assert profile.quality["car"]["range_term"].startswith("not kept")
+
+
+def test_range_term_round_trips_and_bad_values_name_the_field(tmp_path: Path) -> None:
+    term = RangeTerm(1.1, -3.9, 3.2, 0.87, 50.0, 1.2, 79.3)
+    profile = ScoreProfile(
+        "toy", {"car": ScoreMap(np.array([-1.0, 0.0, 2.5]), np.array([0.01, 0.4, 0.99]), term)}
+    )
+    path = tmp_path / "toy.toml"
+    path.write_text(profile_toml(profile))
+    again = load_profile(path)
+    assert again.maps["car"].range_term == term
+    raw, far = np.array([0.0, 0.0]), np.array([20.0, 500.0])
+    # beyond the fitted span the range is clipped (no quadratic extrapolation)
+    np.testing.assert_allclose(
+        again.maps["car"](raw, far)[1], term(np.array([0.4]), np.array([79.3]))[0]
+    )
+    path.write_text(profile_toml(profile).replace("logit_coef = 1.1", "logit_coef = -1.1"))
+    with pytest.raises(InputError, match=r"toy\.toml.*class\.car\.range"):
+        load_profile(path)
+    path.write_text(profile_toml(profile).replace("scale_m = 50.0, ", ""))
+    with pytest.raises(InputError, match=r"class\.car\.range"):
+        load_profile(path)

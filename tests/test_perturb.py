@@ -173,8 +173,9 @@ def test_score_noise_recomputes_the_score_with_rescore(scene: list[Frame]) -> No
 
     seen: list[np.ndarray] = []
 
-    def rescore(category: np.ndarray, raw: np.ndarray) -> np.ndarray:
+    def rescore(category: np.ndarray, raw: np.ndarray, range_m: np.ndarray) -> np.ndarray:
         seen.append(category.copy())
+        assert range_m.shape == raw.shape
         return np.clip(raw / 10.0, 0.0, 1.0)
 
     custom = _all(perturb_frames(scene, PerturbSpec(score_sigma=0.5), seed=1, rescore=rescore))

@@ -7,6 +7,14 @@ piecewise-linear map fitted on labelled sequences (:mod:`tracker.eval.calibrate`
 regression) and stored as a small TOML file; profiles for the detectors of the KITTI kit ship in
 ``tracker/profiles/``.
 
+A detector's score also means different things at different ranges: far objects return few
+points, so a true far box scores lower than a true near one (on KITTI, a car detection 50 m
+away is about twice as likely to be real as a near one with the same raw score; a far
+pedestrian less likely). Where the fit shows it, a class's map carries a :class:`RangeTerm`, a
+logistic correction in range ``r`` (metres from the ego, over ``scale_m``) on the isotonic
+probability ``p₀``:  ``P = σ(a·logit p₀ + b·r + c·r² + d)``, with ``a > 0`` so the map stays
+monotone in the raw score, and ``r`` clipped to the range the fit saw.
+
 Without a profile the score is ``sigmoid(raw)`` (the BaseVersion convention for logits) or the
 raw value where it already lies in [0, 1]: defensible for a detector that outputs calibrated
 probabilities or logits, wrong for any other, so callers warn loudly (:func:`fallback_scores`).
@@ -31,16 +39,52 @@ from tracker.frame import Frame
 
 LOG = logging.getLogger(__name__)
 PROFILE_DIR = Path(__file__).resolve().parent / "profiles"
-PROFILE_VERSION = 1
+PROFILE_VERSION = 2
+READABLE_VERSIONS = (1, 2)  # version 1: no range terms
+#: Probabilities are kept inside this range (the lifecycle's evidence -log(1 - p) stays finite).
+PROB_RANGE = (0.001, 0.999)
+
+
+@dataclasses.dataclass(frozen=True, slots=True)
+class RangeTerm:
+    """``P = σ(logit_coef·logit p₀ + r_coef·r + r2_coef·r² + intercept)``, ``r`` = range over
+    ``scale_m``, clipped to ``[min_m, max_m]`` (the fitted span: no quadratic extrapolation)."""
+
+    logit_coef: float
+    r_coef: float
+    r2_coef: float
+    intercept: float
+    scale_m: float
+    min_m: float
+    max_m: float
+
+    def __post_init__(self) -> None:
+        values = (self.logit_coef, self.r_coef, self.r2_coef, self.intercept, self.scale_m,
+                  self.min_m, self.max_m)  # fmt: skip
+        if not all(math.isfinite(v) for v in values):
+            raise ValueError("range term values must be finite")
+        if self.logit_coef <= 0 or self.scale_m <= 0 or not 0 <= self.min_m <= self.max_m:
+            raise ValueError("range term needs logit_coef > 0, scale_m > 0, 0 <= min_m <= max_m")
+
+    def __call__(self, p0: FloatArray, range_m: FloatArray) -> FloatArray:
+        p0 = np.clip(p0, *PROB_RANGE)
+        r = np.clip(range_m, self.min_m, self.max_m) / self.scale_m
+        z = self.logit_coef * np.log(p0 / (1.0 - p0)) + self.r_coef * r + self.r2_coef * r * r
+        return np.clip(1.0 / (1.0 + np.exp(-(z + self.intercept))), *PROB_RANGE)
+
+    def as_dict(self) -> dict[str, float]:
+        return {f.name: round(float(getattr(self, f.name)), 6) for f in dataclasses.fields(self)}
 
 
 @dataclasses.dataclass(frozen=True, slots=True)
 class ScoreMap:
     """One class's monotone map: ``np.interp`` through knots (raw increasing, prob
-    non-decreasing in [0, 1]); constant beyond the first and last knot."""
+    non-decreasing in [0, 1]); constant beyond the first and last knot. With a ``range_term``
+    and the boxes' ranges, the interpolated probability is corrected for range."""
 
     raw: FloatArray
     prob: FloatArray
+    range_term: RangeTerm | None = None
 
     def __post_init__(self) -> None:
         raw, prob = np.asarray(self.raw, np.float64), np.asarray(self.prob, np.float64)
@@ -57,8 +101,13 @@ class ScoreMap:
         object.__setattr__(self, "raw", raw)
         object.__setattr__(self, "prob", prob)
 
-    def __call__(self, raw: FloatArray) -> FloatArray:
-        return np.interp(np.asarray(raw, np.float64), self.raw, self.prob)
+    def __call__(self, raw: FloatArray, range_m: FloatArray | None = None) -> FloatArray:
+        p0 = np.interp(np.asarray(raw, np.float64), self.raw, self.prob)
+        if self.range_term is None or range_m is None:
+            return p0
+        range_m = np.broadcast_to(np.asarray(range_m, np.float64), p0.shape)
+        known = np.isfinite(range_m)  # unknown range: the range-free map
+        return np.where(known, self.range_term(p0, np.where(known, range_m, 0.0)), p0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -75,15 +124,25 @@ class ScoreProfile:
     fitted_on: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     quality: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
 
-    def scores(self, category: IntArray, raw: FloatArray) -> FloatArray:
-        """Calibrated score per box; classes without a map keep :func:`fallback_scores`."""
+    def scores(
+        self, category: IntArray, raw: FloatArray, range_m: FloatArray | None = None
+    ) -> FloatArray:
+        """Calibrated score per box (``range_m``: BEV distance from the ego, NaN or None where
+        unknown); classes without a map keep :func:`fallback_scores`."""
         raw = np.asarray(raw, np.float64)
         out = fallback_scores(raw)
         for name, score_map in self.maps.items():
             rows = np.asarray(category) == category_index(name)
             if rows.any():
-                out[rows] = score_map(raw[rows])
+                out[rows] = score_map(raw[rows], None if range_m is None else range_m[rows])
         return out
+
+
+def box_ranges(frame: Frame) -> FloatArray:
+    """BEV distance (m) of each box from the ego (NaN when the frame has no ego pose)."""
+    ego = np.asarray(frame.world_from_ego, np.float64)[:2, 3]
+    xyz = frame.boxes.xyz
+    return np.hypot(xyz[:, 0] - ego[0], xyz[:, 1] - ego[1])
 
 
 def fallback_scores(raw: FloatArray, *, is_probability: bool | None = None) -> FloatArray:
@@ -114,7 +173,7 @@ def calibrate_frames(frames: Sequence[Frame], profile: ScoreProfile | None) -> l
         if len(boxes):
             raw = boxes.score_raw
             new = (
-                profile.scores(boxes.category, raw)
+                profile.scores(boxes.category, raw, box_ranges(frame))
                 if profile
                 else fallback_scores(raw, is_probability=is_probability)
             )
@@ -164,8 +223,9 @@ def load_profile(path: str | Path) -> ScoreProfile:
         raise InputError(f"cannot read profile: {exc}", path=path) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML: {exc}", path=path) from None
-    if doc.get("version") != PROFILE_VERSION:
-        raise InputError(f"expected version = {PROFILE_VERSION}", path=path, field="version")
+    if doc.get("version") not in READABLE_VERSIONS:
+        expected = " or ".join(str(v) for v in READABLE_VERSIONS)
+        raise InputError(f"expected version = {expected}", path=path, field="version")
     detector = doc.get("detector")
     if not isinstance(detector, str) or not detector:
         raise InputError("expected a detector name", path=path, field="detector")
@@ -180,10 +240,26 @@ def load_profile(path: str | Path) -> ScoreProfile:
             raise InputError(f"unknown class {name!r}", path=path, field=where)
         if not isinstance(table, dict):
             raise InputError("expected a table", path=path, field=where)
+        range_term = None
+        if "range" in table:
+            term = table["range"]
+            names = [f.name for f in dataclasses.fields(RangeTerm)]
+            try:
+                if not isinstance(term, dict) or set(term) != set(names):
+                    raise ValueError
+                range_term = RangeTerm(**{k: float(term[k]) for k in names})
+            except (TypeError, ValueError):
+                raise InputError(
+                    f"expected the numbers {', '.join(names)} (logit_coef > 0, scale_m > 0, "
+                    "0 <= min_m <= max_m)",
+                    path=path,
+                    field=f"{where}.range",
+                ) from None
         try:
             maps[name] = ScoreMap(
                 np.array(table.get("raw"), dtype=np.float64),
                 np.array(table.get("prob"), dtype=np.float64),
+                range_term,
             )
         except (TypeError, ValueError):
             raise InputError(
@@ -201,7 +277,8 @@ def profile_toml(profile: ScoreProfile) -> str:
     """The profile as a small readable TOML document (what :func:`load_profile` reads)."""
     lines = [
         f"# Score calibration of the {profile.detector!r} detector: raw score -> probability",
-        "# that the box is a real object (monotone, piecewise linear through the knots).",
+        "# that the box is a real object (monotone, piecewise linear through the knots; where a",
+        "# class has a range term, corrected for the box's distance from the ego).",
         "# Made by `mctrack calibrate`; see tracker/calibration.py.",
         f"version = {PROFILE_VERSION}",
         f"detector = {_toml_value(profile.detector)}",
@@ -215,6 +292,11 @@ def profile_toml(profile: ScoreProfile) -> str:
             f"[class.{name}]",
             f"raw = {_toml_value([round(float(v), 4) for v in score_map.raw])}",
             f"prob = {_toml_value([round(float(v), 4) for v in score_map.prob])}",
+            *(
+                [f"range = {_toml_value(score_map.range_term.as_dict())}"]
+                if score_map.range_term
+                else []
+            ),
             f"quality = {_toml_value(dict(profile.quality.get(name, {})))}",
         ]
     return "\n".join(lines) + "\n"

@@ -19,7 +19,14 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 from tracker.boxes import FloatArray, IntArray
-from tracker.calibration import ScoreMap, ScoreProfile, fallback_scores
+from tracker.calibration import (
+    PROB_RANGE,
+    RangeTerm,
+    ScoreMap,
+    ScoreProfile,
+    box_ranges,
+    fallback_scores,
+)
 from tracker.categories import category_index
 from tracker.frame import Frame
 
@@ -33,24 +40,26 @@ DISTRACTORS: Mapping[str, tuple[str, ...]] = {
 }
 DONTCARE_OVERLAP = 0.5  # fraction of a detection's 2D box inside DontCare regions to ignore it
 MAX_KNOTS = 48  # knots stored per class (the map is read back with linear interpolation)
-# finite data never proves a probability of exactly 0 or 1 (and the lifecycle's evidence
-# -log(1 - p) must stay finite)
-PROB_RANGE = (0.001, 0.999)
+RANGE_SCALE_M = 50.0  # r = range / this in the range term (keeps its coefficients near 1)
+#: held-out log-loss gain (nats per detection) a range term must bring to be kept
+RANGE_MIN_GAIN = 0.002
 
 
 @dataclass(frozen=True, slots=True)
 class LabelledScores:
-    """Per kept detection: category, raw score, 1 for a true positive, and its sequence."""
+    """Per kept detection: category, raw score, 1 for a true positive, its sequence and its BEV
+    range from the ego (NaN without an ego pose)."""
 
     category: IntArray
     raw: FloatArray
     label: IntArray
     scene: np.ndarray
+    range_m: FloatArray
 
     def of_class(self, name: str) -> LabelledScores:
         rows = self.category == category_index(name)
         return LabelledScores(self.category[rows], self.raw[rows], self.label[rows],
-                              self.scene[rows])  # fmt: skip
+                              self.scene[rows], self.range_m[rows])  # fmt: skip
 
 
 def label_detections(
@@ -59,7 +68,7 @@ def label_detections(
     classes: Sequence[str],
 ) -> LabelledScores:
     """Match every detection of ``classes`` to the ground truth; drop the ignored ones."""
-    cats, raws, labels, scenes = [], [], [], []
+    cats, raws, labels, scenes, ranges = [], [], [], [], []
     for scene, frames in detections.items():
         gt_frames = {f.frame_id: f for f in gt[scene]}
         for frame in frames:
@@ -73,13 +82,14 @@ def label_detections(
                 raws.append(frame.boxes.score_raw[rows])
                 labels.append(label[keep])
                 scenes.append(np.full(len(rows), scene, dtype=object))
+                ranges.append(box_ranges(frame)[rows])
     if not cats:
         empty = np.zeros(0)
         return LabelledScores(empty.astype(np.int64), empty, empty.astype(np.int64),
-                              empty.astype(object))  # fmt: skip
+                              empty.astype(object), empty)  # fmt: skip
     return LabelledScores(
         np.concatenate(cats), np.concatenate(raws), np.concatenate(labels).astype(np.int64),
-        np.concatenate(scenes),
+        np.concatenate(scenes), np.concatenate(ranges),
     )  # fmt: skip
 
 
@@ -139,15 +149,43 @@ def fit_map(raw: FloatArray, label: IntArray) -> ScoreMap:
     return ScoreMap(knots, np.round(prob, 4))
 
 
+def fit_range_term(p0: FloatArray, range_m: FloatArray, label: IntArray) -> RangeTerm | None:
+    """Logistic regression of ``label`` on ``logit p0``, ``r``, ``r²`` (None when it cannot be
+    fitted: no finite ranges, one-sided labels, or a non-positive logit coefficient)."""
+    from sklearn.linear_model import LogisticRegression
+
+    known = np.isfinite(range_m)
+    if known.sum() < 20 or label[known].min() == label[known].max():
+        return None
+    p0 = np.clip(p0[known], *PROB_RANGE)
+    r = range_m[known] / RANGE_SCALE_M
+    features = np.column_stack([np.log(p0 / (1.0 - p0)), r, r * r])
+    fit = LogisticRegression(C=1e4, max_iter=1000).fit(features, label[known])
+    (a, b, c), d = fit.coef_[0], fit.intercept_[0]
+    if not a > 0:
+        return None
+    lo, hi = float(range_m[known].min()), float(range_m[known].max())
+    return RangeTerm(float(a), float(b), float(c), float(d), RANGE_SCALE_M, lo, hi)
+
+
+def _log_loss(prob: FloatArray, label: IntArray) -> float:
+    prob = np.clip(prob, *PROB_RANGE)
+    return float(-np.mean(label * np.log(prob) + (1 - label) * np.log(1.0 - prob)))
+
+
 def _quality(prob: FloatArray, label: IntArray) -> dict[str, float]:
-    """Brier score and expected calibration error (10 equal-count bins)."""
+    """Brier score, expected calibration error (10 equal-count bins) and log loss."""
     brier = float(np.mean((prob - label) ** 2))
     order = np.argsort(prob, kind="stable")
     ece = 0.0
     for part in np.array_split(order, 10):
         if len(part):
             ece += len(part) / len(prob) * abs(float(prob[part].mean() - label[part].mean()))
-    return {"brier": round(brier, 4), "ece": round(ece, 4)}
+    return {
+        "brier": round(brier, 4),
+        "ece": round(ece, 4),
+        "log_loss": round(_log_loss(prob, label), 4),
+    }
 
 
 def fit_profile(
@@ -158,7 +196,8 @@ def fit_profile(
     *,
     dataset: str = "kitti",
 ) -> ScoreProfile:
-    """Fit one map per class with detections; quality in-sample and held out by sequence."""
+    """Fit one map per class with detections (and its range term where it helps held out);
+    quality in-sample and held out by sequence."""
     data = label_detections(detections, gt, classes)
     maps: dict[str, ScoreMap] = {}
     quality: dict[str, dict[str, object]] = {}
@@ -166,29 +205,49 @@ def fit_profile(
         part = data.of_class(name)
         if len(part.raw) < 20 or part.label.min(initial=1) == part.label.max(initial=0):
             continue  # too little (or one-sided) evidence to fit: the class keeps the fallback
-        score_map = fit_map(part.raw, part.label)
-        maps[name] = score_map
-        held_out = np.empty(len(part.raw))
+        raw, label, range_m = part.raw, part.label, part.range_m
+        score_map = fit_map(raw, label)
+        term = fit_range_term(score_map(raw), range_m, label)
+        # held out by sequence: each sequence scored by maps fitted on the others
+        held_iso, held_range = score_map(raw), np.full(len(raw), np.nan)
         for scene in np.unique(part.scene):
             test = part.scene == scene
             train = ~test
-            if train.sum() >= 20 and part.label[train].min() != part.label[train].max():
-                held_out[test] = fit_map(part.raw[train], part.label[train])(part.raw[test])
-            else:
-                held_out[test] = score_map(part.raw[test])
+            if train.sum() >= 20 and label[train].min() != label[train].max():
+                iso = fit_map(raw[train], label[train])
+                held_iso[test] = iso(raw[test])
+                if term is not None:
+                    t = fit_range_term(iso(raw[train]), range_m[train], label[train])
+                    if t is not None:
+                        held_range[test] = ScoreMap(iso.raw, iso.prob, t)(raw[test], range_m[test])
+        held_range = np.where(np.isfinite(held_range), held_range, held_iso)
+        gain = _log_loss(held_iso, label) - _log_loss(held_range, label)
+        use_range = term is not None and gain >= RANGE_MIN_GAIN
+        if use_range:
+            score_map = ScoreMap(score_map.raw, score_map.prob, term)
+        held_out = held_range if use_range else held_iso
         quality[name] = {
-            "detections": len(part.raw),
-            "true_positives": int(part.label.sum()),
-            "in_sample": _quality(score_map(part.raw), part.label),
-            "held_out_by_sequence": _quality(held_out, part.label),
-            "uncalibrated": _quality(fallback_scores(part.raw), part.label),
+            "detections": len(raw),
+            "true_positives": int(label.sum()),
+            "in_sample": _quality(score_map(raw, range_m), label),
+            "held_out_by_sequence": _quality(held_out, label),
+            "uncalibrated": _quality(fallback_scores(raw), label),
+            "range_term": (
+                f"kept: held-out log loss {gain:+.4f} nats lower than without"
+                if use_range
+                else "not kept: "
+                + ("not fitted" if term is None else f"held-out log loss gain {gain:+.4f} nats")
+            ),
         }
+        maps[name] = score_map
     fitted_on = {
         "dataset": dataset,
         "sequences": sorted(detections),
         "match": "greedy by score, BEV centre distance <= "
         + ", ".join(f"{c} {MATCH_DISTANCE_M.get(c, 2.0)} m" for c in classes)
         + "; distractor classes and DontCare regions ignored",
-        "fit": "sklearn IsotonicRegression",
+        "fit": "sklearn IsotonicRegression; range term: sklearn LogisticRegression on "
+        f"logit p, r, r^2 (r = range / {RANGE_SCALE_M:g} m), kept if it lowers the held-out "
+        f"log loss by >= {RANGE_MIN_GAIN} nats",
     }
     return ScoreProfile(detector, maps, fitted_on, quality)

@@ -34,8 +34,10 @@ from tracker.frame import Frame
 from tracker.geometry import wrap_angle
 from tracker.io.convert.kitti import _sigmoid
 
-#: ``rescore(category (N,), score_raw (N,)) -> score (N,)``: raw detector score -> calibrated.
-Rescore = Callable[[IntArray, FloatArray], FloatArray]
+#: ``rescore(category (N,), score_raw (N,), range_m (N,)) -> score (N,)``: raw detector score
+#: -> calibrated (``range_m``: BEV distance from the ego, NaN when unknown; e.g.
+#: :meth:`tracker.calibration.ScoreProfile.scores`).
+Rescore = Callable[[IntArray, FloatArray, FloatArray], FloatArray]
 
 #: Candidate positions drawn per false positive; the first inside the camera's view is kept.
 _FP_TRIES = 8
@@ -84,9 +86,11 @@ NOISE_LEVELS: dict[str, PerturbSpec] = {
 }
 
 
-def sigmoid_rescore(category: IntArray, score_raw: FloatArray) -> FloatArray:
+def sigmoid_rescore(
+    category: IntArray, score_raw: FloatArray, range_m: FloatArray | None = None
+) -> FloatArray:
     """The KITTI converter's calibration: ``score = sigmoid(score_raw)`` for every class."""
-    del category  # one map for all classes
+    del category, range_m  # one map for all classes and ranges
     return _sigmoid(np.asarray(score_raw, dtype=np.float64))
 
 
@@ -199,7 +203,10 @@ def _perturb_scene(
         if np.isnan(out.score_raw).any():
             raise ValueError("score noise needs the raw detector score (score_raw is NaN)")
         raw = out.score_raw + spec.score_sigma * rng.standard_normal(len(out))
-        out = out.replace(score_raw=raw, score=rescore(out.category, raw))
+        ego = np.array([np.asarray(f.world_from_ego, np.float64)[:2, 3] for f in frames])
+        ego = ego.reshape(-1, 2)[out_frame]
+        range_m = np.hypot(out.xyz[:, 0] - ego[:, 0], out.xyz[:, 1] - ego[:, 1])
+        out = out.replace(score_raw=raw, score=rescore(out.category, raw, range_m))
 
     order = np.argsort(out_frame, kind="stable")  # real boxes first within a frame, then FPs
     ends = np.cumsum(np.bincount(out_frame, minlength=len(frames)))
