@@ -1,18 +1,24 @@
 """Where the recording's overhead goes (docs/debugger.md, "Overhead per frame").
 
-cProfile of ``record_scene`` on the bundled KITTI 0001 (no GT) against plain ``run_scene``;
-prints the profiled overhead and the cumulative seconds of its main parts. Profiled times are
-about twice the real ones; compare shares, not seconds.
+1. Wall clock, best of ``--repeat`` interleaved runs on the bundled KITTI 0001 (no GT): plain
+   tracking; with an observer that does nothing but asks for the image-plane costs (so the
+   tracker runs stage 2 on every frame, as it does for the recording, and builds its events);
+   with the detection fates; with the Rerun observer alone (its run, then its flush of the
+   buffered rows); and ``record_scene`` (track, flush, post).
+2. cProfile of ``record_scene`` against plain ``run_scene``: the cumulative seconds of the main
+   parts. Profiled times are about twice the real ones; compare shares, not seconds.
 
-Usage: ``python bench/profile_record.py``
+Usage: ``python bench/profile_record.py [--repeat 3]``
 """
 
 from __future__ import annotations
 
+import argparse
 import cProfile
 import pstats
 import sys
 import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -46,7 +52,75 @@ def _cumulative(stats: pstats.Stats, pattern: str) -> float:
     return max(found, default=0.0)
 
 
+class _AsksForCosts:
+    """An observer that only makes the tracker compute every stage and build its events."""
+
+    wants_rv_costs = True
+
+    def __call__(self, event: object) -> None:
+        pass
+
+
+def wall_clock(repeat: int) -> None:
+    from tracker.config import load_config
+    from tracker.eval.fates import FateCounter
+    from tracker.io.baseversion import read_baseversion
+    from tracker.pipeline import run_scene
+    from viz.observer import RerunObserver
+    from viz.record import new_recording, record_scene
+
+    config = load_config("kitti")
+    frames = read_baseversion(SAMPLE / "detections.json.gz", fallback_frame_rate_hz=10.0)["0001"]
+    images = {"CAM_FRONT": SAMPLE / "image_02"}
+    n = len(frames)
+
+    def observer_alone(path: Path) -> tuple[float, ...]:
+        rec = new_recording("0001", path=path)
+        observer = RerunObserver(rec, images=images)
+        t0 = time.perf_counter()
+        run_scene(frames, config, observer=observer)
+        t1 = time.perf_counter()
+        observer.flush()
+        t2 = time.perf_counter()
+        rec.flush()
+        rec.disconnect()
+        return t1 - t0, t2 - t1
+
+    def recorded(path: Path) -> tuple[float, ...]:
+        r = record_scene(frames, config, path=path, images=images)
+        return r.seconds["track"], r.seconds["flush"], r.seconds["post"]
+
+    variants: dict[str, Callable[[Path], object]] = {
+        "plain tracking": lambda _: run_scene(frames, config),
+        "+ observer asking for stage-2 costs": lambda _: run_scene(
+            frames, config, observer=_AsksForCosts()
+        ),
+        "+ detection fates": lambda _: run_scene(frames, config, observer=FateCounter()),
+        "Rerun observer alone: run, flush": observer_alone,
+        "record_scene: track, flush, post": recorded,
+    }
+    best: dict[str, tuple[float, tuple[float, ...]]] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        run_scene(frames, config)  # warm-up (imports, caches)
+        for i in range(repeat):
+            for name, fn in variants.items():
+                t0 = time.perf_counter()
+                parts = fn(Path(tmp) / f"{i}.rrd")
+                total = time.perf_counter() - t0
+                if name not in best or total < best[name][0]:
+                    best[name] = (total, parts if isinstance(parts, tuple) else ())
+    print(f"KITTI 0001 ({n} frames), best of {repeat}, wall clock, ms/frame:")
+    for name, (total, parts) in best.items():
+        split = " / ".join(f"{1000 * p / n:.2f}" for p in parts)
+        print(f"  {name:<38} {1000 * total / n:6.2f}" + (f"  ({split})" if split else ""))
+
+
 def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3)
+    args = parser.parse_args()
+    wall_clock(args.repeat)
+
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
     from tracker.pipeline import run_scene
