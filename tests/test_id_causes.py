@@ -331,9 +331,12 @@ def _real_scene(gap: range) -> tuple[list[Frame], list[Frame]]:
 def test_the_real_tracker_short_and_long_gaps(gap: range, kinds, cause: Cause) -> None:
     """Car config: a 2-frame detector gap is bridged (fragmentation), a 14-frame one outlives
     max_misses = 10 (deleted, reborn: an ID switch)."""
-    config = load_config(  # the gaps are measured against a test-owned max_misses
+    config = load_config(  # the gaps are measured against test-owned lifecycle numbers
         "kitti",
-        overrides={"categories": ["car"], "category": {"car": {"lifecycle": {"max_misses": 10}}}},
+        overrides={
+            "categories": ["car"],
+            "category": {"car": {"lifecycle": {"max_misses": 10, "max_misses_output": 0}}},
+        },
     )
     frames, gt = _real_scene(gap)
     log = StageLog()

