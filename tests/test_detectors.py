@@ -188,25 +188,28 @@ def test_labels_and_fit_on_real_sequences(kitti_root: Path) -> None:
     assert high > 0.95 and low < 0.2
 
 
-def _range_scene(n_frames: int, rng: np.random.Generator) -> tuple[list[Frame], list[Frame]]:
-    """Detections whose P(true positive | raw) rises with range: a far box with a low score is
-    a real object more often than a near one (the effect the range term is for)."""
-    dets, truth = [], []
+def _range_scene(
+    n_frames: int, rng: np.random.Generator, range_effect: float
+) -> tuple[dict[str, list[Frame]], dict[str, list[Frame]]]:
+    """Detections (by scene) and their truth, P(true positive) = σ(raw − 1 + range_effect·r),
+    r = range / 50 m: with range_effect > 0 a far box with a low score is a real object more
+    often than a near one (the effect the range term is for)."""
+    dets: dict[str, list[Frame]] = {}
+    truth: dict[str, list[Frame]] = {}
     for i in range(n_frames):
-        n = 60
+        n, scene = 60, f"s{i % 4}"
         rng_m = rng.uniform(5, 70, n)
         ang = rng.uniform(-0.6, 0.6, n)
         xyz = np.column_stack([rng_m * np.cos(ang), rng_m * np.sin(ang), np.zeros(n)])
         raw = rng.uniform(-4, 6, n)
-        p_true = 1.0 / (1.0 + np.exp(-(raw - 1.0 + 3.0 * (rng_m / 50.0))))
-        real = rng.uniform(size=n) < p_true
+        real = rng.uniform(size=n) < 1.0 / (1.0 + np.exp(-(raw - 1.0 + range_effect * rng_m / 50)))
         ones = np.ones((n, 3))
-        dets.append(Frame(f"s{i % 4}", i, 0.1 * i, Boxes.create(
+        dets.setdefault(scene, []).append(Frame(scene, i, 0.1 * i, Boxes.create(
             xyz=xyz, lwh=ones, yaw=np.zeros(n), score=np.zeros(n), category=np.full(n, CAR),
             score_raw=raw,
         ), world_from_ego=np.eye(4)))  # fmt: skip
         k = int(real.sum())
-        truth.append(Frame(f"s{i % 4}", i, 0.1 * i, Boxes.create(
+        truth.setdefault(scene, []).append(Frame(scene, i, 0.1 * i, Boxes.create(
             xyz=xyz[real], lwh=ones[real], yaw=np.zeros(k), score=np.ones(k),
             category=np.full(k, CAR),
         )))  # fmt: skip
@@ -214,13 +217,8 @@ def _range_scene(n_frames: int, rng: np.random.Generator) -> tuple[list[Frame], 
 
 
 def test_range_term_is_fitted_where_score_meaning_changes_with_range() -> None:
-    dets, truth = _range_scene(400, np.random.default_rng(0))
-    by_scene: dict[str, list[Frame]] = {}
-    gt: dict[str, list[Frame]] = {}
-    for d, t in zip(dets, truth, strict=True):
-        by_scene.setdefault(d.scene, []).append(d)
-        gt.setdefault(t.scene, []).append(t)
-    profile = fit_profile("toy", by_scene, gt, ["car"])
+    dets, gt = _range_scene(400, np.random.default_rng(0), range_effect=3.0)
+    profile = fit_profile("toy", dets, gt, ["car"])
     score_map = profile.maps["car"]
     assert score_map.range_term is not None, profile.quality["car"]["range_term"]
     assert profile.quality["car"]["range_term"].startswith("kept")
@@ -232,27 +230,15 @@ def test_range_term_is_fitted_where_score_meaning_changes_with_range() -> None:
     grid = np.linspace(-4, 6, 50)
     assert np.all(np.diff(score_map(grid, np.full(50, 40.0))) >= 0)  # monotone in raw
     # calibrate_frames uses the range from the ego pose
-    scored = calibrate_frames(dets[:1], profile)[0].boxes.score
-    r = np.hypot(dets[0].boxes.xyz[:, 0], dets[0].boxes.xyz[:, 1])
-    np.testing.assert_allclose(scored, score_map(dets[0].boxes.score_raw, r))
+    first = dets["s0"][0]
+    scored = calibrate_frames([first], profile)[0].boxes.score
+    r = np.hypot(first.boxes.xyz[:, 0], first.boxes.xyz[:, 1])
+    np.testing.assert_allclose(scored, score_map(first.boxes.score_raw, r))
 
 
 def test_range_term_is_left_out_when_range_tells_nothing() -> None:
-    rng = np.random.default_rng(1)
-    dets, truth = _range_scene(300, rng)
-    del truth  # relabelled below: the truth depends on the raw score only
-    by_scene: dict[str, list[Frame]] = {}
-    gt: dict[str, list[Frame]] = {}
-    for d in dets:
-        p = 1.0 / (1.0 + np.exp(-(d.boxes.score_raw - 1.0)))
-        real = rng.uniform(size=len(p)) < p
-        k = int(real.sum())
-        by_scene.setdefault(d.scene, []).append(d)
-        gt.setdefault(d.scene, []).append(Frame(d.scene, d.frame_id, d.timestamp_secs, Boxes.create(
-            xyz=d.boxes.xyz[real], lwh=np.ones((k, 3)), yaw=np.zeros(k), score=np.ones(k),
-            category=np.full(k, CAR),
-        )))  # fmt: skip
-    profile = fit_profile("toy", by_scene, gt, ["car"])
+    dets, gt = _range_scene(300, np.random.default_rng(1), range_effect=0.0)
+    profile = fit_profile("toy", dets, gt, ["car"])
     assert profile.maps["car"].range_term is None
     assert profile.quality["car"]["range_term"].startswith("not kept")
 

@@ -8,12 +8,13 @@ regression) and stored as a small TOML file; profiles for the detectors of the K
 ``tracker/profiles/``.
 
 A detector's score also means different things at different ranges: far objects return few
-points, so a true far box scores lower than a true near one (on KITTI, a car detection 50 m
-away is about twice as likely to be real as a near one with the same raw score; a far
-pedestrian less likely). Where the fit shows it, a class's map carries a :class:`RangeTerm`, a
-logistic correction in range ``r`` (metres from the ego, over ``scale_m``) on the isotonic
-probability ``p₀``:  ``P = σ(a·logit p₀ + b·r + c·r² + d)``, with ``a > 0`` so the map stays
-monotone in the raw score, and ``r`` clipped to the range the fit saw.
+points, so a true far box scores lower than a true near one (on KITTI, a low-scoring far
+VirConv or SECOND-IoU car box is two to six times as likely to be real as a near one with the
+same raw score; a far PointRCNN pedestrian less likely). Where the fit shows it, a class's map
+carries a :class:`RangeTerm`, a logistic correction in range ``r`` (metres from the ego, over
+``scale_m``) on the isotonic probability ``p₀``:  ``P = σ(a·logit p₀ + b·r + c·r² + d)``, with
+``a > 0`` so the map stays monotone in the raw score, and ``r`` clipped to the range the fit
+saw.
 
 Without a profile the score is ``sigmoid(raw)`` (the BaseVersion convention for logits) or the
 raw value where it already lies in [0, 1]: defensible for a detector that outputs calibrated
@@ -31,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.special import expit, logit
 
 from tracker.boxes import FloatArray, IntArray
 from tracker.categories import CATEGORIES, category_index
@@ -67,10 +69,13 @@ class RangeTerm:
             raise ValueError("range term needs logit_coef > 0, scale_m > 0, 0 <= min_m <= max_m")
 
     def __call__(self, p0: FloatArray, range_m: FloatArray) -> FloatArray:
-        p0 = np.clip(p0, *PROB_RANGE)
         r = np.clip(range_m, self.min_m, self.max_m) / self.scale_m
-        z = self.logit_coef * np.log(p0 / (1.0 - p0)) + self.r_coef * r + self.r2_coef * r * r
-        return np.clip(1.0 / (1.0 + np.exp(-(z + self.intercept))), *PROB_RANGE)
+        z = (
+            self.logit_coef * logit(np.clip(p0, *PROB_RANGE))
+            + self.r_coef * r
+            + self.r2_coef * r * r
+        )
+        return np.clip(expit(z + self.intercept), *PROB_RANGE)
 
     def as_dict(self) -> dict[str, float]:
         return {f.name: round(float(getattr(self, f.name)), 6) for f in dataclasses.fields(self)}

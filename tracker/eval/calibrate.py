@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.distance import cdist
+from scipy.special import logit
 
 from tracker.boxes import FloatArray, IntArray
 from tracker.calibration import (
@@ -157,9 +158,8 @@ def fit_range_term(p0: FloatArray, range_m: FloatArray, label: IntArray) -> Rang
     known = np.isfinite(range_m)
     if known.sum() < 20 or label[known].min() == label[known].max():
         return None
-    p0 = np.clip(p0[known], *PROB_RANGE)
     r = range_m[known] / RANGE_SCALE_M
-    features = np.column_stack([np.log(p0 / (1.0 - p0)), r, r * r])
+    features = np.column_stack([logit(np.clip(p0[known], *PROB_RANGE)), r, r * r])
     fit = LogisticRegression(C=1e4, max_iter=1000).fit(features, label[known])
     (a, b, c), d = fit.coef_[0], fit.intercept_[0]
     if not a > 0:
