@@ -163,6 +163,10 @@ class TrackerConfig:
     greedy_order: GreedyOrder = GreedyOrder.DETECTION
     nms: bool = False
     output_geometry: OutputGeometry = OutputGeometry.FILTERED
+    # Where detections exist only inside the camera images (KITTI), a coasting track is output
+    # only while at least this fraction of its projected box's width is inside an image: a track
+    # leaving the view has an explained miss, not a dropped box (0 = always output)
+    coast_min_in_view: float = 0.0
     offline: OfflineConfig = OfflineConfig()
     scores: ScoreSource = ScoreSource.AS_GIVEN
     source: str = "<defaults>"
@@ -274,6 +278,8 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
     )
     if top.frame_rate_hz <= 0:
         raise InputError(f"{source}: frame_rate_hz must be > 0")
+    if not 0.0 <= top.coast_min_in_view <= 1.0:
+        raise InputError(f"{source}: coast_min_in_view must be in [0, 1]")
     return top
 
 
