@@ -57,6 +57,9 @@ ONLINE_SPACE: dict[str, tuple[str, float, float]] = {
     "bev.cost_max": ("float", 1.0, 2.0),
     "pose.ca.r": ("log", 0.02, 2.0),
 }
+# Searched for pedestrians only: their annotated 2D boxes are narrower than their cuboids'
+# projections (median 1/1.45 on ground truth), while cars' and cyclists' match them (IoU 0.97).
+PEDESTRIAN_SPACE: dict[str, tuple[str, float, float]] = {"image_width_scale": ("float", 0.6, 1.0)}
 OFFLINE_SPACE: dict[str, tuple[str, float, float]] = {
     "score_min": ("log", 0.01, 0.6),
     "birth_score_min": ("float", 0.05, 0.9),
@@ -256,7 +259,12 @@ def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
     result_dir.mkdir(parents=True, exist_ok=True)
     for seq in seqs:
         result = run_scene(frames[seq], config)
-        write_kitti_sequence(result_dir / f"{seq}.txt", result.outputs, frames[seq])
+        write_kitti_sequence(
+            result_dir / f"{seq}.txt",
+            result.outputs,
+            frames[seq],
+            width_scale=config.image_width_scales(),
+        )
     if not evaluate:
         return {}
     return evaluate_kitti(
@@ -296,6 +304,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seqs: no labels for {', '.join(unlabelled)} in {label_dir}")
     cls = args.cls
     space = OFFLINE_SPACE if args.mode == "offline" else ONLINE_SPACE
+    if cls == "pedestrian":
+        space = {**space, **PEDESTRIAN_SPACE}
     config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
     base = {"categories": [cls], "mode": args.mode}
     load_config(config_name, overrides=base)  # fail early on a bad config
