@@ -303,9 +303,7 @@ def run(args: argparse.Namespace) -> int:
     if unlabelled:
         raise InputError(f"--seqs: no labels for {', '.join(unlabelled)} in {label_dir}")
     cls = args.cls
-    space = OFFLINE_SPACE if args.mode == "offline" else ONLINE_SPACE
-    if cls == "pedestrian":
-        space = {**space, **PEDESTRIAN_SPACE}
+    space = search_space(cls, args.mode)
     config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
     base = {"categories": [cls], "mode": args.mode}
     load_config(config_name, overrides=base)  # fail early on a bad config
@@ -457,6 +455,12 @@ def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> d
         if kind == "int":
             values[key] = int(values[key])
     return values
+
+
+def search_space(cls: str, mode: str) -> dict[str, tuple[str, float, float]]:
+    """The settings searched for ``cls`` in ``mode`` (online or offline)."""
+    space = OFFLINE_SPACE if mode == "offline" else ONLINE_SPACE
+    return {**space, **PEDESTRIAN_SPACE} if cls == "pedestrian" else dict(space)
 
 
 def suggest(trial: Any, space: dict[str, tuple[str, float, float]]) -> dict[str, Any]:
