@@ -49,9 +49,16 @@ class ColumnBuffer:
     """
 
     def __init__(
-        self, rec: rr.RecordingStream, *, max_rows: int = 256, max_secs: float = 2.0
+        self,
+        rec: rr.RecordingStream,
+        *,
+        max_rows: int = 256,
+        max_secs: float = 2.0,
+        before_flush: Callable[[], None] | None = None,
     ) -> None:
         self.rec = rec
+        #: called first by every flush (the owner adds rows it builds per buffer)
+        self.before_flush = before_flush
         self.max_rows = max_rows
         self.max_secs = max_secs
         self._rows: dict[tuple[str, str], _Rows] = {}
@@ -109,6 +116,8 @@ class ColumnBuffer:
             self.flush()
 
     def flush(self) -> None:
+        if self.before_flush is not None:
+            self.before_flush()
         for (path, _), rows in self._rows.items():
             if not rows.frames:
                 continue

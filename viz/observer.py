@@ -30,6 +30,7 @@ from tracker.events import (
     Event,
     FrameFinished,
     FrameStarted,
+    ImageStageDeferred,
     LifecycleChanged,
     Matched,
     Predicted,
@@ -38,6 +39,7 @@ from tracker.events import (
     TrackStatus,
 )
 from tracker.frame import Camera, Frame
+from tracker.image_stage import deferred_image_stage
 from viz import paths
 from viz.archetypes import (
     DETECTION_DROPPED_RGB,
@@ -81,6 +83,7 @@ class _FrameState:
     rv_cost: CostComputed | None = None
     bev_matched: Matched | None = None
     rv_matched: Matched | None = None
+    rv_deferred: ImageStageDeferred | None = None
 
 
 class RerunObserver:
@@ -97,6 +100,9 @@ class RerunObserver:
         per-chunk bookkeeping in the file sink is what grows with a long recording).
     """
 
+    #: stage 2 of the frames where it cannot match is computed at flush, for the whole buffer
+    rv_costs_deferred = True
+
     def __init__(
         self,
         rec: rr.RecordingStream,
@@ -110,7 +116,11 @@ class RerunObserver:
         self.rec = rec
         self.gt = gt or {}
         self.trail_frames = trail_frames
-        self.columns = ColumnBuffer(rec, max_rows=flush_rows, max_secs=flush_secs)
+        self.columns = ColumnBuffer(
+            rec, max_rows=flush_rows, max_secs=flush_secs, before_flush=self._log_image_stage
+        )
+        # frames whose stage 2 is not logged yet (see _log_image_stage)
+        self._rv_queue: list[_FrameState] = []
         self._images = {cam: _list_images(Path(d)) for cam, d in (images or {}).items()}
         #: frame ids that have a camera image (``mctrack shots`` prefers them)
         self.image_frames = sorted({f for imgs in self._images.values() for f in imgs})
@@ -130,6 +140,7 @@ class RerunObserver:
             DetectionsFiltered: self._on_detections_filtered,
             Predicted: self._on_predicted,
             CostComputed: self._on_cost,
+            ImageStageDeferred: self._on_image_stage_deferred,
             Matched: self._on_matched,
             LifecycleChanged: self._on_lifecycle,
             FrameFinished: self._on_frame_finished,
@@ -246,6 +257,27 @@ class RerunObserver:
         else:
             state.rv_cost = event
 
+    def _on_image_stage_deferred(self, event: ImageStageDeferred) -> None:
+        self._require_state().rv_deferred = event
+
+    def _log_image_stage(self) -> None:
+        """Stage 2 of the frames since the last flush, in frame order (the rows of its matrix
+        and match lines depend on the frame before). On the frames where it could match
+        nothing the tracker skipped it (as a plain run does) and left its inputs: its matrix
+        and gated pairs are computed here for all those frames at once."""
+        queue, self._rv_queue = self._rv_queue, []
+        skipped = [s for s in queue if s.rv_deferred is not None]
+        computed = deferred_image_stage(
+            [(s.frame, s.pred_ids, s.pred_boxes, s.rv_deferred) for s in skipped if s.rv_deferred]
+        )
+        for s, (cost, matched) in zip(skipped, computed, strict=True):
+            s.rv_cost, s.rv_matched = cost, matched
+        for s in queue:
+            self._state = s
+            self._log_cost(paths.COST_RV, s.rv_cost, s.rv_matched)
+            self._log_matches_rv(s)
+        self._state = None
+
     def _on_matched(self, event: Matched) -> None:
         state = self._require_state()
         if event.stage is Stage.BEV:
@@ -290,8 +322,7 @@ class RerunObserver:
             self._defer(path, rr.LineStrips2D, (out.boxes, None, cam, None), _build_wireframes)
             self._defer(path, rr.Boxes2D, (out.boxes, None, cam, None), _build_track_boxes2d)
         self._log_cost(paths.COST_BEV, state.bev_cost, state.bev_matched)
-        self._log_cost(paths.COST_RV, state.rv_cost, state.rv_matched)
-        self._log_matches_rv(state)
+        self._rv_queue.append(state)
         self._state = None
         self.columns.end_frame()
 

@@ -205,7 +205,12 @@ class Tee:
 
     def __init__(self, *observers: Any) -> None:
         self.observers = [o for o in observers if o is not None]
-        self.wants_rv_costs = any(getattr(o, "wants_rv_costs", True) for o in self.observers)
+        wanting = [o for o in self.observers if getattr(o, "wants_rv_costs", True)]
+        self.wants_rv_costs = bool(wanting)
+        # deferred only if every observer that wants the costs takes them so
+        self.rv_costs_deferred = bool(wanting) and all(
+            getattr(o, "rv_costs_deferred", False) for o in wanting
+        )
 
     def __call__(self, event: Event) -> None:
         for o in self.observers:
