@@ -54,18 +54,14 @@ def deferred_image_stage(
     n = np.array([len(e.det_rows) for e in events], dtype=np.int64)
     # the leftover tracks and detections of all frames, concatenated
     pred_n = np.array([len(b) for _, _, b, _ in items], dtype=np.int64)
-    t_at = np.concatenate([e.track_rows for e in events]) + np.repeat(
-        np.cumsum(pred_n) - pred_n, m
-    )
+    t_at = np.concatenate([e.track_rows for e in events]) + np.repeat(np.cumsum(pred_n) - pred_n, m)
     t_xyz = np.concatenate([b.xyz for _, _, b, _ in items]).reshape(-1, 3)[t_at]
     t_lwh = np.concatenate([b.lwh for _, _, b, _ in items]).reshape(-1, 3)[t_at]
     t_yaw = np.concatenate([b.yaw for _, _, b, _ in items])[t_at]
     t_cat = np.concatenate([b.category for _, _, b, _ in items])[t_at]
     t_ids = np.concatenate([ids for _, ids, _, _ in items])[t_at]
     frame_n = np.array([len(f.boxes) for f, _, _, _ in items], dtype=np.int64)
-    d_at = np.concatenate([e.det_rows for e in events]) + np.repeat(
-        np.cumsum(frame_n) - frame_n, n
-    )
+    d_at = np.concatenate([e.det_rows for e in events]) + np.repeat(np.cumsum(frame_n) - frame_n, n)
     d_boxes = Boxes.concat([f.boxes for f, _, _, _ in items])
     d_cam = d_boxes.camera[d_at].astype(np.int64)
     d_xyxy = d_boxes.xyxy_image.reshape(-1, 4)[d_at]
@@ -135,9 +131,7 @@ def deferred_image_stage(
         rows, cols = pairs[:, 0] + t_start[i], pairs[:, 1] + d_start[i]
         yaw_gap = np.abs(wrap_angle(t_yaw[rows] - d_yaw[cols]))
         dist = np.linalg.norm(t_xyz[rows] - d_xyz[cols], axis=1)
-        passes = (yaw_gap <= e.yaw_gate_rad[pairs[:, 0]]) & (
-            dist <= e.distance_gate_m[pairs[:, 0]]
-        )
+        passes = (yaw_gap <= e.yaw_gate_rad[pairs[:, 0]]) & (dist <= e.distance_gate_m[pairs[:, 0]])
         if passes.any():
             raise RuntimeError(
                 f"frame {frame.frame_id}: stage 2 was skipped but a pair passes its gate"
