@@ -360,3 +360,38 @@ def unit_lists(values: Any, type_: pa.DataType | None = None) -> pa.Array:
     array = values if isinstance(values, pa.Array) else pa.array(values, type=type_)
     offsets = pa.array(np.arange(len(array) + 1, dtype=np.int32))
     return pa.ListArray.from_arrays(offsets, array)
+
+
+class StaticEntities:
+    """Static archetypes of many entities, sent as one record batch in one call.
+
+    ``rec.log(..., static=True)`` costs ~1-2 ms per call on a recording with a file sink, most
+    of it per call (a KITTI sequence's ID events log three static entities each). Here each
+    archetype's component batches become one-row columns of one batch, which Rerun splits into
+    one static chunk per entity, the chunks ``rec.log`` would have made."""
+
+    def __init__(self) -> None:
+        self._fields: list[pa.Field] = []
+        self._arrays: list[pa.Array] = []
+
+    def add(self, path: str, archetype: Any) -> None:
+        entity = paths.entity(path)
+        for batch in archetype.as_component_batches():
+            desc, array = batch.component_descriptor(), batch.as_arrow_array()
+            row = pa.ListArray.from_arrays(pa.array([0, len(array)], pa.int32()), array)
+            meta = {
+                b"rerun:entity_path": entity.encode(),
+                b"rerun:archetype": (desc.archetype or "").encode(),
+                b"rerun:component": desc.component.encode(),
+                b"rerun:component_type": (desc.component_type or "").encode(),
+            }
+            self._fields.append(pa.field(f"{entity}:{desc.component}", row.type, metadata=meta))
+            self._arrays.append(row)
+
+    def send(self, rec: rr.RecordingStream) -> None:
+        from rerun.chunk import Chunk
+
+        if self._arrays:
+            batch = pa.RecordBatch.from_arrays(self._arrays, schema=pa.schema(self._fields))
+            rr.send_chunks(Chunk.from_record_batch(batch, index=None), recording=rec)
+        self._fields, self._arrays = [], []

@@ -60,7 +60,7 @@ from viz.archetypes import (
     quaternions_xyzw,
     track_colors_u32,
 )
-from viz.columns import ColumnBuffer, SeriesColumns, pair_key, unit_lists
+from viz.columns import ColumnBuffer, SeriesColumns, StaticEntities, pair_key, unit_lists
 from viz.layout import debug_blueprint
 from viz.observer import RerunObserver
 
@@ -755,6 +755,7 @@ def _log_id_events(
     track_path = _TrackPaths(outputs)
     focus: list[EventFocus] = []
     images = np.array(result.image_frames, dtype=np.int64)
+    static = StaticEntities()
     for k, (e, cause) in enumerate(zip(evaluation.events, causes, strict=True)):
         time_secs = times.get(e.frame_id, np.nan)
         text = f"#{k} " + (cause.short_text() if cause is not None else _plain_text(e))
@@ -770,7 +771,7 @@ def _log_id_events(
                 (e.old_track_id, e.new_track_id),
             )
         )
-        _log_focus(rec, k, e, cause, track_path, gt, stages)
+        _log_focus(static, k, e, cause, track_path, gt, stages)
         if e.kind is not IdEventKind.ID_SWITCH or xyz is None:
             continue
         label = f"#{k} GT{e.gt_id}: T{e.old_track_id}->T{e.new_track_id}"
@@ -797,6 +798,7 @@ def _log_id_events(
         )
         shown = bool(items)
     buffer.flush()
+    static.send(rec)
     return focus
 
 
@@ -850,7 +852,7 @@ def focus_path(k: int) -> str:
 
 
 def _log_focus(
-    rec: rr.RecordingStream,
+    static: StaticEntities,
     k: int,
     e: IdEvent,
     cause: EventCause | None,
@@ -892,7 +894,7 @@ def _log_focus(
             box_labels.append(f"T{tid}")
     base = focus_path(k)
     if strips:
-        rec.log(
+        static.add(
             f"{base}/paths",
             # labels on hover only: the boxes carry the same names at the event
             rr.LineStrips3D(
@@ -902,11 +904,10 @@ def _log_focus(
                 labels=labels,
                 show_labels=False,
             ),
-            static=True,
         )
     if boxes:
         b = Boxes.concat(boxes)
-        rec.log(
+        static.add(
             f"{base}/boxes",
             rr.Boxes3D(
                 centers=b.xyz,
@@ -918,12 +919,10 @@ def _log_focus(
                 fill_mode="MajorWireframe",
                 show_labels=True,
             ),
-            static=True,
         )
-    rec.log(
+    static.add(
         f"{base}/explain",
         rr.TextDocument(explain_markdown(k, e, cause, stages), media_type=rr.MediaType.MARKDOWN),
-        static=True,
     )
 
 
