@@ -70,15 +70,16 @@ MAX_CELL_LABELS = 400
 _KEPT = pack_rgb(DETECTION_KEPT_RGB)
 _DROPPED = pack_rgb(DETECTION_DROPPED_RGB)
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
+_NO_BOXES = Boxes.empty()  # read-only arrays: one shared (Boxes.empty() costs ~0.1 ms)
 
 
-@dataclass
+@dataclass(slots=True)
 class _FrameState:
     frame: Frame
     time_secs: float
     kept_rows: IntArray = field(default_factory=lambda: _EMPTY_INT)
     pred_ids: IntArray = field(default_factory=lambda: _EMPTY_INT)
-    pred_boxes: Boxes = field(default_factory=Boxes.empty)
+    pred_boxes: Boxes = field(default_factory=lambda: _NO_BOXES)
     bev_cost: CostComputed | None = None
     rv_cost: CostComputed | None = None
     bev_matched: Matched | None = None
