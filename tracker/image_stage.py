@@ -62,10 +62,12 @@ def deferred_image_stage(
     t_ids = np.concatenate([ids for _, ids, _, _ in items])[t_at]
     frame_n = np.array([len(f.boxes) for f, _, _, _ in items], dtype=np.int64)
     d_at = np.concatenate([e.det_rows for e in events]) + np.repeat(np.cumsum(frame_n) - frame_n, n)
-    d_boxes = Boxes.concat([f.boxes for f, _, _, _ in items])
-    d_cam = d_boxes.camera[d_at].astype(np.int64)
-    d_xyxy = d_boxes.xyxy_image.reshape(-1, 4)[d_at]
-    d_cat, d_yaw, d_xyz = d_boxes.category[d_at], d_boxes.yaw[d_at], d_boxes.xyz[d_at]
+    boxes = [f.boxes for f, _, _, _ in items]
+    d_cam = np.concatenate([b.camera for b in boxes])[d_at].astype(np.int64)
+    d_xyxy = np.concatenate([b.xyxy_image for b in boxes]).reshape(-1, 4)[d_at]
+    d_cat = np.concatenate([b.category for b in boxes])[d_at]
+    d_yaw = np.concatenate([b.yaw for b in boxes])[d_at]
+    d_xyz = np.concatenate([b.xyz for b in boxes]).reshape(-1, 3)[d_at]
     t_item, d_item = np.repeat(np.arange(k), m), np.repeat(np.arange(k), n)
     t_start, d_start = np.cumsum(m) - m, np.cumsum(n) - n
 
@@ -122,12 +124,21 @@ def deferred_image_stage(
     track_xyxy[first_track] = p_xyxy[vis[first]]
     track_cam[first_track] = combo_cam[p_combo[vis[first]]]
 
+    # greedy only pairs cells within their row's threshold: most frames have none
+    limit = np.concatenate([e.max_cost_per_row for e in events])
+    feasible = np.isfinite(cost) & (cost <= limit[c_t])  # as matching._feasible
+    any_feasible = np.bincount(cell_item[feasible], minlength=k) > 0
     out: list[tuple[CostComputed, Matched]] = []
     cell_start = np.cumsum(sizes) - sizes
+    no_pairs = np.zeros((0, 2), dtype=np.int64)
     for i, (frame, _, _, e) in enumerate(items):
         ts = slice(t_start[i], t_start[i] + m[i])
         matrix = cost[cell_start[i] : cell_start[i] + sizes[i]].reshape(m[i], n[i])
-        pairs = greedy(matrix, max_cost_per_row=e.max_cost_per_row, order=e.greedy_order).pairs
+        pairs = (
+            greedy(matrix, max_cost_per_row=e.max_cost_per_row, order=e.greedy_order).pairs
+            if any_feasible[i]
+            else no_pairs
+        )
         rows, cols = pairs[:, 0] + t_start[i], pairs[:, 1] + d_start[i]
         yaw_gap = np.abs(wrap_angle(t_yaw[rows] - d_yaw[cols]))
         dist = np.linalg.norm(t_xyz[rows] - d_xyz[cols], axis=1)

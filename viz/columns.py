@@ -64,6 +64,7 @@ class ColumnBuffer:
         self._rows: dict[tuple[str, str], _Rows] = {}
         self._count = 0
         self._last_flush = time.perf_counter()
+        self._last_index: tuple[Any, list[rr.TimeColumn]] | None = None
 
     def _entity(self, path: str, archetype: Any, build: Any = None) -> _Rows:
         key = (path, archetype.__name__)
@@ -141,7 +142,12 @@ class ColumnBuffer:
         lengths: Any,
         mono: dict[str, list[Any]],
     ) -> None:
-        indexes = time_columns(np.asarray(frames), np.asarray(times, dtype=np.float64))
+        # most entities have a row every frame: the same index columns
+        if self._last_index is not None and self._last_index[0] == (frames, times):
+            indexes = self._last_index[1]
+        else:
+            indexes = time_columns(np.asarray(frames), np.asarray(times, dtype=np.float64))
+            self._last_index = ((frames, times), indexes)
         lengths = np.asarray(lengths, dtype=np.int64)
         columns: list[Any] = []
         fields = dict(fields)
