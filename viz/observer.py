@@ -283,18 +283,7 @@ class RerunObserver:
         state = self._require_state()
         if event.stage is Stage.BEV:
             state.bev_matched = event
-            cost = state.bev_cost
-            at = _positions(state.pred_ids, event.track_ids)
-            max_cost = cost.max_cost_per_row[at] if cost is not None else np.full(len(at), np.inf)
-            strips = np.stack(
-                [state.pred_boxes.xyz[at], state.frame.boxes.xyz[event.det_rows]], axis=1
-            )
-            self._defer(
-                paths.MATCHES_BEV,
-                rr.LineStrips3D,
-                (strips, event.costs, max_cost),
-                _build_matches_bev,
-            )
+            self._defer(paths.MATCHES_BEV, rr.LineStrips3D, state, _build_matches_bev)
         else:
             state.rv_matched = event
 
@@ -393,23 +382,9 @@ class RerunObserver:
         return fields, lengths[len(recent) - len(outputs) :], {}
 
     def _log_unmatched(self, state: _FrameState) -> None:
-        matched = [m for m in (state.bev_matched, state.rv_matched) if m is not None]
-        matched_ids = np.concatenate([m.track_ids for m in matched]) if matched else _EMPTY_INT
-        matched_dets = np.concatenate([m.det_rows for m in matched]) if matched else _EMPTY_INT
-        lonely = _not_in(state.pred_ids, matched_ids)
-        self._defer(
-            paths.UNMATCHED_TRACKS,
-            rr.Points3D,
-            (state.pred_ids[lonely], state.pred_boxes.xyz[lonely]),
-            _build_unmatched_tracks,
-        )
-        rows = state.kept_rows[_not_in(state.kept_rows, matched_dets)]
-        self._defer(
-            paths.UNMATCHED_DETECTIONS,
-            rr.Points3D,
-            (rows, state.frame.boxes.xyz[rows]),
-            _build_unmatched_detections,
-        )
+        # built at flush, when the stage-2 pairs of the skipped frames are known too
+        self._defer(paths.UNMATCHED_TRACKS, rr.Points3D, state, _build_unmatched_tracks)
+        self._defer(paths.UNMATCHED_DETECTIONS, rr.Points3D, state, _build_unmatched_detections)
 
     def _require_state(self) -> _FrameState:
         if self._state is None:
@@ -628,44 +603,98 @@ def _build_detection_boxes2d(parts: list[tuple[Boxes, np.ndarray, int]]) -> Buil
     return fields, np.bincount(frame_of_box, minlength=len(parts)), _hidden(len(parts))
 
 
-def _build_matches_bev(parts: list[tuple[FloatArray, FloatArray, FloatArray]]) -> Built:
-    strips = np.concatenate([s for s, _, _ in parts]).astype(np.float32).reshape(-1, 2, 3)
-    costs = np.concatenate([c for _, c, _ in parts])
-    max_cost = np.concatenate([m for _, _, m in parts])
+def _frame_keys(parts: Sequence[Any]) -> IntArray:
+    """The buffered frame (its position) of every element of concatenated per-frame arrays."""
+    return np.repeat(np.arange(len(parts)), _lengths(parts))
+
+
+def _build_matches_bev(states: list[_FrameState]) -> Built:
+    """Stage 1's accepted pairs: predicted track position -> detection, coloured by cost."""
+    matched = [s.bev_matched for s in states if s.bev_matched is not None]
+    assert len(matched) == len(states)  # only frames with a stage-1 Matched event
+    pred_ids = [s.pred_ids for s in states]
+    pred_xyz = np.concatenate([s.pred_boxes.xyz for s in states]).reshape(-1, 3)
+    # each row's threshold (without a cost matrix there are no pairs: any value will do)
+    limit = np.concatenate(
+        [
+            s.bev_cost.max_cost_per_row
+            if s.bev_cost is not None
+            else np.full(len(s.pred_ids), np.inf)
+            for s in states
+        ]
+    )
+    track_ids = [m.track_ids for m in matched]
+    part = _frame_keys(track_ids)
+    at = _find(
+        pair_key(_frame_keys(pred_ids), np.concatenate(pred_ids)),
+        pair_key(part, np.concatenate(track_ids)),
+    )
+    dets = _concat_boxes([s.frame.boxes for s in states])
+    det_n = _lengths([s.frame.boxes for s in states])
+    det_at = np.concatenate([m.det_rows for m in matched]) + (np.cumsum(det_n) - det_n)[part]
+    costs = np.concatenate([m.costs for m in matched])
     n = len(costs)
     fields = {
-        "strips": strips,
-        "colors": pack_rgb(cost_colors(costs, max_cost)).reshape(n),
+        "strips": np.stack([pred_xyz[at], dets.xyz[det_at]], axis=1).astype(np.float32),
+        "colors": pack_rgb(cost_colors(costs, limit[at])).reshape(n),
         "radii": np.full(n, 0.06, np.float32),
         "labels": [f"{c:.2f}" for c in costs.tolist()],
     }
-    return fields, _lengths([c for _, c, _ in parts]), _hidden(len(parts))
+    return fields, np.bincount(part, minlength=len(states)), _hidden(len(states))
+
+
+def _matched_keys(states: list[_FrameState], detections: bool) -> IntArray:
+    """(frame position, track id or detection row) keys of the accepted pairs of both stages."""
+    frame, values = [], []
+    for i, s in enumerate(states):
+        for m in (s.bev_matched, s.rv_matched):
+            if m is not None and len(m.track_ids):
+                v = m.det_rows if detections else m.track_ids
+                frame.append(np.full(len(v), i))
+                values.append(v)
+    if not values:
+        return _EMPTY_INT
+    return pair_key(np.concatenate(frame), np.concatenate(values))
 
 
 def _build_unmatched(
-    parts: list[tuple[IntArray, FloatArray]],
+    states: list[_FrameState],
     *,
-    prefix: str,
+    detections: bool,
     radius: float,
     rgb: tuple[int, int, int],
 ) -> Built:
-    """Points for the unmatched tracks (``prefix`` "T") or detections ("d") of each frame."""
-    ids = np.concatenate([i for i, _ in parts])
+    """Points for the predicted tracks that took no detection, or the kept detections that
+    went to no track, of each frame."""
+    if detections:
+        rows = [s.kept_rows for s in states]
+        boxes = _concat_boxes([s.frame.boxes for s in states])
+        n_boxes = _lengths([s.frame.boxes for s in states])
+        at = np.concatenate(rows) + np.repeat(np.cumsum(n_boxes) - n_boxes, _lengths(rows))
+        values, xyz, prefix = np.concatenate(rows), boxes.xyz[at], "d"
+    else:
+        rows = [s.pred_ids for s in states]
+        values = np.concatenate(rows)
+        xyz = np.concatenate([s.pred_boxes.xyz for s in states]).reshape(-1, 3)
+        prefix = "T"
+    part = _frame_keys(rows)
+    lonely = ~np.isin(pair_key(part, values), _matched_keys(states, detections))
+    ids = values[lonely]
     n = len(ids)
     fields = {
-        "positions": np.concatenate([x for _, x in parts]).astype(np.float32).reshape(-1, 3),
+        "positions": xyz[lonely].astype(np.float32).reshape(-1, 3),
         "radii": np.full(n, radius, np.float32),
         "colors": solid(rgb, n),
         "labels": [f"{prefix}{i} unmatched" for i in ids.tolist()],
     }
-    return fields, _lengths([i for i, _ in parts]), _hidden(len(parts))
+    return fields, np.bincount(part[lonely], minlength=len(states)), _hidden(len(states))
 
 
 _build_unmatched_tracks = functools.partial(
-    _build_unmatched, prefix="T", radius=0.35, rgb=UNMATCHED_TRACK_RGB
+    _build_unmatched, detections=False, radius=0.35, rgb=UNMATCHED_TRACK_RGB
 )
 _build_unmatched_detections = functools.partial(
-    _build_unmatched, prefix="d", radius=0.3, rgb=UNMATCHED_DETECTION_RGB
+    _build_unmatched, detections=True, radius=0.3, rgb=UNMATCHED_DETECTION_RGB
 )
 
 
@@ -988,18 +1017,6 @@ def _find(keys: IntArray, wanted: IntArray) -> IntArray:
     """Index of each ``wanted`` key in ``keys`` (all present)."""
     order = np.argsort(keys, kind="stable")
     return order[np.searchsorted(keys, wanted, sorter=order)]
-
-
-def _not_in(values: IntArray, exclude: IntArray) -> np.ndarray:
-    """``~np.isin(values, exclude)`` for the few dozen ids of a frame, ~10x faster."""
-    skip = set(exclude.tolist())
-    return np.fromiter((v not in skip for v in values.tolist()), dtype=bool, count=len(values))
-
-
-def _positions(ids: IntArray, wanted: IntArray) -> IntArray:
-    """Row of each ``wanted`` id in ``ids`` (all present)."""
-    order = np.argsort(ids, kind="stable")
-    return order[np.searchsorted(ids, wanted, sorter=order)]
 
 
 def _list_images(folder: Path) -> dict[int, Path]:
