@@ -16,6 +16,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from tracker.boxes import FloatArray
+from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
@@ -57,6 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="KITTI label_02 folder: static metrics (TrackEval, KITTI 2D-box protocol)",
     )
     parser.add_argument("--motion", action="store_true", help="motion metrics")
+    parser.add_argument(
+        "--config",
+        default="kitti",
+        help="the config the tracks were made with: its image_width_scale per class shapes the "
+        "2D boxes written for the KITTI 2D-box protocol (default: kitti)",
+    )
     parser.add_argument("--out", default=None, help="output folder (default: the tracks folder)")
 
 
@@ -70,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     if args.labels is not None and not Path(args.labels).is_dir():
         raise InputError(f"{args.labels}: --labels folder not found (KITTI label_02)")
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]
+    width_scale = load_config(args.config).image_width_scales()
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)
     gt = read_baseversion(args.gt)
@@ -83,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
         labels=Path(args.labels) if args.labels else None,
         motion=args.motion,
         out=out,
+        width_scale=width_scale,
     )
     print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
     if isinstance(result.get("static"), str):
@@ -100,15 +110,17 @@ def evaluate_tracks(
     labels: Path | None,
     motion: bool,
     out: Path,
+    width_scale: FloatArray | None = None,
 ) -> dict[str, Any]:
     """Static and/or motion metrics of tracker output; writes ``out/eval.json`` and
-    ``out/eval.md`` and returns the JSON content."""
+    ``out/eval.md`` and returns the JSON content. ``width_scale``: the 2D-box model of the
+    tracking config (:func:`tracker.io.writers.kitti_lines`)."""
     from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     result: dict[str, Any] = {"tracks_scenes": sorted(outputs), "classes": list(classes)}
     md = ["# Evaluation", ""]
     if labels is not None:
-        result["static"] = _static_metrics(track_frames, outputs, gt, classes, labels)
+        result["static"] = _static_metrics(track_frames, outputs, gt, classes, labels, width_scale)
     else:
         result["static"] = "skipped: static metrics need --labels (KITTI label_02 folder)"
     md += _static_markdown(result["static"])
@@ -136,6 +148,7 @@ def _static_metrics(
     gt: Mapping[str, Sequence[Frame]],
     classes: Sequence[str],
     labels: Path,
+    width_scale: FloatArray | None = None,
 ) -> dict[str, Any] | str:
     from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
     from tracker.io.writers import write_kitti_sequence
@@ -156,7 +169,12 @@ def _static_metrics(
     }
     with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
         for scene, scene_outputs in outputs.items():
-            write_kitti_sequence(path_in(tmp, scene, ".txt"), scene_outputs, track_frames[scene])
+            write_kitti_sequence(
+                path_in(tmp, scene, ".txt"),
+                scene_outputs,
+                track_frames[scene],
+                width_scale=width_scale,
+            )
         return evaluate_kitti(
             label_dir=labels, result_dir=Path(tmp), seq_lengths=lengths, classes=static_classes
         )

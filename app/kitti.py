@@ -164,7 +164,9 @@ class KittiSceneJob:
         def write(outputs: list[TrackOutput]) -> None:
             nonlocal write_secs
             t1 = time.perf_counter()
-            write_kitti_sequence(result_file, outputs, frames)
+            write_kitti_sequence(
+                result_file, outputs, frames, width_scale=self.config.image_width_scales()
+            )
             write_bytes_atomic(
                 scenes.part_path(self.out, index, "json"), tracks_scene_json(seq, frames, outputs)
             )

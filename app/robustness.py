@@ -159,7 +159,12 @@ def run_robustness(
                 bar.set_description(f"{name} seed {'-' if seed is None else seed} seq {seq}")
                 noisy = perturb_frames(frames, specs[name], seed=seed or 0, rescore=rescore)
                 result = run_scene(noisy, config)
-                write_kitti_sequence(run_dir / f"{seq}.txt", result.outputs, noisy)
+                write_kitti_sequence(
+                    run_dir / f"{seq}.txt",
+                    result.outputs,
+                    noisy,
+                    width_scale=config.image_width_scales(),
+                )
                 bar.update(len(frames))
             metrics = evaluate_kitti(
                 label_dir=label_dir, result_dir=run_dir, seq_lengths=lengths, classes=classes

@@ -101,7 +101,12 @@ class TrackSceneJob:
         )
         if self.kitti_results:
             # the scene name comes from the input: escaped, it cannot lead outside OUT/data
-            write_kitti_sequence(path_in(self.out / "data", scene, ".txt"), result.outputs, frames)
+            write_kitti_sequence(
+                path_in(self.out / "data", scene, ".txt"),
+                result.outputs,
+                frames,
+                width_scale=self.config.image_width_scales(),
+            )
         ids = {int(t) for o in result.outputs for t in o.boxes.track_id}
         return SceneRecord(
             index,

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from tracker.categories import category_index
 from tracker.config import (
     BUILTIN,
     CostKind,
@@ -99,3 +100,11 @@ def test_base_inheritance_and_loops(tmp_path: Path) -> None:
     b.write_text('base = "a.toml"\n')
     with pytest.raises(InputError, match="loops"):
         load_config(a)
+
+
+def test_image_width_scale_is_a_fraction_per_class() -> None:
+    with pytest.raises(InputError, match=r"category.pedestrian.image_width_scale must be in"):
+        load_config("kitti", overrides={"category": {"pedestrian": {"image_width_scale": 0.0}}})
+    cfg = load_config("kitti", overrides={"category": {"car": {"image_width_scale": 0.5}}})
+    scales = cfg.image_width_scales()
+    assert scales[category_index("car")] == 0.5 and scales[category_index("cyclist")] == 1.0

@@ -3,6 +3,7 @@ and an end-to-end regression on the bundled sample sequence."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from tracker.categories import category_index
 from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.events import LifecycleChanged, ListObserver, TrackStatus
-from tracker.frame import Frame
+from tracker.frame import Camera, Frame
 from tracker.io.baseversion import read_baseversion
 from tracker.mctracker import MCTracker
 from tracker.pipeline import run_scene
@@ -91,6 +92,55 @@ def test_tentative_confirm_coast_lose_delete() -> None:
     assert changes[5].deleted.tolist() == [0]
     assert len(tracker.step(frame(6, [16.0]))) == 0  # a new, tentative track
     assert tracker.step(frame(7, [17.0])).boxes.track_id.tolist() == [1]
+
+
+def _front_camera() -> Camera:
+    """A 90-degree pinhole camera at the origin looking along world +x (z up), 100 px wide."""
+    camera_from_world = np.array(
+        [[0.0, -1.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+    )
+    image_from_camera = np.array([[50.0, 0.0, 50.0, 0.0], [0.0, 50.0, 40.0, 0.0], [0, 0, 1.0, 0]])
+    return Camera("CAM_FRONT", image_from_camera, camera_from_world, 100, 80)
+
+
+@pytest.mark.parametrize("min_in_view", [0.0, 0.5])
+def test_coasting_track_leaving_the_image_is_not_output(min_in_view: float) -> None:
+    """A car 20 m ahead drives right, out of the image; its detections stop at the edge. The
+    first coasting box (predicted y -18 m) is 3/4 inside the image, the second (y -20 m) under
+    2/5: with coast_min_in_view 0.5 only the first is output, with 0 both; a miss in the middle
+    of the image is output either way, and the track lives on out of view."""
+    cfg = config(max_misses_output=2, max_misses=5)
+    cfg = dataclasses.replace(cfg, coast_min_in_view=min_in_view)
+    cam = (_front_camera(),)
+
+    def lateral(i: int, ys: list[float]) -> Frame:
+        boxes = Boxes.create(
+            xyz=[[20.0, y, 0.8] for y in ys],
+            lwh=[[4.0, 1.8, 1.6]] * len(ys),
+            yaw=[-np.pi / 2] * len(ys),  # heading right (-y), the way it drives
+            category=[CAR] * len(ys),
+            score=[0.9] * len(ys),
+        )
+        return Frame(scene="s", frame_id=i, timestamp_secs=0.1 * i, boxes=boxes, cameras=cam)
+
+    tracker = MCTracker(cfg)
+    outs = [tracker.step(lateral(i, [-10.0 - 2.0 * i])) for i in range(4)]
+    assert outs[-1].boxes.track_id.tolist() == [0]
+    coast1, coast2 = tracker.step(lateral(4, [])), tracker.step(lateral(5, []))
+    assert coast1.det_row.tolist() == [-1] and coast1.boxes.xyz[0, 1] == pytest.approx(-18, abs=0.5)
+    assert len(coast2) == (1 if min_in_view == 0 else 0)
+    back = tracker.step(lateral(6, [-22.0]))  # not deleted: the same track takes it
+    assert back.boxes.track_id.tolist() == [0] and back.det_row.tolist() == [0]
+
+    centre = MCTracker(cfg)
+    for i in range(4):
+        centre.step(lateral(i, [0.0]))
+    assert centre.step(lateral(4, [])).det_row.tolist() == [-1]  # in view: coasting, output
+
+
+def test_coast_min_in_view_is_a_fraction() -> None:
+    with pytest.raises(InputError, match="coast_min_in_view must be in"):
+        load_config("kitti", overrides={"coast_min_in_view": 1.5})
 
 
 def test_reacquire_keeps_identity() -> None:

@@ -13,6 +13,7 @@ from app.tune import (
     _current,
     noise_levels,
     objective_value,
+    search_space,
     settings_to_overrides,
 )
 from tracker.config import load_config
@@ -59,17 +60,30 @@ def test_the_first_trial_is_the_base_config_itself(cls: str) -> None:
     """Trial 0 of every search is the shipped setting: mapping its values back to overrides
     leaves the config unchanged."""
     base = {"categories": [cls]}
-    values = _current("kitti", base, cls, ONLINE_SPACE)
-    assert set(values) == set(ONLINE_SPACE)
-    for key, (_, low, high) in ONLINE_SPACE.items():
+    space = search_space(cls, "online")
+    values = _current("kitti", base, cls, space)
+    assert set(values) == set(space)
+    for key, (_, low, high) in space.items():
         assert low <= values[key] <= high, key
     before = load_config("kitti", overrides=base).per_category[cls]
     after = load_config(
         "kitti", overrides={**base, **settings_to_overrides(cls, values)}
     ).per_category[cls]
     assert after.pose == before.pose and after.bev == before.bev
+    assert after.image_width_scale == pytest.approx(before.image_width_scale, abs=1e-6)
     assert after.lifecycle.min_hits == before.lifecycle.min_hits
     assert after.lifecycle.confirm_prob == pytest.approx(before.lifecycle.confirm_prob, abs=1e-6)
+
+
+def test_only_pedestrians_search_their_2d_box_width() -> None:
+    assert "image_width_scale" in search_space("pedestrian", "online")
+    assert "image_width_scale" in search_space("pedestrian", "offline")
+    assert "image_width_scale" not in search_space("car", "online")
+    assert set(search_space("car", "online")) == set(ONLINE_SPACE)
+    overrides = settings_to_overrides("pedestrian", {"image_width_scale": 0.7})
+    assert load_config("kitti", overrides=overrides).image_width_scales()[
+        load_config("kitti").category_ids[1]
+    ] == pytest.approx(0.7)
 
 
 def test_unknown_noise_level_is_a_one_line_error(

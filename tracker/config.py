@@ -140,6 +140,10 @@ class CategoryConfig:
     pose: PoseFilterConfig = PoseFilterConfig()
     size: KalmanNoise = KalmanNoise((1, 1, 10, 10), (0.5, 0.5, 1.5, 1.5), (0.02, 0.02))
     heading: HeadingFilterConfig = HeadingFilterConfig()
+    # the 2D image box written for 2D-box evaluation (KITTI) is the projected 3D box with its
+    # width scaled by this: a pedestrian's annotated 2D box is narrower than its cuboid's
+    # projection (median 1/1.49 even for ground-truth boxes: bench/kitti_box_shapes.py)
+    image_width_scale: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -163,6 +167,10 @@ class TrackerConfig:
     greedy_order: GreedyOrder = GreedyOrder.DETECTION
     nms: bool = False
     output_geometry: OutputGeometry = OutputGeometry.FILTERED
+    # Where detections exist only inside the camera images (KITTI), a coasting track is output
+    # only while at least this fraction of its projected box's width is inside an image: a track
+    # leaving the view has an explained miss, not a dropped box (0 = always output)
+    coast_min_in_view: float = 0.0
     offline: OfflineConfig = OfflineConfig()
     scores: ScoreSource = ScoreSource.AS_GIVEN
     source: str = "<defaults>"
@@ -174,6 +182,10 @@ class TrackerConfig:
     @property
     def nominal_dt_secs(self) -> float:
         return 1.0 / self.frame_rate_hz
+
+    def image_width_scales(self) -> FloatArray:
+        """``image_width_scale`` per global category index (1 where not tracked)."""
+        return np.nan_to_num(self.per_category_array(lambda c: c.image_width_scale), nan=1.0)
 
     def per_category_array(self, getter: typing.Callable[[CategoryConfig], float]) -> FloatArray:
         """A value per global category index (NaN where not tracked), for vectorised use."""
@@ -274,6 +286,11 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
     )
     if top.frame_rate_hz <= 0:
         raise InputError(f"{source}: frame_rate_hz must be > 0")
+    if not 0.0 <= top.coast_min_in_view <= 1.0:
+        raise InputError(f"{source}: coast_min_in_view must be in [0, 1]")
+    for name, cfg in sections.items():
+        if not 0.0 < cfg.image_width_scale <= 1.0:
+            raise InputError(f"{source}: category.{name}.image_width_scale must be in (0, 1]")
     return top
 
 

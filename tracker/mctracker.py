@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -55,7 +55,7 @@ from tracker.events import (
     TrackOutput,
     TrackStatus,
 )
-from tracker.frame import Frame
+from tracker.frame import Camera, Frame
 from tracker.geometry import prepare_kernels, wrap_angle
 from tracker.kalman import Axis
 from tracker.kernels import load as load_kernels
@@ -728,6 +728,10 @@ class MCTracker:
         rows = np.flatnonzero(out)
         boxes = tr.boxes(rows)
         det_row = tr.matched_det[rows]
+        if self.config.coast_min_in_view > 0 and frame.cameras and (det_row < 0).any():
+            keep = _in_view(boxes, det_row < 0, frame.cameras, self.config.coast_min_in_view)
+            if not keep.all():
+                rows, boxes, det_row = rows[keep], boxes[keep], det_row[keep]
         if self.config.output_geometry is OutputGeometry.DETECTION:
             hit = det_row >= 0
             boxes = boxes.replace(
@@ -777,6 +781,26 @@ def _merge_stages(
     dets = np.concatenate([m1.cols, rv_cols[m2.cols]])[order]
     stage = np.concatenate([stage1, np.full(len(m2), 2, dtype=np.int8)])[order]
     return _Association(rows[order], dets, stage, unmatched)
+
+
+def _in_view(
+    boxes: Boxes, coasting: np.ndarray, cameras: Sequence[Camera], min_fraction: float
+) -> np.ndarray:
+    """(K,) False for the coasting rows of which less than ``min_fraction`` of the projected
+    box's width lies inside every camera's image; True elsewhere."""
+    idx = np.flatnonzero(coasting)
+    sub = boxes[idx]
+    fraction = np.zeros(len(idx))
+    for cam in cameras:
+        xyxy, visible = project_boxes(sub, cam, clip_to_image=False)
+        x1, x2 = xyxy[visible, 0], xyxy[visible, 2]
+        inside = np.minimum(x2, cam.width_px - 1) - np.maximum(x1, 0.0)
+        frac = np.zeros(len(idx))
+        frac[visible] = inside / np.maximum(x2 - x1, 1e-9)
+        fraction = np.maximum(fraction, frac)
+    keep = np.ones(len(coasting), dtype=bool)
+    keep[idx] = fraction >= min_fraction
+    return keep
 
 
 def _evidence(score: FloatArray) -> FloatArray:

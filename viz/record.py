@@ -332,6 +332,7 @@ def record_scene(
                 classes=classes,
                 camera_name=camera_names[0],
                 result_file=result_file if restricted == label_file else None,
+                width_scale=config.image_width_scales(),
             )
             result.evaluation = evaluation.without_id_inputs()
             result.kitti_metrics = kitti_metrics or evaluation.metrics

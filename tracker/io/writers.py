@@ -28,7 +28,9 @@ from tracker.io.fileio import compact_json, write_bytes_atomic, write_json_atomi
 KITTI_CLASS_NAMES = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
 
 
-def kitti_label_fields(boxes: Boxes, camera: Camera) -> tuple[FloatArray, FloatArray, np.ndarray]:
+def kitti_label_fields(
+    boxes: Boxes, camera: Camera, *, width_scale: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray, np.ndarray]:
     """KITTI label fields of world boxes seen by a (rectified) camera.
 
     Returns ``fields (N, 8)`` = alpha, h, w, l, x, y, z, rotation_y (location = bottom centre in
@@ -55,23 +57,42 @@ def kitti_label_fields(boxes: Boxes, camera: Camera) -> tuple[FloatArray, FloatA
         camera.width_px,
         camera.height_px,
     )
-    xyxy, visible = project_boxes(upright, camera_axes)
+    if width_scale is None or np.all(width_scale[boxes.category] == 1.0):
+        xyxy, visible = project_boxes(upright, camera_axes)
+    else:
+        xyxy, visible = project_boxes(upright, camera_axes, clip_to_image=False)
+        centre, half = (xyxy[:, 0] + xyxy[:, 2]) / 2, (xyxy[:, 2] - xyxy[:, 0]) / 2
+        half = half * width_scale[boxes.category]
+        xyxy[:, 0], xyxy[:, 2] = centre - half, centre + half
+        max_xy = np.array([camera.width_px - 1, camera.height_px - 1] * 2, dtype=np.float64)
+        xyxy = np.clip(xyxy, 0.0, max_xy)
+        with np.errstate(invalid="ignore"):
+            visible &= (xyxy[:, 2] > xyxy[:, 0]) & (xyxy[:, 3] > xyxy[:, 1])
+        xyxy[~visible] = np.nan
     alpha = wrap_angle(rotation_y - np.arctan2(location[:, 0], location[:, 2]))
     fields = np.column_stack([alpha, hwl, location, rotation_y])
     return fields, xyxy, visible
 
 
-def kitti_lines(output: TrackOutput, camera: Camera, detections: Boxes | None = None) -> list[str]:
+def kitti_lines(
+    output: TrackOutput,
+    camera: Camera,
+    detections: Boxes | None = None,
+    *,
+    width_scale: FloatArray | None = None,
+) -> list[str]:
     """label_02 lines of one frame: boxes not visible in the image are left out (KITTI GT only
     annotates objects in the camera view, so anything else would count as a false positive).
 
     With ``detections`` (the frame's input boxes), a track matched this frame reports its
     detection's own 2D box when it has one, instead of the projected tracked box.
+    ``width_scale`` (per global category index, ``TrackerConfig.image_width_scales()``) narrows
+    each projected 2D box about its centre (before clipping to the image).
     """
     boxes = output.boxes
     if not len(boxes):
         return []
-    fields, xyxy, visible = kitti_label_fields(boxes, camera)
+    fields, xyxy, visible = kitti_label_fields(boxes, camera, width_scale=width_scale)
     if detections is not None:
         rows = output.det_row
         has = rows >= 0
@@ -102,8 +123,10 @@ def write_kitti_sequence(
     camera_name: str = "CAM_FRONT",
     *,
     detection_image_boxes: bool = False,
+    width_scale: FloatArray | None = None,
 ) -> int:
-    """Write one sequence's KITTI tracking result file; returns the number of lines."""
+    """Write one sequence's KITTI tracking result file; returns the number of lines.
+    ``width_scale``: see :func:`kitti_lines`."""
     by_frame = {f.frame_id: f for f in frames}
     lines: list[str] = []
     for out in outputs:
@@ -112,7 +135,7 @@ def write_kitti_sequence(
         if index < 0:
             raise ValueError(f"scene {frame.scene} frame {frame.frame_id}: no {camera_name} model")
         dets = frame.boxes if detection_image_boxes else None
-        lines.extend(kitti_lines(out, frame.cameras[index], dets))
+        lines.extend(kitti_lines(out, frame.cameras[index], dets, width_scale=width_scale))
     write_text_atomic(path, lines)
     return len(lines)
 
