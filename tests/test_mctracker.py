@@ -251,7 +251,9 @@ def test_sample_sequence_regression() -> None:
     outputs = run_scene(frames, cfg).outputs
     ids = {int(t) for o in outputs for t in o.boxes.track_id}
     result = Path(pytest.importorskip("tempfile").mkdtemp())
-    write_kitti_sequence(result / "0001.txt", outputs, frames)
+    write_kitti_sequence(
+        result / "0001.txt", outputs, frames, width_scale=cfg.image_width_scales()
+    )
     metrics = evaluate_kitti(
         label_dir=SAMPLE / "raw" / "training" / "label_02",
         result_dir=result,
