@@ -124,12 +124,12 @@ def test_coasting_track_leaving_the_image_is_not_output(min_in_view: float) -> N
         return Frame(scene="s", frame_id=i, timestamp_secs=0.1 * i, boxes=boxes, cameras=cam)
 
     tracker = MCTracker(cfg)
-    outs = [tracker.step(lateral(i, [-10.0 - 2.0 * i])) for i in range(4)]
+    outs = [tracker.step(lateral(i, [-2.0 - 2.0 * i])) for i in range(8)]  # to y = -16 m
     assert outs[-1].boxes.track_id.tolist() == [0]
-    coast1, coast2 = tracker.step(lateral(4, [])), tracker.step(lateral(5, []))
+    coast1, coast2 = tracker.step(lateral(8, [])), tracker.step(lateral(9, []))
     assert coast1.det_row.tolist() == [-1] and coast1.boxes.xyz[0, 1] == pytest.approx(-18, abs=0.5)
     assert len(coast2) == (1 if min_in_view == 0 else 0)
-    back = tracker.step(lateral(6, [-22.0]))  # not deleted: the same track takes it
+    back = tracker.step(lateral(10, [-22.0]))  # not deleted: the same track takes it
     assert back.boxes.track_id.tolist() == [0] and back.det_row.tolist() == [0]
 
     centre = MCTracker(cfg)
@@ -251,9 +251,7 @@ def test_sample_sequence_regression() -> None:
     outputs = run_scene(frames, cfg).outputs
     ids = {int(t) for o in outputs for t in o.boxes.track_id}
     result = Path(pytest.importorskip("tempfile").mkdtemp())
-    write_kitti_sequence(
-        result / "0001.txt", outputs, frames, width_scale=cfg.image_width_scales()
-    )
+    write_kitti_sequence(result / "0001.txt", outputs, frames, width_scale=cfg.image_width_scales())
     metrics = evaluate_kitti(
         label_dir=SAMPLE / "raw" / "training" / "label_02",
         result_dir=result,
