@@ -30,6 +30,7 @@ NEAR_PLANE_M = 0.1
 
 _EDGE_START = np.array([a for a, _ in BOX_EDGES], dtype=np.int64)
 _EDGE_END = np.array([b for _, b in BOX_EDGES], dtype=np.int64)
+_EDGE_ENDS = np.stack([_EDGE_START, _EDGE_END], axis=1)  # (12, 2)
 
 
 def _homogeneous_image(xyz_world: ArrayLike, camera: Camera) -> FloatArray:
@@ -218,17 +219,28 @@ def project_boxes_batched(
         return np.zeros((0, 12, 2, 2)), np.zeros((0, 4)), np.zeros(0, dtype=bool)
     corners = corners_3d(xyz, lwh, yaw_rad)  # (N, 8, 3)
     m = np.asarray(image_from_world, dtype=np.float64)
-    h = np.einsum("nij,nkj->nki", m[:, :, :3], corners) + m[:, None, :, 3]  # (N, 8, 3)
-    seg = clip_edges_px(h, near_m=near_m)  # the same clipping as project_boxes
-
-    pts = seg.reshape(n, -1, 2)
-    missing = np.isnan(pts)
-    lo = np.where(missing, np.inf, pts).min(axis=1)
-    hi = np.where(missing, -np.inf, pts).max(axis=1)
+    # batched matmul: einsum over these small axes is ~7x slower
+    h = corners @ m[:, :, :3].transpose(0, 2, 1) + m[:, None, :, 3]  # (N, 8, 3)
+    # Boxes wholly in front of the near plane (most): no edge is clipped, the edges' end points
+    # are the corners (as in project_boxes); only the others go through the clipping.
+    front = (h[..., 2] >= near_m).all(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):  # behind: replaced below
+        uv = h[..., :2] / h[..., 2:3]
+    seg = uv[:, _EDGE_ENDS]  # (N, 12, 2, 2)
+    lo, hi = uv.min(axis=1), uv.max(axis=1)
+    any_front = np.ones(n, dtype=bool)
+    cut = np.flatnonzero(~front)
+    if len(cut):
+        seg[cut] = clip_edges_px(h[cut], near_m=near_m)  # the same clipping as project_boxes
+        pts = seg[cut].reshape(len(cut), -1, 2)
+        missing = np.isnan(pts)
+        lo[cut] = np.where(missing, np.inf, pts).min(axis=1)
+        hi[cut] = np.where(missing, -np.inf, pts).max(axis=1)
+        any_front[cut] = ~missing[..., 0].all(axis=1)
     max_xy = np.asarray(size_px, dtype=np.float64) - 1.0
     lo_clip = np.clip(lo, 0.0, max_xy)
     hi_clip = np.clip(hi, 0.0, max_xy)
-    visible = ~missing[..., 0].all(axis=1) & (hi_clip > lo_clip).all(axis=1)
+    visible = any_front & (hi_clip > lo_clip).all(axis=1)
     xyxy = np.concatenate([lo_clip, hi_clip], axis=1)
     xyxy[~visible] = np.nan
     return seg, xyxy, visible

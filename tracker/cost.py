@@ -281,8 +281,21 @@ def sdiou_image(xyxy_a: ArrayLike, xyxy_b: ArrayLike) -> FloatArray:
     """
     a = np.asarray(xyxy_a, dtype=np.float64).reshape(-1, 4)
     b = np.asarray(xyxy_b, dtype=np.float64).reshape(-1, 4)
-    ax1, ay1, ax2, ay2 = (a[:, k, None] for k in range(4))  # (M, 1)
-    bx1, by1, bx2, by2 = (b[None, :, k] for k in range(4))  # (1, N)
+    return _sdiou(a[:, None, :], b[None, :, :])
+
+
+def sdiou_pairs(xyxy_a: ArrayLike, xyxy_b: ArrayLike) -> FloatArray:
+    """(P,) SDIoU of the pairs ``(xyxy_a[k], xyxy_b[k])``: the cells of :func:`sdiou_image`
+    (the same arithmetic, element by element) without the rest of the matrix."""
+    a = np.asarray(xyxy_a, dtype=np.float64).reshape(-1, 4)
+    b = np.asarray(xyxy_b, dtype=np.float64).reshape(-1, 4)
+    return _sdiou(a, b)
+
+
+def _sdiou(a: FloatArray, b: FloatArray) -> FloatArray:
+    """SDIoU of boxes ``a[..., :4]`` and ``b[..., :4]`` broadcast against each other."""
+    ax1, ay1, ax2, ay2 = (a[..., k] for k in range(4))
+    bx1, by1, bx2, by2 = (b[..., k] for k in range(4))
 
     inter_w = np.maximum(0.0, np.minimum(ax2, bx2) - np.maximum(ax1, bx1) + 1.0)
     inter_h = np.maximum(0.0, np.minimum(ay2, by2) - np.maximum(ay1, by1) + 1.0)
@@ -304,7 +317,7 @@ def sdiou_image(xyxy_a: ArrayLike, xyxy_b: ArrayLike) -> FloatArray:
         aspect = np.where(np.isfinite(aspect), aspect, 0.0)
         sdiou = inter / union + area_ratio * (1.0 - centre_dist / enclosing_diag) * aspect
     sdiou = np.where(degenerate, 0.0, sdiou)
-    missing = np.isnan(a).any(axis=1)[:, None] | np.isnan(b).any(axis=1)[None, :]
+    missing = np.isnan(a).any(axis=-1) | np.isnan(b).any(axis=-1)
     return np.where(missing, -np.inf, sdiou)
 
 
@@ -329,4 +342,5 @@ __all__ = [
     "ro_gdiou_bev_arrays",
     "ro_gdiou_terms_bev",
     "sdiou_image",
+    "sdiou_pairs",
 ]

@@ -82,6 +82,26 @@ class CostComputed:
 
 
 @dataclass(frozen=True, slots=True)
+class ImageStageDeferred:
+    """Stage 2 (RV) left uncomputed on a frame where it can match nothing: no leftover pair of
+    one category is within its yaw and distance gate (exact, the shortcut of a plain run).
+
+    Emitted instead of its ``CostComputed`` and ``Matched`` only to an observer whose
+    ``rv_costs_deferred`` is True: it computes the same matrix later, for many frames at once,
+    with :func:`tracker.image_stage.deferred_image_stage`. The inputs: ``track_rows`` index
+    this frame's ``Predicted`` arrays (the leftover tracks), ``det_rows`` the frame's
+    detections; per track row the cost threshold and the gates; the greedy order.
+    """
+
+    track_rows: IntArray
+    det_rows: IntArray
+    max_cost_per_row: FloatArray
+    yaw_gate_rad: FloatArray
+    distance_gate_m: FloatArray
+    greedy_order: str
+
+
+@dataclass(frozen=True, slots=True)
 class Matched:
     """Accepted pairs of a stage: ``track_ids[k]`` took detection row ``det_rows[k]``.
 
@@ -145,6 +165,7 @@ Event = (
     | DetectionsFiltered
     | Predicted
     | CostComputed
+    | ImageStageDeferred
     | Matched
     | LifecycleChanged
     | FrameFinished

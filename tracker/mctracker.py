@@ -46,6 +46,7 @@ from tracker.events import (
     Event,
     FrameFinished,
     FrameStarted,
+    ImageStageDeferred,
     LifecycleChanged,
     Matched,
     Observer,
@@ -398,21 +399,36 @@ class MCTracker:
         the pairs it scored.
         """
         tr, cat, reference = self._tracks, self._cat, self.config.rv_reference
-        # an observer that only counts (tracker.eval.fates) does not need the costs of empty stages
+        # an observer that only counts (tracker.eval.fates) does not need the costs of empty
+        # stages; the recording takes them deferred (computed later, many frames at once)
         obs = self.observer
-        shortcut = not reference and (obs is None or not getattr(obs, "wants_rv_costs", True))
+        wants = obs is not None and getattr(obs, "wants_rv_costs", True)
+        deferred = wants and getattr(obs, "rv_costs_deferred", False)
+        shortcut = not reference and (not wants or deferred)
         # Shortcut (exact): when the gate below can accept no pair, whatever the costs, nothing
         # is matched or consumed. Most frames' leftovers are far apart or of other classes: a
         # pair outside stage 1's mask is of another class or farther (in BEV, so in 3D) than
         # the BEV gate, which is wider than this stage's.
-        if (
-            shortcut
-            and cat.rv_gate_within_bev_gate
-            and bev_mask is not None
-            and not bev_mask[rows][:, cols].any()
+        if shortcut and (
+            (
+                cat.rv_gate_within_bev_gate
+                and bev_mask is not None
+                and not bev_mask[rows][:, cols].any()
+            )
+            or not self._rv_gate_passable(rows, dets, cols)
         ):
-            return Matches.empty(len(rows), len(cols)), _EMPTY_INT
-        if shortcut and not self._rv_gate_passable(rows, dets, cols):
+            if deferred:
+                category = tr.category[rows]
+                self._emit(
+                    ImageStageDeferred(
+                        rows,
+                        kept_rows[cols],
+                        cat.rv_cost_max[category],
+                        cat.rv_yaw_gate[category],
+                        cat.rv_distance_gate[category],
+                        self.config.greedy_order.value,
+                    )
+                )
             return Matches.empty(len(rows), len(cols)), _EMPTY_INT
         pred = tr.boxes(rows)  # the predicted boxes of the tracks in ``rows``
         track_category = pred.category

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import enum
 from collections import Counter
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -50,83 +51,118 @@ class Fate(enum.IntEnum):
     UNUSED_BELOW_BIRTH = 7
 
 
+_NO_ROWS = np.zeros(0, dtype=np.int64)
 FATE_NAMES: dict[Fate, str] = {f: f.name.lower() for f in Fate if f is not Fate.PENDING}
 _FROM_DROP = {
     DropReason.CATEGORY: Fate.DROPPED_CATEGORY,
     DropReason.SCORE: Fate.DROPPED_SCORE,
     DropReason.NMS: Fate.DROPPED_NMS,
 }
+# fate by DropReason value (kept: not decided yet)
+_FATE_OF_REASON = np.full(max(DropReason) + 1, Fate.PENDING, dtype=np.int8)
+for _reason, _fate in _FROM_DROP.items():
+    _FATE_OF_REASON[_reason] = _fate
+
+
+@dataclass(slots=True)
+class _FrameFates:
+    """One frame's events as the counter needs them (references to the tracker's arrays)."""
+
+    reason: np.ndarray
+    category: np.ndarray
+    assigned: list[tuple[np.ndarray, int]] = field(default_factory=list)  # (rows, fate)
+    rv_rejected: np.ndarray = field(default_factory=lambda: _NO_ROWS)
 
 
 class FateCounter:
     """Counts detections per fate and category over any number of frames and scenes.
 
     Use as (or inside) the tracker's observer; ``summary()`` gives the counts. Pass
-    ``rv_gate_consumes=config.rv_reference``. Raises
-    RuntimeError if a frame's detections do not each get exactly one fate (a tracker change
-    that emits fewer events would otherwise lose detections silently).
+    ``rv_gate_consumes=config.rv_reference``. Per frame it only keeps references to the event
+    arrays; the fates are assigned for many frames at once (every :data:`BATCH_FRAMES` frames,
+    at a new scene and at ``summary()``), which makes it cheap enough to ride along with every
+    run. Raises RuntimeError if a frame's detections do not each get exactly one fate (a
+    tracker change that emits fewer events would otherwise lose detections silently).
     """
 
     wants_rv_costs = False  # the tracker may skip an image-plane stage that cannot match
+    BATCH_FRAMES = 256
 
     def __init__(self, *, rv_gate_consumes: bool = False) -> None:
         # reference mode (config.rv_reference) drops detections of gated image-plane pairs;
         # otherwise they go back to the pool and only the birth score can leave them unused
         self.rv_gate_consumes = rv_gate_consumes
-        # detections per (fate, category index): one bincount per frame, names at the end
+        # detections per (fate, category index)
         self._counts = np.zeros((len(FATE_NAMES), len(CATEGORIES)), dtype=np.int64)
         self.detections = 0
-        self._fate: np.ndarray | None = None
-        self._category: np.ndarray | None = None
-        self._rv_rejected: np.ndarray = np.zeros(0, dtype=np.int64)
-        self._track_dets: Counter[int] = Counter()  # detections fed to each track of the scene
-        self._confirmed: set[int] = set()
+        self._cur: _FrameFates | None = None
+        self._pending: list[_FrameFates] = []  # finished frames not counted yet
+        # this scene's track ids fed a detection (one entry per detection) and confirmed ids
+        self._track_dets: list[np.ndarray] = []
+        self._confirmed: list[np.ndarray] = []
         self._scene: str | None = None
         self.in_unconfirmed_tracks = 0
 
     def __call__(self, event: Event) -> None:
-        if isinstance(event, DetectionsFiltered):
+        kind = type(event)
+        if kind is DetectionsFiltered:
+            assert isinstance(event, DetectionsFiltered)
             if event.frame.scene != self._scene:
                 self._close_scene()
                 self._scene = event.frame.scene
-            reason = event.reason
-            fate = np.full(len(reason), Fate.PENDING, dtype=np.int8)
-            for drop, f in _FROM_DROP.items():
-                fate[reason == drop] = f
-            self._fate, self._category = fate, event.frame.boxes.category
-            self._rv_rejected = np.zeros(0, dtype=np.int64)
-        elif isinstance(event, Matched) and self._fate is not None:
+            self._cur = _FrameFates(event.reason, event.frame.boxes.category)
+        elif self._cur is None:
+            return
+        elif kind is Matched:
+            assert isinstance(event, Matched)
             f = Fate.MATCHED_BEV if event.stage is Stage.BEV else Fate.MATCHED_RV
-            self._fate[event.det_rows] = f
-            self._track_dets.update(event.track_ids.tolist())
+            self._cur.assigned.append((event.det_rows, int(f)))
+            self._track_dets.append(event.track_ids)
             if event.stage is Stage.RV and self.rv_gate_consumes:
-                self._rv_rejected = event.rejected_det_rows
-        elif isinstance(event, LifecycleChanged) and self._fate is not None:
-            self._fate[event.born_det_rows] = Fate.BORN
-            self._track_dets.update(event.born.tolist())
-            self._confirmed.update(event.confirmed.tolist())
-        elif isinstance(event, FrameFinished) and self._fate is not None:
-            self._finish_frame()
+                self._cur.rv_rejected = event.rejected_det_rows
+        elif kind is LifecycleChanged:
+            assert isinstance(event, LifecycleChanged)
+            self._cur.assigned.append((event.born_det_rows, int(Fate.BORN)))
+            self._track_dets.append(event.born)
+            self._confirmed.append(event.confirmed)
+        elif kind is FrameFinished:
+            self._pending.append(self._cur)
+            self._cur = None
+            if len(self._pending) >= self.BATCH_FRAMES:
+                self._count_pending()
 
-    def _finish_frame(self) -> None:
-        fate, category = self._fate, self._category
-        assert fate is not None and category is not None
-        pending = fate == Fate.PENDING
+    def _count_pending(self) -> None:
+        """The fates of the finished frames not counted yet, all at once."""
+        frames, self._pending = self._pending, []
+        if not frames:
+            return
+        lengths = np.array([len(f.reason) for f in frames], dtype=np.int64)
+        offset = np.cumsum(lengths) - lengths
+        fate = _FATE_OF_REASON[np.concatenate([f.reason for f in frames])]
+        category = np.concatenate([np.asarray(f.category, dtype=np.int64) for f in frames])
+        # matched and born rows (disjoint within a frame: a born detection matched nothing)
+        rows = [r + offset[i] for i, f in enumerate(frames) for r, _ in f.assigned]
+        if rows:
+            codes = [np.full(len(r), c, np.int8) for f in frames for r, c in f.assigned]
+            fate[np.concatenate(rows)] = np.concatenate(codes)
         gated = np.zeros(len(fate), dtype=bool)
-        gated[self._rv_rejected] = True
+        rejected = [f.rv_rejected + offset[i] for i, f in enumerate(frames) if len(f.rv_rejected)]
+        if rejected:
+            gated[np.concatenate(rejected)] = True
+        pending = fate == Fate.PENDING
         fate[pending & gated] = Fate.UNUSED_RV_GATE
         fate[pending & ~gated] = Fate.UNUSED_BELOW_BIRTH
         if (fate == Fate.PENDING).any():  # cannot happen: every row was given a fate above
             raise RuntimeError("detection fates: a detection got no fate")
         n_cat = self._counts.shape[1]
-        flat = fate.astype(np.int64) * n_cat + np.asarray(category, dtype=np.int64)
+        flat = fate.astype(np.int64) * n_cat + category
         self._counts += np.bincount(flat, minlength=self._counts.size).reshape(self._counts.shape)
         self.detections += len(fate)
-        self._fate = None
 
     @property
     def counts(self) -> Counter[tuple[str, str]]:
         """(fate, category) -> detections, the pairs seen."""
+        self._count_pending()
         f, c = np.nonzero(self._counts)
         return Counter(
             {
@@ -136,9 +172,11 @@ class FateCounter:
         )
 
     def _close_scene(self) -> None:
-        self.in_unconfirmed_tracks += sum(
-            n for t, n in self._track_dets.items() if t not in self._confirmed
-        )
+        self._count_pending()
+        if self._track_dets:
+            fed = np.concatenate(self._track_dets)
+            confirmed = np.concatenate(self._confirmed) if self._confirmed else fed[:0]
+            self.in_unconfirmed_tracks += int(np.count_nonzero(~np.isin(fed, confirmed)))
         self._track_dets.clear()
         self._confirmed.clear()
 
@@ -205,7 +243,12 @@ class Tee:
 
     def __init__(self, *observers: Any) -> None:
         self.observers = [o for o in observers if o is not None]
-        self.wants_rv_costs = any(getattr(o, "wants_rv_costs", True) for o in self.observers)
+        wanting = [o for o in self.observers if getattr(o, "wants_rv_costs", True)]
+        self.wants_rv_costs = bool(wanting)
+        # deferred only if every observer that wants the costs takes them so
+        self.rv_costs_deferred = bool(wanting) and all(
+            getattr(o, "rv_costs_deferred", False) for o in wanting
+        )
 
     def __call__(self, event: Event) -> None:
         for o in self.observers:
