@@ -44,3 +44,26 @@ def test_width_scale_narrows_only_its_class_about_the_centre() -> None:
                 assert b[0] + b[2] == pytest.approx(a[0] + a[2], abs=1e-3)
                 pairs += 1
     assert pairs > 20
+
+
+def test_eval_writes_boxes_with_the_given_configs_width(tmp_path: Path) -> None:
+    """`mctrack eval --config` shapes the static metrics' 2D boxes like the tracking run did:
+    the shipped pedestrian width gives another pedestrian HOTA than no narrowing."""
+    import json
+
+    from app.cli import main
+    from tracker.io.writers import write_tracks_file
+
+    cfg = load_config("kitti")
+    frames = read_baseversion(SAMPLE / "detections.json.gz")["0001"]
+    frames = calibrate_frames(frames, find_profile("pointrcnn"))
+    outputs = run_scene(frames, cfg).outputs
+    write_tracks_file(tmp_path / "tracks.json", {"0001": (frames, outputs)})
+    hota = {}
+    for name in ("kitti", "kitti_reference"):  # pedestrian width 0.8155 / 1
+        out = tmp_path / name
+        args = ["eval", str(tmp_path / "tracks.json"), "--gt", str(SAMPLE / "gt.json.gz")]
+        args += ["--labels", str(SAMPLE / "raw" / "training" / "label_02"), "--out", str(out)]
+        assert main([*args, "--config", name]) == 0
+        hota[name] = json.loads((out / "eval.json").read_text())["static"]["pedestrian"]["HOTA"]
+    assert hota["kitti"] > hota["kitti_reference"] + 1.0
