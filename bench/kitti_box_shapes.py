@@ -23,8 +23,15 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.inputs import default_kitti_root  # noqa: E402
+from tracker.camera import project_boxes  # noqa: E402
+from tracker.frame import Camera  # noqa: E402
 from tracker.io.convert.kitti import (  # noqa: E402
     VALIDATION_SEQS,
+    WORLD_FROM_CAMERA_AXES,
+    KittiCalib,
+    KittiObjects,
+    boxes_rect_to_world,
+    image_size_px,
     read_kitti_calib,
     read_kitti_labels,
 )
@@ -32,21 +39,15 @@ from tracker.io.convert.kitti import (  # noqa: E402
 CLASSES = ("Car", "Pedestrian", "Cyclist")
 
 
-def projected_cuboids(hwl: np.ndarray, bottom: np.ndarray, ry: np.ndarray, p2: np.ndarray):
-    """(N, 4) image boxes of KITTI cuboids (rect camera frame: x right, y down, z forward)."""
-    h, w, length = hwl[:, 0:1], hwl[:, 1:2], hwl[:, 2:3]
-    sx = np.array([1, 1, -1, -1] * 2) / 2.0
-    sz = np.array([1, -1, 1, -1] * 2) / 2.0
-    up = np.array([0] * 4 + [1] * 4)
-    ox, oz, oy = length * sx, w * sz, -h * up  # (N, 8) object frame
-    c, s = np.cos(ry)[:, None], np.sin(ry)[:, None]
-    x = bottom[:, 0:1] + c * ox + s * oz
-    z = bottom[:, 2:3] - s * ox + c * oz
-    y = bottom[:, 1:2] + oy
-    pts = np.stack([x, y, z, np.ones_like(x)], axis=-1)  # (N, 8, 4)
-    uvw = pts @ p2.T
-    uv = uvw[..., :2] / uvw[..., 2:3]
-    return np.concatenate([uv.min(axis=1), uv.max(axis=1)], axis=1)
+def projected_cuboids(objects: KittiObjects, calib: KittiCalib) -> np.ndarray:
+    """(N, 4) unclipped image boxes of KITTI cuboids, projected as the result writer does
+    (upright in camera axes: world = the camera's own axes, z up)."""
+    world_from_rect = np.broadcast_to(WORLD_FROM_CAMERA_AXES, (objects.frame.max() + 1, 4, 4))
+    xyz, lwh, yaw = boxes_rect_to_world(objects, world_from_rect)
+    width, height = image_size_px(calib)
+    camera = Camera("P2", calib.image_from_rect, np.linalg.inv(WORLD_FROM_CAMERA_AXES), width,
+                    height)  # fmt: skip
+    return project_boxes((xyz, lwh, yaw), camera, clip_to_image=False)[0]
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -72,8 +73,7 @@ def main(argv: list[str] | None = None) -> int:
             sel = lab.select(ok & (lab.type_name == cls))
             if not len(sel):
                 continue
-            proj = projected_cuboids(sel.hwl, sel.xyz_bottom_rect, sel.rotation_y,
-                                     calib.image_from_rect)  # fmt: skip
+            proj = projected_cuboids(sel, calib)
             ratio = (proj[:, 2] - proj[:, 0]) / (sel.xyxy_image[:, 2] - sel.xyxy_image[:, 0])
             per[cls][seq] = (ratio, iou(proj, sel.xyxy_image))
     print("| class | boxes | projected / annotated width (median) | IoU (mean) |"

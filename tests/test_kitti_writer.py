@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tracker.calibration import calibrate_frames, find_profile
-from tracker.categories import category_index
+from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
 from tracker.io.baseversion import read_baseversion
 from tracker.io.writers import kitti_lines
@@ -25,7 +25,7 @@ def test_width_scale_narrows_only_its_class_about_the_centre() -> None:
     frames = read_baseversion(SAMPLE / "detections.json.gz")["0001"]
     frames = calibrate_frames(frames, find_profile("pointrcnn"))
     outputs = run_scene(frames, load_config("kitti")).outputs
-    scale = np.ones(8)
+    scale = np.ones(len(CATEGORIES))
     scale[category_index("pedestrian")] = 0.5
     pairs = 0
     for out, frame in zip(outputs, frames, strict=True):

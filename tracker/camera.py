@@ -153,16 +153,26 @@ def project_boxes(
         any_front = ~np.isnan(ends_px[..., 0]).all(axis=1)
         lo = np.where(np.isnan(ends_px), np.inf, ends_px).min(axis=1)  # (N, 2)
         hi = np.where(np.isnan(ends_px), -np.inf, ends_px).max(axis=1)
-    max_xy = np.array([camera.width_px - 1, camera.height_px - 1], dtype=np.float64)
-    lo_clip = np.clip(lo, 0.0, max_xy)
-    hi_clip = np.clip(hi, 0.0, max_xy)
-    visible = any_front & (hi_clip > lo_clip).all(axis=1)
+    xyxy_image = np.concatenate([lo, hi], axis=1)
+    clipped, visible = clip_boxes_to_image(xyxy_image, any_front, camera)
     if clip_to_image:
-        xyxy_image = np.concatenate([lo_clip, hi_clip], axis=1)
-    else:
-        xyxy_image = np.concatenate([lo, hi], axis=1)
+        return clipped, visible
     xyxy_image[~visible] = np.nan
     return xyxy_image, visible
+
+
+def clip_boxes_to_image(
+    xyxy: FloatArray, candidates: BoolArray, camera: Camera
+) -> tuple[FloatArray, BoolArray]:
+    """2D boxes clipped to ``[0, width_px - 1] x [0, height_px - 1]`` (the KITTI pixel-index
+    convention) and ``visible``: a ``candidate`` whose clipped box has a positive area. Boxes
+    that are not visible are NaN."""
+    max_xy = np.array([camera.width_px - 1, camera.height_px - 1] * 2, dtype=np.float64)
+    clipped = np.clip(xyxy, 0.0, max_xy)
+    with np.errstate(invalid="ignore"):  # NaN rows: not visible
+        visible = candidates & (clipped[:, 2:] > clipped[:, :2]).all(axis=1)
+    clipped[~visible] = np.nan
+    return clipped, visible
 
 
 def box_wireframes_image(

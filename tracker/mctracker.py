@@ -789,7 +789,7 @@ def _in_view(
     """(K,) False for the coasting rows of which less than ``min_fraction`` of the projected
     box's width lies inside every camera's image; True elsewhere."""
     idx = np.flatnonzero(coasting)
-    sub = boxes[idx]
+    sub = (boxes.xyz[idx], boxes.lwh[idx], boxes.yaw[idx])
     fraction = np.zeros(len(idx))
     for cam in cameras:
         xyxy, visible = project_boxes(sub, cam, clip_to_image=False)

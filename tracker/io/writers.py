@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from tracker.boxes import Boxes, FloatArray
-from tracker.camera import project_boxes
+from tracker.camera import clip_boxes_to_image, project_boxes
 from tracker.categories import CATEGORIES
 from tracker.errors import InputError
 from tracker.events import TrackOutput, TrackStatus
@@ -57,18 +57,14 @@ def kitti_label_fields(
         camera.width_px,
         camera.height_px,
     )
-    if width_scale is None or np.all(width_scale[boxes.category] == 1.0):
-        xyxy, visible = project_boxes(upright, camera_axes)
-    else:
-        xyxy, visible = project_boxes(upright, camera_axes, clip_to_image=False)
-        centre, half = (xyxy[:, 0] + xyxy[:, 2]) / 2, (xyxy[:, 2] - xyxy[:, 0]) / 2
-        half = half * width_scale[boxes.category]
-        xyxy[:, 0], xyxy[:, 2] = centre - half, centre + half
-        max_xy = np.array([camera.width_px - 1, camera.height_px - 1] * 2, dtype=np.float64)
-        xyxy = np.clip(xyxy, 0.0, max_xy)
-        with np.errstate(invalid="ignore"):
-            visible &= (xyxy[:, 2] > xyxy[:, 0]) & (xyxy[:, 3] > xyxy[:, 1])
-        xyxy[~visible] = np.nan
+    xyxy, visible = project_boxes(upright, camera_axes, clip_to_image=False)
+    scale = np.ones(len(boxes)) if width_scale is None else width_scale[boxes.category]
+    narrow = np.flatnonzero(scale != 1.0)  # (only these: the others stay bit-identical)
+    if len(narrow):
+        x1, x2 = xyxy[narrow, 0], xyxy[narrow, 2]
+        centre, half = (x1 + x2) / 2, (x2 - x1) / 2 * scale[narrow]
+        xyxy[narrow, 0], xyxy[narrow, 2] = centre - half, centre + half
+    xyxy, visible = clip_boxes_to_image(xyxy, visible, camera)
     alpha = wrap_angle(rotation_y - np.arctan2(location[:, 0], location[:, 2]))
     fields = np.column_stack([alpha, hwl, location, rotation_y])
     return fields, xyxy, visible
