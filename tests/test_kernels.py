@@ -66,6 +66,7 @@ def random_table(rng: np.random.Generator, n: int, k: int) -> TrackTable:
         last_camera=zeros - 1,
         last_det_xyz=np.zeros((n, 3)),
         last_det_lwh=np.ones((n, 3)),
+        zh=np.ones((n, 2)),
         last_det_yaw=np.zeros(n),
         heading_votes=rng.integers(0, 3, n),
         evidence=rng.uniform(0.0, 8.0, n),

@@ -143,6 +143,46 @@ def test_coast_min_in_view_is_a_fraction() -> None:
         load_config("kitti", overrides={"coast_min_in_view": 1.5})
 
 
+@pytest.mark.parametrize("gain", [1.0, 0.5])
+def test_vertical_gain_smooths_z_and_height(gain: float) -> None:
+    """z and height alternate 0.8/1.2 and 1.6/2.0 between detections: with gain 1 the track
+    reports each detection's own; with 0.5 each hit moves halfway (z_k = z_{k-1} + g (d_k -
+    z_{k-1})), and a coasting frame keeps the last value."""
+    cfg = config(max_misses_output=2, max_misses=5)
+    cfg = dataclasses.replace(
+        cfg,
+        per_category={
+            n: dataclasses.replace(c, vertical_gain=gain) for n, c in cfg.per_category.items()
+        },
+    )
+    tracker = MCTracker(cfg)
+    z, h = [0.8, 1.2, 0.8, 1.2], [1.6, 2.0, 1.6, 2.0]
+    want_z, want_h = [z[0]], [h[0]]
+    for k in range(1, 4):
+        want_z.append(want_z[-1] + gain * (z[k] - want_z[-1]))
+        want_h.append(want_h[-1] + gain * (h[k] - want_h[-1]))
+    got = []
+    for i in range(4):
+        boxes = Boxes.create(
+            xyz=[[10.0 + i, 0.0, z[i]]],
+            lwh=[[4.0, 1.8, h[i]]],
+            yaw=[0.0],
+            category=[CAR],
+            score=[0.9],
+        )
+        out = tracker.step(Frame(scene="s", frame_id=i, timestamp_secs=0.1 * i, boxes=boxes))
+        got.append((out.boxes.xyz[:, 2].tolist(), out.boxes.lwh[:, 2].tolist()))
+    assert got[0] == ([], [])  # tentative (min_hits 2)
+    for i in range(1, 4):
+        assert got[i][0] == pytest.approx([want_z[i]]) and got[i][1] == pytest.approx([want_h[i]])
+    coast = tracker.step(Frame(scene="s", frame_id=4, timestamp_secs=0.4, boxes=Boxes.empty()))
+    assert coast.boxes.xyz[:, 2] == pytest.approx([want_z[3]])
+    if gain == 0.5:
+        assert want_z[3] == pytest.approx(1.05)  # (not the last detection's 1.2)
+    with pytest.raises(InputError, match="vertical_gain must be in"):
+        load_config("kitti", overrides={"category": {"car": {"vertical_gain": 0.0}}})
+
+
 def test_reacquire_keeps_identity() -> None:
     tracker = MCTracker(config())
     for i in range(3):

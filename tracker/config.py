@@ -144,6 +144,10 @@ class CategoryConfig:
     # width scaled by this: a pedestrian's annotated 2D box is narrower than its cuboid's
     # projection (median 1/1.49 even for ground-truth boxes: bench/kitti_box_shapes.py)
     image_width_scale: float = 1.0
+    # z and height (no Kalman axis of their own): each hit moves the track's values this fraction
+    # of the way to its detection's, an exponential smoother (1 = the detection's own, the
+    # reference)
+    vertical_gain: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -291,6 +295,8 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
     for name, cfg in sections.items():
         if not 0.0 < cfg.image_width_scale <= 1.0:
             raise InputError(f"{source}: category.{name}.image_width_scale must be in (0, 1]")
+        if not 0.0 < cfg.vertical_gain <= 1.0:
+            raise InputError(f"{source}: category.{name}.vertical_gain must be in (0, 1]")
     return top
 
 

@@ -122,6 +122,8 @@ class _PerCategory:
         self.max_misses_tentative = arr(lambda c: c.lifecycle.max_misses_tentative)
         self.max_misses_output = arr(lambda c: c.lifecycle.max_misses_output)
         self.max_misses = arr(lambda c: c.lifecycle.max_misses)
+        self.vertical_gain = arr(lambda c: c.vertical_gain)
+        self.any_vertical_smoothing = bool(np.any(self.vertical_gain[self.tracked] < 1.0))
         with np.errstate(divide="ignore"):  # confirm_prob 1: an infinite threshold (never)
             self.confirm_evidence = -np.log1p(-arr(lambda c: c.lifecycle.confirm_prob))
         # the five lifecycle thresholds per category, gathered once per frame
@@ -593,6 +595,11 @@ class MCTracker:
         tr.score[idx] = dets.score[det_rows]
         tr.last_xyxy[idx], tr.last_camera[idx] = dets.xyxy_image[det_rows], dets.camera[det_rows]
         tr.last_det_xyz[idx], tr.last_det_lwh[idx] = xyz, lwh
+        zh = np.column_stack([xyz[:, 2], lwh[:, 2]])
+        if self._cat.any_vertical_smoothing:  # zh += gain (detection - zh)
+            gain = self._cat.vertical_gain[tr.category[idx]][:, None]
+            zh = tr.zh[idx] + gain * (zh - tr.zh[idx])
+        tr.zh[idx] = zh
         tr.last_det_yaw[idx] = dets.yaw[det_rows]
         tr.hits[idx] += 1
         tr.evidence[idx] += _evidence(dets.score[det_rows])
@@ -630,6 +637,7 @@ class MCTracker:
             last_camera=dets.camera[det_index],
             last_det_xyz=xyz,
             last_det_lwh=lwh,
+            zh=np.column_stack([xyz[:, 2], lwh[:, 2]]),
             last_det_yaw=yaw,
             heading_votes=zeros,
             evidence=_evidence(score),

@@ -33,8 +33,9 @@ class TrackTable:
     score: FloatArray  # (T,) last detection score
     last_xyxy: FloatArray  # (T, 4) last detection's 2D box (reference RV stage)
     last_camera: IntArray  # (T,)
-    last_det_xyz: FloatArray  # (T, 3) last detection's centre (its z is the track's z)
-    last_det_lwh: FloatArray  # (T, 3) (its height is the track's height)
+    last_det_xyz: FloatArray  # (T, 3) last detection's centre
+    last_det_lwh: FloatArray  # (T, 3)
+    zh: FloatArray  # (T, 2) the track's z and height (smoothed detection values)
     last_det_yaw: FloatArray  # (T,)
     heading_votes: IntArray  # (T,) consecutive detections whose yaw disagrees by > 90°
     evidence: FloatArray  # (T,) sum over hits of -log(1 - score): 1 - exp(-e) = noisy-OR
@@ -58,6 +59,7 @@ class TrackTable:
             "last_camera": ((0,), np.int64),
             "last_det_xyz": ((0, 3), np.float64),
             "last_det_lwh": ((0, 3), np.float64),
+            "zh": ((0, 2), np.float64),
             "last_det_yaw": ((0,), np.float64),
             "heading_votes": ((0,), np.int64),
             "evidence": ((0,), np.float64),
@@ -87,10 +89,10 @@ class TrackTable:
         self.matched_stage[rows] = stage
 
     def xyz(self, rows: IntArray) -> FloatArray:
-        """(R, 3) current box centres of the tracks ``rows`` (filtered x, y; detection z)."""
+        """(R, 3) current box centres of the tracks ``rows`` (filtered x, y; smoothed z)."""
         xyz = np.empty((len(rows), 3))
         xyz[:, :2] = self.motion_x[rows, Axis.X : Axis.Y + 1, 0]
-        xyz[:, 2] = self.last_det_xyz[rows, 2]
+        xyz[:, 2] = self.zh[rows, 0]
         return xyz
 
     def boxes(self, rows: IntArray | None = None) -> Boxes:
@@ -104,12 +106,13 @@ class TrackTable:
         xyz[:, :2] = x[:, Axis.X : Axis.Y + 1, 0]
         lwh[:, :2] = x[:, Axis.LENGTH : Axis.WIDTH + 1, 0]
         if rows is None:
-            xyz[:, 2], lwh[:, 2] = self.last_det_xyz[:, 2], self.last_det_lwh[:, 2]
+            xyz[:, 2], lwh[:, 2] = self.zh[:, 0], self.zh[:, 1]
             score, category = self.score.copy(), self.category.copy()
             xyxy, camera = self.last_xyxy.copy(), self.last_camera.copy()
             track_id = self.track_id.copy()
         else:
-            xyz[:, 2], lwh[:, 2] = self.last_det_xyz[rows, 2], self.last_det_lwh[rows, 2]
+            zh = self.zh[rows]
+            xyz[:, 2], lwh[:, 2] = zh[:, 0], zh[:, 1]
             score, category = self.score[rows], self.category[rows]
             xyxy, camera = self.last_xyxy[rows], self.last_camera[rows]
             track_id = self.track_id[rows]
