@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tracker.pipeline import smooth_positions
+from tracker.pipeline import mean_size_per_track, smooth_positions
 
 
 def _track(n: int, tid: int, start: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -53,3 +53,16 @@ def test_tracks_gaps_short_runs_and_dropped_rows_are_kept_apart() -> None:
     pts = rng.normal(0.0, 1.0, (7, 3))
     out = smooth_positions(pts, np.ones(7, int), gap_frames, np.ones(7, bool), 5)
     assert np.array_equal(out[:2], pts[:2]) and not np.array_equal(out[2:], pts[2:])
+
+
+def test_mean_size_per_track_is_one_size_per_track_over_kept_rows() -> None:
+    lwh = np.array(
+        [[4.0, 1.8, 1.5], [4.4, 2.0, 1.7], [0.8, 0.6, 1.7], [9.0, 9.0, 9.0], [0.6, 0.6, 1.9]]
+    )
+    tid = np.array([3, 3, 7, 3, 7])
+    keep = np.array([True, True, True, False, True])  # row 3: removed offline, untouched
+    out = mean_size_per_track(lwh, tid, keep)
+    np.testing.assert_allclose(out[[0, 1]], [[4.2, 1.9, 1.6]] * 2)
+    np.testing.assert_allclose(out[[2, 4]], [[0.7, 0.6, 1.8]] * 2)
+    assert np.array_equal(out[3], lwh[3])
+    assert np.array_equal(mean_size_per_track(lwh, tid, np.zeros(5, bool)), lwh)

@@ -157,6 +157,8 @@ class OfflineConfig:
     # offline only: each track's positions smoothed by a centred local quadratic fit over this
     # many seconds (Savitzky-Golay; 0 = off): no filter lag, and the box noise averages out
     smooth_seconds: float = 0.0
+    # offline only: each track gets one size, the mean of its detected rows' (filtered) sizes
+    constant_size: bool = False
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,7 +8,9 @@ Offline mode (reference §2.9, improved): run online with the offline config, th
      position, size, heading (on the circle) and velocity — replacing coasting predictions,
   3. drop trailing coasting rows after the last real detection (offline knows the track ended),
   4. (``offline.smooth_seconds`` > 0) smooth each track's positions by a centred local quadratic
-     fit before interpolating (:func:`smooth_positions`).
+     fit before interpolating (:func:`smooth_positions`),
+  5. (``offline.constant_size``) give each track one size, the mean of its detected rows'
+     (:func:`mean_size_per_track`): a rigid object's size does not change.
 """
 
 from __future__ import annotations
@@ -126,6 +128,8 @@ def offline_postprocess(
     if window >= 3:
         xyz = smooth_positions(boxes.xyz, boxes.track_id, frame_index, keep, window)
         boxes = boxes.replace(xyz=xyz)
+    if config.offline.constant_size:
+        boxes = boxes.replace(lwh=mean_size_per_track(boxes.lwh, boxes.track_id, keep))
     parts: list[list[Boxes]] = [[] for _ in outputs]
     extra_acc: list[list[np.ndarray]] = [[] for _ in outputs]
     if new_src:
@@ -177,6 +181,20 @@ def offline_postprocess(
             )
         )
     return result
+
+
+def mean_size_per_track(lwh: np.ndarray, track_id: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """(N, 3) sizes with every kept row of a track set to the mean over the track's kept rows;
+    rows outside ``keep`` are unchanged."""
+    out = lwh.copy()
+    rows = np.flatnonzero(keep)
+    if not len(rows):
+        return out
+    _, inverse, count = np.unique(track_id[rows], return_inverse=True, return_counts=True)
+    total = np.zeros((len(count), 3))
+    np.add.at(total, inverse, lwh[rows])
+    out[rows] = (total / count[:, None])[inverse]
+    return out
 
 
 def smooth_positions(
