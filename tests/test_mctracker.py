@@ -183,6 +183,40 @@ def test_vertical_gain_smooths_z_and_height(gain: float) -> None:
         load_config("kitti", overrides={"category": {"car": {"vertical_gain": 0.0}}})
 
 
+@pytest.mark.parametrize("cost_state", ["predict", "fusion"])
+def test_buffered_boxes_keep_a_jittering_small_object(cost_state: str) -> None:
+    """A standing pedestrian (0.5 x 0.5 m) whose detections alternate 0.9 m apart: the boxes
+    never overlap and their plain cost is beyond the gate, so each detection starts a new
+    track; grown by the buffer (0.5: 1.0 m boxes) they overlap and the track keeps its id."""
+
+    def run(buffer: float) -> tuple[set[int], int]:
+        bev = {"buffer": buffer, "cost_max": 1.2, "cost_state": cost_state}
+        cfg = load_config(
+            "kitti",
+            overrides={
+                "categories": ["pedestrian"],
+                "coast_min_in_view": 0.0,
+                "category": {"pedestrian": {"bev": bev}},
+            },
+        )
+        observer = ListObserver()
+        tracker, output_ids = MCTracker(cfg, observer=observer), set()
+        for i in range(6):
+            boxes = Boxes.create(
+                xyz=[[10.0, 0.9 * (i % 2), 0.9]], lwh=[[0.5, 0.5, 1.7]], yaw=[0.0],
+                category=[PED], score=[0.95],
+            )  # fmt: skip
+            out = tracker.step(Frame(scene="s", frame_id=i, timestamp_secs=0.1 * i, boxes=boxes))
+            output_ids |= set(out.boxes.track_id.tolist())
+        births = sum(len(e.born) for e in observer.events if isinstance(e, LifecycleChanged))
+        return output_ids, births
+
+    assert run(0.5) == ({0}, 1)  # one track, output once confirmed
+    assert run(0.0) == (set(), 6)  # a new track per frame, none ever confirmed
+    with pytest.raises(InputError, match=r"bev\.buffer must be in"):
+        load_config("kitti", overrides={"category": {"car": {"bev": {"buffer": -0.1}}}})
+
+
 def test_reacquire_keeps_identity() -> None:
     tracker = MCTracker(config())
     for i in range(3):

@@ -94,6 +94,10 @@ class BevConfig:
     alpha: float = 0.5  # FUSION blend weight of the forward prediction
     cost_max: float = 1.4  # accept a pair iff 1 - similarity <= cost_max
     gate_distance_m: float = 10.0  # pairs farther apart than this (BEV centres) are not scored
+    # buffered boxes (BIoU, Yang et al. 2023): the cost compares boxes whose length and width
+    # are grown by this fraction on each side (l(1 + 2b)), so that centre noise comparable to a
+    # small object's size still leaves overlap to score; 0 = the boxes as they are
+    buffer: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -297,6 +301,8 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
     for name, cfg in sections.items():
         if not 0.0 < cfg.image_width_scale <= 1.0:
             raise InputError(f"{source}: category.{name}.image_width_scale must be in (0, 1]")
+        if not 0.0 <= cfg.bev.buffer <= 2.0:
+            raise InputError(f"{source}: category.{name}.bev.buffer must be in [0, 2]")
         if not 0.0 < cfg.vertical_gain <= 1.0:
             raise InputError(f"{source}: category.{name}.vertical_gain must be in (0, 1]")
     return top

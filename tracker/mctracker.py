@@ -108,6 +108,8 @@ class _PerCategory:
         self.bev_cost_max = arr(lambda c: c.bev.cost_max)
         self.gate_m = arr(lambda c: c.bev.gate_distance_m)
         self.gate_sq = self.gate_m**2
+        self.buffer_scale = 1.0 + 2.0 * arr(lambda c: c.bev.buffer)  # l, w factor of the cost
+        self.any_buffer = bool(np.any(self.buffer_scale[self.tracked] != 1.0))
         self.rv_cost_max = arr(lambda c: c.rv.cost_max)
         self.rv_yaw_gate = np.deg2rad(arr(lambda c: c.rv.yaw_gate_deg))
         self.rv_distance_gate = arr(lambda c: c.rv.distance_gate_m)
@@ -344,9 +346,17 @@ class MCTracker:
         beyond the distance gate. Also returns the (T, D) mask of the pairs scored."""
         tr, cat = self._tracks, self._cat
         bev = tr.motion_x[:, :, 0]  # (T, 5) predicted x, y, l, w, yaw: the BEV boxes
+        det_bev = bev_array(dets)
+        if cat.any_buffer:  # buffered boxes: l, w grown by their category's factor
+            bev = bev.copy()
+            bev[:, 2:4] *= cat.buffer_scale[tr.category][:, None]
+            det_bev[:, 2:4] *= cat.buffer_scale[dets.category][:, None]
+            dets = dets.replace(lwh=dets.lwh * _lw_only(cat.buffer_scale[dets.category]))
+            if prev is not None:
+                prev = prev.replace(lwh=prev.lwh * _lw_only(cat.buffer_scale[prev.category]))
         if cat.all_forward and self._kernels is not None:
             cost, mask = self._kernels.bev_cost_kernel(
-                bev, tr.category, bev_array(dets), dets.category, cat.gate_sq, cat.w1, cat.w2
+                bev, tr.category, det_bev, dets.category, cat.gate_sq, cat.w1, cat.w2
             )
             return cost, mask
         same = tr.category[:, None] == dets.category[None, :]
@@ -356,9 +366,11 @@ class MCTracker:
         w1, w2 = cat.w1[tr.category], cat.w2[tr.category]
         if cat.all_forward:
             # Predict cost state for every category: the similarity is -inf outside mask
-            sim = ro_gdiou_bev_arrays(bev, bev_array(dets), w1=w1, w2=w2, mask=mask)
+            sim = ro_gdiou_bev_arrays(bev, det_bev, w1=w1, w2=w2, mask=mask)
             return 1.0 - sim, mask
         pred = tr.boxes()
+        if cat.any_buffer:
+            pred = pred.replace(lwh=pred.lwh * _lw_only(cat.buffer_scale[pred.category]))
         alpha = cat.alpha[tr.category]
         sim = np.full(mask.shape, -np.inf)
         if np.any(alpha > 0):
@@ -789,6 +801,11 @@ def _merge_stages(
     dets = np.concatenate([m1.cols, rv_cols[m2.cols]])[order]
     stage = np.concatenate([stage1, np.full(len(m2), 2, dtype=np.int8)])[order]
     return _Association(rows[order], dets, stage, unmatched)
+
+
+def _lw_only(scale: FloatArray) -> FloatArray:
+    """(N, 3) factors that scale length and width by ``scale`` and leave the height."""
+    return np.column_stack([scale, scale, np.ones(len(scale))])
 
 
 def _in_view(
