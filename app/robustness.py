@@ -55,7 +55,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--levels",
         default="clean,noise,double",
-        help=f"noise levels, from {', '.join(NOISE_LEVELS)} (clean is always run)",
+        help=f"noise levels, from {', '.join(NOISE_LEVELS)} (clean is always run; drop, jitter"
+        " and fp are the parts of noise, one at a time)",
     )
     parser.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (integers >= 0)")
     parser.add_argument(
@@ -100,7 +101,7 @@ def run_robustness(
     classes: Sequence[str],
     config_name: str | Path = "kitti",
     detector: str = "pointrcnn",
-    levels: Sequence[str] = tuple(NOISE_LEVELS),
+    levels: Sequence[str] = (CLEAN, "noise", "double"),
     seeds: Sequence[int] = (0, 1, 2),
     score_sigma: float = 0.0,
     rescore: Rescore | None = None,

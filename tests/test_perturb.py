@@ -289,3 +289,12 @@ def test_robustness_bad_arguments_are_one_line_errors(
     assert main([*argv, "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err and err.startswith("mctrack robustness")
+
+
+def test_the_parts_of_noise_add_up_to_noise() -> None:
+    """drop, jitter and fp are the noise level's perturbations one at a time."""
+    parts = [NOISE_LEVELS[name] for name in ("drop", "jitter", "fp")]
+    for field in dataclasses.fields(PerturbSpec):
+        values = [getattr(p, field.name) for p in parts]
+        assert sum(v != 0 for v in values) <= 1  # each kind in one part only
+        assert max(values) == getattr(NOISE_LEVELS["noise"], field.name)

@@ -84,6 +84,13 @@ NOISE_LEVELS: dict[str, PerturbSpec] = {
     "noise": PerturbSpec(drop_rate=0.10, centre_sigma_m=0.15, yaw_sigma_deg=2.0, fp_rate=0.02),
     "double": PerturbSpec(drop_rate=0.20, centre_sigma_m=0.30, yaw_sigma_deg=5.0, fp_rate=0.05),
 }
+# ``noise`` taken apart, one kind at a time: which of its perturbations costs what
+_NOISE = NOISE_LEVELS["noise"]
+NOISE_LEVELS |= {
+    "drop": PerturbSpec(drop_rate=_NOISE.drop_rate),
+    "jitter": PerturbSpec(centre_sigma_m=_NOISE.centre_sigma_m, yaw_sigma_deg=_NOISE.yaw_sigma_deg),
+    "fp": PerturbSpec(fp_rate=_NOISE.fp_rate),
+}
 
 
 def sigmoid_rescore(
