@@ -66,3 +66,34 @@ def test_mean_size_per_track_is_one_size_per_track_over_kept_rows() -> None:
     np.testing.assert_allclose(out[[2, 4]], [[0.7, 0.6, 1.8]] * 2)
     assert np.array_equal(out[3], lwh[3])
     assert np.array_equal(mean_size_per_track(lwh, tid, np.zeros(5, bool)), lwh)
+
+
+def test_offline_mode_writes_one_size_per_track() -> None:
+    """kitti_offline (constant_size on): a car whose detected length alternates 4.0 / 4.6 m is
+    written with one size, the mean of its rows; with the switch off the sizes vary."""
+    from tracker.boxes import Boxes
+    from tracker.categories import category_index
+    from tracker.config import load_config
+    from tracker.frame import Frame
+    from tracker.pipeline import run_scene
+
+    car = category_index("car")
+    frames = [
+        Frame(
+            scene="s", frame_id=i, timestamp_secs=0.1 * i,
+            boxes=Boxes.create(
+                xyz=[[10.0 + i, 0.0, 0.8]], lwh=[[4.0 + 0.6 * (i % 2), 1.8, 1.6]], yaw=[0.0],
+                category=[car], score=[0.99],
+            ),
+        )
+        for i in range(12)
+    ]  # fmt: skip
+
+    def lengths(constant_size: bool) -> np.ndarray:
+        overrides = {"categories": ["car"], "offline": {"constant_size": constant_size}}
+        outputs = run_scene(frames, load_config("kitti_offline", overrides=overrides)).outputs
+        return np.concatenate([o.boxes.lwh[:, 0] for o in outputs])
+
+    on, off = lengths(True), lengths(False)
+    assert len(on) == 12 and np.ptp(on) < 1e-9 and 4.0 < on[0] < 4.6
+    assert np.ptp(off) > 0.05
