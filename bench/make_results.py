@@ -204,7 +204,7 @@ def buffer_section(root: Path, shipped_path: str | None) -> list[str]:
         "`bev.buffer` (config `kitti`): the BEV cost compares boxes grown by"
         " 0.3 of their length and width on each side (buffered IoU, Yang et al. 2023). Where"
         " the centre noise is comparable to the box, plain boxes stop overlapping and the cost"
-        " has nothing to score. HOTA, PointRCNN, the robustness benchmark below with the buffer"
+        " has nothing to score. HOTA, PointRCNN, the robustness benchmark above with the buffer"
         " on and off (mean over the same seeds):",
         "",
         *lines,

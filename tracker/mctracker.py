@@ -108,8 +108,11 @@ class _PerCategory:
         self.bev_cost_max = arr(lambda c: c.bev.cost_max)
         self.gate_m = arr(lambda c: c.bev.gate_distance_m)
         self.gate_sq = self.gate_m**2
-        self.buffer_scale = 1.0 + 2.0 * arr(lambda c: c.bev.buffer)  # l, w factor of the cost
-        self.any_buffer = bool(np.any(self.buffer_scale[self.tracked] != 1.0))
+        # the cost's factors of a BEV box [x, y, l, w, yaw]: l and w grown by 1 + 2 buffer
+        scale = 1.0 + 2.0 * arr(lambda c: c.bev.buffer)
+        self.buffer_lw = np.ones((n, 5))
+        self.buffer_lw[:, 2:4] = scale[:, None]
+        self.any_buffer = bool(np.any(scale[self.tracked] != 1.0))
         self.rv_cost_max = arr(lambda c: c.rv.cost_max)
         self.rv_yaw_gate = np.deg2rad(arr(lambda c: c.rv.yaw_gate_deg))
         self.rv_distance_gate = arr(lambda c: c.rv.distance_gate_m)
@@ -348,12 +351,8 @@ class MCTracker:
         bev = tr.motion_x[:, :, 0]  # (T, 5) predicted x, y, l, w, yaw: the BEV boxes
         det_bev = bev_array(dets)
         if cat.any_buffer:  # buffered boxes: l, w grown by their category's factor
-            bev = bev.copy()
-            bev[:, 2:4] *= cat.buffer_scale[tr.category][:, None]
-            det_bev[:, 2:4] *= cat.buffer_scale[dets.category][:, None]
-            dets = dets.replace(lwh=dets.lwh * _lw_only(cat.buffer_scale[dets.category]))
-            if prev is not None:
-                prev = prev.replace(lwh=prev.lwh * _lw_only(cat.buffer_scale[prev.category]))
+            bev = bev * cat.buffer_lw[tr.category]
+            det_bev *= cat.buffer_lw[dets.category]
         if cat.all_forward and self._kernels is not None:
             cost, mask = self._kernels.bev_cost_kernel(
                 bev, tr.category, det_bev, dets.category, cat.gate_sq, cat.w1, cat.w2
@@ -370,7 +369,8 @@ class MCTracker:
             return 1.0 - sim, mask
         pred = tr.boxes()
         if cat.any_buffer:
-            pred = pred.replace(lwh=pred.lwh * _lw_only(cat.buffer_scale[pred.category]))
+            pred, dets = _buffered(pred, cat.buffer_lw), _buffered(dets, cat.buffer_lw)
+            prev = None if prev is None else _buffered(prev, cat.buffer_lw)
         alpha = cat.alpha[tr.category]
         sim = np.full(mask.shape, -np.inf)
         if np.any(alpha > 0):
@@ -803,9 +803,11 @@ def _merge_stages(
     return _Association(rows[order], dets, stage, unmatched)
 
 
-def _lw_only(scale: FloatArray) -> FloatArray:
-    """(N, 3) factors that scale length and width by ``scale`` and leave the height."""
-    return np.column_stack([scale, scale, np.ones(len(scale))])
+def _buffered(boxes: Boxes, buffer_lw: FloatArray) -> Boxes:
+    """The boxes with length and width grown by their category's factor (``buffer_lw`` rows
+    per category, columns x, y, l, w, yaw)."""
+    factor = buffer_lw[boxes.category, 2:4]
+    return boxes.replace(lwh=np.column_stack([boxes.lwh[:, :2] * factor, boxes.lwh[:, 2]]))
 
 
 def _in_view(
