@@ -8,6 +8,10 @@ the best settings then track the held-out fold. The held-out result files of all
 evaluated together: that is the cross-validated figure. A last search on all sequences (with
 the shipped profiles) gives the settings to ship and their in-sample figure.
 
+Only that last search starts from the config's current values (its first trial). A fold's
+search does not: the current values came from earlier searches on all the labelled sequences,
+held-out fold included, so offering them to a fold would leak its labels into its figure.
+
 Why noise in the objective: on clean detections of three detectors, settings that never output a
 coasting track and confirm late score the same as robust ones (within ~0.1 HOTA) but lose 11 HOTA
 when 10% of the boxes go missing; a detector we have not seen is more like the perturbed set than
@@ -183,6 +187,8 @@ def settings_to_overrides(cls: str, params: dict[str, Any]) -> dict[str, Any]:
 
 
 Trials = list[tuple[dict[str, Any], float]]  # (settings, objective) per trial, in trial order
+# (search key, sequences, sampler seed, first trial or None) -> trials
+Search = Callable[[str, Sequence[str], int, "dict[str, Any] | None"], Trials]
 
 
 def startup_trials(trials: int) -> int:
@@ -365,11 +371,14 @@ def run(args: argparse.Namespace) -> int:
         # the pool forks before Ray starts (a forked Ray driver is unsafe)
         with ctx.Pool(max(1, args.workers)) as pool, tqdm(total=total, unit="trial") as bar:
 
-            def local_search(key: str, seqs: Sequence[str], seed: int) -> Trials:
+            def local_search(
+                key: str, seqs: Sequence[str], seed: int, start: dict[str, Any] | None
+            ) -> Trials:
                 study = optuna.create_study(
                     direction="maximize", sampler=make_sampler(seed, n_startup)
                 )
-                study.enqueue_trial(first)
+                if start is not None:
+                    study.enqueue_trial(start)
 
                 def trial_value(trial: optuna.Trial) -> float:
                     params = suggest(trial, space)
@@ -381,14 +390,15 @@ def run(args: argparse.Namespace) -> int:
                 return [(t.params, t.value) for t in study.trials]
 
             if ray_search is None:
-                search: Callable[[str, Sequence[str], int], Trials] = local_search
+                search: Search = local_search
             else:
-                search = ray_search.start(objective, space, first, n_startup, _FRAMES, bar.update)
+                search = ray_search.start(objective, space, n_startup, _FRAMES, bar.update)
 
             record["cv"] = []
             for k, test in enumerate(folds):
                 train = [s for s in lengths if s not in test]
-                trials = search(f"fold{k}", train, args.seed + k)
+                # no first trial from the current config: it was fitted on this fold's labels
+                trials = search(f"fold{k}", train, args.seed + k, None)
                 params, value = best_trial(trials)
                 # the held-out fold, tracked with the settings its search chose
                 heldout_tasks = objective.tasks(f"fold{k}", test, params, work / "heldout", False)
@@ -402,7 +412,7 @@ def run(args: argparse.Namespace) -> int:
             }
             record["cross_validated"] = {det: heldout[(det, CLEAN)] for det in detectors}
             record["cross_validated_noise"] = _by_level(heldout, levels)
-            trials = search("all", list(lengths), args.seed + 100)
+            trials = search("all", list(lengths), args.seed + 100, first)
             params, value = best_trial(trials)
             final = objective.metrics("all", list(lengths), params, work / "final", pool.map)
             record["final"] = {

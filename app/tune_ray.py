@@ -3,11 +3,12 @@
 Same search as the local path (app/tune.py), not a copy of it: the same Optuna TPE sampler and
 seed (:func:`app.tune.make_sampler`, wrapped by Ray's ``OptunaSearch``), the same search space
 (:func:`app.tune.suggest`, a define-by-run function), the same first trial (the base config's
-values), and the same objective (:class:`app.tune.Objective`). What differs is where trials
-run: one Ray Tune trial per Optuna trial, up to ``--max-concurrent`` at once, each on one CPU
-and tracking its detectors and sequences one after another. With ``--max-concurrent 1`` the
-proposals are the local path's, trial for trial; with more, TPE proposes while earlier trials
-are still running, so the trials depend on which finish first.
+values, in the search on all sequences only), and the same objective
+(:class:`app.tune.Objective`). What differs is where trials run: one Ray Tune trial per Optuna
+trial, up to ``--max-concurrent`` at once, each on one CPU and tracking its detectors and
+sequences one after another. With ``--max-concurrent 1`` the proposals are the local path's,
+trial for trial; with more, TPE proposes while earlier trials are still running, so the trials
+depend on which finish first.
 
 Resume: each search is one Ray Tune experiment, ``OUT/ray_tune/<search>`` (fold0, fold1, ...,
 all). Run the same command again after an interruption and a finished search is read back, an
@@ -41,7 +42,7 @@ from ray.tune.search import ConcurrencyLimiter
 from ray.tune.search.optuna import OptunaSearch
 
 from app import scenes
-from app.tune import Objective, Trials, make_sampler, objective_value, suggest
+from app.tune import Objective, Search, Trials, make_sampler, objective_value, suggest
 from tracker.config import config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
@@ -181,11 +182,10 @@ class RaySearch:
         self,
         objective: Objective,
         space: dict[str, tuple[str, float, float]],
-        first: dict[str, Any],
         n_startup: int,
         frames: dict[tuple[str, str, str], dict[str, list[Frame]]],
         progress: Callable[[int], Any],
-    ) -> Callable[[str, Sequence[str], int], Trials]:
+    ) -> Search:
         """Connects to Ray and returns the search function (key, sequences, seed) -> trials."""
         self.state.mkdir(parents=True, exist_ok=True)
         write_text_atomic(self.state / "run.json", [json.dumps(self.options, indent=2)])
@@ -196,7 +196,9 @@ class RaySearch:
             self.max_concurrent = max(1, int(ray.cluster_resources().get("CPU", 1)))
         _PROGRESS[:] = [progress]
 
-        def search(key: str, seqs: Sequence[str], seed: int) -> Trials:
+        def search(
+            key: str, seqs: Sequence[str], seed: int, start: dict[str, Any] | None
+        ) -> Trials:
             trainable = tune.with_resources(
                 tune.with_parameters(
                     _trial,
@@ -216,7 +218,7 @@ class RaySearch:
                     space=functools.partial(_suggest_numbered, space=space),
                     metric=METRIC,
                     mode="max",
-                    points_to_evaluate=[first],
+                    points_to_evaluate=None if start is None else [start],
                     sampler=make_sampler(seed, n_startup),
                 )
                 tuner = tune.Tuner(

@@ -94,3 +94,24 @@ def test_unknown_noise_level_is_a_one_line_error(
     assert code == 2 and "Traceback" not in err
     assert err.strip().splitlines()[-1].startswith("mctrack tune: error: --noise: unknown")
     assert not (tmp_path / "t").exists()
+
+
+def test_fold_searches_do_not_start_from_the_shipped_settings(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    """The shipped values were searched on every labelled sequence: only the in-sample search
+    starts from them; a fold's search proposes its own (else its held-out figure would have
+    seen the held-out labels)."""
+    import json
+
+    code = main(["tune", "--kitti-root", str(kitti_root), "--class", "car", "--detectors",
+                 "pointrcnn", "--seqs", "0012,0014", "--folds", "2", "--trials", "4",
+                 "--noise", "none", "--workers", "2", "--out", str(tmp_path)])  # fmt: skip
+    assert code == 0
+    record = json.loads((tmp_path / "tune.json").read_text())
+    shipped = _current("kitti", {"categories": ["car"]}, "car", search_space("car", "online"))
+    assert record["final"]["trials"][0]["params"] == pytest.approx(shipped)
+    assert len(record["cv"]) == 2
+    for fold in record["cv"]:
+        assert len(fold["trials"]) == 4
+        assert all(t["params"] != pytest.approx(shipped) for t in fold["trials"])
