@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import time
 from dataclasses import dataclass
@@ -21,8 +22,9 @@ from app.inputs import (
     default_kitti_root,
 )
 from app.scenes import SceneRecord
-from tracker.calibration import ScoreProfile, calibrate_frames, resolve_profile
+from tracker.calibration import ScoreProfile, calibrate_frames, profile_toml, resolve_profile
 from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
+from tracker.errors import InputError
 from tracker.eval.fates import FateCounter, combine_fates
 from tracker.eval.kitti import (
     SUPPORTED_CLASSES,
@@ -40,6 +42,10 @@ from tracker.pipeline import run_scene
 
 #: The per-sequence metrics kept in summary.json "per_sequence_metrics".
 PER_SEQUENCE_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "TP", "FN")
+
+LOG = logging.getLogger(__name__)
+SELF_PROFILE = "self"  # --profile self: fitted without labels on the run's detections
+NO_PROFILE = "none"  # --profile none: the uncalibrated fallback
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -75,7 +81,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--profile",
         default=None,
         help="score calibration profile (TOML from `mctrack calibrate`); default: the one shipped "
-        "for --detector, if any (configs with scores = 'as_given' use none)",
+        "for --detector, else 'self'. 'self': fitted without labels on the run's own detections "
+        "(self_profile.toml in --out); 'none': sigmoid(raw) (configs with scores = 'as_given' "
+        "use the scores as converted)",
     )
     parser.add_argument("--no-eval", action="store_true", help="skip the evaluation")
     parser.add_argument(
@@ -109,7 +117,9 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         mode=args.mode,
         detector=args.detector,
-        profile=Path(args.profile) if args.profile else None,
+        profile=args.profile
+        if args.profile in (SELF_PROFILE, NO_PROFILE) or not args.profile
+        else Path(args.profile),
         labels=Path(args.labels) if args.labels else None,
         poses=poses,
         evaluate=not args.no_eval,
@@ -230,7 +240,7 @@ def run_kitti(
     config_name: str | Path = "kitti",
     mode: str | None = None,
     detector: str = "pointrcnn",
-    profile: Path | None = None,
+    profile: Path | str | None = None,
     labels: Path | None = None,
     poses: str | None = "orbslam3",
     evaluate: bool = True,
@@ -262,6 +272,15 @@ def run_kitti(
     config = load_config(config_name, overrides=overrides)
     label_dir = labels or kitti_root / "training" / "label_02"
     calibrate, found, calibration = score_source(config, detector, profile)
+    self_profile = None
+    if calibrate and found is None and profile != NO_PROFILE:
+        found = self_profile = self_calibrate(kitti_root, seqs, detector, poses, classes)
+        kept = ", ".join(self_profile.maps) or "none"
+        why = "--profile self" if profile == SELF_PROFILE else f"none found for {detector!r}"
+        calibration = (
+            f"{why}: self-calibrated without labels (classes {kept}; others sigmoid(raw) or "
+            "raw probability), see self_profile.toml"
+        )
     job = KittiSceneJob(
         kitti_root=kitti_root,
         detector=detector,
@@ -354,17 +373,56 @@ def run_kitti(
         outputs = {r.scene: r.kept[2] for r in ok}
         summary["motion"] = _motion(detections, gt or None, outputs, classes, out)
     out.mkdir(parents=True, exist_ok=True)
+    if self_profile is not None:
+        write_text_atomic(out / "self_profile.toml", [profile_toml(self_profile)])
     write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
     return summary
 
 
+def self_calibrate(
+    kitti_root: Path, seqs: list[str], detector: str, poses: str | None, classes: list[str]
+) -> ScoreProfile:
+    """A label-free profile fitted on the run's own detections
+    (:func:`tracker.eval.calibrate.fit_self_profile`). A sequence that cannot be read is left
+    out here; its own task reports the error."""
+    from tracker.eval.calibrate import fit_self_profile
+    from tracker.io.convert.kitti import convert_kitti
+
+    frames: dict[str, list[Frame]] = {}
+    for seq in seqs:
+        try:
+            detections, _ = convert_kitti(
+                kitti_root, seqs=[seq], detector=detector, poses=poses, classes=classes,
+                with_gt=False,
+            )  # fmt: skip
+        except InputError:
+            continue
+        frames.update(detections)
+    profile = fit_self_profile(detector, frames, classes)
+    parts = []
+    for name in classes:
+        q = profile.quality.get(name, {})
+        parts.append(
+            f"{name} {q.get('kept', 'no: no detections')} ({q.get('detections', 0)} boxes)"
+        )
+    LOG.warning(
+        "self-calibration of %r without labels, kept per class: %s", detector, "; ".join(parts)
+    )
+    return profile
+
+
 def score_source(
-    config: TrackerConfig, detector: str, profile: Path | None
+    config: TrackerConfig, detector: str, profile: Path | str | None
 ) -> tuple[bool, ScoreProfile | None, str]:
-    """Whether to recalibrate the scores, with which profile (None: the fallback), and a note of
-    what was used. Resolved once by the driver; each scene task applies it to its own frames."""
+    """Whether to recalibrate the scores, with which profile (None: the fallback, or the
+    self-calibration :func:`run_kitti` fits), and a note of what was used. Resolved once by the
+    driver; each scene task applies it to its own frames."""
     if config.scores is ScoreSource.AS_GIVEN:
         return False, None, "none (scores as converted; the config asks for scores = 'as_given')"
+    if profile == NO_PROFILE:
+        return True, None, "none (--profile none): sigmoid(raw) or raw probability"
+    if profile == SELF_PROFILE:
+        return True, None, "--profile self"
     found = resolve_profile(detector, profile)
     if found is None:
         return True, None, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"

@@ -24,7 +24,13 @@ from tracker.calibration import (
 )
 from tracker.categories import category_index
 from tracker.errors import InputError
-from tracker.eval.calibrate import fit_map, fit_profile, label_detections
+from tracker.eval.calibrate import (
+    fit_map,
+    fit_profile,
+    fit_self_profile,
+    label_detections,
+    persistence_labels,
+)
 from tracker.frame import Frame
 from tracker.io.convert.kitti import convert_kitti, read_kitti_tracking_detections
 
@@ -263,3 +269,88 @@ def test_range_term_round_trips_and_bad_values_name_the_field(tmp_path: Path) ->
     path.write_text(profile_toml(profile).replace("scale_m = 50.0, ", ""))
     with pytest.raises(InputError, match=r"class\.car\.range"):
         load_profile(path)
+
+
+def _car_frame(i: int, xy: np.ndarray, raw: np.ndarray, length: float = 4.0) -> Frame:
+    n = len(raw)
+    lwh = np.tile([length, 1.8, 1.5], (n, 1))
+    xyz = np.column_stack([xy, np.zeros(n)]) if n else np.zeros((0, 3))
+    boxes = Boxes.create(xyz=xyz, lwh=lwh, yaw=np.zeros(n), score=np.zeros(n),
+                         category=np.full(n, CAR), score_raw=raw)  # fmt: skip
+    return Frame("s", i, 0.1 * i, boxes)
+
+
+def test_persistence_needs_a_box_within_its_length_in_both_neighbour_frames() -> None:
+    a, b = np.array([[0.0, 0.0]]), np.array([[3.0, 0.0]])  # 3 m apart: within a 4 m car
+    far = np.array([[9.0, 0.0]])
+    one = np.array([1.0])
+    frames = [_car_frame(0, a, one), _car_frame(1, b, one), _car_frame(2, a, one),
+              _car_frame(3, far, one), _car_frame(4, far, one)]  # fmt: skip
+    # frame 0 needs only frame 1; frame 2's next neighbour is too far; the last needs frame 3
+    assert persistence_labels(frames, "car").tolist() == [True, True, False, False, True]
+    short = [_car_frame(0, a, one, 1.0), _car_frame(1, b, one, 1.0)]  # 1 m boxes: 3 m is far
+    assert persistence_labels(short, "car").tolist() == [False, False]
+    assert persistence_labels(frames, "pedestrian").tolist() == []
+
+
+def test_self_calibration_recovers_a_known_precision_without_labels() -> None:
+    """A synthetic detector: 30 parked cars found in 90% of frames with raw ~ N(2, 1), and
+    Poisson(20) false positives per frame anywhere in 200 x 200 m with raw ~ N(-1, 1). The true
+    P(real | raw) follows from the two densities; the label-free fit must find it."""
+    rng = np.random.default_rng(0)
+    cars = rng.uniform(-100, 100, (30, 2))
+    frames = []
+    for i in range(300):
+        seen = cars[rng.uniform(size=30) < 0.9]
+        fp = rng.uniform(-100, 100, (rng.poisson(20), 2))
+        raw = np.concatenate([rng.normal(2, 1, len(seen)), rng.normal(-1, 1, len(fp))])
+        frames.append(_car_frame(i, np.vstack([seen, fp]), raw))
+    profile = fit_self_profile("synthetic", {"s": frames}, ["car", "pedestrian"])
+    assert set(profile.maps) == {"car"}  # no pedestrian boxes: that class keeps the fallback
+    assert profile.quality["pedestrian"]["kept"].startswith("no")
+    grid = np.linspace(-2, 3.5, 23)
+    real = 27 * np.exp(-((grid - 2) ** 2) / 2)  # expected boxes per frame at each raw score
+    false = 20 * np.exp(-((grid + 1) ** 2) / 2)
+    fitted = profile.maps["car"](grid)
+    assert np.max(np.abs(fitted - real / (real + false))) < 0.06  # raw persistence: 0.16 off
+    assert np.all(np.diff(fitted) >= 0)
+    # and it round-trips through its file like a labelled profile
+    again = ScoreProfile("x", load_profile_text(profile_toml(profile)).maps)
+    np.testing.assert_allclose(again.maps["car"](grid), fitted, atol=1e-3)
+
+
+def load_profile_text(text: str) -> ScoreProfile:
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "p.toml"
+        path.write_text(text)
+        return load_profile(path)
+
+
+def test_a_detector_without_a_profile_is_self_calibrated_and_says_so(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The bundled sequence under a detector name with no shipped profile: the run fits a
+    label-free profile on its own detections, writes it, and logs what it did; --profile none
+    keeps the uncalibrated fallback."""
+    from app.kitti import run_kitti
+
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001" / "raw"
+    root = tmp_path / "kit"
+    shutil.copytree(sample / "training", root / "training")
+    shutil.copytree(sample / "detections" / "pointrcnn", root / "detections" / "my_new_detector")
+    common = {"kitti_root": root, "seqs": ["0001"], "classes": ["car", "pedestrian"],
+              "detector": "my_new_detector", "quiet": True}  # fmt: skip
+    with caplog.at_level(logging.WARNING):
+        summary = run_kitti(out=tmp_path / "self", **common)
+    assert "NO SCORE CALIBRATION" in caplog.text and "self-calibration" in caplog.text
+    assert "self-calibrated without labels" in summary["score_calibration"]
+    profile = load_profile(tmp_path / "self" / "self_profile.toml")
+    assert profile.detector == "my_new_detector" and "car" in profile.maps
+    assert "no labels" in profile.fitted_on["dataset"]
+    plain = run_kitti(out=tmp_path / "none", profile="none", **common)
+    assert plain["score_calibration"].startswith("none (--profile none)")
+    assert not (tmp_path / "none" / "self_profile.toml").exists()
+    # the calibration changes what the tracker keeps
+    assert summary["metrics"]["car"] != plain["metrics"]["car"]

@@ -196,10 +196,11 @@ def resolve_profile(detector: str, path: str | Path | None = None) -> ScoreProfi
     profile = find_profile(detector)
     if profile is None:
         LOG.warning(
-            "NO SCORE CALIBRATION for detector %r: its scores are used as sigmoid(raw) (or raw "
-            "where already in [0, 1]), so the tracker's thresholds may not fit it. Fit one on "
-            "labelled sequences with `mctrack calibrate --detector %s --out PROFILE.toml` and "
-            "pass --profile PROFILE.toml (shipped profiles: %s).",
+            "NO SCORE CALIBRATION for detector %r: `mctrack kitti` calibrates its scores from the "
+            "detections themselves (no labels; elsewhere they are used as sigmoid(raw), or raw "
+            "where already in [0, 1]), so the tracker's thresholds may fit it less well. Fit a "
+            "profile on labelled sequences with `mctrack calibrate --detector %s --out "
+            "PROFILE.toml` and pass --profile PROFILE.toml (shipped profiles: %s).",
             detector,
             detector,
             ", ".join(builtin_profiles()),
@@ -284,7 +285,8 @@ def profile_toml(profile: ScoreProfile) -> str:
         f"# Score calibration of the {profile.detector!r} detector: raw score -> probability",
         "# that the box is a real object (monotone, piecewise linear through the knots; where a",
         "# class has a range term, corrected for the box's distance from the ego).",
-        "# Made by `mctrack calibrate`; see tracker/calibration.py.",
+        "# Made by `mctrack calibrate` (or, without labels, by `mctrack kitti`'s"
+        " self-calibration); see tracker/calibration.py.",
         f"version = {PROFILE_VERSION}",
         f"detector = {_toml_value(profile.detector)}",
         "",

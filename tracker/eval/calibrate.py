@@ -251,3 +251,92 @@ def fit_profile(
         f"log loss by >= {RANGE_MIN_GAIN} nats",
     }
     return ScoreProfile(detector, maps, fitted_on, quality)
+
+
+# --- Without labels: calibration from the detections' own persistence ----------------------
+#: Detections of a class needed to self-calibrate it (fewer: the class keeps the fallback).
+SELF_MIN_DETECTIONS = 200
+#: Raw-score quantiles whose persistence stands for "all false" and "all true" (see below).
+SELF_BAND = (0.05, 0.95)
+#: Least persistence contrast between those quantiles for the map to mean anything.
+SELF_MIN_CONTRAST = 0.2
+
+
+def persistence_labels(frames: Sequence[Frame], name: str) -> np.ndarray:
+    """(N,) bool over the class's boxes of all ``frames`` (in frame order): the box has a box of
+    its class within its own length (BEV, world frame) in the previous frame and in the next
+    one (the first and last frames need only the neighbour they have). A real object is
+    detected again where it was; most false positives flicker."""
+    cat = category_index(name)
+    boxes = [f.boxes[f.boxes.category == cat] for f in frames]
+    out = []
+    for t, b in enumerate(boxes):
+        ok = np.ones(len(b), dtype=bool)
+        reach = np.maximum(b.lwh[:, 0], b.lwh[:, 1])
+        for u in (t - 1, t + 1):
+            if 0 <= u < len(boxes) and len(b):
+                other = boxes[u]
+                near = (
+                    cdist(b.xyz[:, :2], other.xyz[:, :2]).min(axis=1) <= reach
+                    if len(other)
+                    else np.zeros(len(b), dtype=bool)
+                )
+                ok &= near
+        out.append(ok)
+    return np.concatenate(out) if out else np.zeros(0, dtype=bool)
+
+
+def fit_self_profile(
+    detector: str, detections: Mapping[str, Sequence[Frame]], classes: Sequence[str]
+) -> ScoreProfile:
+    """A profile fitted without labels, on the detections to be tracked.
+
+    Per class, isotonic regression of persistence (:func:`persistence_labels`) on the raw score
+    gives P(persistent | raw) = a·P(real | raw) + b·(1 - P(real | raw)), with a = P(persistent |
+    real) and b = P(persistent | false). Reading a and b off the fit at the SELF_BAND quantiles
+    of the raw score (boxes there taken as all real and all false) and inverting gives the map
+    (P(persistent) - b) / (a - b). A class with too few boxes or too little contrast keeps the
+    fallback score."""
+    from sklearn.isotonic import IsotonicRegression
+
+    maps: dict[str, ScoreMap] = {}
+    quality: dict[str, dict[str, object]] = {}
+    for name in classes:
+        cat = category_index(name)
+        raw = np.concatenate(
+            [f.boxes.score_raw[f.boxes.category == cat] for fs in detections.values() for f in fs]
+            or [np.zeros(0)]
+        )
+        persistent = np.concatenate(
+            [persistence_labels(fs, name) for fs in detections.values()] or [np.zeros(0, bool)]
+        )
+        finite = np.isfinite(raw)
+        raw, persistent = raw[finite], persistent[finite]
+        if len(raw) < SELF_MIN_DETECTIONS:
+            quality[name] = {"detections": len(raw), "kept": "no: too few detections"}
+            continue
+        iso = IsotonicRegression(y_min=0.0, y_max=1.0, increasing=True, out_of_bounds="clip")
+        iso.fit(raw, persistent.astype(np.float64))
+        false_rate, true_rate = iso.predict(np.quantile(raw, SELF_BAND))
+        entry: dict[str, object] = {
+            "detections": len(raw),
+            "persistent": round(float(persistent.mean()), 4),
+            "persistent_at_band": [round(float(false_rate), 4), round(float(true_rate), 4)],
+        }
+        if true_rate - false_rate < SELF_MIN_CONTRAST:
+            quality[name] = {**entry, "kept": "no: persistence does not rise with the score"}
+            continue
+        knots = np.unique(np.round(np.quantile(raw, np.linspace(0, 1, MAX_KNOTS)), 4))
+        prob = (iso.predict(knots) - false_rate) / (true_rate - false_rate)
+        prob = np.maximum.accumulate(np.clip(prob, *PROB_RANGE))
+        maps[name] = ScoreMap(knots, np.round(prob, 4))
+        quality[name] = {**entry, "kept": "yes"}
+    fitted_on = {
+        "dataset": "the tracked detections themselves (no labels)",
+        "sequences": sorted(detections),
+        "match": "pseudo-label: a box of the class within the box's length in the previous and "
+        "the next frame (BEV, world frame)",
+        "fit": "sklearn IsotonicRegression of the pseudo-label on the raw score, rescaled so "
+        f"that the raw-score quantiles {SELF_BAND[0]:g} and {SELF_BAND[1]:g} map to 0 and 1",
+    }
+    return ScoreProfile(detector, maps, fitted_on, quality)
