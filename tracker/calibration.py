@@ -16,9 +16,11 @@ carries a :class:`RangeTerm`, a logistic correction in range ``r`` (metres from 
 ``a > 0`` so the map stays monotone in the raw score, and ``r`` clipped to the range the fit
 saw.
 
-Without a profile the score is ``sigmoid(raw)`` (the BaseVersion convention for logits) or the
-raw value where it already lies in [0, 1]: defensible for a detector that outputs calibrated
-probabilities or logits, wrong for any other, so callers warn loudly (:func:`fallback_scores`).
+Without a profile ``mctrack kitti`` fits one without labels on the detections it tracks
+(:func:`tracker.eval.calibrate.fit_self_profile`); a class it cannot fit, and any caller without
+a profile, gets ``sigmoid(raw)`` (the BaseVersion convention for logits) or the raw value where
+it already lies in [0, 1]: defensible for a detector that outputs calibrated probabilities or
+logits, wrong for any other, so callers warn loudly (:func:`fallback_scores`).
 """
 
 from __future__ import annotations
