@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import logging
 import multiprocessing
 import shutil
 import tempfile
@@ -283,6 +284,19 @@ def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
 
 
 def run(args: argparse.Namespace) -> int:
+    # each trial tracks every sequence: the per-scene notes (offline removals) would bury the
+    # progress bar; restored after, as the process may go on (tests call main() in-process)
+    notes = logging.getLogger("tracker.pipeline")
+    level = notes.level
+    if not getattr(args, "verbose", False):
+        notes.setLevel(logging.WARNING)
+    try:
+        return _run(args)
+    finally:
+        notes.setLevel(level)
+
+
+def _run(args: argparse.Namespace) -> int:
     import optuna
     from tqdm import tqdm
 
