@@ -1,4 +1,4 @@
-"""What the robustness benchmark's jitter costs a perfect tracker (labels only, no detector).
+"""What the robustness benchmark's jitter costs perfect boxes (labels only, no detector).
 
 Command: ``python bench/noise_floor.py``; its table is in docs/results.md.
 
@@ -17,9 +17,11 @@ through the tracker's KITTI writer with the shipped ``kitti`` config's 2D box wi
 - ``offline smoother``: the same filter's Rauch-Tung-Striebel smoother (uses the future).
 
 The Δ of the online filter from ``clean`` is what a perfect online tracker, with an ideal
-constant-velocity filter, loses to the jitter alone; drops and false positives add to it. (A
-tracker on real detections loses somewhat less to the same jitter: its boxes are noisy already,
-and independent errors add in variance, not in metres.)
+constant-velocity filter, loses to the jitter alone; drops and false positives add to it. It is
+not a floor for a tracker on real detections: their boxes are noisy already and independent
+errors add in variance, so the same jitter costs such a tracker less (on KITTI, PointRCNN cars
+lose 3.2 HOTA to it, perfect boxes 7.8). It gives the scale of what the jitter does to the
+written 2D boxes and how much of it filtering can take back.
 """
 
 from __future__ import annotations
