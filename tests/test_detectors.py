@@ -293,7 +293,7 @@ def test_persistence_needs_a_box_within_its_length_in_both_neighbour_frames() ->
     assert persistence_labels(frames, "pedestrian").tolist() == []
 
 
-def test_self_calibration_recovers_a_known_precision_without_labels() -> None:
+def test_self_calibration_recovers_a_known_precision_without_labels(tmp_path: Path) -> None:
     """A synthetic detector: 30 parked cars found in 90% of frames with raw ~ N(2, 1), and
     Poisson(20) false positives per frame anywhere in 200 x 200 m with raw ~ N(-1, 1). The true
     P(real | raw) follows from the two densities; the label-free fit must find it."""
@@ -315,17 +315,9 @@ def test_self_calibration_recovers_a_known_precision_without_labels() -> None:
     assert np.max(np.abs(fitted - real / (real + false))) < 0.06  # raw persistence: 0.16 off
     assert np.all(np.diff(fitted) >= 0)
     # and it round-trips through its file like a labelled profile
-    again = ScoreProfile("x", load_profile_text(profile_toml(profile)).maps)
-    np.testing.assert_allclose(again.maps["car"](grid), fitted, atol=1e-3)
-
-
-def load_profile_text(text: str) -> ScoreProfile:
-    import tempfile
-
-    with tempfile.TemporaryDirectory() as tmp:
-        path = Path(tmp) / "p.toml"
-        path.write_text(text)
-        return load_profile(path)
+    path = tmp_path / "self.toml"
+    path.write_text(profile_toml(profile))
+    np.testing.assert_allclose(load_profile(path).maps["car"](grid), fitted, atol=1e-3)
 
 
 def test_a_detector_without_a_profile_is_self_calibrated_and_says_so(

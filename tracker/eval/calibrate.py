@@ -145,9 +145,18 @@ def fit_map(raw: FloatArray, label: IntArray) -> ScoreMap:
 
     iso = IsotonicRegression(y_min=0.0, y_max=1.0, increasing=True, out_of_bounds="clip")
     iso.fit(raw, label)
-    knots = np.unique(np.round(np.quantile(raw, np.linspace(0, 1, MAX_KNOTS)), 4))
-    prob = np.maximum.accumulate(np.clip(iso.predict(knots), *PROB_RANGE))
-    return ScoreMap(knots, np.round(prob, 4))
+    knots = _knots(raw)
+    return _score_map(knots, iso.predict(knots))
+
+
+def _knots(raw: FloatArray) -> FloatArray:
+    """At most MAX_KNOTS knots: quantiles of the raw scores, where a fitted map is stored."""
+    return np.unique(np.round(np.quantile(raw, np.linspace(0, 1, MAX_KNOTS)), 4))
+
+
+def _score_map(knots: FloatArray, prob: FloatArray) -> ScoreMap:
+    """The stored map through ``knots``: probabilities clipped, made non-decreasing, rounded."""
+    return ScoreMap(knots, np.round(np.maximum.accumulate(np.clip(prob, *PROB_RANGE)), 4))
 
 
 def fit_range_term(p0: FloatArray, range_m: FloatArray, label: IntArray) -> RangeTerm | None:
@@ -273,15 +282,11 @@ def persistence_labels(frames: Sequence[Frame], name: str) -> np.ndarray:
     for t, b in enumerate(boxes):
         ok = np.ones(len(b), dtype=bool)
         reach = np.maximum(b.lwh[:, 0], b.lwh[:, 1])
-        for u in (t - 1, t + 1):
-            if 0 <= u < len(boxes) and len(b):
-                other = boxes[u]
-                near = (
-                    cdist(b.xyz[:, :2], other.xyz[:, :2]).min(axis=1) <= reach
-                    if len(other)
-                    else np.zeros(len(b), dtype=bool)
-                )
-                ok &= near
+        for other in boxes[max(t - 1, 0) : t] + boxes[t + 1 : t + 2]:
+            if not len(other):
+                ok[:] = False
+            elif len(b):
+                ok &= cdist(b.xyz[:, :2], other.xyz[:, :2]).min(axis=1) <= reach
         out.append(ok)
     return np.concatenate(out) if out else np.zeros(0, dtype=bool)
 
@@ -326,10 +331,8 @@ def fit_self_profile(
         if true_rate - false_rate < SELF_MIN_CONTRAST:
             quality[name] = {**entry, "kept": "no: persistence does not rise with the score"}
             continue
-        knots = np.unique(np.round(np.quantile(raw, np.linspace(0, 1, MAX_KNOTS)), 4))
-        prob = (iso.predict(knots) - false_rate) / (true_rate - false_rate)
-        prob = np.maximum.accumulate(np.clip(prob, *PROB_RANGE))
-        maps[name] = ScoreMap(knots, np.round(prob, 4))
+        knots = _knots(raw)
+        maps[name] = _score_map(knots, (iso.predict(knots) - false_rate) / (true_rate - false_rate))
         quality[name] = {**entry, "kept": "yes"}
     fitted_on = {
         "dataset": "the tracked detections themselves (no labels)",
