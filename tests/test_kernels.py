@@ -70,6 +70,7 @@ def random_table(rng: np.random.Generator, n: int, k: int) -> TrackTable:
         last_det_yaw=np.zeros(n),
         heading_votes=rng.integers(0, 3, n),
         evidence=rng.uniform(0.0, 8.0, n),
+        log_odds=rng.normal(0.0, 3.0, n),
         matched_det=zeros - 1,
         matched_stage=np.zeros(n, dtype=np.int8),
     )

@@ -142,6 +142,11 @@ class _PerCategory:
                 self.confirm_evidence,
             ]
         )
+        # the online output gate on a track's mean log-odds (-inf: off)
+        self.track_score_min = arr(
+            lambda c: -np.inf if c.lifecycle.track_score_min is None else c.lifecycle.track_score_min
+        )
+        self.any_track_score_gate = bool(np.any(np.isfinite(self.track_score_min[self.tracked])))
         self.measure_velocity = np.array([c.pose.measure_velocity for c in cfgs])
         self.head_min_speed = arr(lambda c: c.heading.min_speed_mps)
         # Whole-config switches, so the per-frame path skips work no tracked category needs.
@@ -615,6 +620,7 @@ class MCTracker:
         tr.last_det_yaw[idx] = dets.yaw[det_rows]
         tr.hits[idx] += 1
         tr.evidence[idx] += _evidence(dets.score[det_rows])
+        tr.log_odds[idx] += _log_odds(dets.score[det_rows])
 
     def _birth(self, dets: Boxes, det_index: IntArray, kept_rows: IntArray) -> IntArray:
         """New tracks from unmatched detections ``det_index`` scoring above the birth threshold."""
@@ -653,6 +659,7 @@ class MCTracker:
             last_det_yaw=yaw,
             heading_votes=zeros,
             evidence=_evidence(score),
+            log_odds=_log_odds(score),
             matched_det=kept_rows[det_index],
             matched_stage=np.zeros(n, dtype=np.int8),
         )  # every array is fresh or only read: append() copies them into the table
@@ -745,6 +752,9 @@ class MCTracker:
             # offline post-processing decides per whole track (it knows the future), so it also
             # gets the detections of tracks not confirmed yet
             out |= (tr.status == _TENTATIVE) & (tr.matched_det >= 0)
+        elif self._cat.any_track_score_gate:
+            # mean log-odds of the track's hits; hits >= 1 for every live track
+            out &= tr.log_odds >= self._cat.track_score_min[tr.category] * tr.hits
         rows = np.flatnonzero(out)
         boxes = tr.boxes(rows)
         det_row = tr.matched_det[rows]
@@ -834,6 +844,13 @@ def _evidence(score: FloatArray) -> FloatArray:
     """A hit's contribution -log(1 - p) to its track's evidence (p capped below 1, NaN: 0)."""
     p = np.nan_to_num(np.clip(score, 0.0, 1.0 - 1e-9), nan=0.0)
     return -np.log1p(-p)
+
+
+def _log_odds(score: FloatArray) -> FloatArray:
+    """A hit's contribution log(p / (1 - p)) to its track's log-odds sum (p kept inside
+    [1e-6, 1 - 1e-6], NaN: 0, as the offline track score)."""
+    p = np.clip(np.nan_to_num(score, nan=0.5), 1e-6, 1.0 - 1e-6)
+    return np.log(p) - np.log1p(-p)
 
 
 def _without(index: IntArray, positions: IntArray) -> IntArray:

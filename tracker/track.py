@@ -39,6 +39,7 @@ class TrackTable:
     last_det_yaw: FloatArray  # (T,)
     heading_votes: IntArray  # (T,) consecutive detections whose yaw disagrees by > 90°
     evidence: FloatArray  # (T,) sum over hits of -log(1 - score): 1 - exp(-e) = noisy-OR
+    log_odds: FloatArray  # (T,) sum over hits of log(score / (1 - score)); / hits = the mean
     matched_det: IntArray  # (T,) this frame's matched detection row (-1: none)
     matched_stage: np.ndarray  # (T,) int8: 1 BEV, 2 RV, 0 none (births: 0)
 
@@ -63,6 +64,7 @@ class TrackTable:
             "last_det_yaw": ((0,), np.float64),
             "heading_votes": ((0,), np.int64),
             "evidence": ((0,), np.float64),
+            "log_odds": ((0,), np.float64),
             "matched_det": ((0,), np.int64),
             "matched_stage": ((0,), np.int8),
         }
