@@ -274,6 +274,11 @@ def test_gt_id_changed_under_a_steady_track() -> None:
             ),
             Cause.BOX_OFF_TARGET,
         ),
+        (
+            # T0 holds GT 1's detection but is not output (withheld by the track score gate)
+            F(gt={1: A, 2: B}, dets=[(A, K)], live={0: A}, match={0: (0, Stage.BEV)}, out={}),
+            Cause.NOT_OUTPUT,
+        ),
     ],
     ids=lambda v: v.value if isinstance(v, Cause) else "",
 )

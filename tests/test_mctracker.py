@@ -15,6 +15,7 @@ from tracker.calibration import calibrate_frames, find_profile
 from tracker.categories import category_index
 from tracker.config import load_config
 from tracker.errors import InputError
+from tracker.eval.fates import FateCounter
 from tracker.events import LifecycleChanged, ListObserver, TrackStatus
 from tracker.frame import Camera, Frame
 from tracker.io.baseversion import read_baseversion
@@ -251,6 +252,36 @@ def test_confirmation_from_accumulated_evidence(compiled: bool) -> None:
         if confirmed_at is None and len(out) == 3:
             confirmed_at = i
     assert confirmed_at == 5  # the sixth hit
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_track_score_gate_withholds_a_persistent_weak_track(compiled: bool) -> None:
+    """A wall detected every frame at p 0.3 after one 0.6 birth: noisy-OR evidence confirms it
+    (1 - 0.4 * 0.7^4 >= 0.9), but its mean log-odds is below 0, so the gate withholds it; the
+    car beside it (p 0.95) is output. Without the gate (-inf) both are output. The withheld track
+    still lives: when its hits turn confident its mean rises above 0 and it is output again."""
+    wall, car = [0.6] + [0.3] * 5, [0.95] * 6
+
+    def run(gate: float) -> tuple[list[list[int]], int]:
+        cfg = config(min_hits=10, confirm_prob=0.9, track_score_min=gate)
+        fates = FateCounter()
+        tracker = MCTracker(cfg, observer=fates, compiled=compiled)
+        out = [tracker.step(frame(i, [10.0, 40.0], scores=[wall[i], car[i]])) for i in range(6)]
+        return [o.boxes.track_id.tolist() for o in out], fates.summary()["fed_not_output"]
+
+    ungated, not_output = run(-np.inf)
+    assert ungated[-1] == [0, 1]
+    # tentative until confirmed: the wall's first 4 hits (evidence -log(0.4 * 0.7^4) = 2.35 >=
+    # -log(0.1) at the 5th); the car is confirmed at birth (-log(0.05) = 3.0)
+    assert not_output == 4
+    gated, not_output = run(0.0)
+    assert gated[-1] == [1]  # mean log-odds (0.41 + 5 * -0.85) / 6 < 0
+    assert all(0 not in ids for ids in gated)
+    assert not_output == 6  # the wall's every hit
+    tracker = MCTracker(config(min_hits=10, confirm_prob=0.9, track_score_min=0.0))
+    for i, p in enumerate([0.6, 0.3, 0.3, 0.3, 0.99, 0.99, 0.99]):
+        out = tracker.step(frame(i, [10.0], scores=[p]))
+    assert out.boxes.track_id.tolist() == [0]  # 0.41 - 3 * 0.85 + 3 * 4.6 > 0
 
 
 def test_birth_threshold_and_score_filter() -> None:

@@ -118,10 +118,10 @@ class LifecycleConfig:
     max_misses_output: int = 0  # consecutive misses during which a coasting track is still output
     max_misses: int = 30  # consecutive misses after which a track is deleted
     # online: a live track is output only while the mean log-odds of its hits' scores reaches
-    # this (0: more likely real than not); None = off. The track-level analogue of
+    # this (0: more likely real than not; -inf: off). The track-level analogue of
     # offline.track_score_min: a persistent false positive gathers noisy-OR evidence from many
     # weak hits (its errors are correlated across frames), its mean stays low
-    track_score_min: float | None = None
+    track_score_min: float = -np.inf
 
 
 @dataclass(frozen=True, slots=True)

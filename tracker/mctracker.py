@@ -143,9 +143,7 @@ class _PerCategory:
             ]
         )
         # the online output gate on a track's mean log-odds (-inf: off)
-        self.track_score_min = arr(
-            lambda c: -np.inf if c.lifecycle.track_score_min is None else c.lifecycle.track_score_min
-        )
+        self.track_score_min = arr(lambda c: c.lifecycle.track_score_min)
         self.any_track_score_gate = bool(np.any(np.isfinite(self.track_score_min[self.tracked])))
         self.measure_velocity = np.array([c.pose.measure_velocity for c in cfgs])
         self.head_min_speed = arr(lambda c: c.heading.min_speed_mps)

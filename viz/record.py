@@ -1072,7 +1072,8 @@ def summary_markdown(
             f"| **all** | {result.fates['detections']} |" + " |" * len(classes),
             "",
             f"{result.fates['in_unconfirmed_tracks']} matched or born detections went into "
-            "tracks never confirmed.",
+            f"tracks never confirmed; {result.fates.get('fed_not_output', 0)} fed a track that "
+            "was not output in that frame (tentative, or below the track score gate).",
         ]
     ev = result.id_evaluation
     lines += ["", "## Static metrics", ""]

@@ -15,7 +15,9 @@ Fates, in the order a detection meets them:
 Unknown categories are skipped by the loader before the tracker sees them
 (:class:`tracker.io.baseversion.LoadReport`); :meth:`FateCounter.summary` reports them beside.
 Separately, ``in_unconfirmed_tracks`` counts matched/born detections whose track was never
-confirmed by the end of the scene (they are not in the online output).
+confirmed by the end of the scene (they are not in the online output), and
+``fed_not_output`` the matched/born detections whose track was not output in that frame
+(tentative, or withheld by the online gate on its mean score, ``lifecycle.track_score_min``).
 """
 
 from __future__ import annotations
@@ -102,6 +104,7 @@ class FateCounter:
         self._confirmed: list[np.ndarray] = []
         self._scene: str | None = None
         self.in_unconfirmed_tracks = 0
+        self.fed_not_output = 0
 
     def __call__(self, event: Event) -> None:
         kind = type(event)
@@ -126,6 +129,9 @@ class FateCounter:
             self._track_dets.append(event.born)
             self._confirmed.append(event.confirmed)
         elif kind is FrameFinished:
+            assert isinstance(event, FrameFinished)
+            fed = sum(len(rows) for rows, _ in self._cur.assigned)
+            self.fed_not_output += fed - int(np.count_nonzero(event.output.det_row >= 0))
             self._pending.append(self._cur)
             self._cur = None
             if len(self._pending) >= self.BATCH_FRAMES:
@@ -198,6 +204,7 @@ class FateCounter:
             "per_fate": {name: per_fate.get(name, 0) for name in FATE_NAMES.values()},
             "per_fate_and_class": per_class,
             "in_unconfirmed_tracks": self.in_unconfirmed_tracks,
+            "fed_not_output": self.fed_not_output,
             "skipped_unknown_category_at_load": skipped,
             "input_boxes": self.detections + skipped,
         }
@@ -235,7 +242,10 @@ def format_fates(summary: dict[str, Any]) -> str:
         text += (
             f"; skipped at load (unknown category) {summary['skipped_unknown_category_at_load']}"
         )
-    return text + f"; {summary['in_unconfirmed_tracks']} in tracks never confirmed"
+    return text + (
+        f"; {summary['in_unconfirmed_tracks']} in tracks never confirmed, "
+        f"{summary['fed_not_output']} in tracks not output that frame"
+    )
 
 
 class Tee:

@@ -13,7 +13,8 @@ ID switch (GT ``g`` last matched to the old track ``O`` at frame ``lf``, now to 
 1. ``gt_id_changed``: ``N`` was matched to another GT id in the frames just before and that id
    is not labelled at ``f`` any more: the track stayed, the label changed.
 2. ``box_off_target``: ``O`` took ``g``'s own detection at ``f``, but its output box did not
-   overlap ``g`` enough for the evaluator (which then matched ``N``).
+   overlap ``g`` enough for the evaluator (which then matched ``N``); ``not_output`` when ``O``
+   took it but was not output at all (tentative, or withheld by the track score gate).
 3. ``old_took_other``: ``O`` is alive and took another detection at ``f`` (evidence: its cost
    to that detection, its cost to ``g``'s, the margin).
 4. ``image_plane``: ``N`` got ``g``'s detection in the image-plane (RV) stage.
@@ -27,9 +28,10 @@ ID switch (GT ``g`` last matched to the old track ``O`` at frame ``lf``, now to 
 Fragmentation with the same track before and after: the most frequent reason over the gap
 frames: ``gt_not_evaluated`` (the GT was not evaluated in the gap: occluded, truncated, outside
 the image), ``missed_no_detection``, ``missed_below_score`` (dropped by the score threshold or
-NMS), ``missed_outside_gate`` (kept, but the track did not take it), ``box_off_target`` (the
-track took it but its box missed the GT) or ``old_took_other``. A fragmentation that is also an
-ID switch gets the switch's cause.
+NMS), ``missed_outside_gate`` (kept, but the track did not take it), ``not_output`` (the track
+took it but was not output: tentative, or withheld by the track score gate), ``box_off_target``
+(the track took it and was output, but its box missed the GT) or ``old_took_other``. A
+fragmentation that is also an ID switch gets the switch's cause.
 """
 
 from __future__ import annotations
@@ -79,6 +81,7 @@ class Cause(enum.Enum):
     MISSED_NO_DETECTION = "missed_no_detection"
     MISSED_BELOW_SCORE = "missed_below_score"
     MISSED_OUTSIDE_GATE = "missed_outside_gate"
+    NOT_OUTPUT = "not_output"
     OTHER = "other"
 
 
@@ -95,6 +98,8 @@ CAUSE_HELP = {
     Cause.MISSED_NO_DETECTION: "no detection of the object in the gap",
     Cause.MISSED_BELOW_SCORE: "its detections fell below the score threshold (or NMS)",
     Cause.MISSED_OUTSIDE_GATE: "kept detections the track did not take (gate/cost)",
+    Cause.NOT_OUTPUT: "the old track held the object's detection but was not output "
+    "(tentative, or below the track score gate)",
     Cause.OTHER: "none of the above",
 }
 
@@ -216,6 +221,7 @@ _SHORT_KEYS: dict[Cause, tuple[str, ...]] = {
     Cause.MISSED_NO_DETECTION: ("gap_frames",),
     Cause.MISSED_BELOW_SCORE: ("gap_frames", "below_score"),
     Cause.MISSED_OUTSIDE_GATE: ("gap_frames", "outside_gate"),
+    Cause.NOT_OUTPUT: ("gap_frames", "not_output"),
     Cause.GT_NOT_EVALUATED: ("gap_frames",),
 }
 
@@ -279,7 +285,9 @@ def _gap_reason(st: FrameStages | None, gt: _Gt, gt_id: int, track_id: int) -> s
     if st.reason is not None and st.reason[det] != DropReason.KEPT:
         return "below_score"
     if own is not None:
-        return "box_off" if own[0] == det else "took_other"
+        if own[0] != det:
+            return "took_other"
+        return "box_off" if np.any(st.output_ids == track_id) else "not_output"
     return "outside_gate"
 
 
@@ -288,6 +296,7 @@ _GAP_CAUSE = {
     "no_detection": Cause.MISSED_NO_DETECTION,
     "below_score": Cause.MISSED_BELOW_SCORE,
     "outside_gate": Cause.MISSED_OUTSIDE_GATE,
+    "not_output": Cause.NOT_OUTPUT,
     "box_off": Cause.BOX_OFF_TARGET,
     "took_other": Cause.OLD_TOOK_OTHER,
 }
@@ -319,7 +328,8 @@ def _classify_switch(e: IdEvent, log: StageLog, gt: _Gt) -> tuple[Cause, dict]:
     if own is not None:
         ev["cost_taken"] = own[1]
         if det_g is not None and own[0] == det_g:
-            return Cause.BOX_OFF_TARGET, ev
+            output = bool(np.any(st.output_ids == old))
+            return (Cause.BOX_OFF_TARGET if output else Cause.NOT_OUTPUT), ev
         to_g = st.bev_cost(old, det_g) if det_g is not None else None
         if to_g is not None:
             ev["cost_to_gt_det"], ev["old_gate"] = to_g
