@@ -118,7 +118,7 @@ class LifecycleConfig:
     max_misses_output: int = 0  # consecutive misses during which a coasting track is still output
     max_misses: int = 30  # consecutive misses after which a track is deleted
     # online: a live track is output only while the mean log-odds of its hits' scores reaches
-    # this (0: more likely real than not; -inf: off). The track-level analogue of
+    # this (0: more likely real than not; -inf: off, "-inf" in JSON). The track-level analogue of
     # offline.track_score_min: a persistent false positive gathers noisy-OR evidence from many
     # weak hits (its errors are correlated across frames), its mean stays low
     track_score_min: float = -np.inf
@@ -370,6 +370,8 @@ def _coerce(tp: Any, value: Any, dotted: str, source: str, base: Any = None) -> 
         float: (int | float, "a number"),
         str: (str, "a string"),
     }
+    if tp is float and value in ("inf", "-inf"):  # how config_to_dict writes an infinity
+        return float(value)
     if tp in checks:
         allowed_types, what = checks[tp]
         if (tp is not bool and isinstance(value, bool)) or not isinstance(value, allowed_types):
@@ -401,4 +403,6 @@ def config_to_dict(cfg: Any) -> Any:
         return {k: config_to_dict(v) for k, v in cfg.items()}
     if isinstance(cfg, tuple | list):
         return [config_to_dict(v) for v in cfg]
+    if isinstance(cfg, float) and np.isinf(cfg):
+        return str(cfg)  # JSON has no infinity: "-inf" / "inf", read back by _coerce
     return cfg
