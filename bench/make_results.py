@@ -164,15 +164,15 @@ def gate_section(root: Path, without_gate: str | None) -> list[str]:
     every detector at -inf (off), -0.5, 0 (shipped), +0.5; pedestrian and cyclist on and off;
     and the held-out figures of the tune without the gate beside the shipped one."""
     rows = []
+    shipped = load_config("kitti").per_category
+    off = -float("inf")
     for detector, classes in DETECTORS.items():
         for c in classes:
-            gates = (-float("inf"), -0.5, 0.0, 0.5) if c == "car" else (-float("inf"), 0.0)
-            shipped = load_config("kitti").per_category[c].lifecycle.track_score_min
-            for gate in gates:
+            for gate in (off, -0.5, 0.0, 0.5) if c == "car" else (off, 0.0):
                 overrides = {"category": {c: {"lifecycle": {"track_score_min": gate}}}}
                 res = kitti(root, [c], detector=detector, config_overrides=overrides)
-                tag = " (shipped)" if gate == shipped else ""
-                name = "off" if gate == -float("inf") else f"{gate:+.1f}"
+                tag = " (shipped)" if gate == shipped[c].lifecycle.track_score_min else ""
+                name = "off" if gate == off else f"{gate:+.1f}"
                 rows.append((f"{detector}, {c}, {name}{tag}", res["metrics"][c]))
     lines = [
         "## Output gate on the track's mean score",

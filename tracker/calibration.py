@@ -49,6 +49,13 @@ READABLE_VERSIONS = (1, 2)  # version 1: no range terms
 PROB_RANGE = (0.001, 0.999)
 
 
+def score_log_odds(score: FloatArray) -> FloatArray:
+    """log(p / (1 - p)) of calibrated scores, p kept inside [1e-6, 1 - 1e-6] (NaN stays NaN):
+    the unit of the track scores, offline (``offline.track_score_min``) and online
+    (``lifecycle.track_score_min``)."""
+    return logit(np.clip(score, 1e-6, 1.0 - 1e-6))
+
+
 @dataclasses.dataclass(frozen=True, slots=True)
 class RangeTerm:
     """``P = σ(logit_coef·logit p₀ + r_coef·r + r2_coef·r² + intercept)``, ``r`` = range over

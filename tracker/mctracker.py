@@ -19,6 +19,7 @@ import numpy as np
 
 from tracker import kalman
 from tracker.boxes import Boxes, FloatArray, IntArray
+from tracker.calibration import score_log_odds
 from tracker.camera import project_boxes
 from tracker.categories import CATEGORIES
 from tracker.config import (
@@ -845,10 +846,8 @@ def _evidence(score: FloatArray) -> FloatArray:
 
 
 def _log_odds(score: FloatArray) -> FloatArray:
-    """A hit's contribution log(p / (1 - p)) to its track's log-odds sum (p kept inside
-    [1e-6, 1 - 1e-6], NaN: 0, as the offline track score)."""
-    p = np.clip(np.nan_to_num(score, nan=0.5), 1e-6, 1.0 - 1e-6)
-    return np.log(p) - np.log1p(-p)
+    """A hit's contribution to its track's log-odds sum (NaN: 0)."""
+    return score_log_odds(np.nan_to_num(score, nan=0.5))
 
 
 def _without(index: IntArray, positions: IntArray) -> IntArray:

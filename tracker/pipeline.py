@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tracker.boxes import Boxes
+from tracker.calibration import score_log_odds
 from tracker.categories import CATEGORIES
 from tracker.config import TrackerConfig, TrackingMode
 from tracker.events import Observer, TrackOutput, TrackStatus
@@ -101,9 +102,7 @@ def offline_postprocess(
     real = det_row >= 0
     keep = real.copy()
     new_src: list[tuple[int, int, int, float]] = []  # (frame index, row before, row after, w)
-    logit = np.log(
-        np.clip(boxes.score, 1e-6, 1 - 1e-6) / (1 - np.clip(boxes.score, 1e-6, 1 - 1e-6))
-    )
+    logit = score_log_odds(boxes.score)
     tracks_score: dict[int, float] = {}
     for tid in np.unique(boxes.track_id):
         rows = np.flatnonzero((boxes.track_id == tid) & real)
