@@ -11,6 +11,7 @@ from tracker.camera import (
     _clipped_edges_px,
     box_wireframes_image,
     in_front,
+    in_image_fraction,
     project_boxes,
     project_points,
 )
@@ -153,3 +154,15 @@ def test_wireframes(camera: Camera) -> None:
     raw, _ = project_boxes(boxes, camera, clip_to_image=False)
     ends_ahead = segments[0].reshape(-1, 2)
     np.testing.assert_allclose(raw[0], [*ends_ahead.min(axis=0), *ends_ahead.max(axis=0)])
+
+
+def test_in_image_fraction_by_hand(camera: Camera) -> None:
+    """Fraction of the projected width inside the image: a 2 m cube 10 m ahead (all of it),
+    the same cube 6 m to the left (its near-right edge only), one behind the camera (0)."""
+    xyz = np.array([[10.0, 0.0, 0.0], [10.0, 6.0, 0.0], [-10.0, 0.0, 0.0]])
+    lwh = np.full((3, 3), 2.0)
+    fraction = in_image_fraction(xyz, lwh, np.zeros(3), camera)
+    # u = 50 - 100 y / x over x in [9, 11], y in [5, 7]: from 50 - 700/9 (< 0) to 50 - 500/11
+    assert fraction[0] == pytest.approx(1.0)
+    assert fraction[1] == pytest.approx((50 - 500 / 11) / (700 / 9 - 500 / 11))
+    assert fraction[2] == 0.0

@@ -12,9 +12,11 @@ import pytest
 
 from tracker import kalman, mctracker
 from tracker.boxes import Boxes
+from tracker.camera import NEAR_PLANE_M, in_image_fraction
 from tracker.config import load_config
 from tracker.cost import ro_gdiou_bev_arrays
 from tracker.events import LifecycleChanged, ListObserver, TrackStatus
+from tracker.frame import Camera
 from tracker.io.baseversion import read_baseversion
 from tracker.kernels import load as load_kernels
 from tracker.matching import hungarian
@@ -221,6 +223,35 @@ def test_lifecycle_kernel_equals_numpy(confirm_prob: float) -> None:
         for field in ("born", "confirmed", "lost", "reacquired", "deleted"):
             np.testing.assert_array_equal(getattr(got, field), getattr(want, field), field)
         assert_tables_close(compiled._tracks, plain._tracks)
+
+
+def test_in_image_fraction_kernel_equals_numpy() -> None:
+    """Boxes in front of, across and behind the near plane of a KITTI-like camera; the kernel
+    leaves NaN where a corner is behind the near plane (the tracker falls back to numpy)."""
+    rng = np.random.default_rng(5)
+    cam = Camera(
+        "CAM2",
+        np.array([[700.0, 0.0, 600.0, 40.0], [0.0, 700.0, 180.0, 0.2], [0.0, 0.0, 1.0, 0.003]]),
+        np.array(
+            [[0.0, -1.0, 0.0, 0.1], [0.0, 0.0, -1.0, 1.6], [1.0, 0.0, 0.0, -0.3], [0, 0, 0, 1]]
+        ),
+        1242,
+        375,
+    )
+    n = 2000
+    xyz = np.column_stack([rng.uniform(-5, 60, n), rng.uniform(-40, 40, n), rng.normal(0, 1, n)])
+    lwh = rng.uniform(0.4, 6.0, (n, 3))
+    yaw = rng.uniform(-np.pi, np.pi, n)
+    assert kernels is not None
+    got = kernels.in_image_fraction_kernel(
+        xyz, lwh, yaw, cam.image_from_world, cam.width_px - 1.0, cam.height_px - 1.0, NEAR_PLANE_M
+    )
+    want = in_image_fraction(xyz, lwh, yaw, cam)
+    front = ~np.isnan(got)
+    np.testing.assert_allclose(got[front], want[front], rtol=0, atol=1e-12)
+    assert 0.5 * n < front.sum() < n  # both paths exercised
+    assert (want[front] == 0).sum() > 50 and (want[front] == 1).sum() > 50
+    assert ((want[front] > 0) & (want[front] < 1)).sum() > 50
 
 
 @pytest.fixture(scope="module")

@@ -53,7 +53,7 @@ def score_log_odds(score: FloatArray) -> FloatArray:
     """log(p / (1 - p)) of calibrated scores, p kept inside [1e-6, 1 - 1e-6] (NaN stays NaN):
     the unit of the track scores, offline (``offline.track_score_min``) and online
     (``lifecycle.track_score_min``)."""
-    return logit(np.clip(score, 1e-6, 1.0 - 1e-6))
+    return logit(np.minimum(np.maximum(score, 1e-6), 1.0 - 1e-6))  # (np.clip: slower)
 
 
 @dataclasses.dataclass(frozen=True, slots=True)

@@ -161,6 +161,20 @@ def project_boxes(
     return xyxy_image, visible
 
 
+def in_image_fraction(
+    xyz: FloatArray, lwh: FloatArray, yaw: FloatArray, camera: Camera
+) -> FloatArray:
+    """(N,) fraction of each projected box's width that lies inside the image, 0 where the
+    box is not visible (:func:`project_boxes` unclipped). Numpy reference of the compiled
+    ``kernels.camera.in_image_fraction_kernel``."""
+    xyxy, visible = project_boxes((xyz, lwh, yaw), camera, clip_to_image=False)
+    x1, x2 = xyxy[visible, 0], xyxy[visible, 2]
+    inside = np.minimum(x2, camera.width_px - 1) - np.maximum(x1, 0.0)
+    fraction = np.zeros(len(xyz))
+    fraction[visible] = inside / np.maximum(x2 - x1, 1e-9)
+    return fraction
+
+
 def clip_boxes_to_image(
     xyxy: FloatArray, candidates: BoolArray, camera: Camera
 ) -> tuple[FloatArray, BoolArray]:

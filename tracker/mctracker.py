@@ -14,13 +14,14 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable, Sequence
+from types import SimpleNamespace
 
 import numpy as np
 
 from tracker import kalman
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.calibration import score_log_odds
-from tracker.camera import project_boxes
+from tracker.camera import NEAR_PLANE_M, in_image_fraction, project_boxes
 from tracker.categories import CATEGORIES
 from tracker.config import (
     CategoryConfig,
@@ -755,12 +756,24 @@ class MCTracker:
             # mean log-odds of the track's hits; hits >= 1 for every live track
             out &= tr.log_odds >= self._cat.track_score_min[tr.category] * tr.hits
         rows = np.flatnonzero(out)
-        boxes = tr.boxes(rows)
         det_row = tr.matched_det[rows]
         if self.config.coast_min_in_view > 0 and frame.cameras and (det_row < 0).any():
-            keep = _in_view(boxes, det_row < 0, frame.cameras, self.config.coast_min_in_view)
-            if not keep.all():
-                rows, boxes, det_row = rows[keep], boxes[keep], det_row[keep]
+            coasting = rows[det_row < 0]  # (their boxes are the predictions)
+            lwh = np.column_stack(
+                [tr.motion_x[coasting, Axis.LENGTH : Axis.WIDTH + 1, 0], tr.zh[coasting, 1]]
+            )
+            fraction = _in_image_fraction(
+                tr.xyz(coasting),
+                lwh,
+                tr.motion_x[coasting, Axis.YAW, 0],
+                frame.cameras,
+                self._kernels,
+            )
+            if (fraction < self.config.coast_min_in_view).any():
+                keep = np.ones(len(rows), dtype=bool)
+                keep[det_row < 0] = fraction >= self.config.coast_min_in_view
+                rows, det_row = rows[keep], det_row[keep]
+        boxes = tr.boxes(rows)
         if self.config.output_geometry is OutputGeometry.DETECTION:
             hit = det_row >= 0
             boxes = boxes.replace(
@@ -819,35 +832,47 @@ def _buffered(boxes: Boxes, buffer_lw: FloatArray) -> Boxes:
     return boxes.replace(lwh=np.column_stack([boxes.lwh[:, :2] * factor, boxes.lwh[:, 2]]))
 
 
-def _in_view(
-    boxes: Boxes, coasting: np.ndarray, cameras: Sequence[Camera], min_fraction: float
-) -> np.ndarray:
-    """(K,) False for the coasting rows of which less than ``min_fraction`` of the projected
-    box's width lies inside every camera's image; True elsewhere."""
-    idx = np.flatnonzero(coasting)
-    sub = (boxes.xyz[idx], boxes.lwh[idx], boxes.yaw[idx])
-    fraction = np.zeros(len(idx))
+def _in_image_fraction(
+    xyz: FloatArray,
+    lwh: FloatArray,
+    yaw: FloatArray,
+    cameras: Sequence[Camera],
+    kernels: SimpleNamespace | None,
+) -> FloatArray:
+    """(K,) the largest fraction of each box's projected width inside a camera's image
+    (:func:`tracker.camera.in_image_fraction`; the compiled kernel where every corner is in
+    front of the camera, the numpy reference for the rest)."""
+    fraction = np.zeros(len(xyz))
     for cam in cameras:
-        xyxy, visible = project_boxes(sub, cam, clip_to_image=False)
-        x1, x2 = xyxy[visible, 0], xyxy[visible, 2]
-        inside = np.minimum(x2, cam.width_px - 1) - np.maximum(x1, 0.0)
-        frac = np.zeros(len(idx))
-        frac[visible] = inside / np.maximum(x2 - x1, 1e-9)
+        if kernels is None:
+            frac = in_image_fraction(xyz, lwh, yaw, cam)
+        else:
+            frac = kernels.in_image_fraction_kernel(
+                xyz,
+                lwh,
+                yaw,
+                cam.image_from_world,
+                cam.width_px - 1.0,
+                cam.height_px - 1.0,
+                NEAR_PLANE_M,
+            )
+            clipped = np.isnan(frac)  # a corner behind the near plane: edges need clipping
+            if clipped.any():
+                frac[clipped] = in_image_fraction(xyz[clipped], lwh[clipped], yaw[clipped], cam)
         fraction = np.maximum(fraction, frac)
-    keep = np.ones(len(coasting), dtype=bool)
-    keep[idx] = fraction >= min_fraction
-    return keep
+    return fraction
 
 
 def _evidence(score: FloatArray) -> FloatArray:
     """A hit's contribution -log(1 - p) to its track's evidence (p capped below 1, NaN: 0)."""
-    p = np.nan_to_num(np.clip(score, 0.0, 1.0 - 1e-9), nan=0.0)
-    return -np.log1p(-p)
+    # fmax/fmin drop a NaN operand: a NaN score becomes p = 0 (ufuncs: nan_to_num and clip
+    # cost more than the rest of a hit's bookkeeping)
+    return -np.log1p(-np.fmin(np.fmax(score, 0.0), 1.0 - 1e-9))
 
 
 def _log_odds(score: FloatArray) -> FloatArray:
     """A hit's contribution to its track's log-odds sum (NaN: 0)."""
-    return score_log_odds(np.nan_to_num(score, nan=0.5))
+    return np.where(np.isnan(score), 0.0, score_log_odds(score))
 
 
 def _without(index: IntArray, positions: IntArray) -> IntArray:

@@ -8,6 +8,7 @@ kernel module          speeds up                                   numpy referen
 ``kernels.kalman``     predict; update with the heading logic      :mod:`tracker.kalman`
 ``kernels.matching``   uncontested stage-1 assignment              :mod:`tracker.matching`
 ``kernels.lifecycle``  per-category lifecycle rules                ``MCTracker._lifecycle``
+``kernels.camera``     in-image fraction of coasting boxes        :mod:`tracker.camera`
 =====================  ==========================================  ===========================
 
 Why: a KITTI frame holds ~10 tracks and ~10 detections, so numpy stages spend their time in
@@ -34,7 +35,7 @@ def load() -> SimpleNamespace | None:
     if os.environ.get("MCTRACK_NUMBA", "1") == "0":
         return None
     try:
-        from tracker.kernels import cost, kalman, lifecycle, matching
+        from tracker.kernels import camera, cost, kalman, lifecycle, matching
     except ImportError:
         return None
     return SimpleNamespace(
@@ -43,6 +44,7 @@ def load() -> SimpleNamespace | None:
         motion_update_kernel=kalman.motion_update_kernel,
         isolated_pairs_kernel=matching.isolated_pairs_kernel,
         lifecycle_kernel=lifecycle.lifecycle_kernel,
+        in_image_fraction_kernel=camera.in_image_fraction_kernel,
         CONFIRMED_NOW=lifecycle.CONFIRMED_NOW,
         REACQUIRED_FROM_LOST=lifecycle.REACQUIRED_FROM_LOST,
         LOST_NOW=lifecycle.LOST_NOW,
