@@ -225,6 +225,38 @@ def test_lifecycle_kernel_equals_numpy(confirm_prob: float) -> None:
         assert_tables_close(compiled._tracks, plain._tracks)
 
 
+@pytest.mark.parametrize("config_name", ["kitti", "kitti_reference"])
+def test_record_hits_kernel_equals_numpy(config_name: str) -> None:
+    """Scores across (0, 1), exactly 0 and 1, NaN, and near 0.5 (scipy's logit switches
+    formula there); z/height smoothed (kitti) or copied (kitti_reference)."""
+    rng = np.random.default_rng(3)
+    cfg = load_config(config_name, overrides={"categories": ["car", "pedestrian", "cyclist"]})
+    compiled, plain = MCTracker(cfg), MCTracker(cfg, compiled=False)
+    assert compiled._cat.any_vertical_smoothing == (config_name == "kitti")
+    n, d = 60, 40
+    score = rng.uniform(0, 1, d)
+    score[:8] = [0.0, 1.0, np.nan, 0.5, 0.3, 0.65, 0.2999999, 1e-12]
+    dets = Boxes.create(
+        xyz=rng.normal(size=(d, 3)) * 10,
+        lwh=rng.uniform(0.5, 5, (d, 3)),
+        yaw=rng.uniform(-np.pi, np.pi, d),
+        category=rng.integers(0, 3, d),
+        score=score,
+        xyxy_image=rng.uniform(0, 500, (d, 4)),
+        camera=rng.integers(-1, 1, d),
+    )
+    for _ in range(5):
+        table = random_table(rng, n, 3)
+        idx = np.sort(rng.choice(n, d, replace=False))
+        det_rows = rng.permutation(d)
+        compiled._tracks, plain._tracks = copy_table(table), copy_table(table)
+        args = (idx, dets, det_rows, dets.xyz[det_rows], dets.lwh[det_rows])
+        compiled._record_hits(*args)
+        plain._record_hits(*args)
+        assert_tables_close(compiled._tracks, plain._tracks)
+        assert not np.array_equal(compiled._tracks.hits, table.hits)
+
+
 def test_in_image_fraction_kernel_equals_numpy() -> None:
     """Boxes in front of, across and behind the near plane of a KITTI-like camera; the kernel
     leaves NaN where a corner is behind the near plane (the tracker falls back to numpy)."""

@@ -609,6 +609,14 @@ class MCTracker:
     ) -> None:
         """The matched detections' own fields kept on their tracks, and the hit counts."""
         tr = self._tracks
+        if self._kernels is not None:
+            self._kernels.record_hits_kernel(
+                idx, det_rows, dets.score, dets.xyxy_image, dets.camera, dets.xyz, dets.lwh,
+                dets.yaw, tr.category, self._cat.vertical_gain, self._cat.any_vertical_smoothing,
+                tr.score, tr.last_xyxy, tr.last_camera, tr.last_det_xyz, tr.last_det_lwh, tr.zh,
+                tr.last_det_yaw, tr.hits, tr.evidence, tr.log_odds,
+            )  # fmt: skip
+            return
         tr.score[idx] = dets.score[det_rows]
         tr.last_xyxy[idx], tr.last_camera[idx] = dets.xyxy_image[det_rows], dets.camera[det_rows]
         tr.last_det_xyz[idx], tr.last_det_lwh[idx] = xyz, lwh

@@ -7,7 +7,8 @@ kernel module          speeds up                                   numpy referen
 ``kernels.cost``       stage-1 gated Ro_GDIoU cost matrix          :mod:`tracker.cost`
 ``kernels.kalman``     predict; update with the heading logic      :mod:`tracker.kalman`
 ``kernels.matching``   uncontested stage-1 assignment              :mod:`tracker.matching`
-``kernels.lifecycle``  per-category lifecycle rules                ``MCTracker._lifecycle``
+``kernels.lifecycle``  per-category lifecycle rules; hit records  ``MCTracker._lifecycle``,
+                                                                   ``._record_hits``
 ``kernels.camera``     in-image fraction of coasting boxes        :mod:`tracker.camera`
 =====================  ==========================================  ===========================
 
@@ -44,6 +45,7 @@ def load() -> SimpleNamespace | None:
         motion_update_kernel=kalman.motion_update_kernel,
         isolated_pairs_kernel=matching.isolated_pairs_kernel,
         lifecycle_kernel=lifecycle.lifecycle_kernel,
+        record_hits_kernel=lifecycle.record_hits_kernel,
         in_image_fraction_kernel=camera.in_image_fraction_kernel,
         CONFIRMED_NOW=lifecycle.CONFIRMED_NOW,
         REACQUIRED_FROM_LOST=lifecycle.REACQUIRED_FROM_LOST,

@@ -20,6 +20,7 @@ _HALF_PI = 0.5 * math.pi
 _f8, _i8 = numba.float64, numba.int64
 _F1, _F2, _F3, _F4 = (numba.types.Array(_f8, n, "A", readonly=True) for n in (1, 2, 3, 4))
 _I1 = numba.types.Array(_i8, 1, "A", readonly=True)
+_F1_OUT, _F2_OUT = numba.types.Array(_f8, 1, "A"), numba.types.Array(_f8, 2, "A")
 _F3_OUT, _F4_OUT = numba.types.Array(_f8, 3, "A"), numba.types.Array(_f8, 4, "A")
 _I1_OUT = numba.types.Array(_i8, 1, "A")
 _S1 = numba.types.Array(numba.int8, 1, "A", readonly=True)

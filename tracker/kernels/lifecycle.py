@@ -1,13 +1,16 @@
-"""Compiled lifecycle rules (numpy reference: ``MCTracker._lifecycle``)."""
+"""Compiled lifecycle rules and hit bookkeeping (numpy reference: ``MCTracker._lifecycle``,
+``MCTracker._record_hits``)."""
 
 from __future__ import annotations
+
+import math
 
 import numba
 import numpy as np
 
 from tracker.boxes import FloatArray, IntArray
 from tracker.events import TrackStatus
-from tracker.kernels._common import _B1, _F1, _F2, _I1, _S1
+from tracker.kernels._common import _B1, _F1, _F1_OUT, _F2, _F2_OUT, _I1, _I1_OUT, _S1
 
 # lifecycle outcome flags per track (lifecycle_kernel)
 CONFIRMED_NOW, REACQUIRED_FROM_LOST, LOST_NOW, DEAD = 1, 2, 4, 8
@@ -64,3 +67,71 @@ def lifecycle_kernel(
             flags[t] |= LOST_NOW
         new_status[t] = state
     return new_status, new_misses, flags
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _logit(x: float) -> float:  # pragma: no cover (compiled)
+    """scipy.special.logit of one value (its formula: the log1p form near 0.5)."""
+    if x < 0.3 or x > 0.65:
+        return math.log(x / (1.0 - x))
+    s = 2.0 * (x - 0.5)
+    return math.log1p(s) - math.log1p(-s)
+
+
+@numba.njit(
+    (
+        *(_I1, _I1, _F1, _F2, _I1, _F2, _F2, _F1, _I1, _F1, numba.boolean),  # inputs
+        *(_F1_OUT, _F2_OUT, _I1_OUT, _F2_OUT, _F2_OUT, _F2_OUT, _F1_OUT, _I1_OUT, _F1_OUT, _F1_OUT),
+    ),
+    cache=True,
+    error_model="numpy",
+    nogil=True,
+)
+def record_hits_kernel(
+    idx: IntArray,
+    det_rows: IntArray,
+    det_score: FloatArray,
+    det_xyxy: FloatArray,
+    det_camera: IntArray,
+    det_xyz: FloatArray,
+    det_lwh: FloatArray,
+    det_yaw: FloatArray,
+    category: IntArray,
+    vertical_gain: FloatArray,
+    smooth_vertical: bool,
+    score: FloatArray,
+    last_xyxy: FloatArray,
+    last_camera: IntArray,
+    last_det_xyz: FloatArray,
+    last_det_lwh: FloatArray,
+    zh: FloatArray,
+    last_det_yaw: FloatArray,
+    hits: IntArray,
+    evidence: FloatArray,
+    log_odds: FloatArray,
+) -> None:  # pragma: no cover (compiled)
+    """``MCTracker._record_hits`` in place: track ``idx[k]`` keeps detection ``det_rows[k]``'s
+    fields, its z and height move by the category's ``vertical_gain`` towards the detection's
+    (when ``smooth_vertical``; else they are the detection's), and it counts the hit: +1, its
+    evidence -log(1 - p) and its log-odds (NaN scores: p 0 and log-odds 0)."""
+    for k in range(idx.shape[0]):
+        t, d = idx[k], det_rows[k]
+        s = det_score[d]
+        score[t] = s
+        for j in range(4):
+            last_xyxy[t, j] = det_xyxy[d, j]
+        last_camera[t] = det_camera[d]
+        for j in range(3):
+            last_det_xyz[t, j] = det_xyz[d, j]
+            last_det_lwh[t, j] = det_lwh[d, j]
+        z, h = det_xyz[d, 2], det_lwh[d, 2]
+        if smooth_vertical:
+            g = vertical_gain[category[t]]
+            z, h = zh[t, 0] + g * (z - zh[t, 0]), zh[t, 1] + g * (h - zh[t, 1])
+        zh[t, 0], zh[t, 1] = z, h
+        last_det_yaw[t] = det_yaw[d]
+        hits[t] += 1
+        p = min(s if s > 0.0 else 0.0, 1.0 - 1e-9)  # (NaN: 0)
+        evidence[t] += -math.log1p(-p)
+        if s == s:  # not NaN
+            log_odds[t] += _logit(min(max(s, 1e-6), 1.0 - 1e-6))
