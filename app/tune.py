@@ -61,6 +61,10 @@ ONLINE_SPACE: dict[str, tuple[str, float, float]] = {
     "lifecycle.max_misses": ("int", 5, 30),
     "bev.cost_max": ("float", 1.0, 2.0),
     "pose.ca.r": ("log", 0.02, 2.0),
+    # the output gate on the track's mean log-odds: 0 is "more likely real than not" for
+    # independent hits, but a detector's hits of one object are correlated, so where the
+    # boundary lies is measured, not assumed
+    "lifecycle.track_score_min": ("float", -1.5, 0.5),
 }
 # Searched for pedestrians only: their annotated 2D boxes are narrower than their cuboids'
 # projections (median 1/1.49 on ground truth), while cars' and cyclists' match them (IoU 0.96;
