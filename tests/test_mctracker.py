@@ -301,13 +301,13 @@ def test_never_matches_across_categories() -> None:
 
 def test_real_time_step_and_order() -> None:
     tracker = MCTracker(config(min_hits=1))
-    for i in range(5):  # 10 m/s along x
+    for i in range(10):  # 10 m/s along x (enough frames for the velocity to converge)
         tracker.step(frame(i, [10.0 + 1.0 * i]))
     # a frame 0.3 s later (two frames missing): the prediction covers the real elapsed time
-    out = tracker.step(frame(5, [], t=0.7))
-    assert out.boxes.xyz[0, 0] == pytest.approx(14.0 + 3.0, abs=0.3)
+    out = tracker.step(frame(10, [], t=1.2))
+    assert out.boxes.xyz[0, 0] == pytest.approx(19.0 + 3.0, abs=0.3)
     with pytest.raises(InputError, match="time order"):
-        tracker.step(frame(6, [20.0], t=0.5))
+        tracker.step(frame(11, [30.0], t=1.0))
 
 
 def test_empty_frames_and_determinism() -> None:
