@@ -10,9 +10,7 @@ import numpy as np
 
 from tracker.boxes import FloatArray
 from tracker.kernels._common import _F1, _F2
-
-_SIGN_L = (1.0, -1.0, -1.0, 1.0)  # tracker.geometry corner order
-_SIGN_W = (1.0, 1.0, -1.0, -1.0)
+from tracker.kernels.geometry import _corners
 
 
 @numba.njit(
@@ -35,17 +33,17 @@ def in_image_fraction_kernel(
     then uses the numpy reference, which clips the edges)."""
     n = xyz.shape[0]
     m = image_from_world
+    bev = np.empty((n, 5))  # x, y, l, w, yaw
+    bev[:, :2], bev[:, 2:4], bev[:, 4] = xyz[:, :2], lwh[:, :2], yaw
+    corners = _corners(bev)  # (N, 4, 2), bottom and top share them
     out = np.empty(n)
     for i in range(n):
-        c, s = math.cos(yaw[i]), math.sin(yaw[i])
-        hl, hw, hh = lwh[i, 0] / 2.0, lwh[i, 1] / 2.0, lwh[i, 2] / 2.0
+        hh = lwh[i, 2] / 2.0
         x1 = y1 = math.inf
         x2 = y2 = -math.inf
         behind = False
         for k in range(8):
-            lx, ly = hl * _SIGN_L[k % 4], hw * _SIGN_W[k % 4]
-            px = lx * c - ly * s + xyz[i, 0]
-            py = lx * s + ly * c + xyz[i, 1]
+            px, py = corners[i, k % 4, 0], corners[i, k % 4, 1]
             pz = xyz[i, 2] - hh if k < 4 else xyz[i, 2] + hh
             w = px * m[2, 0] + py * m[2, 1] + pz * m[2, 2] + m[2, 3]
             if not w >= near_m:
