@@ -15,6 +15,7 @@ import re
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 
 from tracker.errors import InputError
 
@@ -163,27 +164,56 @@ def error_message(exc: BaseException) -> tuple[str, int] | None:
     return None
 
 
-def kernels_cold() -> bool:
-    """True when the tracker's compiled kernels are not in numba's on-disk cache yet (the first
-    run on a machine, or after their source changed): loading them then compiles for ~20 s."""
+def _kernel_stamp() -> tuple[Path, str] | None:
+    """Where the warm-up stamp lives (numba's cache folder of ``tracker/kernels``) and what it
+    must hold: a hash of every source with a compiled kernel. None when nothing compiles."""
+    import hashlib
     import os
-    from pathlib import Path
 
     if os.environ.get("MCTRACK_NUMBA", "1") == "0" or importlib.util.find_spec("numba") is None:
-        return False
+        return None
     package = Path(importlib.import_module("tracker").__file__ or "").parent
-    cache_root = os.environ.get("NUMBA_CACHE_DIR")
+    digest = hashlib.sha256()
     for source in sorted(package.rglob("*.py")):
-        if "numba.njit" not in source.read_text(encoding="utf-8", errors="replace"):
-            continue
-        if cache_root:  # numba's user-provided location mirrors the source folder
-            cache_dir = Path(cache_root) / str(source.parent.resolve()).lstrip(os.sep)
-        else:
-            cache_dir = source.parent / "__pycache__"
-        index = list(cache_dir.glob(f"{source.stem}.*.nbi"))
-        if not index or max(p.stat().st_mtime for p in index) < source.stat().st_mtime:
-            return True
-    return False
+        text = source.read_bytes()
+        if b"numba.njit" in text:
+            digest.update(source.relative_to(package).as_posix().encode() + b"\0" + text)
+    kernels = package / "kernels"
+    cache_root = os.environ.get("NUMBA_CACHE_DIR")
+    # numba's user-provided location mirrors the source folder
+    folder = (
+        Path(cache_root) / str(kernels.resolve()).lstrip(os.sep)
+        if cache_root
+        else kernels / "__pycache__"
+    )
+    return folder / "mctrack_kernels.stamp", digest.hexdigest()
+
+
+def kernels_cold() -> bool:
+    """True when the tracker's compiled kernels have not been warmed up since their sources last
+    changed (the first run on a machine, or after an edit): loading them then compiles for ~20 s.
+    A stamp holding the sources' hash is written after each warm-up; comparing file times
+    instead missed an edited helper whose own cache index numba never rewrites."""
+    stamp = _kernel_stamp()
+    if stamp is None:
+        return False
+    path, digest = stamp
+    try:
+        return path.read_text(encoding="utf-8").strip() != digest
+    except (OSError, UnicodeDecodeError):
+        return True
+
+
+def _mark_kernels_warm() -> None:
+    stamp = _kernel_stamp()
+    if stamp is None:
+        return
+    path, digest = stamp
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(digest + "\n", encoding="utf-8")
+    except OSError:  # a read-only install: numba cannot cache there either; warn each run
+        pass
 
 
 #: Subcommands that run the tracker (and so load its compiled kernels).
@@ -207,6 +237,7 @@ def _warm_kernels() -> None:
     start = time.perf_counter()
     load()
     prepare_kernels()
+    _mark_kernels_warm()
     print(f"mctrack: kernels compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr)
 
 

@@ -424,6 +424,13 @@ def test_kernel_cache_check_sees_a_cold_cache(
     monkeypatch.delenv("MCTRACK_NUMBA", raising=False)
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "empty"))
     assert cli.kernels_cold()
+    cli._mark_kernels_warm()  # what a warm-up leaves behind
+    assert not cli.kernels_cold()
+    stamp = cli._kernel_stamp()
+    assert stamp is not None and stamp[0].is_relative_to(tmp_path / "empty")
+    # any edit to a kernel source (a shared helper too) changes the hash: cold again
+    stamp[0].write_text("0" * 64 + "\n", encoding="utf-8")
+    assert cli.kernels_cold()
     monkeypatch.setenv("MCTRACK_NUMBA", "0")  # numpy only: nothing to compile
     assert not cli.kernels_cold()
 
