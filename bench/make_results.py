@@ -2,7 +2,7 @@
 
     python bench/make_results.py [--kitti-root ../shared/data/kitti/tracking] [--skip-speed]
         [--tune car.json pedestrian.json ...] [--robustness robustness.json]
-        [--earlier-tunes other_car_online.json ...]
+        [--earlier-tunes earlier_car_online.json ...]
 
 Runs (same PointRCNN detections, same TrackEval KITTI 2D-box protocol, 11 validation sequences):
   1. our tuned config online (car, pedestrian, cyclist) and offline (car),
@@ -163,7 +163,7 @@ def output_model_section(root: Path) -> list[str]:
 def gate_section(root: Path, earlier: list[str]) -> list[str]:
     """The online output gate on a track's mean log-odds (`lifecycle.track_score_min`): car for
     every detector off, at a few values and at the shipped one; pedestrian and cyclist off and
-    shipped; and the held-out figures of other car tunes (``earlier``) beside the shipped one."""
+    shipped; and the held-out figures of earlier car tunes (``earlier``) beside the shipped one."""
     rows = []
     shipped = load_config("kitti").per_category
     off = -float("inf")
@@ -184,8 +184,9 @@ def gate_section(root: Path, earlier: list[str]) -> list[str]:
         " while the mean log-odds of its hits' calibrated scores reaches the gate. Noisy-OR"
         " confirmation counts every hit as independent evidence; a detector's persistent false"
         " positives (walls, parked trailers at p 0.1-0.4) are not independent, and their mean"
-        ' stays low. 0 is "more likely real than not", the decision boundary, not a tuned'
-        " value. In-sample, everything else shipped, `mctrack kitti --detector D --classes C`"
+        ' stays low. 0 would be "more likely real than not" for independent hits; the car\'s'
+        " value is searched by `mctrack tune` with its other settings, pedestrians and cyclists"
+        " keep 0. In-sample, everything else shipped, `mctrack kitti --detector D --classes C`"
         " with the gate overridden:",
         "",
         table(rows),
@@ -194,10 +195,9 @@ def gate_section(root: Path, earlier: list[str]) -> list[str]:
         recs = [(Path(f).name, json.loads(Path(f).read_text())) for f in earlier]
         header = " | ".join(f"held out / in-sample, `{name}`" for name, _ in recs)
         lines += [
-            "Car online, held out / in-sample HOTA of other tunes (same command, folds and"
-            " seed; `car_online_without_gate.json` ran without the gate,"
-            " `car_online_gate_searched.json` searched it, -1.5..0.5, with the other settings)"
-            " beside the shipped one (`car_online.json`, gate 0):",
+            "Car online, held out / in-sample HOTA of earlier tunes (same command, folds and"
+            " seed; each record gives its trials and whether it searched the gate) beside the"
+            " shipped one (`car_online.json`, 32 trials, gate searched):",
             "",
             f"| detector | {header} |",
             "|---|" + "---:|" * len(recs),
@@ -402,7 +402,7 @@ def main() -> int:
     )
     parser.add_argument(
         "--earlier-tunes", nargs="*", default=[],
-        help="tune.json files of other car online tunes, quoted beside the shipped one",
+        help="tune.json files of earlier car online tunes, quoted beside the shipped one",
     )  # fmt: skip
     parser.add_argument("--out", default=str(ROOT / "docs" / "results.md"))
     args = parser.parse_args()

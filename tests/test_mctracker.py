@@ -29,7 +29,7 @@ GOLDEN = Path(__file__).resolve().parent / "golden" / "sample_metrics.json"
 
 
 def config(**lifecycle: int | float):
-    """KITTI config with explicit, test-owned lifecycle numbers (not the tuned ones)."""
+    """KITTI config with explicit, test-owned lifecycle and filter numbers (not the tuned ones)."""
     life = {
         "min_hits": 2,
         "confirm_score": 2.0,
@@ -45,7 +45,12 @@ def config(**lifecycle: int | float):
             "rv_matching": False,
             "defaults": {"score_min": 0.1, "birth_score_min": 0.5, "lifecycle": life},
             "category": {
-                name: {"score_min": 0.1, "birth_score_min": 0.5, "lifecycle": life}
+                name: {
+                    "score_min": 0.1,
+                    "birth_score_min": 0.5,
+                    "lifecycle": life,
+                    "pose": {"motion": "ca", "ca": {"r": [0.1, 0.1]}},  # trusts each box
+                }
                 for name in ("car", "pedestrian", "cyclist")
             },
         },

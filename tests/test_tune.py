@@ -9,6 +9,7 @@ import pytest
 
 from app.cli import main
 from app.tune import (
+    CAR_SPACE,
     ONLINE_SPACE,
     _current,
     noise_levels,
@@ -79,7 +80,19 @@ def test_only_pedestrians_search_their_2d_box_width() -> None:
     assert "image_width_scale" in search_space("pedestrian", "online")
     assert "image_width_scale" in search_space("pedestrian", "offline")
     assert "image_width_scale" not in search_space("car", "online")
-    assert set(search_space("car", "online")) == set(ONLINE_SPACE)
+    assert set(search_space("car", "online")) == set(ONLINE_SPACE) | set(CAR_SPACE)
+
+
+def test_only_cars_search_the_online_output_gate() -> None:
+    gate = "lifecycle.track_score_min"
+    assert gate in search_space("car", "online")
+    for cls, mode in [("car", "offline"), ("pedestrian", "online"), ("cyclist", "online")]:
+        assert gate not in search_space(cls, mode)
+    overrides = settings_to_overrides("car", {gate: -0.7})
+    assert (
+        load_config("kitti", overrides=overrides).per_category["car"].lifecycle.track_score_min
+        == -0.7
+    )
     overrides = settings_to_overrides("pedestrian", {"image_width_scale": 0.7})
     assert load_config("kitti", overrides=overrides).image_width_scales()[
         load_config("kitti").category_ids[1]
