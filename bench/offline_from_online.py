@@ -35,35 +35,52 @@ from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti  # noqa: E40
 MODES = {"online": "kitti", "offline": "kitti_offline"}
 
 
-def held_out(record_path: Path, root: Path) -> dict[str, dict[str, dict[str, Any]]]:
-    """``{detector: {"online" | "offline": metrics}}`` over the record's held-out folds."""
+def held_out(
+    record_path: Path,
+    root: Path,
+    *,
+    detectors: list[str] | None = None,
+    modes: tuple[str, ...] = ("online", "offline"),
+    profile: str = "labels",
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """``{detector: {mode: metrics}}`` over the record's held-out folds.
+
+    ``detectors``: those to track (default: the record's own; others are held out as detectors
+    too). ``profile``: "labels", each fold's score profile fitted on its training sequences (as
+    the tune does), or "self", the label-free profile fitted on the detections themselves (what
+    a detector without a profile gets)."""
+    from tracker.eval.calibrate import fit_self_profile
+
     record = json.loads(record_path.read_text())
     if record["mode"] != "online":
         raise SystemExit(f"{record_path}: an online tune record is needed")
     cls = record["class"]
     label_dir = root / "training" / "label_02"
     out: dict[str, dict[str, dict[str, Any]]] = {}
-    with tempfile.TemporaryDirectory(prefix="offline-held-out-") as tmp:
+    with tempfile.TemporaryDirectory(prefix="fold-figures-") as tmp:
         work = Path(tmp)
-        for det in record["detectors"]:
+        for det in detectors or record["detectors"]:
             raw, gt = convert_kitti(root, seqs=VALIDATION_SEQS, detector=det, classes=[cls])
             lengths = {s: len(f) for s, f in raw.items()}
             if [f["test"] for f in record["cv"]] != folds_by_frames(lengths, len(record["cv"])):
                 raise SystemExit(f"{record_path}: its folds are not this kit's")
+            self_profile = fit_self_profile(det, raw, [cls]) if profile == "self" else None
             for k, fold in enumerate(record["cv"]):
                 train = [s for s in lengths if s not in fold["test"]]
-                profile = fit_profile(det, {s: raw[s] for s in train}, gt or {}, [cls])
+                fitted = self_profile or fit_profile(
+                    det, {s: raw[s] for s in train}, gt or {}, [cls]
+                )
                 key = (det, f"fold{k}", "clean")
-                tune._FRAMES[key] = {s: calibrate_frames(raw[s], profile) for s in fold["test"]}
+                tune._FRAMES[key] = {s: calibrate_frames(raw[s], fitted) for s in fold["test"]}
                 overrides = {"categories": [cls], **settings_to_overrides(cls, fold["best"])}
-                for mode, config in MODES.items():
+                for mode in modes:
                     result_dir = str(work / mode / det)
-                    task = (key, fold["test"], config, overrides, result_dir, str(label_dir),
-                            cls, False)  # fmt: skip
+                    task = (key, fold["test"], MODES[mode], overrides, result_dir,
+                            str(label_dir), cls, False)  # fmt: skip
                     _track_and_score(task)
                 del tune._FRAMES[key]
             out[det] = {
-                mode: _evaluate_dir(work / mode / det, label_dir, lengths, cls) for mode in MODES
+                mode: _evaluate_dir(work / mode / det, label_dir, lengths, cls) for mode in modes
             }
     return out
 
