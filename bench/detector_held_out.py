@@ -21,10 +21,11 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "bench"))
+from offline_from_online import held_out  # bench/, this script's folder
 
-from offline_from_online import held_out  # noqa: E402
+from app.inputs import default_kitti_root
+
+ROOT = Path(__file__).resolve().parents[1]
 
 DETECTORS = ("pointrcnn", "virconv", "second_iou")
 
@@ -43,7 +44,7 @@ def tune_without(held: str, work: Path, root: Path, trials: int) -> Path:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--kitti-root", default=str(ROOT.parent / "shared/data/kitti/tracking"))
+    parser.add_argument("--kitti-root", type=Path, default=None)
     parser.add_argument(
         "--work",
         default=str(ROOT / "docs/tune/detector_held_out"),
@@ -53,7 +54,8 @@ def main() -> int:
     parser.add_argument("--shipped", default=str(ROOT / "docs/tune/car_online.json"))
     parser.add_argument("--out", default=str(ROOT / "docs/detector_held_out.md"))
     args = parser.parse_args()
-    root, work, shipped = Path(args.kitti_root), Path(args.work), Path(args.shipped)
+    root = args.kitti_root or default_kitti_root()
+    work, shipped = Path(args.work), Path(args.shipped)
     start = time.perf_counter()
     rows = []
     for det in DETECTORS:

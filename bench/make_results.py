@@ -359,10 +359,8 @@ def offline_section(root: Path, tunes: list[str], earlier: list[str]) -> list[st
     (bench/offline_from_online.py); ``earlier``: separately tuned offline records, quoted."""
     from offline_from_online import held_out
 
-    online_recs = [
-        p for p in tunes if (lambda r: r["class"] == "car" and r["mode"] == "online")(
-            json.loads(Path(p).read_text()))
-    ]  # fmt: skip
+    records = {p: json.loads(Path(p).read_text()) for p in tunes}
+    online_recs = [p for p, r in records.items() if (r["class"], r["mode"]) == ("car", "online")]
     if not online_recs:
         return []
     figures = held_out(Path(online_recs[0]), root)

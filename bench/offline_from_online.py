@@ -13,24 +13,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from app import tune
+from app.inputs import default_kitti_root
+from app.tune import _evaluate_dir, _track_and_score, folds_by_frames, settings_to_overrides
+from tracker.calibration import calibrate_frames
+from tracker.eval.calibrate import fit_profile, fit_self_profile
+from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti
 
-from app import tune  # noqa: E402
-from app.tune import (  # noqa: E402
-    _evaluate_dir,
-    _track_and_score,
-    folds_by_frames,
-    settings_to_overrides,
-)
-from tracker.calibration import calibrate_frames  # noqa: E402
-from tracker.eval.calibrate import fit_profile  # noqa: E402
-from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti  # noqa: E402
+ROOT = Path(__file__).resolve().parents[1]
 
 MODES = {"online": "kitti", "offline": "kitti_offline"}
 
@@ -49,8 +43,8 @@ def held_out(
     too). ``profile``: "labels", each fold's score profile fitted on its training sequences (as
     the tune does), or "self", the label-free profile fitted on the detections themselves (what
     a detector without a profile gets)."""
-    from tracker.eval.calibrate import fit_self_profile
-
+    if profile not in ("labels", "self"):
+        raise ValueError(f"profile: expected 'labels' or 'self', got {profile!r}")
     record = json.loads(record_path.read_text())
     if record["mode"] != "online":
         raise SystemExit(f"{record_path}: an online tune record is needed")
@@ -67,8 +61,10 @@ def held_out(
             self_profile = fit_self_profile(det, raw, [cls]) if profile == "self" else None
             for k, fold in enumerate(record["cv"]):
                 train = [s for s in lengths if s not in fold["test"]]
-                fitted = self_profile or fit_profile(
-                    det, {s: raw[s] for s in train}, gt or {}, [cls]
+                fitted = (
+                    self_profile
+                    if self_profile is not None
+                    else fit_profile(det, {s: raw[s] for s in train}, gt or {}, [cls])
                 )
                 key = (det, f"fold{k}", "clean")
                 tune._FRAMES[key] = {s: calibrate_frames(raw[s], fitted) for s in fold["test"]}
@@ -88,9 +84,10 @@ def held_out(
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("record", nargs="?", default=str(ROOT / "docs/tune/car_online.json"))
-    parser.add_argument("--kitti-root", default=str(ROOT.parent / "shared/data/kitti/tracking"))
+    parser.add_argument("--kitti-root", type=Path, default=None)
     args = parser.parse_args()
-    for det, by_mode in held_out(Path(args.record), Path(args.kitti_root)).items():
+    figures = held_out(Path(args.record), args.kitti_root or default_kitti_root())
+    for det, by_mode in figures.items():
         on, off = by_mode["online"], by_mode["offline"]
         print(
             f"{det:12s} held out: online {on['HOTA']:.2f}  offline {off['HOTA']:.2f}"
