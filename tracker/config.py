@@ -166,6 +166,10 @@ class OfflineConfig:
     # offline only: each track's positions smoothed by a centred local quadratic fit over this
     # many seconds (Savitzky-Golay; 0 = off): no filter lag, and the box noise averages out
     smooth_seconds: float = 0.0
+    # offline only: x, y of each detected row from the RTS smoother (the online pose filter over
+    # the track's detections, then its backward pass: tracker.smoothing), instead of the online
+    # filter's estimate, which lags behind a moving object
+    rts: bool = False
     # offline only: each track gets one size, the mean of its detected rows' (filtered) sizes
     constant_size: bool = False
 

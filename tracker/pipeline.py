@@ -8,7 +8,10 @@ Offline mode (reference §2.9, improved): run online with the offline config, th
      position, size, heading (on the circle) and velocity — replacing coasting predictions,
   3. drop trailing coasting rows after the last real detection (offline knows the track ended),
   4. (``offline.smooth_seconds`` > 0) smooth each track's positions by a centred local quadratic
-     fit before interpolating (:func:`smooth_positions`),
+     fit before interpolating (:func:`smooth_positions`); with ``offline.rts``, x and y of its
+     detected rows come from the RTS smoother over its detections instead
+     (:func:`tracker.smoothing.rts_smooth`: the online filter without its lag; velocity and
+     acceleration too),
   5. (``offline.constant_size``) give each track one size, the mean of its detected rows'
      (:func:`mean_size_per_track`): a rigid object's size does not change.
 """
@@ -31,6 +34,7 @@ from tracker.events import Observer, TrackOutput, TrackStatus
 from tracker.frame import Frame
 from tracker.geometry import wrap_angle
 from tracker.mctracker import MCTracker
+from tracker.smoothing import rts_smooth
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +69,7 @@ def run_scene(
     for frame in frames:
         outputs.append(tracker.step(frame))
     if config.mode is TrackingMode.OFFLINE:
-        outputs = offline_postprocess(outputs, config, removed=removed)
+        outputs = offline_postprocess(outputs, config, removed=removed, frames=frames)
     elapsed = time.perf_counter() - start
     scene = frames[0].scene if frames else ""
     if removed:
@@ -85,10 +89,12 @@ def offline_postprocess(
     config: TrackerConfig,
     *,
     removed: list[RemovedTrack] | None = None,
+    frames: Sequence[Frame] | None = None,
 ) -> list[TrackOutput]:
     """Track-score filter and gap interpolation over a whole scene (see module docstring).
 
-    Whole tracks removed by the filter are appended to ``removed`` (when given).
+    Whole tracks removed by the filter are appended to ``removed`` (when given). ``frames``, the
+    scene's input frames, are needed by ``offline.rts`` (without them it is off).
     """
     if not outputs:
         return outputs
@@ -127,6 +133,29 @@ def offline_postprocess(
     if window >= 3:
         xyz = smooth_positions(boxes.xyz, boxes.track_id, frame_index, keep, window)
         boxes = boxes.replace(xyz=xyz)
+    if config.offline.rts and frames is not None:
+        # position, velocity and acceleration (x, y) of the detected rows: the online pose filter
+        # rerun over the track's detections, then smoothed backwards (tracker.smoothing); z keeps
+        # the fit above
+        measured = np.flatnonzero(keep & (det_row >= 0))
+        det_xy = np.zeros((len(measured), 2))
+        for f in np.unique(frame_index[measured]):
+            at = frame_index[measured] == f
+            det_xy[at] = frames[int(f)].boxes.xyz[det_row[measured[at]], :2]
+        state = rts_smooth(
+            np.array([o.time_secs for o in outputs]),
+            frame_index[measured],
+            boxes.track_id[measured],
+            det_xy,
+            boxes.category[measured],
+            config,
+        )
+        xyz, velocity = boxes.xyz.copy(), boxes.velocity.copy()
+        xyz[measured, :2], velocity[measured] = state[..., 0], state[..., 1]
+        boxes = boxes.replace(xyz=xyz, velocity=velocity)
+        acc = acc.copy()
+        has_acc = np.isfinite(acc[measured]).all(axis=1)  # (NaN: a CV category has none)
+        acc[measured[has_acc]] = state[has_acc, :, 2]
     if config.offline.constant_size:
         boxes = boxes.replace(lwh=mean_size_per_track(boxes.lwh, boxes.track_id, keep))
     parts: list[list[Boxes]] = [[] for _ in outputs]

@@ -1,0 +1,124 @@
+"""Offline smoothing of whole tracks: the online Kalman filter's forward pass, then the
+Rauch-Tung-Striebel backward pass.
+
+Online, a track's position at frame t can only use the detections up to t, so a filter that
+trusts one box little (a large R, what noisy detections ask for) lags behind a moving object.
+Offline, the whole track is known: the RTS smoother (Rauch, Tung and Striebel 1965) gives each
+frame the estimate conditioned on *all* the track's detections, with the online filter's own
+motion model and noise, so it averages the boxes' noise without the lag:
+
+    forward (the online filter):  x̂ₜ⁻ = F x̂ₜ₋₁,  Pₜ⁻ = F Pₜ₋₁ Fᵀ + Q;  update with zₜ when detected
+    backward:                      Cₜ = Pₜ Fᵀ (Pₜ₊₁⁻)⁻¹,  x̃ₜ = x̂ₜ + Cₜ (x̃ₜ₊₁ − x̂ₜ₊₁⁻)
+
+x and y are independent chains [p, v(, a)] (the tracker's decoupled pose filter), so every track
+and both axes run as one batch, frame by frame.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tracker.boxes import FloatArray, IntArray
+from tracker.config import MotionModel, TrackerConfig
+
+_RIDGE = 1e-12  # keeps P⁻ invertible where a CV chain has a zero-variance acceleration
+
+
+def _axis_noise(config: TrackerConfig, category: IntArray) -> tuple[FloatArray, ...]:
+    """Per track: P0 and Q (n, 2, 3) and R (n, 2) of its category's pose filter, as [p, v, a]
+    chains of x and y (a CV pose has zero acceleration variances: CA is then exactly CV)."""
+    names = dict(zip(config.category_ids, config.categories, strict=True))
+    p0, q, r = (
+        np.zeros((len(category), 2, 3)),
+        np.zeros((len(category), 2, 3)),
+        np.zeros((len(category), 2)),
+    )
+    for i, c in enumerate(category):
+        cfg = config.per_category[names[int(c)]].pose
+        pose = cfg.ca if cfg.motion is MotionModel.CA else cfg.cv
+        order = len(pose.p) // 2
+        p0[i, :, :order] = np.reshape(pose.p, (order, 2)).T
+        q[i, :, :order] = np.reshape(pose.q, (order, 2)).T
+        r[i] = pose.r[:2]
+    return p0, q, r
+
+
+def rts_smooth(
+    times: FloatArray,
+    frame_index: IntArray,
+    track: IntArray,
+    xy: FloatArray,
+    category: IntArray,
+    config: TrackerConfig,
+) -> FloatArray:
+    """(N, 2, 3) RTS-smoothed states [p, v, a] of x and y at N measurements (at most one per
+    track and frame): position (m), velocity (m/s), acceleration (m/s², 0 for a CV pose).
+
+    ``times`` (F,) seconds of the scene's frames; ``frame_index`` (N,) each measurement's frame;
+    ``track`` (N,) its track (any integer ids); ``xy`` (N, 2) the measured centres;
+    ``category`` (N,) the track's category (a tracked one). Every frame from a track's first
+    measurement to its last is a filter step, predicted only where it has no measurement."""
+    xy = np.asarray(xy, dtype=np.float64)
+    if not len(xy):
+        return np.zeros((0, 2, 3))
+    ids, tk = np.unique(track, return_inverse=True)
+    n = len(ids)
+    first = np.full(n, np.iinfo(np.int64).max)
+    last = np.full(n, -1)
+    np.minimum.at(first, tk, frame_index)
+    np.maximum.at(last, tk, frame_index)
+    cat = np.zeros(n, dtype=np.int64)
+    cat[tk] = category
+    p0, q, r = _axis_noise(config, cat)
+    z = np.full((len(times), n, 2), np.nan)  # z[t, track]: its measured centre (NaN: none)
+    z[frame_index, tk] = xy
+    eye = np.eye(3)
+    x, P = np.zeros((n, 2, 3)), np.zeros((n, 2, 3, 3))
+    # forward pass (the online filter), keeping per frame what the backward pass needs
+    steps = []
+    for t in range(int(first.min()), int(last.max()) + 1):
+        live = np.flatnonzero((first <= t) & (last >= t))
+        if not len(live):
+            continue
+        born = live[first[live] == t]
+        x[born] = 0.0
+        x[born, :, 0] = z[t, born]
+        P[born] = p0[born][..., None] * eye
+        going = live[first[live] < t]  # alive in the previous frame too: predicted
+        F = eye
+        if len(going):
+            dt = float(times[t] - times[t - 1])
+            F = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+            x[going] = x[going] @ F.T  # x̂⁻ = F x̂
+            P_pred = F @ P[going] @ F.T  # P⁻ = F P Fᵀ + Q (Q per nominal frame, as online)
+            P_pred += (q[going] * (dt / config.nominal_dt_secs))[..., None] * eye
+            P[going] = P_pred
+        x_pred, P_pred = x[going].copy(), P[going].copy()
+        # update of the value with the measurement, variance r (rows without one keep x̂⁻)
+        zt = z[t, live]
+        seen = np.isfinite(zt)
+        Pl = P[live]
+        gain = Pl[..., :, 0] / (Pl[..., 0, 0] + r[live])[..., None]
+        gain *= seen[..., None]
+        x[live] += gain * np.where(seen, zt - x[live, :, 0], 0.0)[..., None]
+        Pl = Pl - gain[..., :, None] * Pl[..., 0, None, :]
+        P[live] = 0.5 * (Pl + np.swapaxes(Pl, -1, -2))
+        steps.append((t, live, going, x_pred, P_pred, F, x[live].copy(), P[live].copy()))
+    # backward pass: x̃ₜ = x̂ₜ + Cₜ (x̃ₜ₊₁ − x̂ₜ₊₁⁻), Cₜ = Pₜ Fᵀ (Pₜ₊₁⁻)⁻¹
+    smoothed = np.zeros((n, 2, 3))
+    out = np.full((len(times), n, 2, 3), np.nan)
+    after = None  # the next frame's (going, x̂⁻, P⁻, F)
+    for t, live, going, x_pred, P_pred, F, x_f, P_f in reversed(steps):
+        xs = x_f
+        if after is not None and len(after[0]):
+            rows, x_next, P_next, F_next = after
+            pos = np.searchsorted(live, rows)  # (the next frame's predicted rows live here)
+            # Cₜᵀ = (Pₜ₊₁⁻)⁻¹ F Pₜ (both covariances symmetric)
+            gain_t = np.linalg.solve(P_next + _RIDGE * eye, F_next @ P_f[pos])
+            diff = smoothed[rows] - x_next
+            xs = x_f.copy()
+            xs[pos] += (np.swapaxes(gain_t, -1, -2) @ diff[..., None])[..., 0]
+        smoothed[live] = xs
+        out[t, live] = xs
+        after = (going, x_pred, P_pred, F)
+    return out[frame_index, tk]
