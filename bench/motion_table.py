@@ -76,8 +76,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     plot_copy = None
     plot = summary["motion"].get("plot")
     if plot and Path(plot["path"]).is_file():
-        # the page embeds the run's plot: copied next to it
-        plot_copy = out.parent / Path(plot["path"]).name
+        # the page embeds the run's plot: copied next to it, named after the page (two pages,
+        # say online and offline, must not share one picture)
+        plot_copy = out.parent / f"{out.stem.removesuffix('_results')}_velocity.png"
         if Path(plot["path"]).resolve() != plot_copy.resolve():
             shutil.copyfile(plot["path"], plot_copy)
     text = motion_page(

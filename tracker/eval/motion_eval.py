@@ -28,7 +28,8 @@ Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4
    there; every estimator is scored on exactly the same rows.
 4. **Estimators** at each sample (all m/s, world frame):
 
-   - ``kalman``: the tracker's filtered velocity (the output box's ``velocity``).
+   - ``kalman``: the tracker's velocity (the output box's ``velocity``): the Kalman filter's
+     online, its RTS smoother's offline (``offline.rts``).
    - ``detection``: the matched detection's own velocity. When no detection of the evaluated
      classes has a non-zero velocity (KITTI's PointRCNN gives none) the estimator is *absent*:
      NaN metrics and the note ``n/a: detector has no velocity``, never zeros.
@@ -114,7 +115,9 @@ class Estimator(enum.Enum):
 
 
 ESTIMATOR_DESCRIPTIONS: Final[dict[Estimator, str]] = {
-    Estimator.KALMAN: "tracker's filtered (Kalman) velocity",
+    Estimator.KALMAN: (
+        "the tracker's output velocity: its Kalman filter's (online) or RTS smoother's (offline)"
+    ),
     Estimator.DETECTION: "matched detection's own velocity",
     Estimator.DIFFERENCE: "backward difference of the track's detection centres, real time",
     Estimator.CURVE_FIT: "LSQ line over the track's last 3 detection centres, m/s",
