@@ -270,34 +270,62 @@ def shape_section(root: Path) -> list[str]:
     ]
 
 
+LEVELS = ("clean", "noise", "double")
+
+
+def rerun_robustness(root: Path, shipped: dict[str, Any], configs: dict[str, str]) -> dict:
+    """The robustness benchmark of ``shipped`` (its detector, sequences, classes, seeds and the
+    levels of LEVELS it ran) rerun per ``configs`` entry: a built-in config name, or the text
+    of a TOML file (written to a temporary folder). Returns {name: report}."""
+    from app.robustness import run_robustness
+
+    levels = [name for name in shipped["levels"] if name in LEVELS]
+    out = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, config in configs.items():
+            if "\n" in config:  # TOML text
+                path = Path(tmp) / f"{name}.toml"
+                path.write_text(config)
+                config = str(path)
+            out[name] = run_robustness(
+                kitti_root=root, seqs=shipped["sequences"], classes=shipped["classes"],
+                config_name=config, detector=shipped["detector"], levels=levels,
+                seeds=shipped["seeds"], out=Path(tmp) / name, quiet=True,
+            )  # fmt: skip
+    return out
+
+
+def robustness_table(columns: dict[str, dict[str, Any]], *, deltas: bool) -> list[str]:
+    """Markdown HOTA table, level x (class, column): ``columns`` {label: robustness report};
+    with ``deltas``, each noisy cell also gives its change from the report's clean level."""
+    first = next(iter(columns.values()))
+    classes = first["classes"]
+    levels = [name for name in first["levels"] if name in LEVELS]
+    head = " | ".join(f"{c} {label}" for c in classes for label in columns)
+    lines = [f"| level | {head} |", "|---|" + "---:|" * (len(classes) * len(columns))]
+    for level in levels:
+        cells = []
+        for c in classes:
+            for rep in columns.values():
+                hota = rep["levels"][level]["summary"][c]["HOTA_mean"]
+                clean = rep["levels"]["clean"]["summary"][c]["HOTA_mean"]
+                delta = f" ({hota - clean:+.2f})" if deltas and level != "clean" else ""
+                cells.append(f"{hota:.2f}{delta}")
+        lines.append(f"| {level} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def buffer_section(root: Path, shipped_path: str | None) -> list[str]:
     """The buffered BEV cost against plain boxes, on clean and noisy detections (its effect is
     under noise): the robustness benchmark rerun with `bev.buffer = 0` for every class."""
     if not shipped_path:
         return []
-    from app.robustness import run_robustness
-
     shipped = json.loads(Path(shipped_path).read_text())
-    levels = [name for name in shipped["levels"] if name in ("clean", "noise", "double")]
-    with tempfile.TemporaryDirectory() as tmp:
-        plain_toml = Path(tmp) / "kitti_plain_boxes.toml"
-        plain_toml.write_text(
-            'base = "kitti"\n'
-            + "".join(f"[category.{c}]\nbev.buffer = 0.0\n" for c in shipped["classes"])
-        )
-        plain = run_robustness(
-            kitti_root=root, seqs=shipped["sequences"], classes=shipped["classes"],
-            config_name=plain_toml, detector=shipped["detector"], levels=levels,
-            seeds=shipped["seeds"], out=Path(tmp) / "out", quiet=True,
-        )  # fmt: skip
-    head = "| level | " + " | ".join(f"{c} 0.3 (shipped) | {c} 0 (off)" for c in shipped["classes"])
-    lines = [head + " |", "|---|" + "---:|---:|" * len(shipped["classes"])]
-    for level in levels:
-        cells = []
-        for c in shipped["classes"]:
-            for rep in (shipped, plain):
-                cells.append(f"{rep['levels'][level]['summary'][c]['HOTA_mean']:.2f}")
-        lines.append(f"| {level} | " + " | ".join(cells) + " |")
+    plain_toml = 'base = "kitti"\n' + "".join(
+        f"[category.{c}]\nbev.buffer = 0.0\n" for c in shipped["classes"]
+    )
+    plain = rerun_robustness(root, shipped, {"plain": plain_toml})["plain"]
+    lines = robustness_table({"0.3 (shipped)": shipped, "0 (off)": plain}, deltas=False)
     return [
         "## Buffered boxes in the BEV cost",
         "",
@@ -317,34 +345,17 @@ def offline_robustness_section(root: Path, shipped_path: str | None) -> list[str
     without it, beside online (``shipped_path``: the online robustness.json)."""
     if not shipped_path:
         return []
-    from app.robustness import run_robustness
-
     online = json.loads(Path(shipped_path).read_text())
-    levels = [name for name in online["levels"] if name in ("clean", "noise", "double")]
-    runs = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        no_rts = Path(tmp) / "kitti_offline_no_rts.toml"
-        no_rts.write_text('base = "kitti_offline"\n[offline]\nrts = false\n')
-        for name, config in (("rts", "kitti_offline"), ("no_rts", no_rts)):
-            runs[name] = run_robustness(
-                kitti_root=root, seqs=online["sequences"], classes=online["classes"],
-                config_name=config, detector=online["detector"], levels=levels,
-                seeds=online["seeds"], out=Path(tmp) / name, quiet=True,
-            )  # fmt: skip
-    classes = online["classes"]
-    head = "| level | " + " | ".join(
-        f"{c} online | {c} offline, RTS off | {c} offline (shipped)" for c in classes
+    runs = rerun_robustness(
+        root,
+        online,
+        {"rts": "kitti_offline", "no_rts": 'base = "kitti_offline"\n[offline]\nrts = false\n'},
     )
-    lines = [head + " |", "|---|" + "---:|---:|---:|" * len(classes)]
-    for level in levels:
-        cells = []
-        for c in classes:
-            for rep in (online, runs["no_rts"], runs["rts"]):
-                m = rep["levels"][level]["summary"][c]
-                clean = rep["levels"]["clean"]["summary"][c]["HOTA_mean"]
-                delta = "" if level == "clean" else f" ({m['HOTA_mean'] - clean:+.2f})"
-                cells.append(f"{m['HOTA_mean']:.2f}{delta}")
-        lines.append(f"| {level} | " + " | ".join(cells) + " |")
+    columns = {
+        "online": online,
+        "offline, RTS off": runs["no_rts"],
+        "offline (shipped)": runs["rts"],
+    }
     return [
         "### Offline under noise",
         "",
@@ -354,7 +365,7 @@ def offline_robustness_section(root: Path, shipped_path: str | None) -> list[str
         " without it (each row keeps the online filter's estimate, then the 1.5 s local"
         " quadratic fit). HOTA, mean over the same seeds (Δ from clean); PointRCNN:",
         "",
-        *lines,
+        *robustness_table(columns, deltas=True),
         "",
         "The online estimate trails a moving object by as much as its filter distrusts one"
         " box, and the noise-robust settings distrust it a lot (car r = 1.72 m²); the smoother"
