@@ -11,7 +11,8 @@ motion model and noise, so it averages the boxes' noise without the lag:
     backward:                      Cₜ = Pₜ Fᵀ (Pₜ₊₁⁻)⁻¹,  x̃ₜ = x̂ₜ + Cₜ (x̃ₜ₊₁ − x̂ₜ₊₁⁻)
 
 x and y are independent chains [p, v(, a)] (the tracker's decoupled pose filter), so every track
-and both axes run as one batch, frame by frame.
+and both axes run as one batch, frame by frame. Only the detected centres are measurements: where
+the online filter also measures a detector's velocity (nuScenes), the smoother does not.
 """
 
 from __future__ import annotations
