@@ -180,6 +180,13 @@ class _PerCategory:
         )
 
 
+def motion_noise_tables(config: TrackerConfig) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """P0 and Q (C, 5, k) and R (C, 5, 2) of the tracker's per-axis motion filter, indexed by
+    global category id: the tables :class:`MCTracker` filters with (``tracker.kalman``)."""
+    cat = _PerCategory(config)
+    return cat.motion_p0, cat.motion_q, cat.motion_r
+
+
 class MCTracker:
     """The MCTrack tracker for one scene (create one per scene, or call :meth:`reset`).
 

@@ -138,10 +138,10 @@ def offline_postprocess(
         # rerun over the track's detections, then smoothed backwards (tracker.smoothing); z keeps
         # the fit above
         measured = np.flatnonzero(keep & (det_row >= 0))
-        det_xy = np.zeros((len(measured), 2))
-        for f in np.unique(frame_index[measured]):
-            at = frame_index[measured] == f
-            det_xy[at] = frames[int(f)].boxes.xyz[det_row[measured[at]], :2]
+        start = np.cumsum([0] + [len(f.boxes) for f in frames])  # each frame's first detection
+        det_xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames] or [np.zeros((0, 2))])[
+            start[frame_index[measured]] + det_row[measured]
+        ]
         state = rts_smooth(
             np.array([o.time_secs for o in outputs]),
             frame_index[measured],

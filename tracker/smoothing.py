@@ -20,28 +20,25 @@ from __future__ import annotations
 import numpy as np
 
 from tracker.boxes import FloatArray, IntArray
-from tracker.config import MotionModel, TrackerConfig
+from tracker.config import TrackerConfig
+from tracker.kalman import Axis
+from tracker.mctracker import motion_noise_tables
 
 _RIDGE = 1e-12  # keeps P⁻ invertible where a CV chain has a zero-variance acceleration
 
 
 def _axis_noise(config: TrackerConfig, category: IntArray) -> tuple[FloatArray, ...]:
     """Per track: P0 and Q (n, 2, 3) and R (n, 2) of its category's pose filter, as [p, v, a]
-    chains of x and y (a CV pose has zero acceleration variances: CA is then exactly CV)."""
-    names = dict(zip(config.category_ids, config.categories, strict=True))
-    p0, q, r = (
-        np.zeros((len(category), 2, 3)),
-        np.zeros((len(category), 2, 3)),
-        np.zeros((len(category), 2)),
+    chains of x and y: the tracker's own tables (a CV pose has zero acceleration variances,
+    so CA is then exactly CV)."""
+    p0, q, r = motion_noise_tables(config)
+    pad = ((0, 0), (0, 0), (0, 3 - p0.shape[-1]))  # (k = 2 when every tracked class is CV)
+    xy = slice(Axis.X, Axis.Y + 1)
+    return (
+        np.pad(p0[:, xy], pad)[category],
+        np.pad(q[:, xy], pad)[category],
+        r[:, xy, 0][category],
     )
-    for i, c in enumerate(category):
-        cfg = config.per_category[names[int(c)]].pose
-        pose = cfg.ca if cfg.motion is MotionModel.CA else cfg.cv
-        order = len(pose.p) // 2
-        p0[i, :, :order] = np.reshape(pose.p, (order, 2)).T
-        q[i, :, :order] = np.reshape(pose.q, (order, 2)).T
-        r[i] = pose.r[:2]
-    return p0, q, r
 
 
 def rts_smooth(
