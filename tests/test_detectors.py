@@ -25,6 +25,7 @@ from tracker.calibration import (
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.eval.calibrate import (
+    chain_ids,
     fit_map,
     fit_profile,
     fit_self_profile,
@@ -318,6 +319,47 @@ def test_self_calibration_recovers_a_known_precision_without_labels(tmp_path: Pa
     path = tmp_path / "self.toml"
     path.write_text(profile_toml(profile))
     np.testing.assert_allclose(load_profile(path).maps["car"](grid), fitted, atol=1e-3)
+
+
+def test_chains_link_each_box_to_its_nearest_predecessor_within_its_length() -> None:
+    one = np.array([1.0])
+    frames = [
+        _car_frame(0, np.array([[0.0, 0.0], [50.0, 0.0]]), np.ones(2)),
+        _car_frame(1, np.array([[3.0, 0.0], [20.0, 0.0]]), np.ones(2)),  # 20 m: a new chain
+        _car_frame(2, np.zeros((0, 2)), np.zeros(0)),  # an empty frame breaks every chain
+        _car_frame(3, np.array([[3.0, 0.0]]), one),
+        _car_frame(4, np.array([[4.0, 0.0], [6.0, 0.0]]), np.ones(2)),  # both link to frame 3
+    ]
+    ids = chain_ids(frames, "car")
+    assert len(ids) == 7
+    assert ids[0] == ids[2] and len({ids[0], ids[1], ids[3], ids[4]}) == 4
+    assert ids[4] == ids[5] == ids[6]
+    assert len(chain_ids(frames, "pedestrian")) == 0
+
+
+def test_self_calibration_does_not_take_static_clutter_for_real() -> None:
+    """A wall detected in every frame at low score persists like a parked car. Persistence alone
+    calls its boxes real (0.46 off the true P(real | raw)); a persistent box counts only when
+    its chain reaches a confident box, and the wall's never does."""
+    rng = np.random.default_rng(0)
+    cars = rng.uniform(-100, 100, (30, 2))
+    wall = np.column_stack([np.linspace(-95, 95, 10), np.full(10, 101.0)])
+    frames = []
+    for i in range(300):
+        seen = cars[rng.uniform(size=30) < 0.9]
+        fp = rng.uniform(-100, 100, (rng.poisson(20), 2))
+        raw = np.concatenate(
+            [rng.normal(2, 1, len(seen)), rng.normal(-1, 0.5, 10), rng.normal(-1, 1, len(fp))]
+        )
+        frames.append(_car_frame(i, np.vstack([seen, wall, fp]), raw))
+    grid = np.linspace(-2, 3.5, 23)
+    real = 27 * np.exp(-((grid - 2) ** 2) / 2)
+    false = 20 * np.exp(-((grid + 1) ** 2) / 2) + 20 * np.exp(-((grid + 1) ** 2) / 0.5)
+    truth = real / (real + false)
+    chained = fit_self_profile("synthetic", {"s": frames}, ["car"])
+    assert np.max(np.abs(chained.maps["car"](grid) - truth)) < 0.06
+    persistence_only = fit_self_profile("synthetic", {"s": frames}, ["car"], confident=None)
+    assert np.max(np.abs(persistence_only.maps["car"](grid) - truth)) > 0.3
 
 
 def test_a_detector_without_a_profile_is_self_calibrated_and_says_so(

@@ -269,6 +269,11 @@ SELF_MIN_DETECTIONS = 200
 SELF_BAND = (0.05, 0.95)
 #: Least persistence contrast between those quantiles for the map to mean anything.
 SELF_MIN_CONTRAST = 0.2
+#: P(persistent | raw) from which a box counts as confident: a persistent box is taken as real
+#: only if its frame-to-frame chain reaches such a box (None: persistence alone). Chosen by
+#: leave-one-(detector, class)-out over the kit's detectors (docs/results.md, "A detector
+#: without a profile").
+SELF_CONFIDENT = 0.8
 
 
 def persistence_labels(frames: Sequence[Frame], name: str) -> np.ndarray:
@@ -291,54 +296,115 @@ def persistence_labels(frames: Sequence[Frame], name: str) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0, dtype=bool)
 
 
+def chain_ids(frames: Sequence[Frame], name: str) -> IntArray:
+    """(N,) chain id of each of the class's boxes of all ``frames`` (in frame order, as
+    :func:`persistence_labels`): every box is linked to the nearest box of its class in the
+    previous frame when that lies within the box's own length (BEV, world frame), and a chain
+    is a connected component of those links (scipy's ``connected_components``)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    cat = category_index(name)
+    boxes = [f.boxes[f.boxes.category == cat] for f in frames]
+    offsets = np.cumsum([0] + [len(b) for b in boxes])
+    rows, cols = [], []
+    for t in range(1, len(boxes)):
+        prev, cur = boxes[t - 1], boxes[t]
+        if not len(prev) or not len(cur):
+            continue
+        d = cdist(cur.xyz[:, :2], prev.xyz[:, :2])
+        nearest = d.argmin(axis=1)
+        linked = np.flatnonzero(d[np.arange(len(cur)), nearest] <= np.max(cur.lwh[:, :2], axis=1))
+        rows.append(offsets[t] + linked)
+        cols.append(offsets[t - 1] + nearest[linked])
+    n = int(offsets[-1])
+    edges = (np.concatenate(rows), np.concatenate(cols)) if rows else ([], [])
+    graph = coo_matrix((np.ones(len(edges[0])), edges), shape=(n, n))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
+
+
 def fit_self_profile(
-    detector: str, detections: Mapping[str, Sequence[Frame]], classes: Sequence[str]
+    detector: str,
+    detections: Mapping[str, Sequence[Frame]],
+    classes: Sequence[str],
+    confident: float | None = SELF_CONFIDENT,
 ) -> ScoreProfile:
     """A profile fitted without labels, on the detections to be tracked.
 
-    Per class, isotonic regression of persistence (:func:`persistence_labels`) on the raw score
-    gives P(persistent | raw) = a·P(real | raw) + b·(1 - P(real | raw)), with a = P(persistent |
-    real) and b = P(persistent | false). Reading a and b off the fit at the SELF_BAND quantiles
-    of the raw score (boxes there taken as all real and all false) and inverting gives the map
-    (P(persistent) - b) / (a - b). A class with too few boxes or too little contrast keeps the
+    Per class, the pseudo-label of a box is its persistence (:func:`persistence_labels`) and,
+    with ``confident``, that its chain (:func:`chain_ids`) reaches a confident box: one whose
+    raw score is at least where the isotonic fit of P(persistent | raw) reaches ``confident``
+    (at most the top SELF_BAND quantile). Static clutter (a wall, a parked trailer) is detected
+    again where it was, frame after frame, but never confidently; a real object's chain is
+    confident somewhere. Isotonic regression of the pseudo-label on the raw score gives
+    P(label | raw) = a·P(real | raw) + b·(1 - P(real | raw)), with a = P(label | real) and
+    b = P(label | false). Reading a and b off the fit at the SELF_BAND quantiles of the raw
+    score (boxes there taken as all false and all real) and inverting gives the map
+    (P(label) - b) / (a - b). A class with too few boxes or too little contrast keeps the
     fallback score."""
     from sklearn.isotonic import IsotonicRegression
+
+    def isotonic(x: FloatArray, y: np.ndarray) -> IsotonicRegression:
+        iso = IsotonicRegression(y_min=0.0, y_max=1.0, increasing=True, out_of_bounds="clip")
+        return iso.fit(x, y.astype(np.float64))
 
     maps: dict[str, ScoreMap] = {}
     quality: dict[str, dict[str, object]] = {}
     for name in classes:
         cat = category_index(name)
-        raw = np.concatenate(
-            [f.boxes.score_raw[f.boxes.category == cat] for fs in detections.values() for f in fs]
-            or [np.zeros(0)]
-        )
-        persistent = np.concatenate(
-            [persistence_labels(fs, name) for fs in detections.values()] or [np.zeros(0, bool)]
-        )
-        finite = np.isfinite(raw)
-        raw, persistent = raw[finite], persistent[finite]
+        raw_parts, label_parts = [], []
+        for fs in detections.values():
+            raw_parts.append(
+                np.concatenate([f.boxes.score_raw[f.boxes.category == cat] for f in fs] or [[]])
+            )
+            label_parts.append((persistence_labels(fs, name), chain_ids(fs, name)))
+        all_raw = np.concatenate(raw_parts or [np.zeros(0)])
+        persistent = np.concatenate([p for p, _ in label_parts] or [np.zeros(0, bool)])
+        finite = np.isfinite(all_raw)
+        raw = all_raw[finite]
         if len(raw) < SELF_MIN_DETECTIONS:
             quality[name] = {"detections": len(raw), "kept": "no: too few detections"}
             continue
-        iso = IsotonicRegression(y_min=0.0, y_max=1.0, increasing=True, out_of_bounds="clip")
-        iso.fit(raw, persistent.astype(np.float64))
-        false_rate, true_rate = iso.predict(np.quantile(raw, SELF_BAND))
         entry: dict[str, object] = {
             "detections": len(raw),
-            "persistent": round(float(persistent.mean()), 4),
-            "persistent_at_band": [round(float(false_rate), 4), round(float(true_rate), 4)],
+            "persistent": round(float(persistent[finite].mean()), 4),
         }
+        label = persistent
+        if confident is not None:
+            fit = isotonic(raw, persistent[finite])
+            grid = np.sort(raw)
+            reached = grid[fit.predict(grid) >= confident]
+            top = float(np.quantile(raw, SELF_BAND[1]))
+            high = min(float(reached[0]), top) if len(reached) else top
+            chain_max = []
+            for part_raw, (_, chains) in zip(raw_parts, label_parts, strict=True):
+                best = np.full(chains.max() + 1 if len(chains) else 0, -np.inf)
+                np.fmax.at(best, chains, part_raw)  # fmax: a NaN score confirms nothing
+                chain_max.append(best[chains])
+            label = persistent & (np.concatenate(chain_max or [np.zeros(0)]) >= high)
+            entry["confident_raw"] = round(high, 4)
+            entry["chain_confirmed"] = round(float(label[finite].mean()), 4)
+        iso = isotonic(raw, label[finite])
+        false_rate, true_rate = iso.predict(np.quantile(raw, SELF_BAND))
+        entry["label_at_band"] = [round(float(false_rate), 4), round(float(true_rate), 4)]
         if true_rate - false_rate < SELF_MIN_CONTRAST:
-            quality[name] = {**entry, "kept": "no: persistence does not rise with the score"}
+            quality[name] = {**entry, "kept": "no: the pseudo-label does not rise with the score"}
             continue
         knots = _knots(raw)
         maps[name] = _score_map(knots, (iso.predict(knots) - false_rate) / (true_rate - false_rate))
         quality[name] = {**entry, "kept": "yes"}
+    chain = (
+        ""
+        if confident is None
+        else ", whose frame-to-frame chain (nearest box of the class in the previous frame "
+        "within the box's length) reaches a box scoring at least where P(persistent | raw) "
+        f"reaches {confident:g}"
+    )
     fitted_on = {
         "dataset": "the tracked detections themselves (no labels)",
         "sequences": sorted(detections),
         "match": "pseudo-label: a box of the class within the box's length in the previous and "
-        "the next frame (BEV, world frame)",
+        f"the next frame (BEV, world frame){chain}",
         "fit": "sklearn IsotonicRegression of the pseudo-label on the raw score, rescaled so "
         f"that the raw-score quantiles {SELF_BAND[0]:g} and {SELF_BAND[1]:g} map to 0 and 1",
     }
