@@ -269,8 +269,9 @@ SELF_MIN_DETECTIONS = 200
 SELF_BAND = (0.05, 0.95)
 #: Least persistence contrast between those quantiles for the map to mean anything.
 SELF_MIN_CONTRAST = 0.2
-#: P(persistent | raw) from which a box counts as confident: a persistent box is taken as real
-#: only if its frame-to-frame chain reaches such a box (None: persistence alone). Chosen by
+#: A box is confident where P(persistent | raw) reaches this fraction of its value at the top
+#: SELF_BAND quantile; a persistent box is taken as real only if its frame-to-frame chain
+#: reaches a confident box (None: persistence alone). Chosen by
 #: leave-one-(detector, class)-out over the kit's detectors (docs/results.md, "A detector
 #: without a profile").
 SELF_CONFIDENT = 0.8
@@ -323,6 +324,43 @@ def chain_ids(frames: Sequence[Frame], name: str) -> IntArray:
     return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
+def chance_labels(
+    frames: Sequence[Frame], name: str, confirmed: np.ndarray | None = None
+) -> tuple[int, int]:
+    """(labelled, total) over the class's boxes of all ``frames``, each displaced by twice its
+    length in each of the four world axis directions: how often the self-calibration's
+    pseudo-label falls on a box where no box was detected, P(label | false) measured directly.
+    A displaced box is persistent by the rule of :func:`persistence_labels`; with ``confirmed``
+    ((N,) bool per box, as :func:`chain_ids` orders them: its chain reaches a confident box),
+    it must also join a confirmed chain: that of its nearest box in the previous frame (the
+    next one in the first frame)."""
+    cat = category_index(name)
+    boxes = [f.boxes[f.boxes.category == cat] for f in frames]
+    offsets = np.cumsum([0] + [len(b) for b in boxes])
+    labelled = total = 0
+    for t, b in enumerate(boxes):
+        neighbours = [boxes[o] for o in (t - 1, t + 1) if 0 <= o < len(boxes)]
+        if not len(b) or not neighbours:
+            total += 4 * len(b)
+            continue
+        reach = np.max(b.lwh[:, :2], axis=1)
+        link_frame = t - 1 if t > 0 else t + 1
+        for direction in ((2.0, 0.0), (-2.0, 0.0), (0.0, 2.0), (0.0, -2.0)):
+            moved = b.xyz[:, :2] + reach[:, None] * np.asarray(direction)
+            ok = np.ones(len(b), dtype=bool)
+            for other in neighbours:
+                if not len(other):
+                    ok[:] = False
+                    break
+                ok &= cdist(moved, other.xyz[:, :2]).min(axis=1) <= reach
+            if confirmed is not None and ok.any():
+                link = cdist(moved, boxes[link_frame].xyz[:, :2]).argmin(axis=1)
+                ok &= confirmed[offsets[link_frame] + link]
+            labelled += int(ok.sum())
+            total += len(b)
+    return labelled, total
+
+
 def fit_self_profile(
     detector: str,
     detections: Mapping[str, Sequence[Frame]],
@@ -334,12 +372,13 @@ def fit_self_profile(
     Per class, the pseudo-label of a box is its persistence (:func:`persistence_labels`) and,
     with ``confident``, that its chain (:func:`chain_ids`) reaches a confident box: one whose
     raw score is at least where the isotonic fit of P(persistent | raw) reaches ``confident``
-    (at most the top SELF_BAND quantile). Static clutter (a wall, a parked trailer) is detected
-    again where it was, frame after frame, but never confidently; a real object's chain is
-    confident somewhere. Isotonic regression of the pseudo-label on the raw score gives
+    times its value at the top SELF_BAND quantile. Static clutter (a wall, a parked trailer) is
+    detected again where it was, frame after frame, but never confidently; a real object's
+    chain is confident somewhere. Isotonic regression of the pseudo-label on the raw score gives
     P(label | raw) = a·P(real | raw) + b·(1 - P(real | raw)), with a = P(label | real) and
-    b = P(label | false). Reading a and b off the fit at the SELF_BAND quantiles of the raw
-    score (boxes there taken as all false and all real) and inverting gives the map
+    b = P(label | false). a is read off the fit at the top SELF_BAND quantile of the raw score
+    (boxes there taken as all real); b at the bottom one (taken as all false), or, where lower,
+    as the label's rate on displaced boxes (:func:`chance_labels`). Inverting gives the map
     (P(label) - b) / (a - b). A class with too few boxes or too little contrast keeps the
     fallback score."""
     from sklearn.isotonic import IsotonicRegression
@@ -370,23 +409,29 @@ def fit_self_profile(
             "persistent": round(float(persistent[finite].mean()), 4),
         }
         label = persistent
+        confirmed: list[np.ndarray | None] = [None] * len(raw_parts)
         if confident is not None:
             fit = isotonic(raw, persistent[finite])
             grid = np.sort(raw)
-            reached = grid[fit.predict(grid) >= confident]
             top = float(np.quantile(raw, SELF_BAND[1]))
-            high = min(float(reached[0]), top) if len(reached) else top
-            chain_max = []
-            for part_raw, (_, chains) in zip(raw_parts, label_parts, strict=True):
+            high = float(grid[np.argmax(fit.predict(grid) >= confident * fit.predict([top])[0])])
+            for i, (part_raw, (_, chains)) in enumerate(zip(raw_parts, label_parts, strict=True)):
                 best = np.full(chains.max() + 1 if len(chains) else 0, -np.inf)
                 np.fmax.at(best, chains, part_raw)  # fmax: a NaN score confirms nothing
-                chain_max.append(best[chains])
-            label = persistent & (np.concatenate(chain_max or [np.zeros(0)]) >= high)
+                confirmed[i] = best[chains] >= high
+            label = persistent & np.concatenate(confirmed or [np.zeros(0, bool)])
             entry["confident_raw"] = round(high, 4)
             entry["chain_confirmed"] = round(float(label[finite].mean()), 4)
+        scenes = zip(detections.values(), confirmed, strict=True)
+        counts = np.array([chance_labels(fs, name, c) for fs, c in scenes]).reshape(-1, 2)
+        chance = counts[:, 0].sum() / max(counts[:, 1].sum(), 1)
         iso = isotonic(raw, label[finite])
-        false_rate, true_rate = iso.predict(np.quantile(raw, SELF_BAND))
-        entry["label_at_band"] = [round(float(false_rate), 4), round(float(true_rate), 4)]
+        band_rate, true_rate = iso.predict(np.quantile(raw, SELF_BAND))
+        # b: the bottom quantile's rate overstates it when real boxes are among the bottom (a
+        # detector distributed above a score threshold); the displaced boxes measure it directly
+        false_rate = min(float(band_rate), chance)
+        entry["label_at_band"] = [round(float(band_rate), 4), round(float(true_rate), 4)]
+        entry["label_displaced"] = round(float(chance), 4)
         if true_rate - false_rate < SELF_MIN_CONTRAST:
             quality[name] = {**entry, "kept": "no: the pseudo-label does not rise with the score"}
             continue
@@ -406,6 +451,8 @@ def fit_self_profile(
         "match": "pseudo-label: a box of the class within the box's length in the previous and "
         f"the next frame (BEV, world frame){chain}",
         "fit": "sklearn IsotonicRegression of the pseudo-label on the raw score, rescaled so "
-        f"that the raw-score quantiles {SELF_BAND[0]:g} and {SELF_BAND[1]:g} map to 0 and 1",
+        f"that the raw-score quantile {SELF_BAND[1]:g} maps to 1 and the quantile "
+        f"{SELF_BAND[0]:g}, or the label's rate on boxes displaced by twice their length where "
+        "lower, to 0",
     }
     return ScoreProfile(detector, maps, fitted_on, quality)
