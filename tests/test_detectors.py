@@ -294,10 +294,10 @@ def test_persistence_needs_a_box_within_its_length_in_both_neighbour_frames() ->
     assert persistence_labels(frames, "pedestrian").tolist() == []
 
 
-def test_self_calibration_recovers_a_known_precision_without_labels(tmp_path: Path) -> None:
-    """A synthetic detector: 30 parked cars found in 90% of frames with raw ~ N(2, 1), and
-    Poisson(20) false positives per frame anywhere in 200 x 200 m with raw ~ N(-1, 1). The true
-    P(real | raw) follows from the two densities; the label-free fit must find it."""
+def _parked_cars(min_raw: float = -np.inf) -> list[Frame]:
+    """300 frames of a synthetic detector: 30 parked cars found in 90% of frames with raw ~
+    N(2, 1), and Poisson(20) false positives per frame anywhere in 200 x 200 m with raw ~
+    N(-1, 1); boxes below ``min_raw`` are left out."""
     rng = np.random.default_rng(0)
     cars = rng.uniform(-100, 100, (30, 2))
     frames = []
@@ -305,8 +305,16 @@ def test_self_calibration_recovers_a_known_precision_without_labels(tmp_path: Pa
         seen = cars[rng.uniform(size=30) < 0.9]
         fp = rng.uniform(-100, 100, (rng.poisson(20), 2))
         raw = np.concatenate([rng.normal(2, 1, len(seen)), rng.normal(-1, 1, len(fp))])
-        frames.append(_car_frame(i, np.vstack([seen, fp]), raw))
-    profile = fit_self_profile("synthetic", {"s": frames}, ["car", "pedestrian"])
+        kept = raw >= min_raw
+        frames.append(_car_frame(i, np.vstack([seen, fp])[kept], raw[kept]))
+    return frames
+
+
+def test_self_calibration_recovers_a_known_precision_without_labels(tmp_path: Path) -> None:
+    """A synthetic detector: 30 parked cars found in 90% of frames with raw ~ N(2, 1), and
+    Poisson(20) false positives per frame anywhere in 200 x 200 m with raw ~ N(-1, 1). The true
+    P(real | raw) follows from the two densities; the label-free fit must find it."""
+    profile = fit_self_profile("synthetic", {"s": _parked_cars()}, ["car", "pedestrian"])
     assert set(profile.maps) == {"car"}  # no pedestrian boxes: that class keeps the fallback
     assert profile.quality["pedestrian"]["kept"].startswith("no")
     grid = np.linspace(-2, 3.5, 23)
@@ -367,16 +375,7 @@ def test_self_calibration_of_a_detector_distributed_above_a_score_threshold() ->
     distributed: the lowest scores are mostly real (P 0.57 at 0.5), so the bottom quantile is
     no estimate of P(label | false); the displaced boxes give it. A detection of the parked cars
     is persistent in 81 % of frames at any score: the confident level is relative to that."""
-    rng = np.random.default_rng(0)
-    cars = rng.uniform(-100, 100, (30, 2))
-    frames = []
-    for i in range(300):
-        seen = cars[rng.uniform(size=30) < 0.9]
-        fp = rng.uniform(-100, 100, (rng.poisson(20), 2))
-        raw = np.concatenate([rng.normal(2, 1, len(seen)), rng.normal(-1, 1, len(fp))])
-        kept = raw >= 0.5
-        frames.append(_car_frame(i, np.vstack([seen, fp])[kept], raw[kept]))
-    profile = fit_self_profile("synthetic", {"s": frames}, ["car"])
+    profile = fit_self_profile("synthetic", {"s": _parked_cars(min_raw=0.5)}, ["car"])
     band_rate = profile.quality["car"]["label_at_band"][0]
     assert band_rate > 0.4 and profile.quality["car"]["label_displaced"] < 0.05
     grid = np.linspace(0.75, 3.5, 12)  # from about the 5 % quantile up
