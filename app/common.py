@@ -2,8 +2,17 @@
 
 from __future__ import annotations
 
+import logging
 import resource
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from tracker.calibration import ScoreProfile
+
+LOG = logging.getLogger("mctrack")
+SELF_PROFILE = "self"  # --profile self: fitted without labels on the run's detections
 
 
 def peak_rss_mb() -> float:
@@ -20,3 +29,18 @@ def peak_rss_mb() -> float:
     except OSError:
         pass
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
+
+
+def log_self_profile(profile: ScoreProfile, classes: Sequence[str]) -> None:
+    """Say, loudly, which classes a label-free profile calibrated."""
+    parts = []
+    for name in classes:
+        q = profile.quality.get(name, {})
+        parts.append(
+            f"{name} {q.get('kept', 'no: no detections')} ({q.get('detections', 0)} boxes)"
+        )
+    LOG.warning(
+        "self-calibration of %r without labels, kept per class: %s",
+        profile.detector,
+        "; ".join(parts),
+    )

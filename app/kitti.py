@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.common import peak_rss_mb
+from app.common import SELF_PROFILE, log_self_profile, peak_rss_mb
 from app.inputs import (
     NO_POSES_NOTE,
     add_detector_argument,
@@ -44,7 +44,6 @@ from tracker.pipeline import run_scene
 PER_SEQUENCE_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "TP", "FN")
 
 LOG = logging.getLogger(__name__)
-SELF_PROFILE = "self"  # --profile self: fitted without labels on the run's detections
 NO_PROFILE = "none"  # --profile none: the uncalibrated fallback
 
 
@@ -399,15 +398,7 @@ def self_calibrate(
             continue
         frames.update(detections)
     profile = fit_self_profile(detector, frames, classes)
-    parts = []
-    for name in classes:
-        q = profile.quality.get(name, {})
-        parts.append(
-            f"{name} {q.get('kept', 'no: no detections')} ({q.get('detections', 0)} boxes)"
-        )
-    LOG.warning(
-        "self-calibration of %r without labels, kept per class: %s", detector, "; ".join(parts)
-    )
+    log_self_profile(profile, classes)
     return profile
 
 

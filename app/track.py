@@ -13,9 +13,11 @@ from pathlib import Path
 import numpy as np
 
 from app import scenes
+from app.common import SELF_PROFILE, log_self_profile
 from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
-from tracker.calibration import calibrate_frames, load_profile
+from tracker.calibration import ScoreProfile, calibrate_frames, load_profile, profile_toml
+from tracker.categories import CATEGORIES
 from tracker.config import ScoreSource, TrackerConfig, load_config
 from tracker.errors import InputError
 from tracker.eval.fates import FateCounter, combine_fates, format_fates
@@ -46,7 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--profile",
         default=None,
         help="score calibration profile (`mctrack calibrate`, or tracker/profiles/*.toml) applied "
-        "to each box's detection_score_raw; default: detection_score as given",
+        "to each box's detection_score_raw; 'self': fitted without labels on the file's own "
+        "detections (OUT/self_profile.toml); default: detection_score as given",
     )
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
@@ -134,21 +137,31 @@ def check_camera_models(path: str, scenes: dict[str, list[Frame]], camera: str) 
 
 def _calibrated(
     scenes: dict[str, list[Frame]], config: TrackerConfig, profile: str | None, source: str
-) -> dict[str, list[Frame]]:
+) -> tuple[dict[str, list[Frame]], ScoreProfile | None]:
     """Scores recomputed by ``profile`` from the raw scores; without one, as given (with a
-    warning when the config's thresholds expect calibrated scores)."""
+    warning when the config's thresholds expect calibrated scores). With ``self`` the profile
+    is fitted on the file's own detections (:func:`tracker.eval.calibrate.fit_self_profile`)
+    and returned, to be written beside the tracks."""
     if profile is None:
         if config.scores is ScoreSource.PROFILE:
             LOG.warning(
                 "no --profile: detection_score is used as given; the %s config's thresholds "
-                "expect calibrated probabilities (see `mctrack calibrate`)",
+                "expect calibrated probabilities (see `mctrack calibrate`, or --profile self)",
                 config.source,
             )
-        return scenes
+        return scenes, None
     if not any(np.isfinite(f.boxes.score_raw).any() for fr in scenes.values() for f in fr):
         raise InputError(f"{source}: --profile maps detection_score_raw, but no box has one")
-    loaded = load_profile(profile)
-    return {s: calibrate_frames(f, loaded) for s, f in scenes.items()}
+    if profile != SELF_PROFILE:
+        loaded = load_profile(profile)
+        return {s: calibrate_frames(f, loaded) for s, f in scenes.items()}, None
+    from tracker.eval.calibrate import fit_self_profile
+
+    present = np.unique(np.concatenate([f.boxes.category for fr in scenes.values() for f in fr]))
+    classes = [CATEGORIES[int(c)] for c in present]
+    fitted = fit_self_profile(Path(source).name.split(".")[0], scenes, classes)
+    log_self_profile(fitted, classes)
+    return {s: calibrate_frames(f, fitted) for s, f in scenes.items()}, fitted
 
 
 def run(args: argparse.Namespace) -> int:
@@ -162,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         args.input, fallback_frame_rate_hz=config.frame_rate_hz, report=report
     )
     scene_frames = select_scenes(scene_frames, args.scenes, parse_frame_range(args.frames))
-    scene_frames = _calibrated(scene_frames, config, args.profile, args.input)
+    scene_frames, self_profile = _calibrated(scene_frames, config, args.profile, args.input)
     if args.kitti_results:
         check_camera_models(args.input, scene_frames, "CAM_FRONT")
     job = TrackSceneJob(config, out, args.kitti_results)
@@ -178,6 +191,9 @@ def run(args: argparse.Namespace) -> int:
     fate_summary = combine_fates([r.info["fates"] for r in ok], report.skipped_categories)
     removed = [x for r in ok for x in r.info["offline_removed"]]
     written = [out / "tracks.json"]
+    if self_profile is not None:
+        write_text_atomic(out / "self_profile.toml", [profile_toml(self_profile)])
+        written.append(out / "self_profile.toml")
     if args.kitti_results:
         written += [path_in(out / "data", r.scene, ".txt") for r in ok]
     failed = {r.scene: r.error for r in records if r.error}

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import shutil
@@ -410,3 +411,24 @@ def test_a_detector_without_a_profile_is_self_calibrated_and_says_so(
     assert not (tmp_path / "none" / "self_profile.toml").exists()
     # the calibration changes what the tracker keeps
     assert summary["metrics"]["car"] != plain["metrics"]["car"]
+
+
+def test_track_self_calibrates_a_baseversion_file(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """`mctrack track FILE --profile self`: the label-free profile is fitted on the file's own
+    boxes, applied, written beside the tracks and listed in the summary's outputs."""
+    from app.cli import main
+
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+    path = sample / "detections.json.gz"
+    with caplog.at_level(logging.WARNING):
+        assert main(["track", str(path), "--profile", "self", "--out", str(tmp_path / "s")]) == 0
+    assert "self-calibration of 'detections' without labels" in caplog.text
+    profile = load_profile(tmp_path / "s" / "self_profile.toml")
+    assert "car" in profile.maps and "no labels" in profile.fitted_on["dataset"]
+    summary = json.loads((tmp_path / "s" / "summary.json").read_text())
+    assert "self_profile.toml" in [o["path"] for o in summary["outputs"]]
+    assert main(["track", str(path), "--out", str(tmp_path / "plain")]) == 0
+    plain = (tmp_path / "plain" / "tracks.json").read_bytes()
+    assert (tmp_path / "s" / "tracks.json").read_bytes() != plain
