@@ -16,7 +16,13 @@ from app import scenes
 from app.common import SELF_PROFILE, log_self_profile
 from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
-from tracker.calibration import ScoreProfile, calibrate_frames, load_profile, profile_toml
+from tracker.calibration import (
+    ScoreProfile,
+    calibrate_frames,
+    load_profile,
+    looks_like_probability,
+    profile_toml,
+)
 from tracker.categories import CATEGORIES
 from tracker.config import ScoreSource, TrackerConfig, load_config
 from tracker.errors import InputError
@@ -152,16 +158,25 @@ def _calibrated(
         return scenes, None
     if not any(np.isfinite(f.boxes.score_raw).any() for fr in scenes.values() for f in fr):
         raise InputError(f"{source}: --profile maps detection_score_raw, but no box has one")
+    # a class the profile has no map for falls back alike in every scene of the file
+    is_probability = looks_like_probability(
+        np.concatenate([f.boxes.score_raw for fr in scenes.values() for f in fr])
+    )
     if profile != SELF_PROFILE:
         loaded = load_profile(profile)
-        return {s: calibrate_frames(f, loaded) for s, f in scenes.items()}, None
-    from tracker.eval.calibrate import fit_self_profile
+        fitted = None
+    else:
+        from tracker.eval.calibrate import fit_self_profile
 
-    present = np.unique(np.concatenate([f.boxes.category for fr in scenes.values() for f in fr]))
-    classes = [CATEGORIES[int(c)] for c in present]
-    fitted = fit_self_profile(Path(source).name.split(".")[0], scenes, classes)
-    log_self_profile(fitted, classes)
-    return {s: calibrate_frames(f, fitted) for s, f in scenes.items()}, fitted
+        boxes = [f.boxes.category for fr in scenes.values() for f in fr]
+        classes = [CATEGORIES[int(c)] for c in np.unique(np.concatenate(boxes))]
+        name = Path(source).name.removesuffix(".gz").removesuffix(".json") or "detections"
+        loaded = fitted = fit_self_profile(name, scenes, classes)
+        log_self_profile(fitted, classes)
+    calibrated = {
+        s: calibrate_frames(f, loaded, is_probability=is_probability) for s, f in scenes.items()
+    }
+    return calibrated, fitted
 
 
 def run(args: argparse.Namespace) -> int:

@@ -103,6 +103,7 @@ def no_profile_section(root: Path) -> list[str]:
     from tracker.eval.calibrate import SELF_CONFIDENT, fit_self_profile
     from tracker.io.convert.kitti import convert_kitti
 
+    assert SELF_CONFIDENT in SELF_LEVELS, "the shipped level must be among those compared"
     pairs = [(d, c) for d, classes in DETECTORS.items() for c in classes]
     by_level: dict[float | None, dict[tuple[str, str], dict[str, Any]]] = {}
     with tempfile.TemporaryDirectory() as tmp:

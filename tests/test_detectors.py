@@ -348,7 +348,7 @@ def test_chains_link_each_box_to_its_nearest_predecessor_within_its_length() -> 
 
 def test_self_calibration_does_not_take_static_clutter_for_real() -> None:
     """A wall detected in every frame at low score persists like a parked car. Persistence alone
-    calls its boxes real (0.46 off the true P(real | raw)); a persistent box counts only when
+    calls its boxes real (0.54 off the true P(real | raw)); a persistent box counts only when
     its chain reaches a confident box, and the wall's never does."""
     rng = np.random.default_rng(0)
     cars = rng.uniform(-100, 100, (30, 2))
@@ -432,3 +432,27 @@ def test_track_self_calibrates_a_baseversion_file(
     assert main(["track", str(path), "--out", str(tmp_path / "plain")]) == 0
     plain = (tmp_path / "plain" / "tracks.json").read_bytes()
     assert (tmp_path / "s" / "tracks.json").read_bytes() != plain
+
+
+def test_self_calibration_rejects_scores_that_say_nothing() -> None:
+    """Scores unrelated to the boxes (shuffled), and a scene of one frame (no neighbour frame
+    to persist into): neither may yield a map."""
+    frames = _parked_cars()
+    rng = np.random.default_rng(1)
+    shuffled = [_car_frame(i, f.boxes.xyz[:, :2], rng.normal(0, 1, len(f.boxes)))
+                for i, f in enumerate(frames)]  # fmt: skip
+    flat = fit_self_profile("synthetic", {"s": shuffled}, ["car"])
+    assert "car" not in flat.maps and flat.quality["car"]["kept"].startswith("no: the pseudo")
+    single = {f"s{i}": [f] for i, f in enumerate(frames[:20])}
+    one_frame = fit_self_profile("synthetic", single, ["car"])
+    assert "car" not in one_frame.maps and one_frame.quality["car"]["kept"].startswith("no")
+
+
+def test_a_class_without_a_map_falls_back_alike_in_every_frame() -> None:
+    """Raw scores in [0, 1] in one frame and beyond it in the next: the fallback is decided
+    once for the frames, not per frame."""
+    frames = [_car_frame(0, np.zeros((1, 2)), np.array([0.5])),
+              _car_frame(1, np.zeros((1, 2)), np.array([2.0]))]  # fmt: skip
+    empty = ScoreProfile("d", {})
+    scores = [f.boxes.score for f in calibrate_frames(frames, empty)]
+    np.testing.assert_allclose(np.concatenate(scores), 1 / (1 + np.exp(-np.array([0.5, 2.0]))))

@@ -139,12 +139,18 @@ class ScoreProfile:
     quality: Mapping[str, Mapping[str, Any]] = dataclasses.field(default_factory=dict)
 
     def scores(
-        self, category: IntArray, raw: FloatArray, range_m: FloatArray | None = None
+        self,
+        category: IntArray,
+        raw: FloatArray,
+        range_m: FloatArray | None = None,
+        *,
+        is_probability: bool | None = None,
     ) -> FloatArray:
         """Calibrated score per box (``range_m``: BEV distance from the ego, NaN or None where
-        unknown); classes without a map keep :func:`fallback_scores`."""
+        unknown); classes without a map keep :func:`fallback_scores` (``is_probability`` as
+        there: decide it once for all the detector's boxes)."""
         raw = np.asarray(raw, np.float64)
-        out = fallback_scores(raw)
+        out = fallback_scores(raw, is_probability=is_probability)
         for name, score_map in self.maps.items():
             rows = np.asarray(category) == category_index(name)
             if rows.any():
@@ -176,18 +182,24 @@ def looks_like_probability(raw: FloatArray) -> bool:
     return bool(finite.size and finite.min() >= 0 and finite.max() <= 1)
 
 
-def calibrate_frames(frames: Sequence[Frame], profile: ScoreProfile | None) -> list[Frame]:
+def calibrate_frames(
+    frames: Sequence[Frame], profile: ScoreProfile | None, *, is_probability: bool | None = None
+) -> list[Frame]:
     """The frames with every box's ``score`` recomputed from ``score_raw`` by ``profile``
-    (None: :func:`fallback_scores`). Boxes without a raw score keep their score."""
-    every_raw = [f.boxes.score_raw for f in frames]
-    is_probability = looks_like_probability(np.concatenate(every_raw)) if every_raw else False
+    (None: :func:`fallback_scores`). Boxes without a raw score keep their score. Where the
+    fallback applies, ``is_probability`` None is decided once over all ``frames``."""
+    if is_probability is None:
+        every_raw = [f.boxes.score_raw for f in frames]
+        is_probability = looks_like_probability(np.concatenate(every_raw)) if every_raw else False
     out = []
     for frame in frames:
         boxes = frame.boxes
         if len(boxes):
             raw = boxes.score_raw
             new = (
-                profile.scores(boxes.category, raw, box_ranges(frame))
+                profile.scores(
+                    boxes.category, raw, box_ranges(frame), is_probability=is_probability
+                )
                 if profile
                 else fallback_scores(raw, is_probability=is_probability)
             )

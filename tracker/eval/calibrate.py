@@ -380,13 +380,15 @@ def fit_self_profile(
     (boxes there taken as all real); b at the bottom one (taken as all false), or, where lower,
     as the label's rate on displaced boxes (:func:`chance_labels`). Inverting gives the map
     (P(label) - b) / (a - b). A class with too few boxes or too little contrast keeps the
-    fallback score."""
+    fallback score. Scenes of a single frame are left out."""
     from sklearn.isotonic import IsotonicRegression
 
     def isotonic(x: FloatArray, y: np.ndarray) -> IsotonicRegression:
         iso = IsotonicRegression(y_min=0.0, y_max=1.0, increasing=True, out_of_bounds="clip")
         return iso.fit(x, y.astype(np.float64))
 
+    # a scene of one frame has no neighbour frame: its boxes would all count as persistent
+    detections = {s: fs for s, fs in detections.items() if len(fs) >= 2}
     maps: dict[str, ScoreMap] = {}
     quality: dict[str, dict[str, object]] = {}
     for name in classes:
@@ -432,7 +434,7 @@ def fit_self_profile(
         false_rate = min(float(band_rate), chance)
         entry["label_at_band"] = [round(float(band_rate), 4), round(float(true_rate), 4)]
         entry["label_displaced"] = round(float(chance), 4)
-        if true_rate - false_rate < SELF_MIN_CONTRAST:
+        if true_rate - band_rate < SELF_MIN_CONTRAST:
             quality[name] = {**entry, "kept": "no: the pseudo-label does not rise with the score"}
             continue
         knots = _knots(raw)
