@@ -19,7 +19,7 @@ import numpy as np
 from scipy.spatial.distance import cdist
 from scipy.special import logit
 
-from tracker.boxes import FloatArray, IntArray
+from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.calibration import (
     PROB_RANGE,
     RangeTerm,
@@ -267,7 +267,7 @@ def fit_profile(
 SELF_MIN_DETECTIONS = 200
 #: Raw-score quantiles whose persistence stands for "all false" and "all true" (see below).
 SELF_BAND = (0.05, 0.95)
-#: Least persistence contrast between those quantiles for the map to mean anything.
+#: Least rise of the pseudo-label between those quantiles for the map to mean anything.
 SELF_MIN_CONTRAST = 0.2
 #: A box is confident where P(persistent | raw) reaches this fraction of its value at the top
 #: SELF_BAND quantile; a persistent box is taken as real only if its frame-to-frame chain
@@ -277,17 +277,27 @@ SELF_MIN_CONTRAST = 0.2
 SELF_CONFIDENT = 0.8
 
 
+def _class_boxes(frames: Sequence[Frame], name: str) -> list[Boxes]:
+    """Each frame's boxes of class ``name``."""
+    cat = category_index(name)
+    return [f.boxes[f.boxes.category == cat] for f in frames]
+
+
+def _reach(boxes: Boxes) -> FloatArray:
+    """How far a box's object is looked for in a neighbour frame: its own length (BEV)."""
+    return np.max(boxes.lwh[:, :2], axis=1)
+
+
 def persistence_labels(frames: Sequence[Frame], name: str) -> np.ndarray:
     """(N,) bool over the class's boxes of all ``frames`` (in frame order): the box has a box of
     its class within its own length (BEV, world frame) in the previous frame and in the next
     one (the first and last frames need only the neighbour they have). A real object is
     detected again where it was; most false positives flicker."""
-    cat = category_index(name)
-    boxes = [f.boxes[f.boxes.category == cat] for f in frames]
+    boxes = _class_boxes(frames, name)
     out = []
     for t, b in enumerate(boxes):
         ok = np.ones(len(b), dtype=bool)
-        reach = np.maximum(b.lwh[:, 0], b.lwh[:, 1])
+        reach = _reach(b)
         for other in boxes[max(t - 1, 0) : t] + boxes[t + 1 : t + 2]:
             if not len(other):
                 ok[:] = False
@@ -305,8 +315,7 @@ def chain_ids(frames: Sequence[Frame], name: str) -> IntArray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    cat = category_index(name)
-    boxes = [f.boxes[f.boxes.category == cat] for f in frames]
+    boxes = _class_boxes(frames, name)
     offsets = np.cumsum([0] + [len(b) for b in boxes])
     rows, cols = [], []
     for t in range(1, len(boxes)):
@@ -315,7 +324,7 @@ def chain_ids(frames: Sequence[Frame], name: str) -> IntArray:
             continue
         d = cdist(cur.xyz[:, :2], prev.xyz[:, :2])
         nearest = d.argmin(axis=1)
-        linked = np.flatnonzero(d[np.arange(len(cur)), nearest] <= np.max(cur.lwh[:, :2], axis=1))
+        linked = np.flatnonzero(d[np.arange(len(cur)), nearest] <= _reach(cur))
         rows.append(offsets[t] + linked)
         cols.append(offsets[t - 1] + nearest[linked])
     n = int(offsets[-1])
@@ -334,30 +343,24 @@ def chance_labels(
     ((N,) bool per box, as :func:`chain_ids` orders them: its chain reaches a confident box),
     it must also join a confirmed chain: that of its nearest box in the previous frame (the
     next one in the first frame)."""
-    cat = category_index(name)
-    boxes = [f.boxes[f.boxes.category == cat] for f in frames]
+    boxes = _class_boxes(frames, name)
     offsets = np.cumsum([0] + [len(b) for b in boxes])
+    directions = np.array([[2.0, 0.0], [-2.0, 0.0], [0.0, 2.0], [0.0, -2.0]])
     labelled = total = 0
     for t, b in enumerate(boxes):
         neighbours = [boxes[o] for o in (t - 1, t + 1) if 0 <= o < len(boxes)]
-        if not len(b) or not neighbours:
-            total += 4 * len(b)
-            continue
-        reach = np.max(b.lwh[:, :2], axis=1)
-        link_frame = t - 1 if t > 0 else t + 1
-        for direction in ((2.0, 0.0), (-2.0, 0.0), (0.0, 2.0), (0.0, -2.0)):
-            moved = b.xyz[:, :2] + reach[:, None] * np.asarray(direction)
-            ok = np.ones(len(b), dtype=bool)
-            for other in neighbours:
-                if not len(other):
-                    ok[:] = False
-                    break
-                ok &= cdist(moved, other.xyz[:, :2]).min(axis=1) <= reach
-            if confirmed is not None and ok.any():
-                link = cdist(moved, boxes[link_frame].xyz[:, :2]).argmin(axis=1)
-                ok &= confirmed[offsets[link_frame] + link]
-            labelled += int(ok.sum())
-            total += len(b)
+        total += len(directions) * len(b)
+        if not len(b) or not neighbours or any(not len(other) for other in neighbours):
+            continue  # no box, or no box to persist into
+        reach = np.tile(_reach(b), len(directions))
+        moved = b.xyz[None, :, :2] + directions[:, None, :] * reach.reshape(-1, len(b), 1)
+        moved = moved.reshape(-1, 2)
+        dists = [cdist(moved, other.xyz[:, :2]) for other in neighbours]
+        ok = np.logical_and.reduce([d.min(axis=1) <= reach for d in dists])
+        if confirmed is not None:  # joins the chain of its nearest box in neighbours[0]
+            link_frame = t - 1 if t > 0 else t + 1
+            ok &= confirmed[offsets[link_frame] + dists[0].argmin(axis=1)]
+        labelled += int(ok.sum())
     return labelled, total
 
 
@@ -445,7 +448,7 @@ def fit_self_profile(
         if confident is None
         else ", whose frame-to-frame chain (nearest box of the class in the previous frame "
         "within the box's length) reaches a box scoring at least where P(persistent | raw) "
-        f"reaches {confident:g}"
+        f"reaches {confident:g} of its value at the raw-score quantile {SELF_BAND[1]:g}"
     )
     fitted_on = {
         "dataset": "the tracked detections themselves (no labels)",
