@@ -363,10 +363,11 @@ def shape_section(root: Path) -> list[str]:
                     config_overrides={"offline": {"smooth_seconds": 0.0}})  # fmt: skip
         offline_rows.append((f"{detector}, car, offline, smooth_seconds 0 (off; shipped 1.5)",
                              res["metrics"]["car"]))  # fmt: skip
-        res = kitti(root, ["car"], detector=detector, mode="offline",
-                    config_overrides={"offline": {"rts": False}})  # fmt: skip
-        offline_rows.append((f"{detector}, car, offline, rts false (off; shipped true)",
-                             res["metrics"]["car"]))  # fmt: skip
+        for flag in ("rts", "rts_heading"):
+            res = kitti(root, ["car"], detector=detector, mode="offline",
+                        config_overrides={"offline": {flag: False}})  # fmt: skip
+            offline_rows.append((f"{detector}, car, offline, {flag} false (off; shipped true)",
+                                 res["metrics"]["car"]))  # fmt: skip
     return [
         "## Size, z and height",
         "",
@@ -381,9 +382,11 @@ def shape_section(root: Path) -> list[str]:
         "Offline, each track gets one size, the mean over its detections"
         " (`offline.constant_size`, config `kitti_offline`), its positions are smoothed by"
         " a centred local quadratic fit over 1.5 s (`offline.smooth_seconds`; with the RTS"
-        " smoother on it only sets z), and x and y of its detected rows come from the RTS"
-        " smoother (`offline.rts`); each against off, `mctrack kitti --detector D --classes car"
-        " --mode offline` with it overridden:",
+        " smoother on it only sets z), x and y of its detected rows come from the RTS"
+        " smoother of the pose filter (`offline.rts`) and their heading from the RTS smoother"
+        " of the heading filter over the detected yaws (`offline.rts_heading`, with the online"
+        " filter's noise: nothing tuned); each against off, `mctrack kitti --detector D"
+        " --classes car --mode offline` with it overridden:",
         "",
         table(offline_rows),
     ]
@@ -460,29 +463,33 @@ def buffer_section(root: Path, shipped_path: str | None) -> list[str]:
 
 
 def offline_robustness_section(root: Path, shipped_path: str | None) -> list[str]:
-    """Offline mode under the robustness benchmark's noise, with the RTS smoother (shipped) and
-    without it, beside online (``shipped_path``: the online robustness.json)."""
+    """Offline mode under the robustness benchmark's noise, with the RTS smoothers (shipped) and
+    without them, beside online (``shipped_path``: the online robustness.json)."""
     if not shipped_path:
         return []
     online = json.loads(Path(shipped_path).read_text())
     runs = rerun_robustness(
         root,
         online,
-        {"rts": "kitti_offline", "no_rts": 'base = "kitti_offline"\n[offline]\nrts = false\n'},
+        {
+            "rts": "kitti_offline",
+            "no_rts": 'base = "kitti_offline"\n[offline]\nrts = false\nrts_heading = false\n',
+        },
     )
     columns = {
         "online": online,
-        "offline, RTS off": runs["no_rts"],
+        "offline, RTS off": runs["no_rts"],  # (both smoothers)
         "offline (shipped)": runs["rts"],
     }
     return [
         "### Offline under noise",
         "",
-        "The same benchmark in offline mode (`--config kitti_offline`), with the RTS smoother"
-        " (`offline.rts`, shipped: x, y, velocity and acceleration of each detected row from the"
-        " online pose filter run over the track's detections and smoothed backwards) and"
-        " without it (each row keeps the online filter's estimate, then the 1.5 s local"
-        " quadratic fit). HOTA, mean over the same seeds (Δ from clean); PointRCNN:",
+        "The same benchmark in offline mode (`--config kitti_offline`), with the RTS smoothers"
+        " (shipped: x, y, velocity and acceleration of each detected row from the online pose"
+        " filter run over the track's detections and smoothed backwards, `offline.rts`, and its"
+        " heading from the heading filter's, `offline.rts_heading`) and without them (each row"
+        " keeps the online filters' estimates, then the 1.5 s local quadratic fit of the"
+        " position). HOTA, mean over the same seeds (Δ from clean); PointRCNN:",
         "",
         *robustness_table(columns, deltas=True),
         "",
@@ -562,7 +569,8 @@ def offline_section(root: Path, tunes: list[str], earlier: list[str]) -> list[st
         "",
         "`kitti_offline` is the online settings plus whole-track post-processing whose values"
         " are not tuned on labels (track score gate 0, interpolation up to 30 frames, the RTS"
-        " smoother, one size per track). Its held-out figure: each fold of the car online tune"
+        " smoothers of position and heading, one size per track). Its held-out figure: each fold of"
+        " the car online tune"
         f" (`{Path(online_recs[0]).name}`) tracks its held-out sequences with the fold's settings,"
         " online and offline. Command: `python bench/offline_from_online.py`.",
         "",

@@ -170,6 +170,10 @@ class OfflineConfig:
     # the track's detections, then its backward pass: tracker.smoothing), instead of the online
     # filter's estimate, which lags behind a moving object
     rts: bool = False
+    # offline only: the heading of each detected row from the RTS smoother of the heading filter
+    # over the track's detected yaws (tracker.smoothing.rts_smooth_heading), instead of the
+    # online filter's, which follows each box's yaw error
+    rts_heading: bool = False
     # offline only: each track gets one size, the mean of its detected rows' (filtered) sizes
     constant_size: bool = False
 

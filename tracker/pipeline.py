@@ -11,7 +11,8 @@ Offline mode (reference §2.9, improved): run online with the offline config, th
      fit before interpolating (:func:`smooth_positions`); with ``offline.rts``, x and y of its
      detected rows come from the RTS smoother over its detections instead
      (:func:`tracker.smoothing.rts_smooth`: the online filter without its lag; velocity and
-     acceleration too),
+     acceleration too), and with ``offline.rts_heading`` their heading from the heading filter's
+     smoother over its detected yaws (:func:`tracker.smoothing.rts_smooth_heading`),
   5. (``offline.constant_size``) give each track one size, the mean of its detected rows'
      (:func:`mean_size_per_track`): a rigid object's size does not change.
 """
@@ -34,7 +35,7 @@ from tracker.events import Observer, TrackOutput, TrackStatus
 from tracker.frame import Frame
 from tracker.geometry import wrap_angle
 from tracker.mctracker import MCTracker
-from tracker.smoothing import rts_smooth
+from tracker.smoothing import rts_smooth, rts_smooth_heading
 
 log = logging.getLogger(__name__)
 
@@ -133,29 +134,32 @@ def offline_postprocess(
     if window >= 3:
         xyz = smooth_positions(boxes.xyz, boxes.track_id, frame_index, keep, window)
         boxes = boxes.replace(xyz=xyz)
-    if config.offline.rts and frames is not None:
-        # position, velocity and acceleration (x, y) of the detected rows: the online pose filter
-        # rerun over the track's detections, then smoothed backwards (tracker.smoothing); z keeps
-        # the fit above
+    if frames is not None and (config.offline.rts or config.offline.rts_heading):
+        # the detected rows, smoothed over the track's detections by the online filters rerun
+        # forwards and then backwards (tracker.smoothing)
         measured = np.flatnonzero(keep & (det_row >= 0))
         start = np.cumsum([0] + [len(f.boxes) for f in frames])  # each frame's first detection
-        det_xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames] or [np.zeros((0, 2))])[
-            start[frame_index[measured]] + det_row[measured]
-        ]
-        state = rts_smooth(
-            np.array([o.time_secs for o in outputs]),
-            frame_index[measured],
-            boxes.track_id[measured],
-            det_xy,
-            boxes.category[measured],
-            config,
-        )
-        xyz, velocity = boxes.xyz.copy(), boxes.velocity.copy()
-        xyz[measured, :2], velocity[measured] = state[..., 0], state[..., 1]
-        boxes = boxes.replace(xyz=xyz, velocity=velocity)
-        acc = acc.copy()
-        has_acc = np.isfinite(acc[measured]).all(axis=1)  # (NaN: a CV category has none)
-        acc[measured[has_acc]] = state[has_acc, :, 2]
+        det_at = start[frame_index[measured]] + det_row[measured]  # into the scene's detections
+        times = np.array([o.time_secs for o in outputs])
+        rows = (frame_index[measured], boxes.track_id[measured])
+        category = boxes.category[measured]
+        if config.offline.rts:
+            # position, velocity and acceleration (x, y); z keeps the fit above
+            det_xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames])[det_at]
+            state = rts_smooth(times, *rows, det_xy, category, config)
+            xyz, velocity = boxes.xyz.copy(), boxes.velocity.copy()
+            xyz[measured, :2], velocity[measured] = state[..., 0], state[..., 1]
+            boxes = boxes.replace(xyz=xyz, velocity=velocity)
+            acc = acc.copy()
+            has_acc = np.isfinite(acc[measured]).all(axis=1)  # (NaN: a CV category has none)
+            acc[measured[has_acc]] = state[has_acc, :, 2]
+        if config.offline.rts_heading:
+            det_yaw = np.concatenate([f.boxes.yaw for f in frames])[det_at]
+            yaw = boxes.yaw.copy()
+            yaw[measured] = rts_smooth_heading(
+                times, *rows, det_yaw, boxes.yaw[measured], category, config
+            )
+            boxes = boxes.replace(yaw=yaw)
     if config.offline.constant_size:
         boxes = boxes.replace(lwh=mean_size_per_track(boxes.lwh, boxes.track_id, keep))
     parts: list[list[Boxes]] = [[] for _ in outputs]

@@ -13,6 +13,13 @@ motion model and noise, so it averages the boxes' noise without the lag:
 x and y are independent chains [p, v(, a)] (the tracker's decoupled pose filter), so every track
 and both axes run as one batch, frame by frame. Only the detected centres are measurements: where
 the online filter also measures a detector's velocity (nuScenes), the smoother does not.
+
+The heading is smoothed the same way with the heading filter [θ, ω] (:func:`rts_smooth_heading`),
+over the detections' box axes: a box's yaw is known modulo π, so each track's detected yaws are
+first chained into one continuous angle (each step taken modulo π, the smallest turn), and the
+smoothed axis then takes the direction the online filter gave the row (from the direction of
+travel, or the detector's majority). Only the detected yaws are measurements (not the direction
+of travel).
 """
 
 from __future__ import annotations
@@ -21,23 +28,29 @@ import numpy as np
 
 from tracker.boxes import FloatArray, IntArray
 from tracker.config import TrackerConfig
+from tracker.geometry import wrap_angle
 from tracker.kalman import Axis
 from tracker.mctracker import motion_noise_tables
 
 _RIDGE = 1e-12  # keeps P⁻ invertible where a CV chain has a zero-variance acceleration
 
 
-def _axis_noise(config: TrackerConfig, category: IntArray) -> tuple[FloatArray, ...]:
-    """Per track: P0 and Q (n, 2, 3) and R (n, 2) of its category's pose filter, as [p, v, a]
-    chains of x and y: the tracker's own tables (a CV pose has zero acceleration variances,
-    so CA is then exactly CV)."""
+_POSE = (Axis.X, Axis.Y)
+
+
+def _axis_noise(
+    config: TrackerConfig, category: IntArray, axes: tuple[Axis, ...]
+) -> tuple[FloatArray, ...]:
+    """Per track: P0 and Q (n, len(axes), 3) and R (n, len(axes)) of its category's filter on
+    ``axes``, as [p, v, a] chains: the tracker's own tables (a CV pose, and the heading, have
+    zero acceleration variances, so the chain is then exactly CV)."""
     p0, q, r = motion_noise_tables(config)
     pad = ((0, 0), (0, 0), (0, 3 - p0.shape[-1]))  # (k = 2 when every tracked class is CV)
-    xy = slice(Axis.X, Axis.Y + 1)
+    rows = list(axes)
     return (
-        np.pad(p0[:, xy], pad)[category],
-        np.pad(q[:, xy], pad)[category],
-        r[:, xy, 0][category],
+        np.pad(p0[:, rows], pad)[category],
+        np.pad(q[:, rows], pad)[category],
+        r[:, rows, 0][category],
     )
 
 
@@ -48,6 +61,7 @@ def rts_smooth(
     xy: FloatArray,
     category: IntArray,
     config: TrackerConfig,
+    axes: tuple[Axis, ...] = _POSE,
 ) -> FloatArray:
     """(N, 2, 3) RTS-smoothed states [p, v, a] of x and y at N measurements (at most one per
     track and frame): position (m), velocity (m/s), acceleration (m/s², 0 for a CV pose).
@@ -55,10 +69,13 @@ def rts_smooth(
     ``times`` (F,) seconds of the scene's frames; ``frame_index`` (N,) each measurement's frame;
     ``track`` (N,) its track (any integer ids); ``xy`` (N, 2) the measured centres;
     ``category`` (N,) the track's category (a tracked one). Every frame from a track's first
-    measurement to its last is a filter step, predicted only where it has no measurement."""
-    xy = np.asarray(xy, dtype=np.float64)
+    measurement to its last is a filter step, predicted only where it has no measurement.
+    ``axes``: the filter axes measured by the columns of ``xy`` (N, len(axes)); the result is
+    then (N, len(axes), 3)."""
+    xy = np.asarray(xy, dtype=np.float64).reshape(len(xy), len(axes))
+    k = len(axes)
     if not len(xy):
-        return np.zeros((0, 2, 3))
+        return np.zeros((0, k, 3))
     ids, tk = np.unique(track, return_inverse=True)
     n = len(ids)
     first = np.full(n, np.iinfo(np.int64).max)
@@ -67,11 +84,11 @@ def rts_smooth(
     np.maximum.at(last, tk, frame_index)
     cat = np.zeros(n, dtype=np.int64)
     cat[tk] = category
-    p0, q, r = _axis_noise(config, cat)
-    z = np.full((len(times), n, 2), np.nan)  # z[t, track]: its measured centre (NaN: none)
+    p0, q, r = _axis_noise(config, cat, axes)
+    z = np.full((len(times), n, k), np.nan)  # z[t, track]: its measured centre (NaN: none)
     z[frame_index, tk] = xy
     eye = np.eye(3)
-    x, P = np.zeros((n, 2, 3)), np.zeros((n, 2, 3, 3))
+    x, P = np.zeros((n, k, 3)), np.zeros((n, k, 3, 3))
     # forward pass (the online filter), keeping per frame what the backward pass needs
     steps = []
     for t in range(int(first.min()), int(last.max()) + 1):
@@ -103,8 +120,8 @@ def rts_smooth(
         P[live] = 0.5 * (Pl + np.swapaxes(Pl, -1, -2))
         steps.append((t, live, going, x_pred, P_pred, F, x[live].copy(), P[live].copy()))
     # backward pass: x̃ₜ = x̂ₜ + Cₜ (x̃ₜ₊₁ − x̂ₜ₊₁⁻), Cₜ = Pₜ Fᵀ (Pₜ₊₁⁻)⁻¹
-    smoothed = np.zeros((n, 2, 3))
-    out = np.full((len(times), n, 2, 3), np.nan)
+    smoothed = np.zeros((n, k, 3))
+    out = np.full((len(times), n, k, 3), np.nan)
     after = None  # the next frame's (going, x̂⁻, P⁻, F)
     for t, live, going, x_pred, P_pred, F, x_f, P_f in reversed(steps):
         xs = x_f
@@ -120,3 +137,36 @@ def rts_smooth(
         out[t, live] = xs
         after = (going, x_pred, P_pred, F)
     return out[frame_index, tk]
+
+
+def rts_smooth_heading(
+    times: FloatArray,
+    frame_index: IntArray,
+    track: IntArray,
+    yaw: FloatArray,
+    heading: FloatArray,
+    category: IntArray,
+    config: TrackerConfig,
+) -> FloatArray:
+    """(N,) headings (radians, wrapped) from the RTS smoother of the heading filter over N
+    detected yaws (at most one per track and frame; arguments as :func:`rts_smooth`).
+
+    ``yaw`` (N,) the detections' yaws (box axes: known modulo π); ``heading`` (N,) the online
+    filter's heading of each row, which decides the direction of the smoothed axis."""
+    yaw = np.asarray(yaw, dtype=np.float64)
+    if not len(yaw):
+        return np.zeros(0)
+    order = np.lexsort((frame_index, track))
+    step = np.diff(yaw[order], prepend=0.0)
+    step = np.mod(step + np.pi / 2, np.pi) - np.pi / 2  # the axis turns by less than π/2
+    first = np.r_[True, track[order][1:] != track[order][:-1]]
+    step[first] = yaw[order][first]  # each track starts from its first yaw
+    run = np.cumsum(step)
+    start = np.maximum.accumulate(np.where(first, np.arange(len(run)), 0))
+    chained = np.empty(len(yaw))
+    chained[order] = run - run[start] + yaw[order][start]  # continuous along each track
+    axis = rts_smooth(
+        times, frame_index, track, chained[:, None], category, config, axes=(Axis.YAW,)
+    )[:, 0, 0]
+    # the representative of the smoothed axis (modulo π) nearest the online heading
+    return wrap_angle(axis + np.pi * np.round(wrap_angle(heading - axis) / np.pi))
