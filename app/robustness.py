@@ -31,7 +31,14 @@ from app.inputs import (
 from tracker.calibration import calibrate_frames, resolve_profile
 from tracker.config import ScoreSource, load_config
 from tracker.errors import InputError
-from tracker.eval.perturb import CLEAN, NOISE_LEVELS, Rescore, perturb_frames
+from tracker.eval.perturb import (
+    CLEAN,
+    IMAGE_BOXES,
+    NOISE_LEVELS,
+    ImageBoxes,
+    Rescore,
+    perturb_frames,
+)
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
 from tracker.io.writers import write_kitti_sequence
@@ -66,6 +73,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="std of the noise added to the raw detector score on the noisy levels (default 0)",
     )
     parser.add_argument(
+        "--image-boxes",
+        choices=IMAGE_BOXES,
+        default="follow",
+        help="what the centre and yaw jitter does to a detection's 2D box: follow = moves it"
+        " with its 3D box's projection (a LiDAR detector's 2D box is that projection); keep ="
+        " leaves it (a 2D box from an image head) (default: follow)",
+    )
+    parser.add_argument(
         "--profile",
         default=None,
         help="score calibration profile (default: the one shipped for --detector)",
@@ -86,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
         levels=_names(args.levels),
         seeds=_seeds(args.seeds),
         score_sigma=args.score_sigma,
+        image_boxes=args.image_boxes,
         profile=Path(args.profile) if args.profile else None,
         out=Path(args.out),
     )
@@ -104,6 +120,7 @@ def run_robustness(
     levels: Sequence[str] = (CLEAN, "noise", "double"),
     seeds: Sequence[int] = (0, 1, 2),
     score_sigma: float = 0.0,
+    image_boxes: ImageBoxes = "follow",
     rescore: Rescore | None = None,
     profile: Path | None = None,
     out: Path,
@@ -158,7 +175,9 @@ def run_robustness(
             run_dir = out / "runs" / name / ("clean" if seed is None else f"seed{seed}")
             for seq, frames in detections.items():
                 bar.set_description(f"{name} seed {'-' if seed is None else seed} seq {seq}")
-                noisy = perturb_frames(frames, specs[name], seed=seed or 0, rescore=rescore)
+                noisy = perturb_frames(
+                    frames, specs[name], seed=seed or 0, rescore=rescore, image_boxes=image_boxes
+                )
                 result = run_scene(noisy, config)
                 write_kitti_sequence(
                     run_dir / f"{seq}.txt",
@@ -186,6 +205,7 @@ def run_robustness(
         "config": str(config_name),
         "mode": config.mode.value,
         "seeds": list(seeds),
+        "image_boxes": image_boxes,
         "evaluator": EVALUATOR,
         "spread": "standard deviation over seeds (ddof=1; 0 for one run)",
         "levels": {
@@ -258,12 +278,20 @@ def markdown_lines(report: dict[str, Any]) -> list[str]:
         f"{','.join(report['classes'])} --config {report['config']} --levels "
         f"{','.join(report['levels'])} --seeds {seeds}"
     )
+    image_boxes = report.get("image_boxes", "follow")  # (reports written before the option)
+    if image_boxes != "follow":
+        command += f" --image-boxes {image_boxes}"
+    moves = {
+        "follow": "the jitter moves each detection's 2D box with its 3D box's projection",
+        "keep": "the jitter leaves each detection's 2D box where the detector put it",
+    }[image_boxes]
     return [
         "# Robustness to detection noise",
         "",
         f"Detector `{report['detector']}`, config `{report['config']}` ({report['mode']}), "
         f"sequences {' '.join(report['sequences'])}; {report['evaluator']}. HOTA: mean over "
-        f"seeds {seeds} ± {report['spread']}; Δ: change of the mean from clean. Clean runs once.",
+        f"seeds {seeds} ± {report['spread']}; Δ: change of the mean from clean. Clean runs once;"
+        f" {moves} (`--image-boxes {image_boxes}`).",
         "",
         *table_lines(report, markdown=True),
         "",

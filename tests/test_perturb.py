@@ -126,6 +126,25 @@ def test_jitter_statistics_and_the_2d_box_moves_with_the_3d_box(scene: list[Fram
         np.testing.assert_allclose(frame.boxes.xyxy_image[inside], proj[inside], atol=1e-6)
 
 
+def test_image_boxes_keep_leaves_the_2d_boxes_and_jitters_the_same_3d_boxes(
+    scene: list[Frame],
+) -> None:
+    """``image_boxes="keep"``: the same 3D jitter (same seed) as "follow", every kept 2D box as
+    the detector gave it; an unknown rule is refused."""
+    spec = PerturbSpec(drop_rate=0.2, centre_sigma_m=0.3, yaw_sigma_deg=5.0)
+    follow = _all(perturb_frames(scene, spec, seed=2))
+    keep = _all(perturb_frames(scene, spec, seed=2, image_boxes="keep"))
+    np.testing.assert_array_equal(keep.xyz, follow.xyz)
+    np.testing.assert_array_equal(keep.yaw, follow.yaw)
+    assert np.abs(follow.xyxy_image - keep.xyxy_image).max() > 1.0  # follow moved them
+    # the kept boxes are a subsequence of the input: match them by their (unjittered) height
+    before = _all(scene)
+    rows = [int(np.flatnonzero(before.xyz[:, 2] == z)[0]) for z in keep.xyz[:, 2]]
+    np.testing.assert_array_equal(keep.xyxy_image, before.xyxy_image[rows])
+    with pytest.raises(ValueError, match="image_boxes"):
+        perturb_frames(scene, spec, seed=2, image_boxes="drift")  # type: ignore[arg-type]
+
+
 def test_false_positives_count_plausibility_and_projection(scene: list[Frame]) -> None:
     rate = 0.2
     out = perturb_frames(scene, PerturbSpec(fp_rate=rate), seed=8)
@@ -261,6 +280,15 @@ def test_robustness_command_on_the_sample(
     )
     assert drop < 0  # noise costs HOTA
     assert "| noise |" in (out / "robustness.md").read_text()
+    assert report["image_boxes"] == "follow"
+
+    kept = tmp_path / "keep"
+    argv = ["robustness", *args, "--levels", "noise", "--seeds", "0", "--image-boxes", "keep"]
+    assert main([*argv, "--out", str(kept)]) == 0
+    keep_report = json.loads((kept / "robustness.json").read_text())
+    assert keep_report["image_boxes"] == "keep"
+    assert keep_report["levels"]["clean"] == clean  # the rule only acts on the jitter
+    assert "--image-boxes keep" in (kept / "robustness.md").read_text()
 
     plain = run_kitti(
         kitti_root=sample_kit, seqs=["0001"], classes=["car"], out=tmp_path / "plain", quiet=True

@@ -2,8 +2,10 @@
 
 Per box: drop with probability ``drop_rate``; jitter the BEV centre (x, y) by N(0, σ) per axis
 and the heading by N(0, σ_yaw); add N(0, σ_score) to ``score_raw`` and recompute ``score`` with a
-``rescore(category, raw)`` map. The detector's 2D box moves with its 3D box (by the change of the
-box's projection), so the image stage sees the same error as the BEV stage.
+``rescore(category, raw)`` map. By default (``image_boxes="follow"``) the detector's 2D box moves
+with its 3D box (by the change of the box's projection), so the image stage sees the same error as
+the BEV stage: a LiDAR detector's 2D box is its 3D box's projection. With ``"keep"`` it stays
+where the detector put it, as a 2D box from an image head would (independent of the 3D error).
 
 Per frame and class: Poisson(``fp_rate`` × real boxes of that class) false positives (Poisson
 clutter, the standard clutter model of the tracking literature). Each is a plausible box of the
@@ -24,6 +26,7 @@ import dataclasses
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,6 +41,11 @@ from tracker.io.convert.kitti import _sigmoid
 #: -> calibrated (``range_m``: BEV distance from the ego, NaN when unknown; e.g.
 #: :meth:`tracker.calibration.ScoreProfile.scores`).
 Rescore = Callable[[IntArray, FloatArray, FloatArray], FloatArray]
+
+#: What the centre and yaw jitter does to a detection's 2D box: moves it with the 3D box's
+#: projection ("follow") or leaves it ("keep").
+ImageBoxes = Literal["follow", "keep"]
+IMAGE_BOXES: tuple[ImageBoxes, ...] = ("follow", "keep")
 
 #: Candidate positions drawn per false positive; the first inside the camera's view is kept.
 _FP_TRIES = 8
@@ -116,6 +124,7 @@ def perturb_frames(
     *,
     seed: int,
     rescore: Rescore | None = None,
+    image_boxes: ImageBoxes = "follow",
 ) -> list[Frame]:
     """Perturbed copies of detection frames (one or more scenes, each in time order).
 
@@ -125,6 +134,8 @@ def perturb_frames(
     spec : the noise; a clean spec returns the input frames unchanged.
     seed : >= 0; with the scene name it seeds each scene's generator (:func:`scene_rng`).
     rescore : raw score -> ``score`` after score noise (default :func:`sigmoid_rescore`).
+    image_boxes : "follow": the jitter moves each detector 2D box with its 3D box's projection;
+        "keep": 2D boxes stay as given (see the module docstring).
 
     Returns
     -------
@@ -133,8 +144,11 @@ def perturb_frames(
 
     Raises
     ------
-    ValueError : score noise on boxes without a raw score (``score_raw`` NaN).
+    ValueError : score noise on boxes without a raw score (``score_raw`` NaN), or an unknown
+        ``image_boxes``.
     """
+    if image_boxes not in IMAGE_BOXES:
+        raise ValueError(f"image_boxes: expected one of {IMAGE_BOXES}, got {image_boxes!r}")
     out = list(frames)
     if spec.is_clean:
         return out
@@ -143,7 +157,11 @@ def perturb_frames(
         by_scene.setdefault(frame.scene, []).append(i)
     for scene, rows in by_scene.items():
         perturbed = _perturb_scene(
-            [frames[i] for i in rows], spec, scene_rng(seed, scene), rescore or sigmoid_rescore
+            [frames[i] for i in rows],
+            spec,
+            scene_rng(seed, scene),
+            rescore or sigmoid_rescore,
+            move_image_boxes=image_boxes == "follow",
         )
         for i, frame in zip(rows, perturbed, strict=True):
             out[i] = frame
@@ -179,7 +197,12 @@ class _Cameras:
 
 
 def _perturb_scene(
-    frames: Sequence[Frame], spec: PerturbSpec, rng: np.random.Generator, rescore: Rescore
+    frames: Sequence[Frame],
+    spec: PerturbSpec,
+    rng: np.random.Generator,
+    rescore: Rescore,
+    *,
+    move_image_boxes: bool,
 ) -> list[Frame]:
     per_frame = np.array([len(f.boxes) for f in frames], dtype=np.int64)
     frame_of = np.repeat(np.arange(len(frames)), per_frame)
@@ -198,7 +221,7 @@ def _perturb_scene(
         yaw = wrap_angle(yaw + np.deg2rad(spec.yaw_sigma_deg) * z_yaw)
     keep = u_drop >= spec.drop_rate
     xyxy = boxes.xyxy_image
-    if spec.centre_sigma_m > 0 or spec.yaw_sigma_deg > 0:
+    if move_image_boxes and (spec.centre_sigma_m > 0 or spec.yaw_sigma_deg > 0):
         flat_camera = np.where(keep, cams.flat(frame_of, boxes.camera), -1)  # kept boxes only
         xyxy = _moved_image_boxes(boxes, xyz, yaw, flat_camera, cams)
     real = boxes.replace(xyz=xyz, yaw=yaw, xyxy_image=xyxy)[keep]
