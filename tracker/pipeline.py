@@ -95,7 +95,8 @@ def offline_postprocess(
     """Track-score filter and gap interpolation over a whole scene (see module docstring).
 
     Whole tracks removed by the filter are appended to ``removed`` (when given). ``frames``, the
-    scene's input frames, are needed by ``offline.rts`` (without them it is off).
+    scene's input frames, are needed by ``offline.rts`` and ``offline.rts_heading`` (without
+    them they are off).
     """
     if not outputs:
         return outputs
@@ -141,12 +142,12 @@ def offline_postprocess(
         start = np.cumsum([0] + [len(f.boxes) for f in frames])  # each frame's first detection
         det_at = start[frame_index[measured]] + det_row[measured]  # into the scene's detections
         times = np.array([o.time_secs for o in outputs])
-        rows = (frame_index[measured], boxes.track_id[measured])
+        at = (frame_index[measured], boxes.track_id[measured])
         category = boxes.category[measured]
         if config.offline.rts:
             # position, velocity and acceleration (x, y); z keeps the fit above
             det_xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames])[det_at]
-            state = rts_smooth(times, *rows, det_xy, category, config)
+            state = rts_smooth(times, *at, det_xy, category, config)
             xyz, velocity = boxes.xyz.copy(), boxes.velocity.copy()
             xyz[measured, :2], velocity[measured] = state[..., 0], state[..., 1]
             boxes = boxes.replace(xyz=xyz, velocity=velocity)
@@ -155,10 +156,12 @@ def offline_postprocess(
             acc[measured[has_acc]] = state[has_acc, :, 2]
         if config.offline.rts_heading:
             det_yaw = np.concatenate([f.boxes.yaw for f in frames])[det_at]
+            ok = np.isfinite(det_yaw)  # (a box without a yaw keeps the online heading)
             yaw = boxes.yaw.copy()
-            yaw[measured] = rts_smooth_heading(
-                times, *rows, det_yaw, boxes.yaw[measured], category, config
-            )
+            yaw[measured[ok]] = rts_smooth_heading(
+                times, at[0][ok], at[1][ok], det_yaw[ok], boxes.yaw[measured[ok]], category[ok],
+                config,
+            )  # fmt: skip
             boxes = boxes.replace(yaw=yaw)
     if config.offline.constant_size:
         boxes = boxes.replace(lwh=mean_size_per_track(boxes.lwh, boxes.track_id, keep))

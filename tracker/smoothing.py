@@ -63,15 +63,15 @@ def rts_smooth(
     config: TrackerConfig,
     axes: tuple[Axis, ...] = _POSE,
 ) -> FloatArray:
-    """(N, 2, 3) RTS-smoothed states [p, v, a] of x and y at N measurements (at most one per
-    track and frame): position (m), velocity (m/s), acceleration (m/s², 0 for a CV pose).
+    """(N, len(axes), 3) RTS-smoothed states [p, v, a] at N measurements (at most one per track
+    and frame); by default of x and y: position (m), velocity (m/s), acceleration (m/s², 0 for a
+    CV pose).
 
     ``times`` (F,) seconds of the scene's frames; ``frame_index`` (N,) each measurement's frame;
     ``track`` (N,) its track (any integer ids); ``xy`` (N, 2) the measured centres;
     ``category`` (N,) the track's category (a tracked one). Every frame from a track's first
     measurement to its last is a filter step, predicted only where it has no measurement.
-    ``axes``: the filter axes measured by the columns of ``xy`` (N, len(axes)); the result is
-    then (N, len(axes), 3)."""
+    ``axes``: the filter axes (:class:`tracker.kalman.Axis`) the columns of ``xy`` measure."""
     xy = np.asarray(xy, dtype=np.float64).reshape(len(xy), len(axes))
     k = len(axes)
     if not len(xy):
@@ -85,7 +85,7 @@ def rts_smooth(
     cat = np.zeros(n, dtype=np.int64)
     cat[tk] = category
     p0, q, r = _axis_noise(config, cat, axes)
-    z = np.full((len(times), n, k), np.nan)  # z[t, track]: its measured centre (NaN: none)
+    z = np.full((len(times), n, k), np.nan)  # z[t, track]: its measurement (NaN: none)
     z[frame_index, tk] = xy
     eye = np.eye(3)
     x, P = np.zeros((n, k, 3)), np.zeros((n, k, 3, 3))
@@ -154,13 +154,16 @@ def rts_smooth_heading(
     ``yaw`` (N,) the detections' yaws (box axes: known modulo π); ``heading`` (N,) the online
     filter's heading of each row, which decides the direction of the smoothed axis."""
     yaw = np.asarray(yaw, dtype=np.float64)
+    frame_index, track = np.asarray(frame_index), np.asarray(track)
     if not len(yaw):
         return np.zeros(0)
+    if not np.isfinite(yaw).all():
+        raise ValueError("rts_smooth_heading: every yaw must be finite")
     order = np.lexsort((frame_index, track))
     step = np.diff(yaw[order], prepend=0.0)
     step = np.mod(step + np.pi / 2, np.pi) - np.pi / 2  # the axis turns by less than π/2
     first = np.r_[True, track[order][1:] != track[order][:-1]]
-    step[first] = yaw[order][first]  # each track starts from its first yaw
+    step[first] = 0.0  # each track starts from its first yaw (added below)
     run = np.cumsum(step)
     start = np.maximum.accumulate(np.where(first, np.arange(len(run)), 0))
     chained = np.empty(len(yaw))
