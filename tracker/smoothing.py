@@ -28,8 +28,7 @@ import numpy as np
 
 from tracker.boxes import FloatArray, IntArray
 from tracker.config import TrackerConfig
-from tracker.geometry import wrap_angle
-from tracker.kalman import Axis
+from tracker.kalman import Axis, align_heading
 from tracker.mctracker import motion_noise_tables
 
 _RIDGE = 1e-12  # keeps P⁻ invertible where a CV chain has a zero-variance acceleration
@@ -58,7 +57,7 @@ def rts_smooth(
     times: FloatArray,
     frame_index: IntArray,
     track: IntArray,
-    xy: FloatArray,
+    measured: FloatArray,
     category: IntArray,
     config: TrackerConfig,
     axes: tuple[Axis, ...] = _POSE,
@@ -68,13 +67,13 @@ def rts_smooth(
     CV pose).
 
     ``times`` (F,) seconds of the scene's frames; ``frame_index`` (N,) each measurement's frame;
-    ``track`` (N,) its track (any integer ids); ``xy`` (N, 2) the measured centres;
+    ``track`` (N,) its track (any integer ids); ``measured`` (N, len(axes)) the measured values
+    of ``axes`` (:class:`tracker.kalman.Axis`; by default the centres' x and y);
     ``category`` (N,) the track's category (a tracked one). Every frame from a track's first
-    measurement to its last is a filter step, predicted only where it has no measurement.
-    ``axes``: the filter axes (:class:`tracker.kalman.Axis`) the columns of ``xy`` measure."""
-    xy = np.asarray(xy, dtype=np.float64).reshape(len(xy), len(axes))
+    measurement to its last is a filter step, predicted only where it has no measurement."""
     k = len(axes)
-    if not len(xy):
+    measured = np.asarray(measured, dtype=np.float64).reshape(len(measured), k)
+    if not len(measured):
         return np.zeros((0, k, 3))
     ids, tk = np.unique(track, return_inverse=True)
     n = len(ids)
@@ -86,7 +85,7 @@ def rts_smooth(
     cat[tk] = category
     p0, q, r = _axis_noise(config, cat, axes)
     z = np.full((len(times), n, k), np.nan)  # z[t, track]: its measurement (NaN: none)
-    z[frame_index, tk] = xy
+    z[frame_index, tk] = measured
     eye = np.eye(3)
     x, P = np.zeros((n, k, 3)), np.zeros((n, k, 3, 3))
     # forward pass (the online filter), keeping per frame what the backward pass needs
@@ -171,5 +170,4 @@ def rts_smooth_heading(
     axis = rts_smooth(
         times, frame_index, track, chained[:, None], category, config, axes=(Axis.YAW,)
     )[:, 0, 0]
-    # the representative of the smoothed axis (modulo π) nearest the online heading
-    return wrap_angle(axis + np.pi * np.round(wrap_angle(heading - axis) / np.pi))
+    return align_heading(axis, heading)  # the smoothed axis, in the online heading's direction
