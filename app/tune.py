@@ -50,8 +50,9 @@ from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
 
 # (kind, low, high): the settings searched, per class, in calibrated units. "confirm_nines" n
-# sets confirm_prob = 1 - 10^-n; "pose.ca.r" is the position measurement variance (m², both axes)
-# of the constant-acceleration filter: how much the filter trusts one box.
+# sets confirm_prob = 1 - 10^-n; "pose.r_scale" sets the position measurement variance of the
+# filter, how much it trusts one box, as a multiple of the detections' own centre variance
+# (estimated as the tracker runs, tracker/noise.py), so that r follows the detector's noise.
 ONLINE_SPACE: dict[str, tuple[str, float, float]] = {
     "score_min": ("log", 0.01, 0.6),
     "birth_score_min": ("float", 0.2, 0.95),
@@ -60,7 +61,7 @@ ONLINE_SPACE: dict[str, tuple[str, float, float]] = {
     "lifecycle.max_misses_output": ("int", 0, 3),
     "lifecycle.max_misses": ("int", 5, 30),
     "bev.cost_max": ("float", 1.0, 2.0),
-    "pose.ca.r": ("log", 0.02, 2.0),
+    "pose.r_scale": ("log", 3.0, 300.0),
 }
 # Searched for cars only: the output gate on the track's mean log-odds. 0 is "more likely real
 # than not" for independent hits, but a detector's hits of one object are correlated, so where
@@ -179,8 +180,11 @@ def settings_to_overrides(cls: str, params: dict[str, Any]) -> dict[str, Any]:
     for key, value in params.items():
         if key == "lifecycle.confirm_nines":
             key, value = "lifecycle.confirm_prob", round(1.0 - 10.0 ** (-value), 6)
-        elif key == "pose.ca.r":
+        elif key == "pose.ca.r":  # (records of tunes before pose.r_scale: a fixed r)
             value = [round(value, 6)] * 2
+            out.setdefault("category", {}).setdefault(cls, {}).setdefault("pose", {})["r_scale"] = (
+                0.0
+            )
         node = (
             out
             if key.startswith("offline.")
@@ -474,8 +478,6 @@ def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> d
         if key == "lifecycle.confirm_nines":
             p = config.per_category[cls].lifecycle.confirm_prob
             value: Any = -math.log10(max(1.0 - p, 1e-12))
-        elif key == "pose.ca.r":
-            value = config.per_category[cls].pose.ca.r[0]
         elif key.startswith("offline."):
             value = getattr(config.offline, key.split(".", 1)[1])
         else:

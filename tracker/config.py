@@ -130,6 +130,10 @@ class PoseFilterConfig:
     measure_velocity: bool = False  # use the detector's velocity as a measurement (nuScenes)
     cv: KalmanNoise = KalmanNoise((1, 1, 500, 500), (0.5, 0.5, 5, 5), (0.1, 0.1))
     ca: KalmanNoise = KalmanNoise((1, 1, 500, 500, 100, 100), (0.5, 0.5, 5, 5, 1, 1), (0.1, 0.1))
+    # > 0: the position measurement variance is r_scale × the detections' own centre variance,
+    # estimated per scene as it runs (tracker.noise); the model's r until the estimate exists.
+    # 0: the model's fixed r (the reference)
+    r_scale: float = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -318,6 +322,8 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
             raise InputError(f"{source}: category.{name}.bev.buffer must be in [0, 2]")
         if not 0.0 < cfg.vertical_gain <= 1.0:
             raise InputError(f"{source}: category.{name}.vertical_gain must be in (0, 1]")
+        if not cfg.pose.r_scale >= 0.0:
+            raise InputError(f"{source}: category.{name}.pose.r_scale must be >= 0")
     return top
 
 

@@ -62,6 +62,7 @@ from tracker.geometry import prepare_kernels, wrap_angle
 from tracker.kalman import Axis
 from tracker.kernels import load as load_kernels
 from tracker.matching import Matches, greedy, hungarian
+from tracker.noise import PositionNoise
 from tracker.track import TrackTable
 
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
@@ -163,6 +164,9 @@ class _PerCategory:
         self.motion_model = kalman.MotionModel.CA if any_ca else kalman.MotionModel.CV
         noise = kalman.DiagonalNoise.stack([self._motion_noise(c) for c in cfgs])
         self.motion_p0, self.motion_q, self.motion_r = noise.p0_diag, noise.q_diag, noise.r_diag
+        # r of x and y from the detections' estimated noise (tracker.noise) where > 0
+        self.r_scale = np.where(self.tracked, arr(lambda c: c.pose.r_scale), 0.0)
+        self.any_r_scale = bool(np.any(self.r_scale > 0))
 
     def _motion_noise(self, c: CategoryConfig) -> kalman.DiagonalNoise:
         """Per-axis P0/Q/R (5, k) of one category for the tracker's motion model."""
@@ -212,6 +216,9 @@ class MCTracker:
 
     def reset(self) -> None:
         self._tracks = TrackTable.empty(order=self._cat.motion_model.order)
+        # the R table in effect: the config's, with x and y following the noise estimate
+        self.motion_r = self._cat.motion_r.copy()
+        self._noise = PositionNoise(len(CATEGORIES)) if self._cat.any_r_scale else None
         self._next_id = 0
         self._last_time: float | None = None
         self._last_frame_id: int | None = None
@@ -223,6 +230,8 @@ class MCTracker:
         time_secs, dt = self._advance_clock(frame)
         self._emit(FrameStarted(frame, time_secs))
         dets, kept_rows = self._preprocess(frame)  # category, score, NMS
+        if self._noise is not None:
+            self._follow_noise(dets, time_secs)
         prev_boxes = self._tracks.boxes() if self._needs_back_prediction() else None
         self._predict(dt)  # three decoupled Kalman filters
         m1, bev_mask = self._bev_stage(prev_boxes, dets, kept_rows, dt)  # Ro_GDIoU, Hungarian
@@ -236,6 +245,18 @@ class MCTracker:
         output = self._output(frame, time_secs)
         self._emit(FrameFinished(output))
         return output
+
+    def _follow_noise(self, dets: Boxes, time_secs: float) -> None:
+        """Update the detections' noise estimate with this frame's boxes, and r of x and y
+        (``pose.r_scale`` × the estimate) where it exists."""
+        assert self._noise is not None
+        self._noise.update(time_secs, dets.xyz[:, :2], dets.lwh[:, 0], dets.category)
+        scale = self._cat.r_scale
+        r = scale * self._noise.variance()
+        ready = (scale > 0) & np.isfinite(r) & (r > 0)
+        if ready.any():
+            self.motion_r[ready, Axis.X, 0] = r[ready]
+            self.motion_r[ready, Axis.Y, 0] = r[ready]
 
     def _emit(self, event: Event | None) -> None:
         if self.observer and event is not None:
@@ -552,11 +573,11 @@ class MCTracker:
             # the code below, compiled (value measurements only)
             self._kernels.motion_update_kernel(
                 tr.motion_x, tr.motion_P, tr.heading_votes, idx, c, xyz[:, :2], lwh[:, :2],
-                det_yaw, cat.motion_r, cat.head_min_speed, HEADING_FLIP_VOTES,
+                det_yaw, self.motion_r, cat.head_min_speed, HEADING_FLIP_VOTES,
             )  # fmt: skip
             self._record_hits(idx, dets, det_rows, xyz, lwh)
             return
-        r_diag = cat.motion_r[c]
+        r_diag = self.motion_r[c]
         vel = None
         if cat.any_measure_velocity:
             vel = np.where(cat.measure_velocity[c][:, None], dets.velocity[det_rows], np.nan)

@@ -70,7 +70,9 @@ def run_scene(
     for frame in frames:
         outputs.append(tracker.step(frame))
     if config.mode is TrackingMode.OFFLINE:
-        outputs = offline_postprocess(outputs, config, removed=removed, frames=frames)
+        outputs = offline_postprocess(
+            outputs, config, removed=removed, frames=frames, motion_r=tracker.motion_r
+        )
     elapsed = time.perf_counter() - start
     scene = frames[0].scene if frames else ""
     if removed:
@@ -91,12 +93,15 @@ def offline_postprocess(
     *,
     removed: list[RemovedTrack] | None = None,
     frames: Sequence[Frame] | None = None,
+    motion_r: np.ndarray | None = None,
 ) -> list[TrackOutput]:
     """Track-score filter and gap interpolation over a whole scene (see module docstring).
 
     Whole tracks removed by the filter are appended to ``removed`` (when given). ``frames``, the
     scene's input frames, are needed by ``offline.rts`` and ``offline.rts_heading`` (without
-    them they are off).
+    them they are off). ``motion_r``: the R table the position smoother uses instead of the
+    config's, the tracker's at the scene's end (with ``pose.r_scale``, r from the noise of the
+    whole scene's detections).
     """
     if not outputs:
         return outputs
@@ -147,7 +152,7 @@ def offline_postprocess(
         if config.offline.rts:
             # position, velocity and acceleration (x, y); z keeps the fit above
             det_xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames])[det_at]
-            state = rts_smooth(times, *at, det_xy, category, config)
+            state = rts_smooth(times, *at, det_xy, category, config, motion_r=motion_r)
             xyz, velocity = boxes.xyz.copy(), boxes.velocity.copy()
             xyz[measured, :2], velocity[measured] = state[..., 0], state[..., 1]
             boxes = boxes.replace(xyz=xyz, velocity=velocity)

@@ -38,12 +38,19 @@ _POSE = (Axis.X, Axis.Y)
 
 
 def _axis_noise(
-    config: TrackerConfig, category: IntArray, axes: tuple[Axis, ...]
+    config: TrackerConfig,
+    category: IntArray,
+    axes: tuple[Axis, ...],
+    motion_r: FloatArray | None = None,
 ) -> tuple[FloatArray, ...]:
     """Per track: P0 and Q (n, len(axes), 3) and R (n, len(axes)) of its category's filter on
     ``axes``, as [p, v, a] chains: the tracker's own tables (a CV pose, and the heading, have
-    zero acceleration variances, so the chain is then exactly CV)."""
+    zero acceleration variances, so the chain is then exactly CV); ``motion_r`` (C, 5, 2), when
+    given, replaces the config's R (the tracker's ``motion_r``, which follows the detections'
+    noise with ``pose.r_scale``)."""
     p0, q, r = motion_noise_tables(config)
+    if motion_r is not None:
+        r = motion_r
     pad = ((0, 0), (0, 0), (0, 3 - p0.shape[-1]))  # (k = 2 when every tracked class is CV)
     rows = list(axes)
     return (
@@ -61,6 +68,8 @@ def rts_smooth(
     category: IntArray,
     config: TrackerConfig,
     axes: tuple[Axis, ...] = _POSE,
+    *,
+    motion_r: FloatArray | None = None,
 ) -> FloatArray:
     """(N, len(axes), 3) RTS-smoothed states [p, v, a] at N measurements (at most one per track
     and frame); by default of x and y: position (m), velocity (m/s), acceleration (m/s², 0 for a
@@ -69,7 +78,8 @@ def rts_smooth(
     ``times`` (F,) seconds of the scene's frames; ``frame_index`` (N,) each measurement's frame;
     ``track`` (N,) its track (any integer ids); ``measured`` (N, len(axes)) the measured values
     of ``axes`` (:class:`tracker.kalman.Axis`; by default the centres' x and y);
-    ``category`` (N,) the track's category (a tracked one). Every frame from a track's first
+    ``category`` (N,) the track's category (a tracked one); ``motion_r`` (C, 5, 2) the R table
+    to use instead of the config's (see :func:`_axis_noise`). Every frame from a track's first
     measurement to its last is a filter step, predicted only where it has no measurement."""
     k = len(axes)
     measured = np.asarray(measured, dtype=np.float64).reshape(len(measured), k)
@@ -83,7 +93,7 @@ def rts_smooth(
     np.maximum.at(last, tk, frame_index)
     cat = np.zeros(n, dtype=np.int64)
     cat[tk] = category
-    p0, q, r = _axis_noise(config, cat, axes)
+    p0, q, r = _axis_noise(config, cat, axes, motion_r)
     z = np.full((len(times), n, k), np.nan)  # z[t, track]: its measurement (NaN: none)
     z[frame_index, tk] = measured
     eye = np.eye(3)
