@@ -197,12 +197,13 @@ def test_buffered_boxes_keep_a_jittering_small_object(cost_state: str) -> None:
 
     def run(buffer: float) -> tuple[set[int], int]:
         bev = {"buffer": buffer, "cost_max": 1.2, "cost_state": cost_state}
+        pose = {"r_scale": 0.0, "ca": {"r": [1.0, 1.0]}}  # trusting one box little
         cfg = load_config(
             "kitti",
             overrides={
                 "categories": ["pedestrian"],
                 "coast_min_in_view": 0.0,
-                "category": {"pedestrian": {"bev": bev}},
+                "category": {"pedestrian": {"bev": bev, "pose": pose}},
             },
         )
         observer = ListObserver()

@@ -83,9 +83,10 @@ def test_equals_textbook_rts_per_track(config_name: str) -> None:
 
 def test_removes_the_online_filters_lag() -> None:
     """A car speeding up and braking (speed 8 ± 3 m/s), seen with 0.15 m noise through the car
-    filter (which trusts one box little): the online estimate trails the car whenever its
-    acceleration changes, the smoothed one does not."""
-    config = load_config("kitti")
+    filter trusting one box little (r 1.5 m², as under noisy boxes): the online estimate trails
+    the car whenever its acceleration changes, the smoothed one does not."""
+    pose = {"r_scale": 0.0, "ca": {"r": [1.5, 1.5]}}
+    config = load_config("kitti", overrides={"category": {"car": {"pose": pose}}})
     rng = np.random.default_rng(0)
     times = 0.1 * np.arange(80)
     truth = np.column_stack([8 * times - 3 / 0.8 * np.cos(0.8 * times), np.zeros(80)])
@@ -117,15 +118,18 @@ def test_offline_mode_writes_the_smoothed_track() -> None:
         for i in range(30)
     ]  # fmt: skip
 
+    pose = {"r_scale": 0.0, "ca": {"r": [1.0, 1.0]}}  # (one car: no noise estimate to scale)
+    car_pose = {"car": {"pose": pose}}
+
     def run(rts: bool):
-        overrides = {"categories": ["car"], "offline": {"rts": rts}}
+        overrides = {"categories": ["car"], "offline": {"rts": rts}, "category": car_pose}
         outputs = run_scene(frames, load_config("kitti_offline", overrides=overrides)).outputs
         assert [len(o) for o in outputs] == [1] * 30
         return np.vstack([o.boxes.xyz[:, :2] for o in outputs]), np.vstack(
             [o.boxes.velocity for o in outputs]
         )
 
-    config = load_config("kitti_offline", overrides={"categories": ["car"]})
+    config = load_config("kitti_offline", overrides={"categories": ["car"], "category": car_pose})
     want = rts_smooth(t, np.arange(30), np.zeros(30, int), centres, np.full(30, car), config)
     xy_on, v_on = run(True)
     np.testing.assert_allclose(xy_on, want[..., 0], atol=1e-9)

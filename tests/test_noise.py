@@ -1,0 +1,195 @@
+"""The detections' own position noise (tracker.noise): the second-difference estimator recovers
+a known white noise, ignores the path's motion and a share of clutter, keeps categories apart,
+skips uneven frame steps, and the tracker's r follows it where ``pose.r_scale`` asks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tracker.boxes import Boxes
+from tracker.categories import category_index
+from tracker.config import load_config
+from tracker.errors import InputError
+from tracker.frame import Frame
+from tracker.kalman import Axis
+from tracker.mctracker import MCTracker
+from tracker.noise import MIN_SAMPLES, PositionNoise, second_difference_variance
+
+CAR, PED = category_index("car"), category_index("pedestrian")
+
+
+def _scene(rng, n_objects=8, frames=60, sigma=0.2, category=CAR, clutter=0.0, spacing=30.0):
+    """(frames) lists of (xy, length, category): objects on curved paths (speed 5-15 m/s,
+    slowly turning, side by side) seen with white noise ``sigma`` per axis, plus ``clutter`` false boxes per frame
+    (expected) anywhere in a 200 m square."""
+    t = 0.1 * np.arange(frames)
+    start = np.column_stack([np.zeros(n_objects), np.arange(n_objects) * spacing])
+    speed = rng.uniform(5, 15, n_objects)[:, None]
+    turn = rng.uniform(-0.02, 0.02, n_objects)  # rad/s: lanes 30 m apart never meet
+    heading = turn[None, :] * t[:, None]
+    vel = speed * np.stack([np.cos(heading), np.sin(heading)], axis=-1)  # (T, n, 2)
+    path = start + np.cumsum(vel * 0.1, axis=0)
+    out = []
+    for k in range(frames):
+        xy = path[k] + rng.normal(0, sigma, (n_objects, 2))
+        cat = np.full(n_objects, category)
+        n_fp = rng.poisson(clutter)
+        if n_fp:
+            xy = np.vstack([xy, rng.uniform(-100, 100, (n_fp, 2))])
+            cat = np.r_[cat, np.full(n_fp, category)]
+        out.append((xy, np.full(len(xy), 4.0), cat))
+    return t, out
+
+
+def _feed(t, scene, estimator=None):
+    est = estimator or PositionNoise(8)
+    for time, (xy, length, cat) in zip(t, scene, strict=True):
+        est.update(time, xy, length, cat)
+    return est
+
+
+@pytest.mark.parametrize("sigma", [0.05, 0.2, 0.4])
+def test_recovers_a_known_white_noise(sigma: float) -> None:
+    rng = np.random.default_rng(int(sigma * 100))
+    t, scene = _scene(rng, sigma=sigma, frames=200)
+    got = _feed(t, scene).variance()[CAR]
+    assert got == pytest.approx(sigma**2, rel=0.12)
+
+
+def test_the_histogram_median_equals_the_exact_one() -> None:
+    """One object: the running estimate equals the exact-median reference to the bins' width."""
+    rng = np.random.default_rng(1)
+    t, scene = _scene(rng, n_objects=1, frames=400, sigma=0.1)
+    exact = second_difference_variance(np.vstack([xy for xy, _, _ in scene]))
+    assert _feed(t, scene).variance()[CAR] == pytest.approx(exact, rel=0.03)
+
+
+def test_clutter_and_wrong_links_barely_move_it() -> None:
+    """Two false boxes per frame (some linked to each other or to real boxes): the median
+    keeps the estimate within 15 %; a plain variance would not."""
+    rng = np.random.default_rng(2)
+    t, scene = _scene(rng, sigma=0.15, frames=200, clutter=2.0)
+    assert _feed(t, scene).variance()[CAR] == pytest.approx(0.15**2, rel=0.15)
+
+
+def test_categories_are_kept_apart() -> None:
+    """Cars with 0.3 m noise and pedestrians with 0.05 m on the same ground: each estimate is its
+    own class's, and no chain crosses classes."""
+    rng = np.random.default_rng(3)
+    t, cars = _scene(rng, sigma=0.3, frames=150)
+    _, peds = _scene(rng, sigma=0.05, frames=150, category=PED)
+    scene = [
+        (np.vstack([a[0], b[0] + [0.5, 0.0]]), np.r_[a[1], b[1]], np.r_[a[2], b[2]])
+        for a, b in zip(cars, peds, strict=True)
+    ]  # each pedestrian 0.5 m from a car: nearer than any other box
+    var = _feed(t, scene).variance()
+    assert var[CAR] == pytest.approx(0.09, rel=0.15)
+    assert var[PED] == pytest.approx(0.0025, rel=0.15)
+
+
+def test_no_estimate_before_enough_samples_and_none_across_uneven_steps() -> None:
+    rng = np.random.default_rng(4)
+    # one object: a triple (two samples, x and y) per frame from the third on
+    t, scene = _scene(rng, n_objects=1, frames=MIN_SAMPLES // 2 + 2)
+    assert np.isnan(_feed(t[:-1], scene[:-1]).variance()[CAR])
+    assert np.isfinite(_feed(t, scene).variance()[CAR])
+    # every other frame missing in time (steps 0.1, 0.2, 0.1, ...): no triple has even steps
+    uneven = np.cumsum(np.where(np.arange(len(t)) % 2, 0.2, 0.1))
+    est = _feed(uneven, scene)
+    assert est.counts.sum() == 0
+
+
+def _frames(t, scene):
+    return [
+        Frame(
+            scene="s", frame_id=i, timestamp_secs=float(t[i]),
+            boxes=Boxes.create(
+                xyz=np.column_stack([xy, np.full(len(xy), 0.8)]),
+                lwh=np.tile([4.2, 1.8, 1.6], (len(xy), 1)),
+                yaw=np.zeros(len(xy)), category=cat, score=np.full(len(xy), 0.99),
+            ),
+        )
+        for i, (xy, _, cat) in enumerate(scene)
+    ]  # fmt: skip
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+def test_the_trackers_r_follows_the_estimate(compiled: bool) -> None:
+    """With ``pose.r_scale`` the car filter's x and y variances are r_scale × the estimate from
+    the frames so far (the config's r until it exists); without, the config's r throughout;
+    the compiled and numpy paths agree."""
+    rng = np.random.default_rng(5)
+    t, scene = _scene(rng, frames=40, sigma=0.2)
+    frames = _frames(t, scene)
+    fixed = load_config("kitti", overrides={"categories": ["car"], "category": {"car": {
+        "pose": {"r_scale": 0.0, "ca": {"r": [0.5, 0.5]}}}}})  # fmt: skip
+    scaled = load_config("kitti", overrides={"categories": ["car"], "category": {"car": {
+        "pose": {"r_scale": 40.0, "ca": {"r": [0.5, 0.5]}}}}})  # fmt: skip
+    a, b = MCTracker(fixed, compiled=compiled), MCTracker(scaled, compiled=compiled)
+    est = PositionNoise(8)
+    states = []
+    for f in frames:
+        a.step(f)
+        b.step(f)
+        est.update(f.timestamp_secs, f.boxes.xyz[:, :2], f.boxes.lwh[:, 0], f.boxes.category)
+        var = est.variance()[CAR]
+        assert a.motion_r[CAR, Axis.X, 0] == a.motion_r[CAR, Axis.Y, 0] == 0.5
+        want = 0.5 if np.isnan(var) else 40.0 * var
+        assert b.motion_r[CAR, Axis.X, 0] == pytest.approx(want, rel=1e-12)
+        assert b.motion_r[CAR, Axis.Y, 0] == pytest.approx(want, rel=1e-12)
+        states.append(b._tracks.motion_x[:, :2, 0].copy())
+    assert 40.0 * 0.04 * 0.85 < b.motion_r[CAR, Axis.X, 0] < 40.0 * 0.04 * 1.15
+    # the other axes (size, heading) keep the config's values
+    np.testing.assert_array_equal(b.motion_r[:, 2:], a.motion_r[:, 2:])
+    # the filter uses it: the two trackers' positions differ once it exists
+    assert not np.allclose(a._tracks.motion_x[:, :2, 0], states[-1])
+
+
+def test_compiled_and_numpy_paths_agree_with_r_scale() -> None:
+    rng = np.random.default_rng(6)
+    t, scene = _scene(rng, frames=30, sigma=0.2)
+    config = load_config("kitti", overrides={"categories": ["car"]})
+    assert config.per_category["car"].pose.r_scale > 0
+    outs = []
+    for compiled in (False, True):
+        tracker = MCTracker(config, compiled=compiled)
+        outs.append([tracker.step(f).boxes.xyz for f in _frames(t, scene)])
+    for x, y in zip(*outs, strict=True):
+        np.testing.assert_allclose(x, y, atol=1e-9)
+
+
+def test_a_negative_r_scale_is_refused() -> None:
+    with pytest.raises(InputError, match="category.car.pose.r_scale must be >= 0"):
+        load_config("kitti", overrides={"category": {"car": {"pose": {"r_scale": -1.0}}}})
+
+
+def test_offline_smooths_with_the_scenes_estimated_r() -> None:
+    """Offline mode's position smoother uses the r the tracker ended the scene with (from the
+    whole scene's detections), not the config's prior."""
+    from tracker.pipeline import run_scene
+    from tracker.smoothing import rts_smooth
+
+    rng = np.random.default_rng(7)
+    t, scene = _scene(rng, n_objects=4, frames=40, sigma=0.2)
+    frames = _frames(t, scene)
+    config = load_config("kitti_offline", overrides={"categories": ["car"]})
+    tracker = MCTracker(config)
+    for f in frames:
+        tracker.step(f)
+    r_end = tracker.motion_r
+    assert r_end[CAR, Axis.X, 0] != config.per_category["car"].pose.ca.r[0]
+    outputs = run_scene(frames, config).outputs
+    fi, tid, det_xy, got = [], [], [], []
+    for i, o in enumerate(outputs):
+        hit = np.flatnonzero(o.det_row >= 0)
+        fi += [i] * len(hit)
+        tid += o.boxes.track_id[hit].tolist()
+        det_xy.append(frames[i].boxes.xyz[o.det_row[hit], :2])
+        got.append(o.boxes.xyz[hit, :2])
+    fi, tid, det_xy, got = np.array(fi), np.array(tid), np.vstack(det_xy), np.vstack(got)
+    cat = np.full(len(fi), CAR)
+    want = rts_smooth(t, fi, tid, det_xy, cat, config, motion_r=r_end)[..., 0]
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    prior = rts_smooth(t, fi, tid, det_xy, cat, config)[..., 0]
+    assert np.abs(prior - want).max() > 0.02
