@@ -21,8 +21,8 @@ CAR, PED = category_index("car"), category_index("pedestrian")
 
 def _scene(rng, n_objects=8, frames=60, sigma=0.2, category=CAR, clutter=0.0, spacing=30.0):
     """(frames) lists of (xy, length, category): objects on curved paths (speed 5-15 m/s,
-    slowly turning, side by side) seen with white noise ``sigma`` per axis, plus ``clutter`` false boxes per frame
-    (expected) anywhere in a 200 m square."""
+    slowly turning, side by side) seen with white noise ``sigma`` per axis, plus ``clutter``
+    false boxes per frame (expected) anywhere in a 200 m square."""
     t = 0.1 * np.arange(frames)
     start = np.column_stack([np.zeros(n_objects), np.arange(n_objects) * spacing])
     speed = rng.uniform(5, 15, n_objects)[:, None]
@@ -160,7 +160,7 @@ def test_compiled_and_numpy_paths_agree_with_r_scale() -> None:
 
 
 def test_a_negative_r_scale_is_refused() -> None:
-    with pytest.raises(InputError, match="category.car.pose.r_scale must be >= 0"):
+    with pytest.raises(InputError, match=r"category\.car\.pose\.r_scale must be >= 0"):
         load_config("kitti", overrides={"category": {"car": {"pose": {"r_scale": -1.0}}}})
 
 

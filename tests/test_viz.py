@@ -217,6 +217,31 @@ def test_acceleration_series_for_ca_tracks_only(rrd: Path, tmp_path: Path) -> No
         np.testing.assert_allclose(got, values, rtol=1e-12, atol=1e-12)
 
 
+def test_noise_series_is_the_filters_r(rrd: Path, tmp_path: Path) -> None:
+    """A config with ``pose.r_scale`` (the tuned KITTI one) records the position filter's r per
+    class and frame, as the tracker's NoiseEstimated events give it: the config's r until the
+    detections' noise is estimated, then r_scale x the estimate. The reference config (a fixed
+    r) records none."""
+    from tracker.categories import category_index
+    from tracker.events import ListObserver, NoiseEstimated
+
+    assert not any(p.startswith(paths.entity(paths.NOISE)) for p in entity_paths(rrd))
+    det, _ = sample_frames()
+    config = load_config("kitti")
+    record_scene(det[:60], config, None, tmp_path / "noise.rrd")
+    events = ListObserver()
+    run_scene(det[:60], config, observer=events)
+    car = category_index("car")
+    want = np.array([e.r[car] for e in events.of_type(NoiseEstimated)])
+    table = entity_table(tmp_path / "noise.rrd", f"{paths.NOISE}/car")
+    assert table[paths.FRAME].to_pylist() == [f.frame_id for f in det[:60]]
+    got = pc.list_flatten(table["Scalars:scalars"]).to_numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    pose = config.per_category["car"].pose
+    assert got[0] == pose.ca.r[0]  # no estimate in the first frame
+    assert np.unique(got).size > 3 and (got[-10:] != pose.ca.r[0]).all()
+
+
 def test_recorded_id_events_equal_trackeval(rrd: Path, result: RecordResult) -> None:
     """The WARN events in the recording are as many as TrackEval's IDSW and Frag."""
     table = entity_table(rrd, paths.EVENTS)

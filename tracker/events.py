@@ -156,6 +156,16 @@ class TrackOutput:
 
 
 @dataclass(frozen=True, slots=True)
+class NoiseEstimated:
+    """Per global category id: the detections' centre variance estimated so far
+    (:mod:`tracker.noise`; NaN until it exists) and the x and y measurement variance the
+    position filter uses, m²; only for categories with ``pose.r_scale`` (NaN elsewhere)."""
+
+    variance: FloatArray
+    r: FloatArray
+
+
+@dataclass(frozen=True, slots=True)
 class FrameFinished:
     output: TrackOutput
 
@@ -168,6 +178,7 @@ Event = (
     | ImageStageDeferred
     | Matched
     | LifecycleChanged
+    | NoiseEstimated
     | FrameFinished
 )
 

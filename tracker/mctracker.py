@@ -51,6 +51,7 @@ from tracker.events import (
     ImageStageDeferred,
     LifecycleChanged,
     Matched,
+    NoiseEstimated,
     Observer,
     Predicted,
     Stage,
@@ -252,11 +253,19 @@ class MCTracker:
         assert self._noise is not None
         self._noise.update(time_secs, dets.xyz[:, :2], dets.lwh[:, 0], dets.category)
         scale = self._cat.r_scale
-        r = scale * self._noise.variance()
+        variance = self._noise.variance()
+        r = scale * variance
         ready = (scale > 0) & np.isfinite(r) & (r > 0)
         if ready.any():
             self.motion_r[ready, Axis.X, 0] = r[ready]
             self.motion_r[ready, Axis.Y, 0] = r[ready]
+        if self.observer:
+            on = scale > 0
+            self.observer(
+                NoiseEstimated(
+                    np.where(on, variance, np.nan), np.where(on, self.motion_r[:, Axis.X, 0], np.nan)
+                )
+            )
 
     def _emit(self, event: Event | None) -> None:
         if self.observer and event is not None:

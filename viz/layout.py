@@ -77,6 +77,7 @@ def debug_blueprint(
     lag_track_ids: Sequence[int] = (),
     switch_track_ids: Sequence[int] = (),
     lag_speed_max_mps: float | None = None,
+    noise_view: bool = False,
 ) -> rrb.Blueprint:
     """The debugging layout.
 
@@ -88,6 +89,8 @@ def debug_blueprint(
         their own views: the largest velocity lag. Known only after the run.
     switch_track_ids : tracks of the first ID switch, compared in one speed view.
     lag_speed_max_mps : top of the lag speed view's y axis (m/s; None: fit all data).
+    noise_view : a view of the position filter's r per class over time (a config with
+        ``pose.r_scale``: r follows the detections' estimated noise).
     """
     # Ego-centric: the view's origin is the ego frame (z up, x = direction of travel), so the
     # eye follows the car at a fixed offset; tracking an entity instead keeps the eye as far
@@ -153,6 +156,13 @@ def debug_blueprint(
         label = " / ".join(f"T{t}" for t in switch_track_ids)
         series.append(_speed_view(switch_track_ids, f"speed [m/s]: {label} (first ID switch)"))
     series.append(all_tracks)
+    if noise_view:
+        series.append(
+            rrb.TimeSeriesView(
+                origin=paths.entity(paths.NOISE),
+                name="position r [m²] per class (from the detections' noise)",
+            )
+        )
     velocity = rrb.Tabs(*series, active_tab=0)
     text = rrb.Tabs(
         rrb.TextLogView(

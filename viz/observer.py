@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.camera import project_boxes_batched
+from tracker.categories import CATEGORIES
 from tracker.events import (
     CostComputed,
     DetectionsFiltered,
@@ -32,6 +33,7 @@ from tracker.events import (
     FrameStarted,
     ImageStageDeferred,
     LifecycleChanged,
+    NoiseEstimated,
     Matched,
     Predicted,
     Stage,
@@ -144,6 +146,7 @@ class RerunObserver:
             ImageStageDeferred: self._on_image_stage_deferred,
             Matched: self._on_matched,
             LifecycleChanged: self._on_lifecycle,
+            NoiseEstimated: self._on_noise,
             FrameFinished: self._on_frame_finished,
         }
 
@@ -286,6 +289,11 @@ class RerunObserver:
             self._defer(paths.MATCHES_BEV, rr.LineStrips3D, state, _build_matches_bev)
         else:
             state.rv_matched = event
+
+    def _on_noise(self, event: NoiseEstimated) -> None:
+        """The position filter's r per class, a time series (``noise/<class>``)."""
+        for c in np.flatnonzero(np.isfinite(event.r)):
+            self._add(f"{paths.NOISE}/{CATEGORIES[c]}", rr.Scalars, 1, scalars=event.r[c : c + 1])
 
     def _on_lifecycle(self, event: LifecycleChanged) -> None:
         for kind, key, ids in (

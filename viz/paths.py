@@ -50,6 +50,9 @@ ACCELERATION_X: Final = "acceleration_x"  # filtered, CA tracks only (no GT coun
 ACCELERATION_Y: Final = "acceleration_y"
 GT_PREFIX: Final = "gt_"  # tracks/<id>/gt_speed ... : the matched GT's curve
 SERIES: Final = (SPEED, VELOCITY_X, VELOCITY_Y, HEADING)
+# noise/<class>: the position filter's measurement variance r (m², x and y), which follows the
+# detections' estimated centre noise with pose.r_scale (tracker/noise.py)
+NOISE: Final = "noise"
 EVENTS: Final = "events"  # TextLog (WARN): ID switches and fragmentations against the GT
 # Lifecycle lines (born, lost, re-acquired, deleted) go one level down: mixed with the WARN rows
 # in one entity, the 0.41 viewer showed the last lifecycle row with a WARN level.

@@ -383,6 +383,7 @@ def record_scene(
             # the y axis fits the pair after the warm-up: a birth spike would squash the curves
             lag_speed_max_mps=1.15 * result.lag.speed_max_mps if result.lag else None,
             switch_track_ids=[e for s in first_switch for e in (s.old_track_id, s.new_track_id)],
+            noise_view=any(c.pose.r_scale > 0 for c in config.per_category.values()),
         ),
         make_active=True,
         make_default=True,
