@@ -474,8 +474,9 @@ def buffer_section(root: Path, shipped_path: str | None) -> list[str]:
 
 
 # the fixed r (m²) the tune chose when it searched r itself (docs/tune/car_online_fixed_r.json,
-# docs/tune/ped_online_fixed_r.json): the baseline of the measurement-noise section
-FIXED_R = {"car": 1.7212, "pedestrian": 0.8814}
+# docs/tune/ped_online_fixed_r.json; cyclist: its untuned 0.1): the measurement-noise section's
+# baseline
+FIXED_R = {"car": 1.7212, "pedestrian": 0.8814, "cyclist": 0.1}
 
 
 def estimated_noise(root: Path, detectors: tuple[str, ...], cls: str = "car") -> dict[str, Any]:

@@ -263,7 +263,8 @@ class MCTracker:
             on = scale > 0
             self.observer(
                 NoiseEstimated(
-                    np.where(on, variance, np.nan), np.where(on, self.motion_r[:, Axis.X, 0], np.nan)
+                    np.where(on, variance, np.nan),
+                    np.where(on, self.motion_r[:, Axis.X, 0], np.nan),
                 )
             )
 
