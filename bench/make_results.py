@@ -604,8 +604,8 @@ def offline_robustness_section(shipped_path: str | None, runs: dict[str, Any]) -
         *robustness_table(columns, deltas=True),
         "",
         "The online estimate trails a moving object by as much as its filter distrusts one"
-        " box, and the noise-robust settings distrust it a lot (car r = 1.72 m²); the smoother"
-        " keeps the distrust and drops the lag.",
+        " box, and under noise it distrusts it a lot (r follows the detections' estimated"
+        " noise); the smoother keeps the distrust and drops the lag.",
         "",
     ]
 

@@ -193,3 +193,32 @@ def test_offline_smooths_with_the_scenes_estimated_r() -> None:
     np.testing.assert_allclose(got, want, atol=1e-9)
     prior = rts_smooth(t, fi, tid, det_xy, cat, config)[..., 0]
     assert np.abs(prior - want).max() > 0.02
+
+
+def test_the_compiled_estimate_equals_numpy() -> None:
+    """tracker.kernels.noise against the numpy reference: the same counts after every frame of
+    scenes with clutter, three classes, empty frames and an uneven step, the same variance."""
+    from tracker.kernels import load
+
+    kernels = load()
+    if kernels is None:
+        pytest.skip("numba not available")
+    rng = np.random.default_rng(8)
+    t, a = _scene(rng, frames=80, sigma=0.2, clutter=3.0)
+    _, b = _scene(rng, frames=80, sigma=0.05, category=PED, clutter=1.0)
+    scene = [
+        (np.vstack([x[0], y[0]]), np.r_[x[1], y[1]], np.r_[x[2], y[2]])
+        for x, y in zip(a, b, strict=True)
+    ]
+    scene[30] = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.int64))  # an empty frame
+    t = t.copy()
+    t[50:] += 0.05  # one uneven step
+    numpy_est, compiled_est = PositionNoise(8), PositionNoise(8, kernels)
+    for time, (xy, length, cat) in zip(t, scene, strict=True):
+        numpy_est.update(time, xy, length, cat)
+        compiled_est.update(time, xy, length, cat)
+        np.testing.assert_array_equal(compiled_est.counts, numpy_est.counts)
+        np.testing.assert_allclose(
+            compiled_est.variance(), numpy_est.variance(), rtol=1e-12, equal_nan=True
+        )
+    assert numpy_est.counts[CAR].sum() > MIN_SAMPLES and numpy_est.counts[PED].sum() > MIN_SAMPLES

@@ -219,7 +219,9 @@ class MCTracker:
         self._tracks = TrackTable.empty(order=self._cat.motion_model.order)
         # the R table in effect: the config's, with x and y following the noise estimate
         self.motion_r = self._cat.motion_r.copy()
-        self._noise = PositionNoise(len(CATEGORIES)) if self._cat.any_r_scale else None
+        self._noise = (
+            PositionNoise(len(CATEGORIES), self._kernels) if self._cat.any_r_scale else None
+        )
         self._next_id = 0
         self._last_time: float | None = None
         self._last_frame_id: int | None = None

@@ -23,8 +23,9 @@ multiple of this estimate instead (:class:`tracker.mctracker.MCTracker`).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
-from scipy.spatial.distance import cdist
 
 from tracker.boxes import FloatArray, IntArray
 
@@ -44,9 +45,11 @@ class PositionNoise:
     estimate from the frames fed so far.
     """
 
-    def __init__(self, n_categories: int) -> None:
+    def __init__(self, n_categories: int, kernels: Any = None) -> None:
         self.counts = np.zeros((n_categories, len(EDGES) - 1), dtype=np.int64)
         self._frames: list[tuple[float, FloatArray, IntArray, IntArray]] = []  # last two
+        # the compiled twins (tracker.kernels.load()); None: numpy, the reference
+        self._kernels = kernels
 
     def reset(self) -> None:
         self.counts[:] = 0
@@ -60,51 +63,75 @@ class PositionNoise:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         category = np.asarray(category, dtype=np.int64)
         link = np.full(len(xy), -1, dtype=np.int64)  # each box's box in the previous frame
-        if self._frames and len(xy) and len(self._frames[-1][1]):
+        if self._kernels is not None and self._frames and len(xy) and len(self._frames[-1][1]):
             _, prev_xy, prev_cat, prev_link = self._frames[-1]
-            d = cdist(xy, prev_xy)
-            d[category[:, None] != prev_cat[None, :]] = np.inf
-            nearest = d.argmin(axis=1)
-            ok = d[np.arange(len(xy)), nearest] <= np.asarray(length, dtype=np.float64)
+            triples = len(self._frames) == 2 and _even_steps(
+                self._frames[0][0], self._frames[1][0], time_secs
+            )
+            prev2_xy = self._frames[0][1] if triples else prev_xy
+            self._kernels.noise_update_kernel(
+                xy, np.asarray(length, dtype=np.float64), category, prev_xy, prev_cat, prev_link,
+                prev2_xy, triples, EDGES, self.counts, link,
+            )  # fmt: skip
+        elif self._frames and len(xy) and len(self._frames[-1][1]):
+            _, prev_xy, prev_cat, prev_link = self._frames[-1]
+            delta = xy[:, None, :] - prev_xy[None, :, :]
+            d2 = np.einsum("ijk,ijk->ij", delta, delta)
+            d2[category[:, None] != prev_cat[None, :]] = np.inf  # chains stay in their class
+            nearest = d2.argmin(axis=1)
+            length = np.asarray(length, dtype=np.float64)
+            ok = d2[np.arange(len(xy)), nearest] <= length * length
             link[ok] = nearest[ok]
             if len(self._frames) == 2:
                 t2, xy2 = self._frames[0][0], self._frames[0][1]
-                t1 = self._frames[1][0]
-                step, before = time_secs - t1, t1 - t2
-                if abs(step - before) <= STEP_TOLERANCE * max(abs(before), 1e-9):
+                if _even_steps(t2, self._frames[1][0], time_secs):
                     cur = np.flatnonzero(ok)
                     cur = cur[prev_link[link[cur]] >= 0]  # chained over three frames
-                    p = link[cur]
-                    second = xy[cur] - 2.0 * prev_xy[p] + xy2[prev_link[p]]
-                    self._add(category[cur], np.abs(second))
+                    if len(cur):
+                        p = link[cur]
+                        second = xy[cur] - 2.0 * prev_xy[p] + xy2[prev_link[p]]
+                        self._add(category[cur], np.abs(second))
         self._frames = [*self._frames[-1:], (time_secs, xy, category, link)]
 
     def _add(self, category: IntArray, magnitude: FloatArray) -> None:
         """Count (n, 2) |Δ²z| of boxes of ``category`` (n,) into the histogram."""
-        if not len(category):
-            return
-        b = np.searchsorted(EDGES, magnitude, side="right") - 1
-        b = np.clip(b, 0, len(EDGES) - 2)
-        np.add.at(self.counts, (np.repeat(category, 2), b.ravel()), 1)
+        n_bins = self.counts.shape[1]
+        b = np.clip(np.searchsorted(EDGES, magnitude, side="right") - 1, 0, n_bins - 1)
+        flat = (category[:, None] * n_bins + b).ravel()
+        self.counts += np.bincount(flat, minlength=self.counts.size).reshape(self.counts.shape)
 
     def variance(self) -> FloatArray:
         """(C,) σ² per axis (m²) per category; NaN where fewer than ``MIN_SAMPLES`` counted."""
-        out = np.full(len(self.counts), np.nan)
+        if self._kernels is not None:
+            out = np.empty(len(self.counts))
+            self._kernels.noise_variance_kernel(self.counts, MIN_SAMPLES, EDGES, _MAD_TO_SIGMA, out)
+            return out
         total = self.counts.sum(axis=1)
-        for c in np.flatnonzero(total >= MIN_SAMPLES):
-            out[c] = (_MAD_TO_SIGMA * histogram_median(self.counts[c])) ** 2 / 6.0
+        out = np.full(len(total), np.nan)
+        ready = np.flatnonzero(total >= MIN_SAMPLES)
+        if len(ready):
+            median = histogram_median(self.counts[ready])
+            out[ready] = (_MAD_TO_SIGMA * median) ** 2 / 6.0
         return out
 
 
-def histogram_median(counts: IntArray) -> float:
-    """Median of the values counted on :data:`EDGES`, interpolated geometrically in its bin."""
-    cum = np.cumsum(counts)
-    half = cum[-1] / 2.0
-    j = int(np.searchsorted(cum, half))  # first bin whose cumulative count reaches half
-    below = cum[j - 1] if j else 0
-    frac = (half - below) / counts[j]
+def _even_steps(t2: float, t1: float, t0: float) -> bool:
+    """Whether the frame steps t2 -> t1 -> t0 are equal within ``STEP_TOLERANCE``."""
+    step, before = t0 - t1, t1 - t2
+    return abs(step - before) <= STEP_TOLERANCE * max(abs(before), 1e-9)
+
+
+def histogram_median(counts: IntArray) -> FloatArray:
+    """(R,) medians of the values counted on :data:`EDGES`, one row of (R, bins) ``counts``
+    each (none empty), interpolated geometrically within the median's bin."""
+    cum = np.cumsum(counts, axis=1)
+    half = cum[:, -1] / 2.0
+    rows = np.arange(len(counts))
+    j = (cum < half[:, None]).sum(axis=1)  # first bin whose cumulative count reaches half
+    below = np.where(j > 0, cum[rows, np.maximum(j - 1, 0)], 0)
+    frac = (half - below) / counts[rows, j]
     lo, hi = np.log(EDGES[j]), np.log(EDGES[j + 1])
-    return float(np.exp(lo + frac * (hi - lo)))
+    return np.exp(lo + frac * (hi - lo))
 
 
 def second_difference_variance(xy: FloatArray) -> float:

@@ -10,6 +10,7 @@ kernel module          speeds up                                   numpy referen
 ``kernels.lifecycle``  per-category lifecycle rules; hit records  ``MCTracker._lifecycle``,
                                                                    ``._record_hits``
 ``kernels.camera``     in-image fraction of coasting boxes        :mod:`tracker.camera`
+``kernels.noise``      the detections' noise estimate (r_scale)   :mod:`tracker.noise`
 =====================  ==========================================  ===========================
 
 Why: a KITTI frame holds ~10 tracks and ~10 detections, so numpy stages spend their time in
@@ -36,7 +37,7 @@ def load() -> SimpleNamespace | None:
     if os.environ.get("MCTRACK_NUMBA", "1") == "0":
         return None
     try:
-        from tracker.kernels import camera, cost, kalman, lifecycle, matching
+        from tracker.kernels import camera, cost, kalman, lifecycle, matching, noise
     except ImportError:
         return None
     return SimpleNamespace(
@@ -47,6 +48,8 @@ def load() -> SimpleNamespace | None:
         lifecycle_kernel=lifecycle.lifecycle_kernel,
         record_hits_kernel=lifecycle.record_hits_kernel,
         in_image_fraction_kernel=camera.in_image_fraction_kernel,
+        noise_update_kernel=noise.noise_update_kernel,
+        noise_variance_kernel=noise.noise_variance_kernel,
         CONFIRMED_NOW=lifecycle.CONFIRMED_NOW,
         REACQUIRED_FROM_LOST=lifecycle.REACQUIRED_FROM_LOST,
         LOST_NOW=lifecycle.LOST_NOW,
