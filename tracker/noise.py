@@ -51,10 +51,6 @@ class PositionNoise:
         # the compiled twins (tracker.kernels.load()); None: numpy, the reference
         self._kernels = kernels
 
-    def reset(self) -> None:
-        self.counts[:] = 0
-        self._frames.clear()
-
     def update(
         self, time_secs: float, xy: FloatArray, length: FloatArray, category: IntArray
     ) -> None:
