@@ -334,10 +334,10 @@ def _run(args: argparse.Namespace) -> int:
     if unlabelled:
         raise InputError(f"--seqs: no labels for {', '.join(unlabelled)} in {label_dir}")
     cls = args.cls
-    space = search_space(cls, args.mode)
     config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
     base = {"categories": [cls], "mode": args.mode}
-    load_config(config_name, overrides=base)  # fail early on a bad config
+    base_config = load_config(config_name, overrides=base)  # fail early on a bad config
+    space = search_space(cls, args.mode, r_scale=base_config.per_category[cls].pose.r_scale > 0)
     out = Path(args.out)
     ray_search = None
     if args.ray is not None:
@@ -478,6 +478,8 @@ def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> d
         if key == "lifecycle.confirm_nines":
             p = config.per_category[cls].lifecycle.confirm_prob
             value: Any = -math.log10(max(1.0 - p, 1e-12))
+        elif key == "pose.ca.r":
+            value = config.per_category[cls].pose.ca.r[0]
         elif key.startswith("offline."):
             value = getattr(config.offline, key.split(".", 1)[1])
         else:
@@ -490,9 +492,16 @@ def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> d
     return values
 
 
-def search_space(cls: str, mode: str) -> dict[str, tuple[str, float, float]]:
-    """The settings searched for ``cls`` in ``mode`` (online or offline)."""
+def search_space(
+    cls: str, mode: str, *, r_scale: bool = True
+) -> dict[str, tuple[str, float, float]]:
+    """The settings searched for ``cls`` in ``mode`` (online or offline). ``r_scale``: whether
+    the base config sets the filter's r from the detections' noise (``pose.r_scale`` > 0, then
+    searched); if not, the fixed r itself is searched (``pose.ca.r``)."""
     space = dict(OFFLINE_SPACE if mode == "offline" else ONLINE_SPACE)
+    if not r_scale and "pose.r_scale" in space:
+        del space["pose.r_scale"]
+        space["pose.ca.r"] = ("log", 0.02, 2.0)
     if cls == "pedestrian":
         space.update(PEDESTRIAN_SPACE)
     if cls == "car" and mode == "online":  # (offline, the track score decides instead)

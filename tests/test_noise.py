@@ -4,6 +4,8 @@ skips uneven frame steps, and the tracker's r follows it where ``pose.r_scale`` 
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -159,9 +161,39 @@ def test_compiled_and_numpy_paths_agree_with_r_scale() -> None:
         np.testing.assert_allclose(x, y, atol=1e-9)
 
 
-def test_a_negative_r_scale_is_refused() -> None:
-    with pytest.raises(InputError, match=r"category\.car\.pose\.r_scale must be >= 0"):
-        load_config("kitti", overrides={"category": {"car": {"pose": {"r_scale": -1.0}}}})
+@pytest.mark.parametrize("value", [-1.0, "inf"])
+def test_a_negative_or_infinite_r_scale_is_refused(value) -> None:
+    with pytest.raises(InputError, match=r"category\.car\.pose\.r_scale must be finite"):
+        load_config("kitti", overrides={"category": {"car": {"pose": {"r_scale": value}}}})
+
+
+def test_boxes_without_noise_give_no_estimate() -> None:
+    """Noise-free boxes (the ground truth, a simulator): the median of |Δ²z| is below the
+    histogram's resolution, so r keeps the config's value instead of vanishing."""
+    parked = np.column_stack([np.arange(8) * 10.0, np.zeros(8)])
+    t = 0.1 * np.arange(60)
+    scene = [(parked, np.full(8, 4.0), np.full(8, CAR)) for _ in t]
+    for est in (_feed(t, scene), _feed(t, scene, PositionNoise(8, _kernels_or_none()))):
+        assert est.counts[CAR].sum() >= MIN_SAMPLES and np.isnan(est.variance()[CAR])
+
+
+def _kernels_or_none():
+    from tracker.kernels import load
+
+    return load()
+
+
+def test_a_new_scene_starts_a_new_estimate() -> None:
+    rng = np.random.default_rng(10)
+    t, scene = _scene(rng, frames=40, sigma=0.3)
+    config = load_config("kitti", overrides={"categories": ["car"]})
+    tracker = MCTracker(config)
+    for f in _frames(t, scene):
+        tracker.step(f)
+    assert tracker.motion_r[CAR, Axis.X, 0] > 1.0
+    other = [dataclasses.replace(f, scene="other") for f in _frames(t, scene)[:2]]
+    tracker.step(other[0])
+    assert tracker.motion_r[CAR, Axis.X, 0] == config.per_category["car"].pose.ca.r[0]
 
 
 def test_offline_smooths_with_the_scenes_estimated_r() -> None:
@@ -211,6 +243,7 @@ def test_the_compiled_estimate_equals_numpy() -> None:
         for x, y in zip(a, b, strict=True)
     ]
     scene[30] = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.int64))  # an empty frame
+    scene[40][0][0] = np.nan  # a box without a centre links to nothing in either
     t = t.copy()
     t[50:] += 0.05  # one uneven step
     numpy_est, compiled_est = PositionNoise(8), PositionNoise(8, kernels)

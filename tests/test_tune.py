@@ -52,6 +52,7 @@ def test_searched_values_become_overrides_the_config_accepts() -> None:
     assert cat.lifecycle.confirm_prob == pytest.approx(0.99)
     assert cat.lifecycle.max_misses_output == 2
     assert cat.pose.ca.r == (0.35, 0.35)
+    assert cat.pose.r_scale == 0.0  # a record of a fixed r replays as one, not as a prior
     # the rest of the filter is the base config's, not a default
     assert cat.pose.ca.q == load_config("kitti").per_category["pedestrian"].pose.ca.q
 
@@ -128,3 +129,14 @@ def test_fold_searches_do_not_start_from_the_shipped_settings(
     for fold in record["cv"]:
         assert len(fold["trials"]) == 4
         assert all(t["params"] != pytest.approx(shipped) for t in fold["trials"])
+
+
+def test_a_base_with_a_fixed_r_searches_r_itself() -> None:
+    """Without ``pose.r_scale`` in the base config the search covers the fixed r (the first
+    trial is then the base itself); with it, the multiple."""
+    assert "pose.r_scale" in search_space("car", "online")
+    space = search_space("car", "online", r_scale=False)
+    assert "pose.ca.r" in space and "pose.r_scale" not in space
+    base = {"categories": ["car"]}
+    values = _current("kitti_reference", base, "car", space)
+    assert values["pose.ca.r"] == load_config("kitti_reference").per_category["car"].pose.ca.r[0]

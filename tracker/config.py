@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import enum
+import math
 import tomllib
 import typing
 from dataclasses import MISSING, dataclass, field, fields, is_dataclass
@@ -322,8 +323,8 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
             raise InputError(f"{source}: category.{name}.bev.buffer must be in [0, 2]")
         if not 0.0 < cfg.vertical_gain <= 1.0:
             raise InputError(f"{source}: category.{name}.vertical_gain must be in (0, 1]")
-        if not cfg.pose.r_scale >= 0.0:
-            raise InputError(f"{source}: category.{name}.pose.r_scale must be >= 0")
+        if not 0.0 <= cfg.pose.r_scale < math.inf:
+            raise InputError(f"{source}: category.{name}.pose.r_scale must be finite and >= 0")
     return top
 
 

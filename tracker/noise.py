@@ -31,7 +31,8 @@ from tracker.boxes import FloatArray, IntArray
 
 # |Δ²z| bins: 0.1 mm to 100 m, 5 % wide (the median, interpolated within its bin, to ~1 %)
 EDGES = np.geomspace(1e-4, 1e2, 284)
-# fewer second differences (two per chained triple, x and y) than this: no estimate yet
+# fewer second differences (two per chained triple, x and y) than this: no estimate yet; nor
+# while their median lies in the first bin (boxes without noise: r would vanish)
 MIN_SAMPLES = 60
 # Δ²z of a triple whose two frame steps differ by more than this fraction holds a velocity term
 STEP_TOLERANCE = 0.1
@@ -74,6 +75,7 @@ class PositionNoise:
             delta = xy[:, None, :] - prev_xy[None, :, :]
             d2 = np.einsum("ijk,ijk->ij", delta, delta)
             d2[category[:, None] != prev_cat[None, :]] = np.inf  # chains stay in their class
+            d2[np.isnan(d2)] = np.inf  # (a NaN centre links to nothing, as in the kernel)
             nearest = d2.argmin(axis=1)
             length = np.asarray(length, dtype=np.float64)
             ok = d2[np.arange(len(xy)), nearest] <= length * length
@@ -107,7 +109,8 @@ class PositionNoise:
         ready = np.flatnonzero(total >= MIN_SAMPLES)
         if len(ready):
             median = histogram_median(self.counts[ready])
-            out[ready] = (_MAD_TO_SIGMA * median) ** 2 / 6.0
+            # a median in the first bin is below the histogram's resolution: no estimate
+            out[ready] = np.where(median > EDGES[1], (_MAD_TO_SIGMA * median) ** 2 / 6.0, np.nan)
         return out
 
 

@@ -150,6 +150,11 @@ def offline_postprocess(
         at = (frame_index[measured], boxes.track_id[measured])
         category = boxes.category[measured]
         if config.offline.rts:
+            if motion_r is None and any(c.pose.r_scale > 0 for c in config.per_category.values()):
+                log.warning(
+                    "offline smoother: no motion_r given, so the config's r is used where"
+                    " pose.r_scale would set it from the detections (pass the tracker's)"
+                )
             # position, velocity and acceleration (x, y); z keeps the fit above
             det_xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames])[det_at]
             state = rts_smooth(times, *at, det_xy, category, config, motion_r=motion_r)

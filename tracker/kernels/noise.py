@@ -82,4 +82,4 @@ def noise_variance_kernel(
         frac = (half - below) / counts[c, j]
         lo, hi = np.log(edges[j]), np.log(edges[j + 1])
         median = np.exp(lo + frac * (hi - lo))
-        out[c] = (mad_to_sigma * median) ** 2 / 6.0
+        out[c] = (mad_to_sigma * median) ** 2 / 6.0 if median > edges[1] else np.nan
