@@ -60,34 +60,32 @@ class PositionNoise:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         category = np.asarray(category, dtype=np.int64)
         link = np.full(len(xy), -1, dtype=np.int64)  # each box's box in the previous frame
-        if self._kernels is not None and self._frames and len(xy) and len(self._frames[-1][1]):
+        if self._frames and len(xy) and len(self._frames[-1][1]):
             _, prev_xy, prev_cat, prev_link = self._frames[-1]
             triples = len(self._frames) == 2 and _even_steps(
                 self._frames[0][0], self._frames[1][0], time_secs
             )
             prev2_xy = self._frames[0][1] if triples else prev_xy
-            self._kernels.noise_update_kernel(
-                xy, np.asarray(length, dtype=np.float64), category, prev_xy, prev_cat, prev_link,
-                prev2_xy, triples, EDGES, self.counts, link,
-            )  # fmt: skip
-        elif self._frames and len(xy) and len(self._frames[-1][1]):
-            _, prev_xy, prev_cat, prev_link = self._frames[-1]
-            delta = xy[:, None, :] - prev_xy[None, :, :]
-            d2 = np.einsum("ijk,ijk->ij", delta, delta)
-            d2[category[:, None] != prev_cat[None, :]] = np.inf  # chains stay in their class
-            d2[np.isnan(d2)] = np.inf  # (a NaN centre links to nothing, as in the kernel)
-            nearest = d2.argmin(axis=1)
             length = np.asarray(length, dtype=np.float64)
-            ok = d2[np.arange(len(xy)), nearest] <= length * length
-            link[ok] = nearest[ok]
-            if len(self._frames) == 2:
-                t2, xy2 = self._frames[0][0], self._frames[0][1]
-                if _even_steps(t2, self._frames[1][0], time_secs):
+            if self._kernels is not None:
+                self._kernels.noise_update_kernel(
+                    xy, length, category, prev_xy, prev_cat, prev_link, prev2_xy, triples, EDGES,
+                    self.counts, link,
+                )  # fmt: skip
+            else:
+                delta = xy[:, None, :] - prev_xy[None, :, :]
+                d2 = np.einsum("ijk,ijk->ij", delta, delta)
+                d2[category[:, None] != prev_cat[None, :]] = np.inf  # chains stay in their class
+                d2[np.isnan(d2)] = np.inf  # (a NaN centre links to nothing, as in the kernel)
+                nearest = d2.argmin(axis=1)
+                ok = d2[np.arange(len(xy)), nearest] <= length * length
+                link[ok] = nearest[ok]
+                if triples:
                     cur = np.flatnonzero(ok)
                     cur = cur[prev_link[link[cur]] >= 0]  # chained over three frames
                     if len(cur):
                         p = link[cur]
-                        second = xy[cur] - 2.0 * prev_xy[p] + xy2[prev_link[p]]
+                        second = xy[cur] - 2.0 * prev_xy[p] + prev2_xy[prev_link[p]]
                         self._add(category[cur], np.abs(second))
         self._frames = [*self._frames[-1:], (time_secs, xy, category, link)]
 
