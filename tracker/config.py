@@ -175,6 +175,10 @@ class OfflineConfig:
     # the track's detections, then its backward pass: tracker.smoothing), instead of the online
     # filter's estimate, which lags behind a moving object
     rts: bool = False
+    # the position smoother's measurement variance: this multiple of the online filter's r. The
+    # online r (pose.r_scale x the detections' frame-to-frame noise) does not see the part of a
+    # box's error that persists over frames, which a smoother averaging a whole track can take
+    rts_r_multiple: float = 1.0
     # offline only: the heading of each detected row from the RTS smoother of the heading filter
     # over the track's detected yaws (tracker.smoothing.rts_smooth_heading), instead of the
     # online filter's, which follows each box's yaw error
@@ -314,6 +318,8 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
     )
     if top.frame_rate_hz <= 0:
         raise InputError(f"{source}: frame_rate_hz must be > 0")
+    if not 0.0 < top.offline.rts_r_multiple < math.inf:
+        raise InputError(f"{source}: offline.rts_r_multiple must be finite and > 0")
     if not 0.0 <= top.coast_min_in_view <= 1.0:
         raise InputError(f"{source}: coast_min_in_view must be in [0, 1]")
     for name, cfg in sections.items():

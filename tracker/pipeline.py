@@ -34,7 +34,7 @@ from tracker.config import TrackerConfig, TrackingMode
 from tracker.events import Observer, TrackOutput, TrackStatus
 from tracker.frame import Frame
 from tracker.geometry import wrap_angle
-from tracker.mctracker import MCTracker
+from tracker.mctracker import MCTracker, motion_noise_tables
 from tracker.smoothing import rts_smooth, rts_smooth_heading
 
 log = logging.getLogger(__name__)
@@ -157,7 +157,9 @@ def offline_postprocess(
                 )
             # position, velocity and acceleration (x, y); z keeps the fit above
             det_xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames])[det_at]
-            state = rts_smooth(times, *at, det_xy, category, config, motion_r=motion_r)
+            r_table = motion_noise_tables(config)[2] if motion_r is None else motion_r
+            r_table = r_table * config.offline.rts_r_multiple
+            state = rts_smooth(times, *at, det_xy, category, config, motion_r=r_table)
             xyz, velocity = boxes.xyz.copy(), boxes.velocity.copy()
             xyz[measured, :2], velocity[measured] = state[..., 0], state[..., 1]
             boxes = boxes.replace(xyz=xyz, velocity=velocity)
