@@ -1,27 +1,47 @@
 """Held-out figures of offline mode (`kitti_offline`: the online settings + post-processing).
 
     python bench/offline_from_online.py [docs/tune/car_online.json] [--kitti-root ROOT]
+        [--choose KEY=V1,V2,... ...] [--out RECORD.json]
 
-`kitti_offline` adds nothing tuned to the online settings, so its held-out figure follows from
-the online tune's folds: for each fold of a `mctrack tune --mode online` record, the fold's chosen
-settings (with score profiles fitted on the fold's training sequences, as the tune does) track
-the fold's held-out sequences online and offline. The online figure reproduces the record's
-cross-validated one; the offline figure is the held-out figure of offline mode.
+For each fold of a `mctrack tune --mode online` record, the fold's chosen settings (with score
+profiles fitted on the fold's training sequences, as the tune does) track the fold's held-out
+sequences online and offline. The online figure reproduces the record's cross-validated one; the
+offline figure is the held-out figure of offline mode.
+
+`--choose` names offline-only settings (`offline.<key>`, or a category key such as
+`lifecycle.max_misses_tentative`, applied in offline mode only) and their candidates. Each fold
+then takes the combination with the best objective of the tune (HOTA averaged over the record's
+detectors and its clean and perturbed detections) in offline mode on its training sequences,
+and tracks its held-out sequences with it (and with the grid's first point, for comparison: list
+the config's own values first); the final choice, made the same way on all the
+sequences with the shipped settings and profiles, is what `kitti_offline` ships. `--out` writes
+the whole record (docs/tune/<class>_offline_choice.json).
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
+import multiprocessing
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
 from app import tune
 from app.inputs import default_kitti_root
-from app.tune import _evaluate_dir, _track_and_score, folds_by_frames, settings_to_overrides
-from tracker.calibration import calibrate_frames
+from app.tune import (
+    Objective,
+    _evaluate_dir,
+    _track_and_score,
+    folds_by_frames,
+    objective_value,
+    settings_to_overrides,
+)
+from tracker.calibration import calibrate_frames, find_profile
 from tracker.eval.calibrate import fit_profile, fit_self_profile
+from tracker.eval.perturb import CLEAN, PerturbSpec, perturb_frames
 from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,13 +56,17 @@ def held_out(
     detectors: list[str] | None = None,
     modes: tuple[str, ...] = ("online", "offline"),
     profile: str = "labels",
-) -> dict[str, dict[str, dict[str, Any]]]:
+    choose: dict[str, list[Any]] | None = None,
+    workers: int = 2,
+) -> dict[str, Any]:
     """``{detector: {mode: metrics}}`` over the record's held-out folds.
 
     ``detectors``: those to track (default: the record's own; others are held out as detectors
     too). ``profile``: "labels", each fold's score profile fitted on its training sequences (as
     the tune does), or "self", the label-free profile fitted on the detections themselves (what
-    a detector without a profile gets)."""
+    a detector without a profile gets). ``choose``: offline-only settings and their candidates,
+    chosen per fold on its training sequences (module docstring); the choices are returned
+    under ``"choice"``, and offline mode at the grid's first point under ``"offline_first"``."""
     if profile not in ("labels", "self"):
         raise ValueError(f"profile: expected 'labels' or 'self', got {profile!r}")
     record = json.loads(record_path.read_text())
@@ -50,50 +74,145 @@ def held_out(
         raise SystemExit(f"{record_path}: an online tune record is needed")
     cls = record["class"]
     label_dir = root / "training" / "label_02"
-    out: dict[str, dict[str, dict[str, Any]]] = {}
-    with tempfile.TemporaryDirectory(prefix="fold-figures-") as tmp:
-        work = Path(tmp)
-        for det in detectors or record["detectors"]:
-            raw, gt = convert_kitti(root, seqs=VALIDATION_SEQS, detector=det, classes=[cls])
-            lengths = {s: len(f) for s, f in raw.items()}
-            if [f["test"] for f in record["cv"]] != folds_by_frames(lengths, len(record["cv"])):
-                raise SystemExit(f"{record_path}: its folds are not this kit's")
-            self_profile = fit_self_profile(det, raw, [cls]) if profile == "self" else None
-            for k, fold in enumerate(record["cv"]):
-                train = [s for s in lengths if s not in fold["test"]]
-                fitted = (
-                    self_profile
-                    if self_profile is not None
-                    else fit_profile(det, {s: raw[s] for s in train}, gt or {}, [cls])
+    dets = detectors or record["detectors"]
+    levels = (CLEAN, *record.get("noise", {})) if choose else (CLEAN,)
+    lengths: dict[str, int] = {}
+    for det in dets:  # calibrated (and perturbed) frames per (detector, fold, level)
+        raw, gt = convert_kitti(root, seqs=VALIDATION_SEQS, detector=det, classes=[cls])
+        lengths = {s: len(f) for s, f in raw.items()}
+        if [f["test"] for f in record["cv"]] != folds_by_frames(lengths, len(record["cv"])):
+            raise SystemExit(f"{record_path}: its folds are not this kit's")
+        self_profile = fit_self_profile(det, raw, [cls]) if profile == "self" else None
+        profiles = {"all": find_profile(det)} if choose else {}
+        for k, fold in enumerate(record["cv"]):
+            train = {s: raw[s] for s in lengths if s not in fold["test"]}
+            profiles[f"fold{k}"] = (
+                self_profile
+                if self_profile is not None
+                else fit_profile(det, train, gt or {}, [cls])
+            )
+        for key, fitted in profiles.items():
+            clean = {s: calibrate_frames(raw[s], fitted) for s in raw}
+            for level in levels:
+                spec = None if level == CLEAN else PerturbSpec(**record["noise"][level])
+                tune._FRAMES[det, key, level] = (
+                    clean
+                    if spec is None
+                    else {
+                        s: perturb_frames(f, spec, seed=record["noise_seed"])
+                        for s, f in clean.items()
+                    }
                 )
-                key = (det, f"fold{k}", "clean")
-                tune._FRAMES[key] = {s: calibrate_frames(raw[s], fitted) for s in fold["test"]}
-                overrides = {"categories": [cls], **settings_to_overrides(cls, fold["best"])}
-                for mode in modes:
-                    result_dir = str(work / mode / det)
-                    task = (key, fold["test"], MODES[mode], overrides, result_dir,
-                            str(label_dir), cls, False)  # fmt: skip
-                    _track_and_score(task)
-                del tune._FRAMES[key]
-            out[det] = {
-                mode: _evaluate_dir(work / mode / det, label_dir, lengths, cls) for mode in modes
-            }
+    grid = (
+        [dict(zip(choose, combo, strict=True)) for combo in itertools.product(*choose.values())]
+        if choose
+        else []
+    )
+    out: dict[str, Any] = {}
+    choice: dict[str, Any] = {"grid": choose, "levels": list(levels), "folds": []}
+    try:
+        with (
+            tempfile.TemporaryDirectory(prefix="fold-figures-") as tmp,
+            multiprocessing.get_context("fork").Pool(workers) as pool,
+        ):
+            work = Path(tmp)
+
+            def pick(key: str, seqs: list[str], settings: dict[str, Any]) -> dict[str, Any]:
+                """The grid point with the best objective, offline, on ``seqs``."""
+                objective = Objective(tuple(dets), levels, MODES["offline"], {"categories": [cls]},
+                                      cls, str(label_dir))  # fmt: skip
+                scores = {}
+                for i, point in enumerate(grid):
+                    where = work / "choose" / key / str(i)
+                    metrics = objective.metrics(key, seqs, {**settings, **point}, where, pool.map)
+                    scores[json.dumps(point)] = round(objective_value(metrics), 3)
+                best = max(grid, key=lambda p: scores[json.dumps(p)])  # first of ties
+                return {"objective": scores, "chosen": best}
+
+            # with a grid, offline also runs at its first point (list the config's own values
+            # first): what choosing per fold is compared with
+            runs = {mode: MODES[mode] for mode in modes}
+            if grid and "offline" in modes:
+                runs["offline_first"] = MODES["offline"]
+            tasks = []
+            for k, fold in enumerate(record["cv"]):
+                extra: dict[str, dict[str, Any]] = {}
+                if grid:
+                    train = [s for s in lengths if s not in fold["test"]]
+                    picked = pick(f"fold{k}", train, fold["best"])
+                    choice["folds"].append({"test": fold["test"], **picked})
+                    extra = {"offline": picked["chosen"], "offline_first": grid[0]}
+                for det in dets:
+                    for run, config in runs.items():
+                        settings = {**fold["best"], **extra.get(run, {})}
+                        overrides = {"categories": [cls], **settings_to_overrides(cls, settings)}
+                        where = str(work / run / det)
+                        tasks.append(((det, f"fold{k}", CLEAN), fold["test"], config, overrides,
+                                      where, str(label_dir), cls, False))  # fmt: skip
+            pool.map(_track_and_score, tasks)
+            for det in dets:
+                out[det] = {
+                    run: _evaluate_dir(work / run / det, label_dir, lengths, cls) for run in runs
+                }
+            if grid:
+                choice["final"] = pick("all", list(lengths), record["final"]["best"])
+                out["choice"] = choice
+    finally:
+        for key in [k for k in tune._FRAMES if k[0] in dets]:
+            del tune._FRAMES[key]
     return out
+
+
+def _parse_choose(items: list[str]) -> dict[str, list[Any]]:
+    grid = {}
+    for item in items:
+        key, _, values = item.partition("=")
+        if not key or not values:
+            raise SystemExit(f"--choose {item!r}: expected KEY=V1,V2,...")
+        grid[key] = [json.loads(v) for v in values.split(",")]
+    return grid
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("record", nargs="?", default=str(ROOT / "docs/tune/car_online.json"))
     parser.add_argument("--kitti-root", type=Path, default=None)
+    parser.add_argument("--choose", action="append", default=[], metavar="KEY=V1,V2,...")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=None, help="write the record here (JSON)")
     args = parser.parse_args()
-    figures = held_out(Path(args.record), args.kitti_root or default_kitti_root())
+    start = time.perf_counter()
+    figures = held_out(
+        Path(args.record),
+        args.kitti_root or default_kitti_root(),
+        choose=_parse_choose(args.choose) or None,
+        workers=args.workers,
+    )
+    choice = figures.pop("choice", None)
+    if choice:
+        for fold in choice["folds"]:
+            print(
+                f"fold {fold['test']}: {fold['chosen']}  (training objective {fold['objective']})"
+            )
+        print(
+            f"final (all sequences): {choice['final']['chosen']}  ({choice['final']['objective']})"
+        )
     for det, by_mode in figures.items():
         on, off = by_mode["online"], by_mode["offline"]
+        first = by_mode.get("offline_first")
         print(
             f"{det:12s} held out: online {on['HOTA']:.2f}  offline {off['HOTA']:.2f}"
-            f"  ({off['HOTA'] - on['HOTA']:+.2f}; FP {on['FP']} -> {off['FP']})",
+            f"  ({off['HOTA'] - on['HOTA']:+.2f}; FP {on['FP']} -> {off['FP']})"
+            + (f"  offline at the grid's first point {first['HOTA']:.2f}" if first else ""),
             flush=True,
         )
+    if args.out:
+        cls = json.loads(Path(args.record).read_text())["class"]
+        record = {"class": cls, "online_record": Path(args.record).name, "held_out": figures,
+                  "choice": choice, "command": " ".join(["python bench/offline_from_online.py",
+                  f"docs/tune/{Path(args.record).name}", *(f"--choose {c}" for c in args.choose)]),
+                  "seconds": round(time.perf_counter() - start, 1)}  # fmt: skip
+        args.out.write_text(json.dumps(record, indent=1) + "\n")
     return 0
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import tomllib
 from pathlib import Path
@@ -92,8 +93,12 @@ def test_base_inheritance_and_loops(tmp_path: Path) -> None:
     offline = load_config("kitti_offline")
     online = load_config("kitti")
     assert offline.mode.value == "offline" and online.mode.value == "online"
-    # offline is the online settings plus its own post-processing (its TOML's [offline])
-    assert offline.per_category == online.per_category
+    # offline is the online settings plus its own post-processing (its TOML's [offline]) and
+    # the offline-only values it sets per category (pedestrians' tentative misses)
+    ped = offline.per_category["pedestrian"]
+    assert ped.lifecycle.max_misses_tentative == 1
+    same = dataclasses.replace(ped, lifecycle=online.per_category["pedestrian"].lifecycle)
+    assert {**offline.per_category, "pedestrian": same} == online.per_category
     own = tomllib.loads((CONFIGS / "kitti_offline.toml").read_text())["offline"]
     assert offline.offline.track_score_min == own["track_score_min"]
     assert offline.offline != online.offline

@@ -196,16 +196,20 @@ def test_a_new_scene_starts_a_new_estimate() -> None:
     assert tracker.motion_r[CAR, Axis.X, 0] == config.per_category["car"].pose.ca.r[0]
 
 
-def test_offline_smooths_with_the_scenes_estimated_r() -> None:
-    """Offline mode's position smoother uses the r the tracker ended the scene with (from the
-    whole scene's detections), not the config's prior."""
+@pytest.mark.parametrize("multiple", [1.0, 30.0])
+def test_offline_smooths_with_the_scenes_estimated_r(multiple: float) -> None:
+    """Offline mode's position smoother uses offline.rts_r_multiple times the r the tracker
+    ended the scene with (from the whole scene's detections), not the config's prior."""
     from tracker.pipeline import run_scene
     from tracker.smoothing import rts_smooth
 
     rng = np.random.default_rng(7)
     t, scene = _scene(rng, n_objects=4, frames=40, sigma=0.2)
     frames = _frames(t, scene)
-    config = load_config("kitti_offline", overrides={"categories": ["car"]})
+    config = load_config(
+        "kitti_offline",
+        overrides={"categories": ["car"], "offline": {"rts_r_multiple": multiple}},
+    )
     tracker = MCTracker(config)
     for f in frames:
         tracker.step(f)
@@ -221,10 +225,38 @@ def test_offline_smooths_with_the_scenes_estimated_r() -> None:
         got.append(o.boxes.xyz[hit, :2])
     fi, tid, det_xy, got = np.array(fi), np.array(tid), np.vstack(det_xy), np.vstack(got)
     cat = np.full(len(fi), CAR)
-    want = rts_smooth(t, fi, tid, det_xy, cat, config, motion_r=r_end)[..., 0]
+    want = rts_smooth(t, fi, tid, det_xy, cat, config, motion_r=r_end * multiple)[..., 0]
     np.testing.assert_allclose(got, want, atol=1e-9)
     prior = rts_smooth(t, fi, tid, det_xy, cat, config)[..., 0]
     assert np.abs(prior - want).max() > 0.02
+
+
+def test_a_larger_smoother_r_gives_smoother_paths() -> None:
+    """offline.rts_r_multiple > 1 trusts each box less: the smoothed path of each track bends
+    less (smaller second differences) than with the online filter's r."""
+    from tracker.pipeline import run_scene
+
+    rng = np.random.default_rng(11)
+    t, scene = _scene(rng, n_objects=4, frames=40, sigma=0.2)
+    frames = _frames(t, scene)
+    bend = []
+    for multiple in (1.0, 30.0):
+        config = load_config(
+            "kitti_offline",
+            overrides={"categories": ["car"], "offline": {"rts_r_multiple": multiple}},
+        )
+        paths: dict[int, list] = {}
+        for o in run_scene(frames, config).outputs:
+            for tid, xy in zip(o.boxes.track_id, o.boxes.xyz[:, :2], strict=True):
+                paths.setdefault(int(tid), []).append(xy)
+        bend.append(sum(np.abs(np.diff(np.array(p), 2, axis=0)).sum() for p in paths.values()))
+    assert bend[1] < 0.8 * bend[0]
+
+
+@pytest.mark.parametrize("value", [0.0, -1.0, "inf"])
+def test_a_non_positive_smoother_multiple_is_refused(value) -> None:
+    with pytest.raises(InputError, match=r"offline\.rts_r_multiple must be finite and > 0"):
+        load_config("kitti_offline", overrides={"offline": {"rts_r_multiple": value}})
 
 
 def test_the_compiled_estimate_equals_numpy() -> None:

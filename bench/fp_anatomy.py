@@ -1,0 +1,136 @@
+"""Where a run's false-positive rows are, and what each kind costs (an oracle, on the labels).
+
+    python bench/fp_anatomy.py RESULTS_DIR [RESULTS_DIR ...] [--kitti-root ROOT] [--class car]
+
+RESULTS_DIR holds KITTI result files (`mctrack kitti --out DIR` writes them to DIR/data). Each
+row that TrackEval keeps after its KITTI preprocessing (distractors, occluded and truncated
+ground truth, small boxes and DontCare regions removed, as for the metrics) is a true positive
+when the frame's Hungarian matching on 2D IoU >= 0.5 pairs it with a ground-truth box, else a
+false positive. A false positive is classed by where it sits in its track: a track with no true
+positive at all, the rows before its first true positive, after its last, or in between. The
+oracle figure is the HOTA with that kind of row deleted from the files (which no tracker can do
+without labels): what that kind costs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from app.inputs import default_kitti_root
+from tracker.eval.kitti import evaluate_kitti, evaluate_kitti_sequence
+
+KINDS = ("whole track", "before first TP", "after last TP", "inside")
+
+
+def classify(result_file: Path, label_file: Path, length: int, cls: str) -> dict[tuple, str]:
+    """``{(frame, track id): kind}`` of the false-positive rows of one sequence."""
+    ev = evaluate_kitti_sequence(
+        label_file=label_file, result_file=result_file, num_timesteps=length,
+        classes=[cls], keep_id_inputs=True,
+    )  # fmt: skip
+    _, trk_ids, sims = ev.id_inputs[cls]
+    tp: dict[int, list[int]] = {}
+    fp: list[tuple[int, int]] = []
+    for frame, (ids, sim) in enumerate(zip(trk_ids, sims, strict=True)):
+        hit = np.zeros(len(ids), bool)
+        if sim.size:
+            score = np.where(sim >= 0.5 - np.finfo(float).eps, sim, 0.0)
+            r, c = linear_sum_assignment(-score)
+            hit[c[score[r, c] > 0]] = True
+        for tid, h in zip(ids.tolist(), hit, strict=True):
+            if h:
+                tp.setdefault(tid, []).append(frame)
+            else:
+                fp.append((frame, tid))
+    kinds = {}
+    for frame, tid in fp:
+        frames = tp.get(tid)
+        if not frames:
+            kinds[frame, tid] = KINDS[0]
+        elif frame < frames[0]:
+            kinds[frame, tid] = KINDS[1]
+        elif frame > frames[-1]:
+            kinds[frame, tid] = KINDS[2]
+        else:
+            kinds[frame, tid] = KINDS[3]
+    return kinds
+
+
+def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, object]:
+    files = sorted(result_dir.glob("*.txt"))
+    lengths = {}
+    for f in files:  # a sequence's length: its last labelled or tracked frame + 1
+        rows = [line.split(maxsplit=1)[0] for p in (f, label_dir / f.name) for line in open(p)]
+        lengths[f.stem] = max(int(r) for r in rows) + 1
+    kinds = {f.stem: classify(f, label_dir / f.name, lengths[f.stem], cls) for f in files}
+    base = evaluate_kitti(
+        label_dir=label_dir, result_dir=result_dir, seq_lengths=lengths, classes=[cls]
+    )[cls]
+    counts = Counter(k for per in kinds.values() for k in per.values())
+    oracle = {}
+    with tempfile.TemporaryDirectory(prefix="fp-anatomy-") as tmp:
+        for kind in KINDS:
+            if not counts[kind]:
+                continue
+            out = Path(tmp) / kind.replace(" ", "_")
+            out.mkdir()
+            for f in files:
+                drop = {key for key, k in kinds[f.stem].items() if k == kind}
+                kept = [
+                    line for line in open(f)
+                    if (int(line.split()[0]), int(line.split()[1])) not in drop
+                ]  # fmt: skip
+                (out / f.name).write_text("".join(kept))
+            oracle[kind] = evaluate_kitti(
+                label_dir=label_dir, result_dir=out, seq_lengths=lengths, classes=[cls]
+            )[cls]["HOTA"]
+    return {"metrics": base, "counts": dict(counts), "oracle_hota": oracle, "lengths": lengths}
+
+
+def trim_leading(result_dir: Path, out_dir: Path, p_min: float) -> None:
+    """A label-free rule, for comparison: each track's rows before its first row whose score
+    (the calibrated detection score the writer keeps) reaches ``p_min`` are deleted; a track
+    that never reaches it is deleted whole."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for f in sorted(result_dir.glob("*.txt")):
+        lines = open(f).read().splitlines(keepends=True)
+        first: dict[int, int] = {}  # track id -> its first frame scoring >= p_min
+        for line in lines:
+            cols = line.split()
+            if float(cols[17]) >= p_min:
+                tid, frame = int(cols[1]), int(cols[0])
+                first[tid] = min(frame, first.get(tid, frame))
+        kept = [
+            line for line in lines
+            if int(line.split()[1]) in first and int(line.split()[0]) >= first[int(line.split()[1])]
+        ]  # fmt: skip
+        (out_dir / f.name).write_text("".join(kept))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("results", nargs="+", type=Path)
+    parser.add_argument("--kitti-root", type=Path, default=None)
+    parser.add_argument("--class", dest="cls", default="car")
+    args = parser.parse_args()
+    label_dir = (args.kitti_root or default_kitti_root()) / "training" / "label_02"
+    print(
+        "| run | HOTA | FP | " + " | ".join(f"{k}: rows (HOTA without them)" for k in KINDS) + " |"
+    )
+    print("|---|---:|---:|" + "---:|" * len(KINDS))
+    for d in args.results:
+        a = anatomy(d, label_dir, args.cls)
+        m, counts, oracle = a["metrics"], a["counts"], a["oracle_hota"]
+        cells = [f"{counts.get(k, 0)} ({oracle[k]:.2f})" if k in oracle else "0" for k in KINDS]
+        print(f"| {d} | {m['HOTA']:.2f} | {m['FP']} | " + " | ".join(cells) + " |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,62 @@
+"""bench/fp_anatomy.py: false-positive rows classed by where they sit in their track (TrackEval's
+own preprocessing), and the label-free trimming rule it is compared with."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("trackeval")
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+
+from fp_anatomy import KINDS, anatomy, classify, trim_leading
+
+BOX = (100.0, 100.0, 200.0, 180.0)  # a car's 2D box (80 px tall, above KITTI's 25 px)
+ELSEWHERE = (600.0, 100.0, 700.0, 180.0)
+TAIL = "1.5 1.6 3.9 0.0 1.6 10.0 0.0"
+
+
+def _row(frame: int, tid: int, box: tuple[float, ...], score: float | None = None) -> str:
+    line = f"{frame} {tid} Car 0 0 0.0 " + " ".join(f"{v:.1f}" for v in box) + f" {TAIL}"
+    return line + (f" {score}" if score is not None else "") + "\n"
+
+
+@pytest.fixture()
+def scene(tmp_path: Path) -> tuple[Path, Path]:
+    """Ground truth: one car, frames 2-5. Track 1 is on it in frames 0-6 (rows 0, 1 before the
+    label starts, row 6 after it ends); track 2 sits elsewhere in frames 0-3, on nothing."""
+    labels, results = tmp_path / "labels", tmp_path / "results"
+    labels.mkdir(), results.mkdir()
+    (labels / "0000.txt").write_text("".join(_row(f, 7, BOX) for f in range(2, 6)))
+    scores = {0: 0.3, 1: 0.9, 2: 0.95, 3: 0.95, 4: 0.95, 5: 0.95, 6: 0.95}
+    rows = [_row(f, 1, BOX, scores[f]) for f in range(7)]
+    rows += [_row(f, 2, ELSEWHERE, 0.5) for f in range(4)]
+    (results / "0000.txt").write_text("".join(sorted(rows, key=lambda r: int(r.split()[0]))))
+    return labels, results
+
+
+def test_false_positives_are_classed_by_their_place_in_the_track(scene) -> None:
+    labels, results = scene
+    kinds = classify(results / "0000.txt", labels / "0000.txt", 7, "car")
+    assert kinds == {
+        (0, 1): KINDS[1], (1, 1): KINDS[1], (6, 1): KINDS[2],
+        **{(f, 2): KINDS[0] for f in range(4)},
+    }  # fmt: skip
+
+
+def test_deleting_a_kind_of_false_positive_raises_hota(scene) -> None:
+    labels, results = scene
+    a = anatomy(results, labels, "car")
+    assert a["metrics"]["FP"] == 7
+    assert a["counts"] == {KINDS[0]: 4, KINDS[1]: 2, KINDS[2]: 1}
+    assert all(hota > a["metrics"]["HOTA"] for hota in a["oracle_hota"].values())
+
+
+def test_trimming_deletes_rows_before_the_first_confident_one(scene, tmp_path: Path) -> None:
+    _, results = scene
+    trim_leading(results, tmp_path / "trimmed", 0.8)
+    kept = [line.split()[:2] for line in open(tmp_path / "trimmed" / "0000.txt")]
+    # track 1 from its frame 1 (score 0.9) on; track 2 never reaches 0.8 and goes whole
+    assert kept == [[str(f), "1"] for f in range(1, 7)]
