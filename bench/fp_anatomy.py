@@ -18,6 +18,7 @@ import argparse
 import tempfile
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -28,7 +29,9 @@ from tracker.eval.kitti import evaluate_kitti, evaluate_kitti_sequence
 KINDS = ("whole track", "before first TP", "after last TP", "inside")
 
 
-def classify(result_file: Path, label_file: Path, length: int, cls: str) -> dict[tuple, str]:
+def classify(
+    result_file: Path, label_file: Path, length: int, cls: str
+) -> dict[tuple[int, int], str]:
     """``{(frame, track id): kind}`` of the false-positive rows of one sequence."""
     ev = evaluate_kitti_sequence(
         label_file=label_file, result_file=result_file, num_timesteps=length,
@@ -62,11 +65,14 @@ def classify(result_file: Path, label_file: Path, length: int, cls: str) -> dict
     return kinds
 
 
-def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, object]:
+def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, Any]:
+    """A run's metrics, its false-positive rows counted by kind, the HOTA with each kind
+    deleted (an oracle) and the sequence lengths used."""
     files = sorted(result_dir.glob("*.txt"))
     lengths = {}
     for f in files:  # a sequence's length: its last labelled or tracked frame + 1
-        rows = [line.split(maxsplit=1)[0] for p in (f, label_dir / f.name) for line in open(p)]
+        text = f.read_text() + (label_dir / f.name).read_text()
+        rows = [line.split(maxsplit=1)[0] for line in text.splitlines() if line.strip()]
         lengths[f.stem] = max(int(r) for r in rows) + 1
     kinds = {f.stem: classify(f, label_dir / f.name, lengths[f.stem], cls) for f in files}
     base = evaluate_kitti(
@@ -83,7 +89,7 @@ def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, object]:
             for f in files:
                 drop = {key for key, k in kinds[f.stem].items() if k == kind}
                 kept = [
-                    line for line in open(f)
+                    line for line in f.read_text().splitlines(keepends=True)
                     if (int(line.split()[0]), int(line.split()[1])) not in drop
                 ]  # fmt: skip
                 (out / f.name).write_text("".join(kept))
@@ -99,7 +105,7 @@ def trim_leading(result_dir: Path, out_dir: Path, p_min: float) -> None:
     that never reaches it is deleted whole."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for f in sorted(result_dir.glob("*.txt")):
-        lines = open(f).read().splitlines(keepends=True)
+        lines = f.read_text().splitlines(keepends=True)
         first: dict[int, int] = {}  # track id -> its first frame scoring >= p_min
         for line in lines:
             cols = line.split()

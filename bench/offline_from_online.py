@@ -12,8 +12,8 @@ offline figure is the held-out figure of offline mode.
 `lifecycle.max_misses_tentative`, applied in offline mode only) and their candidates. Each fold
 then takes the combination with the best objective of the tune (HOTA averaged over the record's
 detectors and its clean and perturbed detections) in offline mode on its training sequences,
-and tracks its held-out sequences with it (and with the grid's first point, for comparison: list
-the config's own values first); the final choice, made the same way on all the
+and tracks its held-out sequences with it (and with the grid's first point, the plain values,
+for comparison); the final choice, made the same way on all the
 sequences with the shipped settings and profiles, is what `kitti_offline` ships. `--out` writes
 the whole record (docs/tune/<class>_offline_choice.json).
 """
@@ -77,32 +77,6 @@ def held_out(
     dets = detectors or record["detectors"]
     levels = (CLEAN, *record.get("noise", {})) if choose else (CLEAN,)
     lengths: dict[str, int] = {}
-    for det in dets:  # calibrated (and perturbed) frames per (detector, fold, level)
-        raw, gt = convert_kitti(root, seqs=VALIDATION_SEQS, detector=det, classes=[cls])
-        lengths = {s: len(f) for s, f in raw.items()}
-        if [f["test"] for f in record["cv"]] != folds_by_frames(lengths, len(record["cv"])):
-            raise SystemExit(f"{record_path}: its folds are not this kit's")
-        self_profile = fit_self_profile(det, raw, [cls]) if profile == "self" else None
-        profiles = {"all": find_profile(det)} if choose else {}
-        for k, fold in enumerate(record["cv"]):
-            train = {s: raw[s] for s in lengths if s not in fold["test"]}
-            profiles[f"fold{k}"] = (
-                self_profile
-                if self_profile is not None
-                else fit_profile(det, train, gt or {}, [cls])
-            )
-        for key, fitted in profiles.items():
-            clean = {s: calibrate_frames(raw[s], fitted) for s in raw}
-            for level in levels:
-                spec = None if level == CLEAN else PerturbSpec(**record["noise"][level])
-                tune._FRAMES[det, key, level] = (
-                    clean
-                    if spec is None
-                    else {
-                        s: perturb_frames(f, spec, seed=record["noise_seed"])
-                        for s, f in clean.items()
-                    }
-                )
     grid = (
         [dict(zip(choose, combo, strict=True)) for combo in itertools.product(*choose.values())]
         if choose
@@ -110,7 +84,37 @@ def held_out(
     )
     out: dict[str, Any] = {}
     choice: dict[str, Any] = {"grid": choose, "levels": list(levels), "folds": []}
+    added: list[tuple[str, str, str]] = []  # the _FRAMES keys this call sets
     try:
+        for det in dets:  # calibrated (and perturbed) frames per (detector, fold, level)
+            raw, gt = convert_kitti(root, seqs=VALIDATION_SEQS, detector=det, classes=[cls])
+            lengths = {s: len(f) for s, f in raw.items()}
+            if [f["test"] for f in record["cv"]] != folds_by_frames(lengths, len(record["cv"])):
+                raise SystemExit(f"{record_path}: its folds are not this kit's")
+            self_profile = fit_self_profile(det, raw, [cls]) if profile == "self" else None
+            profiles = {}
+            if choose:  # the final choice's profile: the shipped one (or the label-free one)
+                profiles["all"] = find_profile(det) if self_profile is None else self_profile
+            for k, fold in enumerate(record["cv"]):
+                train = {s: raw[s] for s in lengths if s not in fold["test"]}
+                profiles[f"fold{k}"] = (
+                    self_profile
+                    if self_profile is not None
+                    else fit_profile(det, train, gt or {}, [cls])
+                )
+            for key, fitted in profiles.items():
+                clean = {s: calibrate_frames(raw[s], fitted) for s in raw}
+                for level in levels:
+                    spec = None if level == CLEAN else PerturbSpec(**record["noise"][level])
+                    added.append((det, key, level))
+                    tune._FRAMES[det, key, level] = (
+                        clean
+                        if spec is None
+                        else {
+                            s: perturb_frames(f, spec, seed=record["noise_seed"])
+                            for s, f in clean.items()
+                        }
+                    )
         with (
             tempfile.TemporaryDirectory(prefix="fold-figures-") as tmp,
             multiprocessing.get_context("fork").Pool(workers) as pool,
@@ -121,12 +125,13 @@ def held_out(
                 """The grid point with the best objective, offline, on ``seqs``."""
                 objective = Objective(tuple(dets), levels, MODES["offline"], {"categories": [cls]},
                                       cls, str(label_dir))  # fmt: skip
-                scores = {}
+                scores, exact = {}, {}
                 for i, point in enumerate(grid):
                     where = work / "choose" / key / str(i)
                     metrics = objective.metrics(key, seqs, {**settings, **point}, where, pool.map)
-                    scores[json.dumps(point)] = round(objective_value(metrics), 3)
-                best = max(grid, key=lambda p: scores[json.dumps(p)])  # first of ties
+                    exact[i] = objective_value(metrics)
+                    scores[json.dumps(point)] = round(exact[i], 3)
+                best = grid[max(exact, key=lambda i: exact[i])]  # the first of ties
                 return {"objective": scores, "chosen": best}
 
             # with a grid, offline also runs at its first point (list the config's own values
@@ -158,8 +163,8 @@ def held_out(
                 choice["final"] = pick("all", list(lengths), record["final"]["best"])
                 out["choice"] = choice
     finally:
-        for key in [k for k in tune._FRAMES if k[0] in dets]:
-            del tune._FRAMES[key]
+        for key in added:
+            tune._FRAMES.pop(key, None)
     return out
 
 

@@ -152,7 +152,9 @@ def test_shipped_offline_choices_are_the_records() -> None:
 
     config = load_config("kitti_offline")
     docs = Path(__file__).resolve().parents[1] / "docs" / "tune"
-    for path in sorted(docs.glob("*_offline_choice.json")):
+    paths = sorted(docs.glob("*_offline_choice.json"))
+    assert [p.name for p in paths] == ["car_offline_choice.json", "pedestrian_offline_choice.json"]
+    for path in paths:
         rec = json.loads(path.read_text())
         held = rec["held_out"]
         better = sum(m["offline"]["HOTA"] for m in held.values()) > sum(
@@ -170,3 +172,17 @@ def test_shipped_offline_choices_are_the_records() -> None:
             else {k: v[0] for k, v in rec["choice"]["grid"].items()}
         )
         assert values == want, path.name
+
+
+def test_offline_choice_grid_parses_and_refuses_a_bare_key() -> None:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    from offline_from_online import _parse_choose
+
+    assert _parse_choose(["offline.rts_r_multiple=1,10", "lifecycle.min_hits=2"]) == {
+        "offline.rts_r_multiple": [1, 10],
+        "lifecycle.min_hits": [2],
+    }
+    with pytest.raises(SystemExit, match="expected KEY=V1,V2"):
+        _parse_choose(["offline.rts_r_multiple"])
