@@ -263,6 +263,23 @@ class Objective:
         return dict(zip(self.runs, results, strict=True))
 
 
+def level_frames(
+    raw: dict[str, list[Frame]], profile: Any, specs: dict[str, Any], seed: int
+) -> dict[str, dict[str, list[Frame]]]:
+    """``{level: {seq: frames}}``: the raw frames calibrated with ``profile``, then perturbed per
+    noise level (``specs``: level -> PerturbSpec; the clean level is the calibrated frames),
+    seeded per scene so every trial and fold sees the same noise."""
+    from tracker.calibration import calibrate_frames
+
+    clean = {s: calibrate_frames(f, profile) for s, f in raw.items()}
+    return {
+        level: clean
+        if level == CLEAN
+        else {s: perturb_frames(f, spec, seed=seed) for s, f in clean.items()}
+        for level, spec in specs.items()
+    }
+
+
 def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
     """One detector: track ``seqs`` with the overrides, write KITTI files to ``result_dir``,
     and (when ``evaluate``) score them. Runs in a forked worker reading ``_FRAMES``."""
@@ -310,7 +327,7 @@ def _run(args: argparse.Namespace) -> int:
     import optuna
     from tqdm import tqdm
 
-    from tracker.calibration import calibrate_frames, find_profile
+    from tracker.calibration import find_profile
     from tracker.eval.calibrate import fit_profile
     from tracker.io.convert.kitti import convert_kitti
 
@@ -365,17 +382,10 @@ def _run(args: argparse.Namespace) -> int:
             train = [s for s in lengths if s not in test]
             profiles[f"fold{k}"] = fit_profile(det, {s: raw[det][s] for s in train}, gt[det], [cls])
         profiles["all"] = find_profile(det)
+        specs = {level: NOISE_LEVELS[level] for level in levels}
         for key, profile in profiles.items():
-            clean = {s: calibrate_frames(raw[det][s], profile) for s in lengths}
-            for level in levels:
-                _FRAMES[(det, key, level)] = (
-                    clean
-                    if level == CLEAN
-                    else {
-                        s: perturb_frames(f, NOISE_LEVELS[level], seed=args.noise_seed)
-                        for s, f in clean.items()
-                    }
-                )
+            for level, frames in level_frames(raw[det], profile, specs, args.noise_seed).items():
+                _FRAMES[(det, key, level)] = frames
 
     objective = Objective(tuple(detectors), tuple(levels), config_name, base, cls, str(label_dir))
     first = _current(config_name, base, cls, space)

@@ -1,6 +1,7 @@
 """Where a run's false-positive rows are, and what each kind costs (an oracle, on the labels).
 
     python bench/fp_anatomy.py RESULTS_DIR [RESULTS_DIR ...] [--kitti-root ROOT] [--class car]
+        [--trim-p 0.8]
 
 RESULTS_DIR holds KITTI result files (`mctrack kitti --out DIR` writes them to DIR/data). Each
 row that TrackEval keeps after its KITTI preprocessing (distractors, occluded and truncated
@@ -8,8 +9,9 @@ ground truth, small boxes and DontCare regions removed, as for the metrics) is a
 when the frame's Hungarian matching on 2D IoU >= 0.5 pairs it with a ground-truth box, else a
 false positive. A false positive is classed by where it sits in its track: a track with no true
 positive at all, the rows before its first true positive, after its last, or in between. The
-oracle figure is the HOTA with that kind of row deleted from the files (which no tracker can do
-without labels): what that kind costs.
+oracle figure is the HOTA change with that kind of row deleted from the files (which no tracker
+can do without labels): what that kind costs. The last column is a label-free rule for comparison:
+each track's rows before its first row of calibrated score >= --trim-p deleted.
 """
 
 from __future__ import annotations
@@ -99,6 +101,21 @@ def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, Any]:
     return {"metrics": base, "counts": dict(counts), "oracle_hota": oracle, "lengths": lengths}
 
 
+def anatomy_row(result_dir: Path, *, label_dir: Path, cls: str, trim_p: float) -> str:
+    """A results-table row's cells (markdown, after the run's name): HOTA, FP, each kind's rows
+    (the HOTA change without them), and the HOTA change of :func:`trim_leading` at ``trim_p``."""
+    a = anatomy(result_dir, label_dir, cls)
+    m, counts, oracle = a["metrics"], a["counts"], a["oracle_hota"]
+    with tempfile.TemporaryDirectory(prefix="fp-trim-") as tmp:
+        trim_leading(result_dir, Path(tmp), trim_p)
+        trimmed = evaluate_kitti(
+            label_dir=label_dir, result_dir=Path(tmp), seq_lengths=a["lengths"], classes=[cls]
+        )[cls]
+    cells = [f"{counts[k]} ({oracle[k] - m['HOTA']:+.2f})" if k in oracle else "0" for k in KINDS]
+    trim = f"{round(trimmed['HOTA'] - m['HOTA'], 2) + 0.0:+.2f}"
+    return f"{m['HOTA']:.2f} | {m['FP']} | {' | '.join(cells)} | {trim}"
+
+
 def trim_leading(result_dir: Path, out_dir: Path, p_min: float) -> None:
     """A label-free rule, for comparison: each track's rows before its first row whose score
     (the calibrated detection score the writer keeps) reaches ``p_min`` are deleted; a track
@@ -119,22 +136,28 @@ def trim_leading(result_dir: Path, out_dir: Path, p_min: float) -> None:
         (out_dir / f.name).write_text("".join(kept))
 
 
+def table_head(first: str, trim_p: float) -> list[str]:
+    """The header lines of a table of :func:`anatomy_row` rows, after the columns ``first``."""
+    kinds = " | ".join(f"{k}: rows (HOTA)" for k in KINDS)
+    n = first.count("|") + 1
+    return [
+        f"| {first} | HOTA | FP | {kinds} | first rows below p {trim_p:g} trimmed (HOTA) |",
+        "|" + "---|" * n + "---:|---:|" + "---:|" * (len(KINDS) + 1),
+    ]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("results", nargs="+", type=Path)
     parser.add_argument("--kitti-root", type=Path, default=None)
     parser.add_argument("--class", dest="cls", default="car")
+    parser.add_argument("--trim-p", type=float, default=0.8, help="the trimming rule's score")
     args = parser.parse_args()
     label_dir = (args.kitti_root or default_kitti_root()) / "training" / "label_02"
-    print(
-        "| run | HOTA | FP | " + " | ".join(f"{k}: rows (HOTA without them)" for k in KINDS) + " |"
-    )
-    print("|---|---:|---:|" + "---:|" * len(KINDS))
+    print("\n".join(table_head("run", args.trim_p)))
     for d in args.results:
-        a = anatomy(d, label_dir, args.cls)
-        m, counts, oracle = a["metrics"], a["counts"], a["oracle_hota"]
-        cells = [f"{counts.get(k, 0)} ({oracle[k]:.2f})" if k in oracle else "0" for k in KINDS]
-        print(f"| {d} | {m['HOTA']:.2f} | {m['FP']} | " + " | ".join(cells) + " |", flush=True)
+        row = anatomy_row(d, label_dir=label_dir, cls=args.cls, trim_p=args.trim_p)
+        print(f"| {d} | {row} |", flush=True)
     return 0
 
 

@@ -30,6 +30,8 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -69,28 +71,46 @@ def _fmt(v: Any) -> str:
     return "" if v is None else str(v)
 
 
-def kitti(root: Path, classes: list[str], **kw: Any) -> dict[str, Any]:
+def kitti(
+    root: Path, classes: list[str], inspect: Callable[[Path], Any] | None = None, **kw: Any
+) -> dict[str, Any]:
+    """One `mctrack kitti` run's summary; ``inspect`` (given the KITTI result files' folder,
+    before it is removed) adds its return value under ``"inspected"``."""
     with tempfile.TemporaryDirectory() as tmp:
-        return run_kitti(
+        res = run_kitti(
             kitti_root=root, seqs=list(_val()), classes=classes, out=Path(tmp), quiet=True, **kw
         )
+        if inspect is not None:
+            res["inspected"] = inspect(Path(tmp) / "data")
+        return res
 
 
 DETECTORS = {"pointrcnn": ["car", "pedestrian", "cyclist"], "virconv": ["car"],
              "second_iou": ["car"]}  # fmt: skip
 
 
-def detectors_table(root: Path) -> list[tuple[str, dict[str, Any]]]:
-    rows = []
+def detectors_table(root: Path) -> tuple[list[tuple[str, dict[str, Any]]], list[str]]:
+    """The detectors table's rows, and (from the same `kitti` runs' result files) the rows of
+    fp_anatomy_section."""
+    from fp_anatomy import anatomy_row
+
+    rows, anatomy_rows = [], []
     for detector, classes in DETECTORS.items():
         for mode in ("online", "offline"):
             for config in ("kitti", "kitti_reference"):
                 run_classes = classes if mode == "online" else ["car"]
-                res = kitti(root, run_classes, detector=detector, mode=mode, config_name=config)
+                inspect = None
+                if config == "kitti":
+                    label_dir = root / "training" / "label_02"
+                    inspect = partial(anatomy_row, label_dir=label_dir, cls="car", trim_p=TRIM_P)
+                res = kitti(root, run_classes, inspect, detector=detector, mode=mode,
+                            config_name=config)  # fmt: skip
                 for c in run_classes:
                     rows.append((f"{detector}, {c}, {mode}, `{config}`", res["metrics"][c]))
+                if inspect is not None:
+                    anatomy_rows.append(f"| {detector} | {mode} | {res['inspected']} |")
                 print(detector, mode, config, flush=True)
-    return rows
+    return rows, anatomy_rows
 
 
 #: Confidence levels of the self-calibration's chain rule compared (None: persistence alone).
@@ -796,38 +816,12 @@ def offline_section(choices: list[str], earlier: list[str]) -> list[str]:
 TRIM_P = 0.8
 
 
-def fp_anatomy_section(root: Path) -> list[str]:
+def fp_anatomy_section(rows: list[str]) -> list[str]:
     """Where each detector's car false positives sit in their tracks, online and offline, and
-    what each kind costs (bench/fp_anatomy.py: the HOTA with those rows deleted, an oracle)."""
-    from fp_anatomy import KINDS, anatomy, trim_leading
+    what each kind costs (bench/fp_anatomy.py: the HOTA with those rows deleted, an oracle);
+    ``rows`` from detectors_table's runs."""
+    from fp_anatomy import table_head
 
-    from tracker.eval.kitti import evaluate_kitti
-
-    label_dir = root / "training" / "label_02"
-
-    rows = []
-    for det in DETECTORS:
-        for mode in ("online", "offline"):
-            with tempfile.TemporaryDirectory() as tmp:
-                run_kitti(kitti_root=root, seqs=list(_val()), classes=["car"], out=Path(tmp),
-                          quiet=True, detector=det, mode=mode)  # fmt: skip
-                a = anatomy(Path(tmp) / "data", label_dir, "car")
-                trim_leading(Path(tmp) / "data", Path(tmp) / "trimmed", TRIM_P)
-                trimmed = evaluate_kitti(
-                    label_dir=label_dir,
-                    result_dir=Path(tmp) / "trimmed",
-                    seq_lengths=a["lengths"],
-                    classes=["car"],
-                )["car"]
-            m, counts, oracle = a["metrics"], a["counts"], a["oracle_hota"]
-            cells = [
-                f"{counts[k]} ({oracle[k] - m['HOTA']:+.2f})" if k in oracle else "0" for k in KINDS
-            ]
-            trim = f"{round(trimmed['HOTA'] - m['HOTA'], 2) + 0.0:+.2f}"
-            rows.append(
-                f"| {det} | {mode} | {m['HOTA']:.2f} | {m['FP']} | {' | '.join(cells)} | {trim} |"
-            )
-            print("fp anatomy", det, mode, flush=True)
     return [
         "### Where the false positives are",
         "",
@@ -839,10 +833,7 @@ def fp_anatomy_section(root: Path) -> list[str]:
         " DIR/data` on the output of `mctrack kitti --detector D --classes car [--mode offline]"
         " --out DIR`.",
         "",
-        "| detector | mode | HOTA | FP | "
-        + " | ".join(f"{k}: rows (HOTA)" for k in KINDS)
-        + f" | first rows below p {TRIM_P:g} trimmed (HOTA) |",
-        "|---|---|---:|---:|" + "---:|" * (len(KINDS) + 1),
+        *table_head("detector | mode", TRIM_P),
         *rows,
         "",
         "*Inside*: a row between two of its track's true positives that misses its object"
@@ -933,7 +924,7 @@ def main() -> int:
     offline = kitti(root, ["car"], mode="offline")
     reference = kitti(root, three, config_name="kitti_reference")
     print("main runs done", flush=True)
-    detector_rows = detectors_table(root)
+    detector_rows, anatomy_rows = detectors_table(root)
     print("detector runs done", flush=True)
     no_profile = no_profile_section(root)
     print("no-profile runs done", flush=True)
@@ -945,7 +936,7 @@ def main() -> int:
     noise = noise_section(root, args.robustness, FIXED_R)
     floor = noise_floor_section(root) if args.robustness else []
     offline_held_out = offline_section(args.offline_choice, args.earlier_offline)
-    anatomy_lines = fp_anatomy_section(root)
+    anatomy_lines = fp_anatomy_section(anatomy_rows)
     offline_noise_runs = offline_robustness_runs(root, args.robustness)
     offline_noise = offline_robustness_section(args.robustness, offline_noise_runs)
     image_boxes = image_boxes_section(root, args.robustness, offline_noise_runs)

@@ -36,13 +36,15 @@ from app.tune import (
     _evaluate_dir,
     _track_and_score,
     folds_by_frames,
+    level_frames,
     objective_value,
     settings_to_overrides,
 )
-from tracker.calibration import calibrate_frames, find_profile
+from tracker.calibration import find_profile
 from tracker.eval.calibrate import fit_profile, fit_self_profile
-from tracker.eval.perturb import CLEAN, PerturbSpec, perturb_frames
+from tracker.eval.perturb import CLEAN, PerturbSpec
 from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti
+from tracker.io.fileio import write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -75,7 +77,15 @@ def held_out(
     cls = record["class"]
     label_dir = root / "training" / "label_02"
     dets = detectors or record["detectors"]
-    levels = (CLEAN, *record.get("noise", {})) if choose else (CLEAN,)
+    if choose and "offline" not in modes:
+        raise ValueError("choose: offline-only settings need the offline mode")
+    # the tune's noise levels (each perturbs the calibrated frames) join the objective when
+    # choosing; the held-out figures are the clean ones
+    specs = {CLEAN: None} | (
+        {lv: PerturbSpec(**spec) for lv, spec in record.get("noise", {}).items()} if choose else {}
+    )
+    seed = record.get("noise_seed", 0)
+    levels = tuple(specs)
     lengths: dict[str, int] = {}
     grid = (
         [dict(zip(choose, combo, strict=True)) for combo in itertools.product(*choose.values())]
@@ -103,18 +113,9 @@ def held_out(
                     else fit_profile(det, train, gt or {}, [cls])
                 )
             for key, fitted in profiles.items():
-                clean = {s: calibrate_frames(raw[s], fitted) for s in raw}
-                for level in levels:
-                    spec = None if level == CLEAN else PerturbSpec(**record["noise"][level])
+                for level, frames in level_frames(raw, fitted, specs, seed).items():
                     added.append((det, key, level))
-                    tune._FRAMES[det, key, level] = (
-                        clean
-                        if spec is None
-                        else {
-                            s: perturb_frames(f, spec, seed=record["noise_seed"])
-                            for s, f in clean.items()
-                        }
-                    )
+                    tune._FRAMES[det, key, level] = frames
         with (
             tempfile.TemporaryDirectory(prefix="fold-figures-") as tmp,
             multiprocessing.get_context("fork").Pool(workers) as pool,
@@ -134,10 +135,10 @@ def held_out(
                 best = grid[max(exact, key=lambda i: exact[i])]  # the first of ties
                 return {"objective": scores, "chosen": best}
 
-            # with a grid, offline also runs at its first point (list the config's own values
-            # first): what choosing per fold is compared with
+            # with a grid, offline also runs at its first point (the plain values): what
+            # choosing per fold is compared with
             runs = {mode: MODES[mode] for mode in modes}
-            if grid and "offline" in modes:
+            if grid:
                 runs["offline_first"] = MODES["offline"]
             tasks = []
             for k, fold in enumerate(record["cv"]):
@@ -217,7 +218,7 @@ def main() -> int:
                   "choice": choice, "command": " ".join(["python bench/offline_from_online.py",
                   f"docs/tune/{Path(args.record).name}", *(f"--choose {c}" for c in args.choose)]),
                   "seconds": round(time.perf_counter() - start, 1)}  # fmt: skip
-        args.out.write_text(json.dumps(record, indent=1) + "\n")
+        write_text_atomic(args.out, [json.dumps(record, indent=1) + "\n"])
     return 0
 
 
