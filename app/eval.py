@@ -78,7 +78,14 @@ def run(args: argparse.Namespace) -> int:
     if args.labels is not None and not Path(args.labels).is_dir():
         raise InputError(f"{args.labels}: --labels folder not found (KITTI label_02)")
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]
-    width_scale = load_config(args.config).image_width_scales()
+    config = load_config(args.config)
+    width_scale = config.image_width_scales()
+    if config.image_boxes.value != "projection":
+        # the tracks file keeps the tracked boxes, not the detections' 2D boxes
+        print(
+            f"mctrack eval: {args.config}: image_boxes = {config.image_boxes.value!r} is not"
+            " applied here; the KITTI files are written with the tracked boxes' projections"
+        )
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)
     gt = read_baseversion(args.gt)

@@ -174,7 +174,11 @@ class KittiSceneJob:
             nonlocal write_secs
             t1 = time.perf_counter()
             write_kitti_sequence(
-                result_file, outputs, frames, width_scale=self.config.image_width_scales()
+                result_file,
+                outputs,
+                frames,
+                image_boxes=self.config.image_boxes,
+                width_scale=self.config.image_width_scales(),
             )
             write_bytes_atomic(
                 scenes.part_path(self.out, index, "json"), tracks_scene_json(seq, frames, outputs)

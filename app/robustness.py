@@ -183,6 +183,7 @@ def run_robustness(
                     run_dir / f"{seq}.txt",
                     result.outputs,
                     noisy,
+                    image_boxes=config.image_boxes,
                     width_scale=config.image_width_scales(),
                 )
                 bar.update(len(frames))

@@ -298,6 +298,7 @@ def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
             result_dir / f"{seq}.txt",
             result.outputs,
             frames[seq],
+            image_boxes=config.image_boxes,
             width_scale=config.image_width_scales(),
         )
     if not evaluate:

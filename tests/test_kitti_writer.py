@@ -67,3 +67,146 @@ def test_eval_writes_boxes_with_the_given_configs_width(tmp_path: Path) -> None:
         assert main([*args, "--config", name]) == 0
         hota[name] = json.loads((out / "eval.json").read_text())["static"]["pedestrian"]["HOTA"]
     assert hota["kitti"] > hota["kitti_reference"] + 1.0
+
+
+# -- which 2D box a matched track reports (image_boxes) ------------------------------------------
+
+
+def _sample_run() -> tuple[list, list]:
+    frames = read_baseversion(SAMPLE / "detections.json.gz")["0001"]
+    frames = calibrate_frames(frames, find_profile("pointrcnn"))
+    return frames, run_scene(frames, load_config("kitti")).outputs
+
+
+def _with_image_boxes(frames: list, move, after: int = -1) -> list:
+    """The frames with each detection 2D box replaced by ``move(xyxy)`` from frame ``after`` on."""
+    import dataclasses
+
+    return [
+        dataclasses.replace(f, boxes=f.boxes.replace(xyxy_image=move(f.boxes.xyxy_image.copy())))
+        if i > after
+        else f
+        for i, f in enumerate(frames)
+    ]
+
+
+def _image_head(xyxy: np.ndarray) -> np.ndarray:
+    """A box of its own: 0.67 of the width, shifted by 0.3 of it (IoU with the input < 0.95)."""
+    w = xyxy[:, 2] - xyxy[:, 0]
+    centre = (xyxy[:, 0] + xyxy[:, 2]) / 2 + 0.3 * w
+    return np.column_stack([centre - 0.335 * w, xyxy[:, 1], centre + 0.335 * w, xyxy[:, 3]])
+
+
+def _lines_by_frame(path: Path) -> dict[int, list[str]]:
+    out: dict[int, list[str]] = {}
+    for line in path.read_text().splitlines():
+        out.setdefault(int(line.split()[0]), []).append(line)
+    return out
+
+
+def test_auto_image_boxes_keep_the_projection_of_projected_detections(tmp_path: Path) -> None:
+    """A LiDAR detector's 2D boxes are its 3D boxes' projections (PointRCNN's: IoU ~1): they
+    add nothing, so `auto` writes exactly what `projection` writes."""
+    from tracker.io.writers import ImageBoxStats, write_kitti_sequence
+
+    frames, outputs = _sample_run()
+    scale = load_config("kitti").image_width_scales()
+    for mode in ("projection", "auto"):
+        write_kitti_sequence(
+            tmp_path / f"{mode}.txt", outputs, frames, image_boxes=mode, width_scale=scale
+        )
+    assert (tmp_path / "auto.txt").read_bytes() == (tmp_path / "projection.txt").read_bytes()
+    stats = ImageBoxStats(scale)
+    for f in frames:
+        stats.update(f.boxes, f.cameras[f.camera_index("CAM_FRONT")])
+    seen = stats.seen > 0
+    assert seen[category_index("car")] and seen[category_index("pedestrian")]
+    assert not stats.own()[seen].any()
+    np.testing.assert_allclose(stats.width_scale()[seen], scale[seen], rtol=0.01)
+
+
+def test_auto_image_boxes_write_a_detections_own_box(tmp_path: Path) -> None:
+    """Detections with 2D boxes of their own (an image head's): a matched track writes its
+    detection's box as it is (already narrower than the projection: never widened); a coasting
+    track writes its projection."""
+    from tracker.io.writers import write_kitti_sequence
+
+    frames, outputs = _sample_run()
+    own = _with_image_boxes(frames, _image_head)
+    scale = load_config("kitti").image_width_scales()
+    for name, fr, mode in (("proj", frames, "projection"), ("auto", own, "auto")):
+        write_kitti_sequence(tmp_path / f"{name}.txt", outputs, fr, image_boxes=mode,
+                             width_scale=scale)  # fmt: skip
+    proj, auto = _lines_by_frame(tmp_path / "proj.txt"), _lines_by_frame(tmp_path / "auto.txt")
+    matched = coasting = 0
+    for out, frame in zip(outputs, own, strict=True):
+        written = {int(ln.split()[1]): ln.split() for ln in auto.get(out.frame_id, [])}
+        projected = {int(ln.split()[1]): ln.split() for ln in proj.get(out.frame_id, [])}
+        for tid, row in zip(out.boxes.track_id, out.det_row, strict=True):
+            if row >= 0 and int(tid) in written:
+                box = np.array(written[int(tid)][6:10], float)
+                np.testing.assert_allclose(box, frame.boxes.xyxy_image[row], atol=1e-3)
+                matched += 1
+            elif row < 0 and int(tid) in projected:
+                assert written[int(tid)] == projected[int(tid)]
+                coasting += 1
+    assert matched > 100 and coasting > 0
+
+
+def test_projected_boxes_of_their_own_are_narrowed_like_projections(tmp_path: Path) -> None:
+    """A 2D box as wide as its projection but elsewhere (a box left where it was while its 3D
+    box moved): written narrowed about its centre by the class's image_width_scale."""
+    from tracker.io.writers import write_kitti_sequence
+
+    frames, outputs = _sample_run()
+
+    def shifted(xyxy: np.ndarray) -> np.ndarray:
+        w = xyxy[:, 2] - xyxy[:, 0]
+        return xyxy + np.column_stack([0.2 * w, 0 * w, 0.2 * w, 0 * w])
+
+    own = _with_image_boxes(frames, shifted)
+    scale = load_config("kitti").image_width_scales()
+    write_kitti_sequence(tmp_path / "auto.txt", outputs, own, image_boxes="auto",
+                         width_scale=scale)  # fmt: skip
+    auto = _lines_by_frame(tmp_path / "auto.txt")
+    ped = category_index("pedestrian")
+    checked = 0
+    for out, frame in zip(outputs, own, strict=True):
+        written = {int(ln.split()[1]): ln.split() for ln in auto.get(out.frame_id, [])}
+        for tid, row, cat in zip(out.boxes.track_id, out.det_row, out.boxes.category, strict=True):
+            if row < 0 or cat != ped or int(tid) not in written:
+                continue
+            det = frame.boxes.xyxy_image[row]
+            box = np.array(written[int(tid)][6:10], float)
+            assert box[2] - box[0] == pytest.approx((det[2] - det[0]) * scale[ped], rel=0.02)
+            assert box[0] + box[2] == pytest.approx(det[0] + det[2], abs=1e-3)
+            checked += 1
+    assert checked > 20
+
+
+def test_auto_image_boxes_decide_from_the_frames_so_far(tmp_path: Path) -> None:
+    """Online output stays online: a frame's boxes depend on the detections up to it. Boxes that
+    become the detector's own a third of the way through change nothing before, and are written
+    as the detections' once they are the majority."""
+    from tracker.io.writers import write_kitti_sequence
+
+    frames, outputs = _sample_run()
+    third = len(frames) // 3
+    late = _with_image_boxes(frames, _image_head, after=third)
+    scale = load_config("kitti").image_width_scales()
+    for name, fr, mode in (("proj", frames, "projection"), ("late", late, "auto")):
+        write_kitti_sequence(tmp_path / f"{name}.txt", outputs, fr, image_boxes=mode,
+                             width_scale=scale)  # fmt: skip
+    proj, auto = _lines_by_frame(tmp_path / "proj.txt"), _lines_by_frame(tmp_path / "late.txt")
+    ids = [o.frame_id for o in outputs]
+    assert all(auto.get(i) == proj.get(i) for i in ids[: third + 1])
+    assert any(auto.get(i) != proj.get(i) for i in ids[-20:])
+
+
+def test_image_boxes_setting_is_checked() -> None:
+    from tracker.errors import InputError
+
+    assert load_config("kitti").image_boxes.value == "projection"
+    assert load_config("kitti", overrides={"image_boxes": "auto"}).image_boxes.value == "auto"
+    with pytest.raises(InputError, match="image_boxes"):
+        load_config("kitti", overrides={"image_boxes": "detector"})

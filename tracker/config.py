@@ -72,6 +72,16 @@ class OutputGeometry(enum.Enum):
     DETECTION = "detection"  # a matched track reports its detection's box (velocity filtered)
 
 
+class ImageBoxes(enum.Enum):
+    """The 2D box written for a track matched this frame (KITTI's 2D protocol scores it)."""
+
+    PROJECTION = "projection"  # the tracked 3D box's projection, always
+    DETECTION = "detection"  # the matched detection's own 2D box
+    # the detection's own box where the run's detection 2D boxes are not their 3D boxes'
+    # projections (an image head's), else the projection (tracker.io.writers.ImageBoxStats)
+    AUTO = "auto"
+
+
 class GreedyOrder(enum.Enum):
     DETECTION = "detection"  # the reference: detections in index order take their best track
     COST = "cost"  # globally cheapest pair first
@@ -199,6 +209,7 @@ class TrackerConfig:
     greedy_order: GreedyOrder = GreedyOrder.DETECTION
     nms: bool = False
     output_geometry: OutputGeometry = OutputGeometry.FILTERED
+    image_boxes: ImageBoxes = ImageBoxes.PROJECTION
     # Where detections exist only inside the camera images (KITTI), a coasting track is output
     # only while at least this fraction of its projected box's width is inside an image: a track
     # leaving the view has an explained miss, not a dropped box (0 = always output)

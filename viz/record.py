@@ -333,6 +333,7 @@ def record_scene(
                 camera_name=camera_names[0],
                 result_file=result_file if restricted == label_file else None,
                 width_scale=config.image_width_scales(),
+                image_boxes=config.image_boxes,
             )
             result.evaluation = evaluation.without_id_inputs()
             result.kitti_metrics = kitti_metrics or evaluation.metrics

@@ -265,10 +265,13 @@ def kitti_evaluation_and_id_events(
     result_file: str | Path | None = None,
     num_timesteps: int | None = None,
     width_scale: FloatArray | None = None,
+    image_boxes: str = "projection",
 ) -> tuple[SequenceEvaluation, IdEvaluation]:
     """One TrackEval evaluation of a sequence and its ID events from the same loading and
     preprocessing (:func:`tracker.eval.kitti.evaluate_kitti_sequence`). ``width_scale``: the
-    config's 2D-box model (:func:`tracker.io.writers.kitti_lines`) when the file is written here."""
+    config's 2D-box model (:func:`tracker.io.writers.kitti_lines`) and ``image_boxes`` its
+    2D-box source (:func:`tracker.io.writers.write_kitti_sequence`), when the file is written
+    here."""
     from tracker.eval.kitti import evaluate_kitti_sequence
     from tracker.io.writers import write_kitti_sequence
 
@@ -281,7 +284,10 @@ def kitti_evaluation_and_id_events(
     with tempfile.TemporaryDirectory(prefix="mctrack-idsw-") as tmp:
         if result_file is None:
             result_file = Path(tmp) / f"{label_file.stem}.txt"
-            write_kitti_sequence(result_file, outputs, frames, camera_name, width_scale=width_scale)
+            write_kitti_sequence(
+                result_file, outputs, frames, camera_name,
+                image_boxes=image_boxes, width_scale=width_scale,
+            )  # fmt: skip
         evaluation = evaluate_kitti_sequence(
             label_file=label_file,
             result_file=Path(result_file),

@@ -17,6 +17,7 @@ import numpy as np
 from tracker.boxes import Boxes, FloatArray
 from tracker.camera import clip_boxes_to_image, project_boxes
 from tracker.categories import CATEGORIES
+from tracker.config import ImageBoxes
 from tracker.errors import InputError
 from tracker.events import TrackOutput, TrackStatus
 from tracker.frame import Camera, Frame
@@ -70,20 +71,82 @@ def kitti_label_fields(
     return fields, xyxy, visible
 
 
+#: a detection's 2D box is its own (not its 3D box's projection) when their IoU is below this;
+#: a projection written by the detector agrees with ours to rounding (IoU >= 0.99 on the three
+#: KITTI detectors of the kit)
+OWN_BOX_IOU = 0.95
+
+
+class ImageBoxStats:
+    """Running evidence, per category, on what a run's detection 2D boxes are (frames so far).
+
+    ``own(c)``: most boxes of category c differ from their 3D box's projection (IoU <
+    :data:`OWN_BOX_IOU`), so they carry information of their own: an image head's box, or one
+    left where it was while its 3D box moved. ``width_scale(c)``: the width factor that brings
+    c's detection boxes to the writer's convention, ``min(1, s / ratio)`` with ``s`` the
+    category's ``image_width_scale`` and ``ratio`` the geometric mean of detection width over
+    projected width: a box as wide as the projection is narrowed like it, a box already as
+    narrow as the annotations (an image head trained on them) is left alone.
+    """
+
+    def __init__(self, width_scale: FloatArray) -> None:
+        self.target = np.asarray(width_scale, dtype=float)
+        n = len(self.target)
+        self.seen, self.own_count, self.log_ratio = np.zeros(n), np.zeros(n), np.zeros(n)
+
+    def update(self, detections: Boxes, camera: Camera) -> None:
+        """Add one frame's detections (those with a 2D box and a visible projection)."""
+        if not len(detections):
+            return
+        _, proj, visible = kitti_label_fields(detections, camera)
+        det = detections.xyxy_image
+        det_w, proj_w = det[:, 2] - det[:, 0], proj[:, 2] - proj[:, 0]
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(det).all(axis=1) & visible & (det_w > 0) & (proj_w > 0)
+        if not ok.any():
+            return
+        cat = detections.category[ok]
+        iou = _iou_pairs(det[ok], proj[ok])
+        np.add.at(self.seen, cat, 1.0)
+        np.add.at(self.own_count, cat, (iou < OWN_BOX_IOU).astype(float))
+        np.add.at(self.log_ratio, cat, np.log(det_w[ok] / proj_w[ok]))
+
+    def own(self) -> np.ndarray:
+        """(n_categories,) bool: the detections' 2D boxes are their own."""
+        return self.own_count > self.seen / 2.0
+
+    def width_scale(self) -> FloatArray:
+        """(n_categories,) the width factor for the detections' own boxes (1 where none seen)."""
+        ratio = np.exp(self.log_ratio / np.maximum(self.seen, 1.0))
+        return np.where(self.seen > 0, np.minimum(1.0, self.target / ratio), 1.0)
+
+
+def _iou_pairs(a: FloatArray, b: FloatArray) -> FloatArray:
+    """IoU of the 2D boxes a[i], b[i] (xyxy, positive areas)."""
+    w = np.clip(np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0]), 0.0, None)
+    h = np.clip(np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1]), 0.0, None)
+    inter = w * h
+    area = lambda x: (x[:, 2] - x[:, 0]) * (x[:, 3] - x[:, 1])  # noqa: E731
+    return inter / (area(a) + area(b) - inter)
+
+
 def kitti_lines(
     output: TrackOutput,
     camera: Camera,
     detections: Boxes | None = None,
     *,
     width_scale: FloatArray | None = None,
+    own_boxes: np.ndarray | None = None,
+    detection_width_scale: FloatArray | None = None,
 ) -> list[str]:
     """label_02 lines of one frame: boxes not visible in the image are left out (KITTI GT only
     annotates objects in the camera view, so anything else would count as a false positive).
 
-    With ``detections`` (the frame's input boxes), a track matched this frame reports its
-    detection's own 2D box when it has one, instead of the projected tracked box.
     ``width_scale`` (per global category index, ``TrackerConfig.image_width_scales()``) narrows
-    each projected 2D box about its centre (before clipping to the image).
+    each projected 2D box about its centre (before clipping to the image). With ``detections``
+    (the frame's input boxes), a track matched this frame reports its detection's own 2D box
+    instead, where ``own_boxes`` (per category index; None: every category) says so, its width
+    scaled about its centre by ``detection_width_scale`` (per category index; None: 1).
     """
     boxes = output.boxes
     if not len(boxes):
@@ -92,11 +155,21 @@ def kitti_lines(
     if detections is not None:
         rows = output.det_row
         has = rows >= 0
-        det_xyxy = detections.xyxy_image[rows[has]]
+        if own_boxes is not None:
+            has &= own_boxes[boxes.category]
+        det_xyxy = detections.xyxy_image[rows[has]].copy()
         ok = np.isfinite(det_xyxy).all(axis=1)
         idx = np.flatnonzero(has)[ok]
+        det_xyxy = det_xyxy[ok]
+        if detection_width_scale is not None:
+            scale = detection_width_scale[boxes.category[idx]]
+            centre, half = (
+                (det_xyxy[:, 0] + det_xyxy[:, 2]) / 2,
+                (det_xyxy[:, 2] - det_xyxy[:, 0]) / 2,
+            )
+            det_xyxy[:, 0], det_xyxy[:, 2] = centre - half * scale, centre + half * scale
         xyxy = xyxy.copy()
-        xyxy[idx] = det_xyxy[ok]
+        xyxy[idx] = det_xyxy
         visible = visible.copy()
         visible[idx] = True
     lines = []
@@ -118,20 +191,37 @@ def write_kitti_sequence(
     frames: Sequence[Frame],
     camera_name: str = "CAM_FRONT",
     *,
-    detection_image_boxes: bool = False,
+    image_boxes: ImageBoxes | str = ImageBoxes.PROJECTION,
     width_scale: FloatArray | None = None,
 ) -> int:
     """Write one sequence's KITTI tracking result file; returns the number of lines.
-    ``width_scale``: see :func:`kitti_lines`."""
+
+    ``width_scale``: see :func:`kitti_lines`. ``image_boxes`` (``TrackerConfig.image_boxes``):
+    the 2D box of a track matched in a frame is its projection, its detection's own box, or
+    (auto) its detection's box where the detections' 2D boxes seen up to that frame are their
+    own (:class:`ImageBoxStats`; online output stays online)."""
+    mode = ImageBoxes(image_boxes)
     by_frame = {f.frame_id: f for f in frames}
+    n_cat = len(CATEGORIES)
+    stats = ImageBoxStats(np.ones(n_cat) if width_scale is None else width_scale)
     lines: list[str] = []
     for out in outputs:
         frame = by_frame[out.frame_id]
         index = frame.camera_index(camera_name)
         if index < 0:
             raise ValueError(f"scene {frame.scene} frame {frame.frame_id}: no {camera_name} model")
-        dets = frame.boxes if detection_image_boxes else None
-        lines.extend(kitti_lines(out, frame.cameras[index], dets, width_scale=width_scale))
+        camera = frame.cameras[index]
+        if mode is ImageBoxes.PROJECTION:
+            lines.extend(kitti_lines(out, camera, width_scale=width_scale))
+            continue
+        stats.update(frame.boxes, camera)
+        own = np.ones(n_cat, dtype=bool) if mode is ImageBoxes.DETECTION else stats.own()
+        lines.extend(
+            kitti_lines(
+                out, camera, frame.boxes, width_scale=width_scale, own_boxes=own,
+                detection_width_scale=stats.width_scale(),
+            )
+        )  # fmt: skip
     write_text_atomic(path, lines)
     return len(lines)
 
