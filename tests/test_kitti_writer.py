@@ -117,40 +117,42 @@ def test_auto_image_boxes_keep_the_projection_of_projected_detections(tmp_path: 
         )
     assert (tmp_path / "auto.txt").read_bytes() == (tmp_path / "projection.txt").read_bytes()
     stats = ImageBoxStats(scale)
-    for f in frames:
-        stats.update(f.boxes, f.cameras[f.camera_index("CAM_FRONT")])
-    seen = stats.seen > 0
-    assert seen[category_index("car")] and seen[category_index("pedestrian")]
-    assert not stats.own()[seen].any()
-    np.testing.assert_allclose(stats.width_scale()[seen], scale[seen], rtol=0.01)
+    own = [stats.update(f.boxes, f.cameras[f.camera_index("CAM_FRONT")]) for f in frames]
+    assert sum(len(o) for o in own) > 1000 and not np.concatenate(own).any()
+    np.testing.assert_array_equal(stats.width_scale(), scale)  # (no own box seen)
 
 
 def test_auto_image_boxes_write_a_detections_own_box(tmp_path: Path) -> None:
-    """Detections with 2D boxes of their own (an image head's): a matched track writes its
-    detection's box as it is (already narrower than the projection: never widened); a coasting
-    track writes its projection."""
+    """Detections with 2D boxes of their own (an image head's) in even rows: a track matched
+    to one writes its detection's box as it is (already narrower than the projection: never
+    widened); a track matched to a projected box, or coasting, writes its projection."""
     from tracker.io.writers import write_kitti_sequence
 
     frames, outputs = _sample_run()
-    own = _with_image_boxes(frames, _image_head)
+
+    def even_rows(xyxy: np.ndarray) -> np.ndarray:
+        xyxy[::2] = _image_head(xyxy[::2])
+        return xyxy
+
+    own = _with_image_boxes(frames, even_rows)
     scale = load_config("kitti").image_width_scales()
     for name, fr, mode in (("proj", frames, "projection"), ("auto", own, "auto")):
         write_kitti_sequence(tmp_path / f"{name}.txt", outputs, fr, image_boxes=mode,
                              width_scale=scale)  # fmt: skip
     proj, auto = _lines_by_frame(tmp_path / "proj.txt"), _lines_by_frame(tmp_path / "auto.txt")
-    matched = coasting = 0
+    matched = projected_rows = 0
     for out, frame in zip(outputs, own, strict=True):
         written = {int(ln.split()[1]): ln.split() for ln in auto.get(out.frame_id, [])}
         projected = {int(ln.split()[1]): ln.split() for ln in proj.get(out.frame_id, [])}
         for tid, row in zip(out.boxes.track_id, out.det_row, strict=True):
-            if row >= 0 and int(tid) in written:
+            if row >= 0 and row % 2 == 0 and int(tid) in written:
                 box = np.array(written[int(tid)][6:10], float)
                 np.testing.assert_allclose(box, frame.boxes.xyxy_image[row], atol=1e-3)
                 matched += 1
-            elif row < 0 and int(tid) in projected:
+            elif int(tid) in projected:
                 assert written[int(tid)] == projected[int(tid)]
-                coasting += 1
-    assert matched > 100 and coasting > 0
+                projected_rows += 1
+    assert matched > 100 and projected_rows > 100
 
 
 def test_projected_boxes_of_their_own_are_narrowed_like_projections(tmp_path: Path) -> None:
@@ -187,7 +189,7 @@ def test_projected_boxes_of_their_own_are_narrowed_like_projections(tmp_path: Pa
 def test_auto_image_boxes_decide_from_the_frames_so_far(tmp_path: Path) -> None:
     """Online output stays online: a frame's boxes depend on the detections up to it. Boxes that
     become the detector's own a third of the way through change nothing before, and are written
-    as the detections' once they are the majority."""
+    as the detections' from then on."""
     from tracker.io.writers import write_kitti_sequence
 
     frames, outputs = _sample_run()
@@ -200,7 +202,8 @@ def test_auto_image_boxes_decide_from_the_frames_so_far(tmp_path: Path) -> None:
     proj, auto = _lines_by_frame(tmp_path / "proj.txt"), _lines_by_frame(tmp_path / "late.txt")
     ids = [o.frame_id for o in outputs]
     assert all(auto.get(i) == proj.get(i) for i in ids[: third + 1])
-    assert any(auto.get(i) != proj.get(i) for i in ids[-20:])
+    changed = [auto.get(i) != proj.get(i) for i in ids[third + 1 :]]
+    assert sum(changed) > 0.5 * len(changed)
 
 
 def test_image_boxes_setting_is_checked() -> None:

@@ -77,8 +77,8 @@ class ImageBoxes(enum.Enum):
 
     PROJECTION = "projection"  # the tracked 3D box's projection, always
     DETECTION = "detection"  # the matched detection's own 2D box
-    # the detection's own box where the run's detection 2D boxes are not their 3D boxes'
-    # projections (an image head's), else the projection (tracker.io.writers.ImageBoxStats)
+    # the detection's 2D box where it is its own, not its 3D box's projection (an image
+    # head's), else the projection (tracker.io.writers.ImageBoxStats)
     AUTO = "auto"
 
 

@@ -78,47 +78,47 @@ OWN_BOX_IOU = 0.95
 
 
 class ImageBoxStats:
-    """Running evidence, per category, on what a run's detection 2D boxes are (frames so far).
+    """Which detection 2D boxes are their own, and the width that brings them to the writer's.
 
-    ``own(c)``: most boxes of category c differ from their 3D box's projection (IoU <
-    :data:`OWN_BOX_IOU`), so they carry information of their own: an image head's box, or one
-    left where it was while its 3D box moved. ``width_scale(c)``: the width factor that brings
-    c's detection boxes to the writer's convention, ``min(1, s / ratio)`` with ``s`` the
-    category's ``image_width_scale`` and ``ratio`` the geometric mean of detection width over
-    projected width: a box as wide as the projection is narrowed like it, a box already as
-    narrow as the annotations (an image head trained on them) is left alone.
+    A detection's 2D box is *its own* when it differs from its 3D box's projection (IoU <
+    :data:`OWN_BOX_IOU`): an image head's box, or one left where it was while its 3D box moved.
+    A box that is the projection adds nothing to the tracked box's projection. ``width_scale``
+    per category is ``min(1, s / ratio)``, ``s`` the category's ``image_width_scale`` and
+    ``ratio`` the geometric mean of own-box width over projected width in the frames so far: a
+    box as wide as the projection is narrowed like it, a box already as narrow as the
+    annotations (an image head trained on them) is left alone.
     """
 
     def __init__(self, width_scale: FloatArray) -> None:
         self.target = np.asarray(width_scale, dtype=float)
-        n = len(self.target)
-        self.seen, self.own_count, self.log_ratio = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.seen = np.zeros(len(self.target))
+        self.log_ratio = np.zeros(len(self.target))
 
-    def update(self, detections: Boxes, camera: Camera) -> None:
-        """Add one frame's detections (those with a 2D box and a visible projection)."""
+    def update(self, detections: Boxes, camera: Camera) -> np.ndarray:
+        """One frame's detections: (N,) bool, which have a 2D box of their own; their widths
+        join the running ratio."""
+        own = np.zeros(len(detections), dtype=bool)
         if not len(detections):
-            return
+            return own
         _, proj, visible = kitti_label_fields(detections, camera)
         det = detections.xyxy_image
         det_w, proj_w = det[:, 2] - det[:, 0], proj[:, 2] - proj[:, 0]
         with np.errstate(invalid="ignore"):
-            ok = np.isfinite(det).all(axis=1) & visible & (det_w > 0) & (proj_w > 0)
-        if not ok.any():
-            return
-        cat = detections.category[ok]
-        iou = _iou_pairs(det[ok], proj[ok])
-        np.add.at(self.seen, cat, 1.0)
-        np.add.at(self.own_count, cat, (iou < OWN_BOX_IOU).astype(float))
-        np.add.at(self.log_ratio, cat, np.log(det_w[ok] / proj_w[ok]))
-
-    def own(self) -> np.ndarray:
-        """(n_categories,) bool: the detections' 2D boxes are their own."""
-        return self.own_count > self.seen / 2.0
+            ok = np.isfinite(det).all(axis=1) & (det_w > 0) & (det[:, 3] > det[:, 1])
+            sized = ok & visible & (proj_w > 0)
+        # a box whose 3D box projects outside the image is its own where it has one at all
+        own[ok] = True
+        own[sized] = _iou_pairs(det[sized], proj[sized]) < OWN_BOX_IOU
+        counted = own & sized
+        np.add.at(self.seen, detections.category[counted], 1.0)
+        np.add.at(self.log_ratio, detections.category[counted],
+                  np.log(det_w[counted] / proj_w[counted]))  # fmt: skip
+        return own
 
     def width_scale(self) -> FloatArray:
-        """(n_categories,) the width factor for the detections' own boxes (1 where none seen)."""
+        """(n_categories,) the width factor for own boxes (the class's scale where none seen)."""
         ratio = np.exp(self.log_ratio / np.maximum(self.seen, 1.0))
-        return np.where(self.seen > 0, np.minimum(1.0, self.target / ratio), 1.0)
+        return np.minimum(1.0, self.target / ratio)
 
 
 def _iou_pairs(a: FloatArray, b: FloatArray) -> FloatArray:
@@ -136,7 +136,7 @@ def kitti_lines(
     detections: Boxes | None = None,
     *,
     width_scale: FloatArray | None = None,
-    own_boxes: np.ndarray | None = None,
+    own_rows: np.ndarray | None = None,
     detection_width_scale: FloatArray | None = None,
 ) -> list[str]:
     """label_02 lines of one frame: boxes not visible in the image are left out (KITTI GT only
@@ -145,7 +145,7 @@ def kitti_lines(
     ``width_scale`` (per global category index, ``TrackerConfig.image_width_scales()``) narrows
     each projected 2D box about its centre (before clipping to the image). With ``detections``
     (the frame's input boxes), a track matched this frame reports its detection's own 2D box
-    instead, where ``own_boxes`` (per category index; None: every category) says so, its width
+    instead, where ``own_rows`` (per detection; None: every detection) says so, its width
     scaled about its centre by ``detection_width_scale`` (per category index; None: 1).
     """
     boxes = output.boxes
@@ -155,8 +155,8 @@ def kitti_lines(
     if detections is not None:
         rows = output.det_row
         has = rows >= 0
-        if own_boxes is not None:
-            has &= own_boxes[boxes.category]
+        if own_rows is not None:
+            has[has] = own_rows[rows[has]]
         det_xyxy = detections.xyxy_image[rows[has]].copy()
         ok = np.isfinite(det_xyxy).all(axis=1)
         idx = np.flatnonzero(has)[ok]
@@ -197,13 +197,13 @@ def write_kitti_sequence(
     """Write one sequence's KITTI tracking result file; returns the number of lines.
 
     ``width_scale``: see :func:`kitti_lines`. ``image_boxes`` (``TrackerConfig.image_boxes``):
-    the 2D box of a track matched in a frame is its projection, its detection's own box, or
-    (auto) its detection's box where the detections' 2D boxes seen up to that frame are their
-    own (:class:`ImageBoxStats`; online output stays online)."""
+    the 2D box of a track matched in a frame is its projection, its detection's 2D box, or
+    (auto) its detection's box where that box is its own, not its 3D box's projection
+    (:class:`ImageBoxStats`; the width convention is learnt from the frames up to the one
+    written, so online output stays online)."""
     mode = ImageBoxes(image_boxes)
     by_frame = {f.frame_id: f for f in frames}
-    n_cat = len(CATEGORIES)
-    stats = ImageBoxStats(np.ones(n_cat) if width_scale is None else width_scale)
+    stats = ImageBoxStats(np.ones(len(CATEGORIES)) if width_scale is None else width_scale)
     lines: list[str] = []
     for out in outputs:
         frame = by_frame[out.frame_id]
@@ -214,11 +214,11 @@ def write_kitti_sequence(
         if mode is ImageBoxes.PROJECTION:
             lines.extend(kitti_lines(out, camera, width_scale=width_scale))
             continue
-        stats.update(frame.boxes, camera)
-        own = np.ones(n_cat, dtype=bool) if mode is ImageBoxes.DETECTION else stats.own()
+        own = stats.update(frame.boxes, camera)
         lines.extend(
             kitti_lines(
-                out, camera, frame.boxes, width_scale=width_scale, own_boxes=own,
+                out, camera, frame.boxes, width_scale=width_scale,
+                own_rows=None if mode is ImageBoxes.DETECTION else own,
                 detection_width_scale=stats.width_scale(),
             )
         )  # fmt: skip
