@@ -23,7 +23,14 @@ from app.inputs import (
 )
 from app.scenes import SceneRecord
 from tracker.calibration import ScoreProfile, calibrate_frames, profile_toml, resolve_profile
-from tracker.config import BUILTIN, ScoreSource, TrackerConfig, config_to_dict, load_config
+from tracker.config import (
+    BUILTIN,
+    ImageBoxes,
+    ScoreSource,
+    TrackerConfig,
+    config_to_dict,
+    load_config,
+)
 from tracker.errors import InputError
 from tracker.eval.fates import FateCounter, combine_fates
 from tracker.eval.kitti import (
@@ -50,6 +57,15 @@ NO_PROFILE = "none"  # --profile none: the uncalibrated fallback
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_kitti_root_argument(parser)
     add_detector_argument(parser)
+    parser.add_argument(
+        "--image-detector",
+        default=None,
+        metavar="NAME",
+        help="2D boxes of an image detector, <root>/detections/NAME/<split>/<Class>/<seq>.txt "
+        "(frame,x1,y1,x2,y2,score; e.g. rrc_2d): each detection takes the one overlapping its own "
+        "2D box most (IoU >= 0.5), and a matched track writes it (image_boxes = auto unless the "
+        "config says detection)",
+    )
     parser.add_argument(
         "--seqs",
         default=",".join(VALIDATION_SEQS),
@@ -106,6 +122,9 @@ def run(args: argparse.Namespace) -> int:
     seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
     poses = None if args.poses == "none" else args.poses
     check_kitti_root(root, seqs=seqs, poses=poses, detector=args.detector)
+    image_dir = root / "detections" / str(args.image_detector) / "training"
+    if args.image_detector is not None and not image_dir.is_dir():
+        raise InputError(f"{image_dir}: image detections not found; pass --image-detector NAME")
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     out = Path(args.out)
@@ -116,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         mode=args.mode,
         detector=args.detector,
+        image_detector=args.image_detector,
         profile=args.profile
         if args.profile in (SELF_PROFILE, NO_PROFILE) or not args.profile
         else Path(args.profile),
@@ -148,6 +168,7 @@ class KittiSceneJob:
     calibrate: bool = False  # recompute the scores from the raw ones (score_source)
     profile: ScoreProfile | None = None
     evaluate: bool = False  # evaluate the sequence (TrackEval) in the task, when it has labels
+    image_detector: str | None = None  # 2D boxes fused into the detections (convert_kitti)
     eval_classes: tuple[str, ...] = ()
 
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
@@ -161,6 +182,7 @@ class KittiSceneJob:
             poses=self.poses,
             classes=self.classes,
             with_gt=self.with_gt,
+            image_detector=self.image_detector,
         )
         convert_secs = time.perf_counter() - t0
         ((seq, frames),) = detections.items()  # the sequence's normalised name ("14" -> "0014")
@@ -243,6 +265,7 @@ def run_kitti(
     config_name: str | Path = "kitti",
     mode: str | None = None,
     detector: str = "pointrcnn",
+    image_detector: str | None = None,
     profile: Path | str | None = None,
     labels: Path | None = None,
     poses: str | None = "orbslam3",
@@ -273,6 +296,9 @@ def run_kitti(
     if mode:
         overrides["mode"] = mode
     config = load_config(config_name, overrides=overrides)
+    if image_detector is not None and config.image_boxes is ImageBoxes.PROJECTION:
+        # the image detector's boxes are what the run is for: written where a track has one
+        config = load_config(config_name, overrides={**overrides, "image_boxes": "auto"})
     label_dir = labels or kitti_root / "training" / "label_02"
     calibrate, found, calibration = score_source(config, detector, profile)
     self_profile = None
@@ -299,6 +325,7 @@ def run_kitti(
         profile=found,
         evaluate=evaluate,
         eval_classes=tuple(c for c in classes if c in SUPPORTED_CLASSES),
+        image_detector=image_detector,
     )
     t0 = time.perf_counter()
     records = scenes.run_scenes(job, seqs, parallel=parallel, quiet=quiet)
@@ -314,6 +341,8 @@ def run_kitti(
     summary: dict[str, Any] = {
         "dataset": "kitti",
         "detector": detector,
+        "image_detector": image_detector,
+        "image_boxes": config.image_boxes.value,
         "config_name": str(config_name),
         "kitti_root": str(kitti_root),
         "labels": str(label_dir),

@@ -261,6 +261,18 @@ def iou_bev(a: Boxes, b: Boxes, *, mask: ArrayLike | None = None) -> FloatArray:
     return _finite_or_neg_inf(iou)
 
 
+def iou_xyxy(xyxy_a: ArrayLike, xyxy_b: ArrayLike) -> FloatArray:
+    """Plain IoU of 2D boxes ``(..., 4)`` (x1, y1, x2, y2; positive areas) broadcast against
+    each other: ``a[:, None], b[None]`` gives the matrix, equal shapes the pairs."""
+    a, b = np.asarray(xyxy_a, dtype=np.float64), np.asarray(xyxy_b, dtype=np.float64)
+    w = np.minimum(a[..., 2], b[..., 2]) - np.maximum(a[..., 0], b[..., 0])
+    h = np.minimum(a[..., 3], b[..., 3]) - np.maximum(a[..., 1], b[..., 1])
+    inter = np.clip(w, 0.0, None) * np.clip(h, 0.0, None)
+    area_a = (a[..., 2] - a[..., 0]) * (a[..., 3] - a[..., 1])
+    area_b = (b[..., 2] - b[..., 0]) * (b[..., 3] - b[..., 1])
+    return inter / (area_a + area_b - inter)
+
+
 def sdiou_image(xyxy_a: ArrayLike, xyxy_b: ArrayLike) -> FloatArray:
     """(M, N) SDIoU between 2D image boxes, exactly as the reference ``cal_sdiou_inrv``.
 

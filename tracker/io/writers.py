@@ -18,6 +18,7 @@ from tracker.boxes import Boxes, FloatArray
 from tracker.camera import clip_boxes_to_image, project_boxes
 from tracker.categories import CATEGORIES
 from tracker.config import ImageBoxes
+from tracker.cost import iou_xyxy
 from tracker.errors import InputError
 from tracker.events import TrackOutput, TrackStatus
 from tracker.frame import Camera, Frame
@@ -108,7 +109,7 @@ class ImageBoxStats:
             sized = ok & visible & (proj_w > 0)
         # a box whose 3D box projects outside the image is its own where it has one at all
         own[ok] = True
-        own[sized] = _iou_pairs(det[sized], proj[sized]) < OWN_BOX_IOU
+        own[sized] = iou_xyxy(det[sized], proj[sized]) < OWN_BOX_IOU
         counted = own & sized
         np.add.at(self.seen, detections.category[counted], 1.0)
         np.add.at(self.log_ratio, detections.category[counted],
@@ -119,15 +120,6 @@ class ImageBoxStats:
         """(n_categories,) the width factor for own boxes (the class's scale where none seen)."""
         ratio = np.exp(self.log_ratio / np.maximum(self.seen, 1.0))
         return np.minimum(1.0, self.target / ratio)
-
-
-def _iou_pairs(a: FloatArray, b: FloatArray) -> FloatArray:
-    """IoU of the 2D boxes a[i], b[i] (xyxy, positive areas)."""
-    w = np.clip(np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0]), 0.0, None)
-    h = np.clip(np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1]), 0.0, None)
-    inter = w * h
-    area = lambda x: (x[:, 2] - x[:, 0]) * (x[:, 3] - x[:, 1])  # noqa: E731
-    return inter / (area(a) + area(b) - inter)
 
 
 def kitti_lines(

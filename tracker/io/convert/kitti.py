@@ -44,7 +44,7 @@ import logging
 import struct
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import Literal
 
@@ -627,6 +627,63 @@ def read_kitti_object_detections(seq_dir: str | Path) -> tuple[KittiObjects, int
 # Rect camera → world
 
 
+IMAGE_DET_COLUMNS = ("frame", "x1", "y1", "x2", "y2", "score")
+#: a 3D detection takes the box of an image detector that overlaps its own 2D box (the
+#: projection, for a LiDAR detector) at least this much (IoU); one image box per detection
+FUSE_MIN_IOU = 0.5
+
+
+def read_image_detections(path: str | Path) -> tuple[IntArray, FloatArray]:
+    """2D-only detections of one class and sequence, ``frame, x1, y1, x2, y2, score`` comma
+    separated (DeepFusionMOT's layout of its RRC boxes): (frame (N,), xyxy (N, 4))."""
+    table = _read_table([Path(path)], columns=IMAGE_DET_COLUMNS, sep=",")
+    frame = _frames(table, 0)
+    xyxy = table.floats([1, 2, 3, 4])
+    table.floats([5])  # the score: checked, not used
+    empty = (xyxy[:, 2] <= xyxy[:, 0]) | (xyxy[:, 3] <= xyxy[:, 1])
+    if empty.any():
+        row = int(np.argmax(empty))
+        where, line = table.where(row)
+        raise InputError("empty 2D box (x2 <= x1 or y2 <= y1)", path=where, line=line, field="x2")
+    return frame, xyxy
+
+
+def fuse_image_boxes(
+    frames: Sequence[Frame],
+    category: int,
+    image_frame: IntArray,
+    image_xyxy: FloatArray,
+    *,
+    min_iou: float = FUSE_MIN_IOU,
+) -> tuple[list[Frame], int]:
+    """The frames with each detection of ``category`` given the image detector's box that
+    overlaps its own 2D box most (one-to-one, Hungarian on IoU, at least ``min_iou``); the
+    others keep theirs. Returns the frames and the number of detections that took a box."""
+    from scipy.optimize import linear_sum_assignment
+
+    from tracker.cost import iou_xyxy
+
+    order = np.argsort(image_frame, kind="stable")
+    image_frame, image_xyxy = image_frame[order], image_xyxy[order]
+    out: list[Frame] = []
+    fused = 0
+    for f in frames:
+        lo, hi = np.searchsorted(image_frame, [f.frame_id, f.frame_id + 1])
+        own = f.boxes.xyxy_image
+        rows = np.flatnonzero((f.boxes.category == category) & np.isfinite(own).all(axis=1))
+        if hi == lo or not len(rows):
+            out.append(f)
+            continue
+        iou = iou_xyxy(own[rows][:, None], image_xyxy[None, lo:hi])
+        a, b = linear_sum_assignment(-iou)
+        keep = iou[a, b] >= min_iou
+        xyxy = own.copy()
+        xyxy[rows[a[keep]]] = image_xyxy[lo + b[keep]]
+        fused += int(keep.sum())
+        out.append(replace(f, boxes=f.boxes.replace(xyxy_image=xyxy)))
+    return out, fused
+
+
 def boxes_rect_to_world(
     objects: KittiObjects, world_from_rect: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
@@ -801,6 +858,7 @@ def convert_kitti(
     classes: Sequence[str] = ("car", "pedestrian", "cyclist"),
     with_gt: bool = True,
     num_frames: int | Mapping[str, int] | None = None,
+    image_detector: str | None = None,
 ) -> tuple[dict[str, list[Frame]], dict[str, list[Frame]] | None]:
     """Convert KITTI tracking detections (and labels) to world-frame Frames.
 
@@ -829,6 +887,10 @@ def convert_kitti(
     num_frames : sequence length override (one int for all, or per sequence). Default: the
         number of pose lines, else the largest frame index in labels/detections + 1. Rows beyond
         an explicit length are dropped (logged).
+    image_detector : folder under ``detections/`` of a 2D image detector's boxes,
+        ``<split>/<Class>/<seq>.txt`` (:func:`read_image_detections`): each detection takes the
+        box of its class that overlaps its own 2D box most (:func:`fuse_image_boxes`). A class
+        without a file keeps its own boxes (logged).
 
     Returns
     -------
@@ -876,12 +938,32 @@ def convert_kitti(
             with_gt=with_gt,
             num_frames=explicit,
         )
+        if image_detector is not None:
+            det_frames = _with_image_boxes(
+                det_frames, kitti_root / "detections" / image_detector / split, seq, class_names
+            )
         detections[seq] = det_frames
         if gt_frames is not None:
             gt[seq] = gt_frames
         elif with_gt:
             LOG.info("%s: no labels at %s", seq, split_dir / "label_02" / f"{seq}.txt")
     return detections, (gt if with_gt and gt else None)
+
+
+def _with_image_boxes(
+    frames: list[Frame], image_dir: Path, seq: str, classes: Sequence[str]
+) -> list[Frame]:
+    """The sequence's detections with the image detector's boxes (:func:`fuse_image_boxes`)."""
+    for name in classes:
+        path = image_dir / CLASS_FOLDERS.get(name, name) / f"{seq}.txt"
+        if not path.is_file():
+            LOG.warning("%s: no %s image boxes at %s; its detections keep theirs", seq, name, path)
+            continue
+        frame, xyxy = read_image_detections(path)
+        total = sum(int((f.boxes.category == category_index(name)).sum()) for f in frames)
+        frames, fused = fuse_image_boxes(frames, category_index(name), frame, xyxy)
+        LOG.info("%s: %d of %d %s detections took an image box (%s)", seq, fused, total, name, path)
+    return frames
 
 
 def _convert_sequence(
