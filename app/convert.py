@@ -12,8 +12,10 @@ import time
 from pathlib import Path
 
 from app.inputs import (
+    IMAGE_DETECTOR_HELP,
     NO_POSES_NOTE,
     add_kitti_root_argument,
+    check_image_detector,
     check_kitti_root,
     default_kitti_root,
 )
@@ -45,6 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     kitti.add_argument("--detector", default="pointrcnn", help="folder under detections/")
     kitti.add_argument(
         "--detections", type=Path, default=None, help="detections folder (overrides --detector)"
+    )
+    kitti.add_argument(
+        "--image-detector",
+        default=None,
+        metavar="NAME",
+        help=f"{IMAGE_DETECTOR_HELP}; track with image_boxes = auto to write them",
     )
     kitti.add_argument(
         "--detections-layout",
@@ -140,6 +148,7 @@ def _run_kitti(args: argparse.Namespace) -> int:
         poses=poses,
         detector=None if args.detections else args.detector,
     )
+    check_image_detector(root, args.image_detector, args.split)
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     detections, gt = convert_kitti(
@@ -153,6 +162,7 @@ def _run_kitti(args: argparse.Namespace) -> int:
         pose_format=args.pose_format,
         classes=args.classes,
         with_gt=not args.no_gt,
+        image_detector=args.image_detector,
     )
     converted = time.perf_counter()
     args.out.mkdir(parents=True, exist_ok=True)

@@ -50,6 +50,20 @@ def add_detector_argument(parser: argparse.ArgumentParser) -> None:
     )
 
 
+IMAGE_DETECTOR_HELP = (
+    "2D boxes of an image detector, <root>/detections/NAME/<split>/<Class>/<seq>.txt "
+    "(frame,x1,y1,x2,y2,score; e.g. rrc_2d): each detection takes the one overlapping its own 2D "
+    "box most (IoU >= 0.5)"
+)
+
+
+def check_image_detector(root: Path, name: str | None, split: str = "training") -> None:
+    """InputError unless ``--image-detector NAME`` names a folder of the kit (or is absent)."""
+    folder = root / "detections" / str(name) / split
+    if name is not None and not folder.is_dir():
+        raise InputError(f"{folder}: image detections not found; pass --image-detector NAME")
+
+
 def check_kitti_root(
     root: Path,
     *,

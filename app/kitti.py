@@ -14,10 +14,12 @@ from typing import Any
 from app import scenes
 from app.common import SELF_PROFILE, log_self_profile, peak_rss_mb
 from app.inputs import (
+    IMAGE_DETECTOR_HELP,
     NO_POSES_NOTE,
     add_detector_argument,
     add_kitti_root_argument,
     add_mode_argument,
+    check_image_detector,
     check_kitti_root,
     default_kitti_root,
 )
@@ -61,10 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--image-detector",
         default=None,
         metavar="NAME",
-        help="2D boxes of an image detector, <root>/detections/NAME/<split>/<Class>/<seq>.txt "
-        "(frame,x1,y1,x2,y2,score; e.g. rrc_2d): each detection takes the one overlapping its own "
-        "2D box most (IoU >= 0.5), and a matched track writes it (image_boxes = auto unless the "
-        "config says detection)",
+        help=f"{IMAGE_DETECTOR_HELP}, and a matched track writes it (image_boxes = auto unless "
+        "the config says detection)",
     )
     parser.add_argument(
         "--seqs",
@@ -122,9 +122,7 @@ def run(args: argparse.Namespace) -> int:
     seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
     poses = None if args.poses == "none" else args.poses
     check_kitti_root(root, seqs=seqs, poses=poses, detector=args.detector)
-    image_dir = root / "detections" / str(args.image_detector) / "training"
-    if args.image_detector is not None and not image_dir.is_dir():
-        raise InputError(f"{image_dir}: image detections not found; pass --image-detector NAME")
+    check_image_detector(root, args.image_detector)
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     out = Path(args.out)

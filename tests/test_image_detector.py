@@ -129,3 +129,16 @@ def test_iou_xyxy_pairs_and_matrix() -> None:
     b = np.array([[1.0, 1.0, 3.0, 3.0], [10.0, 10.0, 11.0, 12.0]])
     np.testing.assert_allclose(iou_xyxy(a, b), [1 / 7, 1.0])
     np.testing.assert_allclose(iou_xyxy(a[:, None], b[None]), [[1 / 7, 0.0], [0.0, 1.0]])
+
+
+@pytest.mark.parametrize("command", ["kitti", "convert"])
+def test_a_missing_image_detector_is_one_line(
+    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from app.cli import main
+
+    argv = ["kitti", "--kitti-root", str(SAMPLE / "raw"), "--seqs", "0001"]
+    argv = (["convert", *argv] if command == "convert" else argv) + ["--image-detector", "nope"]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "detections/nope/training: image detections not found" in err
