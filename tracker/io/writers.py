@@ -101,16 +101,18 @@ class ImageBoxStats:
         own = np.zeros(len(detections), dtype=bool)
         if not len(detections):
             return own
-        _, proj, visible = kitti_label_fields(detections, camera)
+        fields, proj, visible = kitti_label_fields(detections, camera)
         det = detections.xyxy_image
         det_w, proj_w = det[:, 2] - det[:, 0], proj[:, 2] - proj[:, 0]
+        # a 3D box reaching behind the camera has no proper projection: the 2D boxes detectors
+        # write for those (VirConv, SECOND-IoU: whole-image or misplaced boxes) are no evidence;
+        # nor is a box whose 3D box projects outside the image (that track is not written)
+        in_front = fields[:, 6] - 0.5 * np.hypot(fields[:, 2], fields[:, 3]) > 0.0
         with np.errstate(invalid="ignore"):
             ok = np.isfinite(det).all(axis=1) & (det_w > 0) & (det[:, 3] > det[:, 1])
-            sized = ok & visible & (proj_w > 0)
-        # a box whose 3D box projects outside the image is its own where it has one at all
-        own[ok] = True
-        own[sized] = iou_xyxy(det[sized], proj[sized]) < OWN_BOX_IOU
-        counted = own & sized
+            ok &= in_front & visible & (proj_w > 0)
+        own[ok] = iou_xyxy(det[ok], proj[ok]) < OWN_BOX_IOU
+        counted = own
         np.add.at(self.seen, detections.category[counted], 1.0)
         np.add.at(self.log_ratio, detections.category[counted],
                   np.log(det_w[counted] / proj_w[counted]))  # fmt: skip
