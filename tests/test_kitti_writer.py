@@ -213,3 +213,30 @@ def test_image_boxes_setting_is_checked() -> None:
     assert load_config("kitti", overrides={"image_boxes": "auto"}).image_boxes.value == "auto"
     with pytest.raises(InputError, match="image_boxes"):
         load_config("kitti", overrides={"image_boxes": "detector"})
+
+
+def test_auto_ignores_the_boxes_detectors_write_for_boxes_behind_the_camera(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    """VirConv writes whole-image or misplaced 2D boxes for cars reaching behind the camera
+    (sequence 0001 has some): those are no evidence, so `auto` still writes what `projection`
+    writes for this LiDAR detector."""
+    from tracker.cost import iou_xyxy
+    from tracker.io.convert.kitti import convert_kitti
+    from tracker.io.writers import kitti_label_fields, write_kitti_sequence
+
+    dets, _ = convert_kitti(kitti_root, seqs=["0001"], detector="virconv", classes=["car"],
+                            with_gt=False)  # fmt: skip
+    frames = calibrate_frames(dets["0001"], find_profile("virconv"))
+    odd = 0
+    for f in frames:
+        _, proj, visible = kitti_label_fields(f.boxes, f.cameras[f.camera_index("CAM_FRONT")])
+        ok = visible & np.isfinite(f.boxes.xyxy_image).all(axis=1)
+        odd += int((iou_xyxy(f.boxes.xyxy_image[ok], proj[ok]) < 0.95).sum())
+    assert odd > 0  # the artefacts are there
+    config = load_config("kitti", overrides={"categories": ["car"]})
+    outputs = run_scene(frames, config).outputs
+    for mode in ("projection", "auto"):
+        write_kitti_sequence(tmp_path / f"{mode}.txt", outputs, frames, image_boxes=mode,
+                             width_scale=config.image_width_scales())  # fmt: skip
+    assert (tmp_path / "auto.txt").read_bytes() == (tmp_path / "projection.txt").read_bytes()
