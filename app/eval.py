@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import tempfile
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -84,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         # the tracks file keeps the tracked boxes, not the detections' 2D boxes
         print(
             f"mctrack eval: {args.config}: image_boxes = {config.image_boxes.value!r} is not"
-            " applied here; the KITTI files are written with the tracked boxes' projections"
+            " applied here; the KITTI files are written with the tracked boxes' projections",
+            file=sys.stderr,
         )
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)

@@ -61,7 +61,11 @@ def check_image_detector(root: Path, name: str | None, split: str = "training") 
     """InputError unless ``--image-detector NAME`` names a folder of the kit (or is absent)."""
     folder = root / "detections" / str(name) / split
     if name is not None and not folder.is_dir():
-        raise InputError(f"{folder}: image detections not found; pass --image-detector NAME")
+        found = sorted(p.name for p in (root / "detections").glob("*") if p.is_dir())
+        raise InputError(
+            f"{folder}: image detections not found; --image-detector names a folder under "
+            f"{root / 'detections'} (found: {', '.join(found) or 'none'})"
+        )
 
 
 def check_kitti_root(

@@ -117,7 +117,10 @@ def test_auto_image_boxes_keep_the_projection_of_projected_detections(tmp_path: 
         )
     assert (tmp_path / "auto.txt").read_bytes() == (tmp_path / "projection.txt").read_bytes()
     stats = ImageBoxStats(scale)
-    own = [stats.update(f.boxes, f.cameras[f.camera_index("CAM_FRONT")]) for f in frames]
+    own = [
+        stats.update(f.boxes, f.cameras[f.camera_index("CAM_FRONT")], f.camera_index("CAM_FRONT"))
+        for f in frames
+    ]
     assert sum(len(o) for o in own) > 1000 and not np.concatenate(own).any()
     np.testing.assert_array_equal(stats.width_scale(), scale)  # (no own box seen)
 
@@ -240,3 +243,71 @@ def test_auto_ignores_the_boxes_detectors_write_for_boxes_behind_the_camera(
         write_kitti_sequence(tmp_path / f"{mode}.txt", outputs, frames, image_boxes=mode,
                              width_scale=config.image_width_scales())  # fmt: skip
     assert (tmp_path / "auto.txt").read_bytes() == (tmp_path / "projection.txt").read_bytes()
+
+
+def test_the_width_factor_learnt_so_far_is_the_one_used(tmp_path: Path) -> None:
+    """The frames up to k are written the same whether the sequence stops at k or goes on with
+    boxes of another width: own boxes as wide as the projection up to k (pedestrians narrowed
+    like projections), then as narrow as an image head's (a look-ahead mean ratio of about 0.77
+    would leave the early pedestrian boxes unnarrowed)."""
+    from tracker.io.writers import write_kitti_sequence
+
+    frames, outputs = _sample_run()
+    k = len(frames) // 3
+
+    def wide(xyxy: np.ndarray) -> np.ndarray:  # own boxes, projection-wide
+        w = xyxy[:, 2] - xyxy[:, 0]
+        return xyxy + np.column_stack([0.2 * w, 0 * w, 0.2 * w, 0 * w])
+
+    mixed = (
+        _with_image_boxes(frames, wide)[: k + 1] + _with_image_boxes(frames, _image_head)[k + 1 :]
+    )
+    scale = load_config("kitti").image_width_scales()
+    write_kitti_sequence(tmp_path / "all.txt", outputs, mixed, image_boxes="auto",
+                         width_scale=scale)  # fmt: skip
+    write_kitti_sequence(tmp_path / "head.txt", outputs[: k + 1], mixed[: k + 1],
+                         image_boxes="auto", width_scale=scale)  # fmt: skip
+    whole, head = _lines_by_frame(tmp_path / "all.txt"), _lines_by_frame(tmp_path / "head.txt")
+    assert head and all(whole.get(i) == lines for i, lines in head.items())
+    later = [o.frame_id for o in outputs[k + 1 :]]
+    assert any(whole.get(i) for i in later)
+
+
+def test_detection_boxes_of_another_camera_are_not_written(tmp_path: Path) -> None:
+    """A 2D box lives in its own camera's pixels: one of another camera is never written as
+    the front camera's, by `auto` or by `detection`; projections keep the class's width."""
+    import dataclasses
+
+    from tracker.io.writers import write_kitti_sequence
+
+    frames, outputs = _sample_run()
+    other = [
+        dataclasses.replace(f, boxes=f.boxes.replace(
+            xyxy_image=_image_head(f.boxes.xyxy_image.copy()), camera=f.boxes.camera + 1))
+        for f in frames
+    ]  # fmt: skip
+    scale = load_config("kitti").image_width_scales()
+    for name, fr, mode in (("proj", frames, "projection"), ("auto", other, "auto"),
+                           ("det", other, "detection")):  # fmt: skip
+        write_kitti_sequence(tmp_path / f"{name}.txt", outputs, fr, image_boxes=mode,
+                             width_scale=scale)  # fmt: skip
+    projected = (tmp_path / "proj.txt").read_bytes()
+    assert (tmp_path / "auto.txt").read_bytes() == projected
+    assert (tmp_path / "det.txt").read_bytes() == projected
+    # detection mode on projected boxes: the box of the detection, narrowed like a projection
+    write_kitti_sequence(tmp_path / "det_proj.txt", outputs, frames, image_boxes="detection",
+                         width_scale=scale)  # fmt: skip
+    det = _lines_by_frame(tmp_path / "det_proj.txt")
+    ped, checked = category_index("pedestrian"), 0
+    for out, frame in zip(outputs, frames, strict=True):
+        written = {int(ln.split()[1]): ln.split() for ln in det.get(out.frame_id, [])}
+        for tid, row, cat in zip(out.boxes.track_id, out.det_row, out.boxes.category, strict=True):
+            if row < 0 or cat != ped or int(tid) not in written:
+                continue
+            box = frame.boxes.xyxy_image[row]
+            if box[0] < 1 or box[2] > 1240:  # (clipped by the image edge)
+                continue
+            got = np.array(written[int(tid)][6:10], float)
+            assert got[2] - got[0] == pytest.approx((box[2] - box[0]) * scale[ped], rel=1e-3)
+            checked += 1
+    assert checked > 20

@@ -40,6 +40,7 @@ from tracker.events import TrackOutput
 from tracker.frame import Frame
 
 if TYPE_CHECKING:
+    from tracker.config import ImageBoxes
     from tracker.eval.kitti import SequenceEvaluation
 
 #: TrackEval's CLEAR default similarity threshold for a true positive.
@@ -265,7 +266,7 @@ def kitti_evaluation_and_id_events(
     result_file: str | Path | None = None,
     num_timesteps: int | None = None,
     width_scale: FloatArray | None = None,
-    image_boxes: str = "projection",
+    image_boxes: ImageBoxes | str = "projection",
 ) -> tuple[SequenceEvaluation, IdEvaluation]:
     """One TrackEval evaluation of a sequence and its ID events from the same loading and
     preprocessing (:func:`tracker.eval.kitti.evaluate_kitti_sequence`). ``width_scale``: the

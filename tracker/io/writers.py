@@ -95,9 +95,9 @@ class ImageBoxStats:
         self.seen = np.zeros(len(self.target))
         self.log_ratio = np.zeros(len(self.target))
 
-    def update(self, detections: Boxes, camera: Camera) -> np.ndarray:
-        """One frame's detections: (N,) bool, which have a 2D box of their own; their widths
-        join the running ratio."""
+    def update(self, detections: Boxes, camera: Camera, camera_index: int) -> np.ndarray:
+        """One frame's detections: (N,) bool, which have a 2D box of their own in ``camera``
+        (the frame's camera ``camera_index``); their widths join the running ratio."""
         own = np.zeros(len(detections), dtype=bool)
         if not len(detections):
             return own
@@ -110,7 +110,7 @@ class ImageBoxStats:
         in_front = fields[:, 6] - 0.5 * np.hypot(fields[:, 2], fields[:, 3]) > 0.0
         with np.errstate(invalid="ignore"):
             ok = np.isfinite(det).all(axis=1) & (det_w > 0) & (det[:, 3] > det[:, 1])
-            ok &= in_front & visible & (proj_w > 0)
+            ok &= (detections.camera == camera_index) & in_front & visible & (proj_w > 0)
         own[ok] = iou_xyxy(det[ok], proj[ok]) < OWN_BOX_IOU
         counted = own
         np.add.at(self.seen, detections.category[counted], 1.0)
@@ -140,7 +140,7 @@ def kitti_lines(
     each projected 2D box about its centre (before clipping to the image). With ``detections``
     (the frame's input boxes), a track matched this frame reports its detection's own 2D box
     instead, where ``own_rows`` (per detection; None: every detection) says so, its width
-    scaled about its centre by ``detection_width_scale`` (per category index; None: 1).
+    scaled about its centre by ``detection_width_scale`` (per detection; None: 1).
     """
     boxes = output.boxes
     if not len(boxes):
@@ -156,7 +156,7 @@ def kitti_lines(
         idx = np.flatnonzero(has)[ok]
         det_xyxy = det_xyxy[ok]
         if detection_width_scale is not None:
-            scale = detection_width_scale[boxes.category[idx]]
+            scale = detection_width_scale[rows[idx]]
             centre, half = (
                 (det_xyxy[:, 0] + det_xyxy[:, 2]) / 2,
                 (det_xyxy[:, 2] - det_xyxy[:, 0]) / 2,
@@ -208,12 +208,15 @@ def write_kitti_sequence(
         if mode is ImageBoxes.PROJECTION:
             lines.extend(kitti_lines(out, camera, width_scale=width_scale))
             continue
-        own = stats.update(frame.boxes, camera)
+        dets = frame.boxes
+        own = stats.update(dets, camera, index)
+        # an own box takes the learnt width factor, a projection the class's (detection mode)
+        scale = np.where(own, stats.width_scale()[dets.category], stats.target[dets.category])
         lines.extend(
             kitti_lines(
-                out, camera, frame.boxes, width_scale=width_scale,
-                own_rows=None if mode is ImageBoxes.DETECTION else own,
-                detection_width_scale=stats.width_scale(),
+                out, camera, dets, width_scale=width_scale,
+                own_rows=(dets.camera == index) if mode is ImageBoxes.DETECTION else own,
+                detection_width_scale=scale,
             )
         )  # fmt: skip
     write_text_atomic(path, lines)

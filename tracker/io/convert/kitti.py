@@ -640,11 +640,13 @@ def read_image_detections(path: str | Path) -> tuple[IntArray, FloatArray]:
     frame = _frames(table, 0)
     xyxy = table.floats([1, 2, 3, 4])
     table.floats([5])  # the score: checked, not used
-    empty = (xyxy[:, 2] <= xyxy[:, 0]) | (xyxy[:, 3] <= xyxy[:, 1])
-    if empty.any():
-        row = int(np.argmax(empty))
-        where, line = table.where(row)
-        raise InputError("empty 2D box (x2 <= x1 or y2 <= y1)", path=where, line=line, field="x2")
+    for lo, hi in ((1, 3), (2, 4)):  # x1 < x2, y1 < y2
+        empty = xyxy[:, hi - 1] <= xyxy[:, lo - 1]
+        if empty.any():
+            where, line = table.where(int(np.argmax(empty)))
+            name = IMAGE_DET_COLUMNS[hi]
+            raise InputError(f"empty 2D box ({name} <= {IMAGE_DET_COLUMNS[lo]})", path=where,
+                             line=line, field=name)  # fmt: skip
     return frame, xyxy
 
 
@@ -656,9 +658,10 @@ def fuse_image_boxes(
     *,
     min_iou: float = FUSE_MIN_IOU,
 ) -> tuple[list[Frame], int]:
-    """The frames with each detection of ``category`` given the image detector's box that
-    overlaps its own 2D box most (one-to-one, Hungarian on IoU, at least ``min_iou``); the
-    others keep theirs. Returns the frames and the number of detections that took a box."""
+    """The frames with detections of ``category`` given an image detector's box: pairs of a
+    detection's own 2D box and an image box overlapping at least ``min_iou``, one-to-one, with
+    the largest total IoU (Hungarian); the others keep theirs. Returns the frames and the number
+    of detections that took a box."""
     from scipy.optimize import linear_sum_assignment
 
     from tracker.cost import iou_xyxy
@@ -675,7 +678,8 @@ def fuse_image_boxes(
             out.append(f)
             continue
         iou = iou_xyxy(own[rows][:, None], image_xyxy[None, lo:hi])
-        a, b = linear_sum_assignment(-iou)
+        # pairs below the threshold may not steer the assignment
+        a, b = linear_sum_assignment(-np.where(iou >= min_iou, iou, 0.0))
         keep = iou[a, b] >= min_iou
         xyxy = own.copy()
         xyxy[rows[a[keep]]] = image_xyxy[lo + b[keep]]
