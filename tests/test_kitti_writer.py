@@ -97,6 +97,18 @@ def _image_head(xyxy: np.ndarray) -> np.ndarray:
     return np.column_stack([centre - 0.335 * w, xyxy[:, 1], centre + 0.335 * w, xyxy[:, 3]])
 
 
+def _matched_pedestrians(outputs: list, frames: list, path: Path):
+    """(written 2D box, matched detection's 2D box) of each pedestrian row of ``path`` whose
+    track is matched in its frame."""
+    lines = _lines_by_frame(path)
+    ped = category_index("pedestrian")
+    for out, frame in zip(outputs, frames, strict=True):
+        written = {int(ln.split()[1]): ln.split() for ln in lines.get(out.frame_id, [])}
+        for tid, row, cat in zip(out.boxes.track_id, out.det_row, out.boxes.category, strict=True):
+            if row >= 0 and cat == ped and int(tid) in written:
+                yield np.array(written[int(tid)][6:10], float), frame.boxes.xyxy_image[row]
+
+
 def _lines_by_frame(path: Path) -> dict[int, list[str]]:
     out: dict[int, list[str]] = {}
     for line in path.read_text().splitlines():
@@ -173,19 +185,11 @@ def test_projected_boxes_of_their_own_are_narrowed_like_projections(tmp_path: Pa
     scale = load_config("kitti").image_width_scales()
     write_kitti_sequence(tmp_path / "auto.txt", outputs, own, image_boxes="auto",
                          width_scale=scale)  # fmt: skip
-    auto = _lines_by_frame(tmp_path / "auto.txt")
-    ped = category_index("pedestrian")
-    checked = 0
-    for out, frame in zip(outputs, own, strict=True):
-        written = {int(ln.split()[1]): ln.split() for ln in auto.get(out.frame_id, [])}
-        for tid, row, cat in zip(out.boxes.track_id, out.det_row, out.boxes.category, strict=True):
-            if row < 0 or cat != ped or int(tid) not in written:
-                continue
-            det = frame.boxes.xyxy_image[row]
-            box = np.array(written[int(tid)][6:10], float)
-            assert box[2] - box[0] == pytest.approx((det[2] - det[0]) * scale[ped], rel=0.02)
-            assert box[0] + box[2] == pytest.approx(det[0] + det[2], abs=1e-3)
-            checked += 1
+    ped, checked = category_index("pedestrian"), 0
+    for box, det in _matched_pedestrians(outputs, own, tmp_path / "auto.txt"):
+        assert box[2] - box[0] == pytest.approx((det[2] - det[0]) * scale[ped], rel=0.02)
+        assert box[0] + box[2] == pytest.approx(det[0] + det[2], abs=1e-3)
+        checked += 1
     assert checked > 20
 
 
@@ -297,17 +301,10 @@ def test_detection_boxes_of_another_camera_are_not_written(tmp_path: Path) -> No
     # detection mode on projected boxes: the box of the detection, narrowed like a projection
     write_kitti_sequence(tmp_path / "det_proj.txt", outputs, frames, image_boxes="detection",
                          width_scale=scale)  # fmt: skip
-    det = _lines_by_frame(tmp_path / "det_proj.txt")
     ped, checked = category_index("pedestrian"), 0
-    for out, frame in zip(outputs, frames, strict=True):
-        written = {int(ln.split()[1]): ln.split() for ln in det.get(out.frame_id, [])}
-        for tid, row, cat in zip(out.boxes.track_id, out.det_row, out.boxes.category, strict=True):
-            if row < 0 or cat != ped or int(tid) not in written:
-                continue
-            box = frame.boxes.xyxy_image[row]
-            if box[0] < 1 or box[2] > 1240:  # (clipped by the image edge)
-                continue
-            got = np.array(written[int(tid)][6:10], float)
-            assert got[2] - got[0] == pytest.approx((box[2] - box[0]) * scale[ped], rel=1e-3)
-            checked += 1
+    for got, box in _matched_pedestrians(outputs, frames, tmp_path / "det_proj.txt"):
+        if box[0] < 1 or box[2] > 1240:  # (clipped by the image edge)
+            continue
+        assert got[2] - got[0] == pytest.approx((box[2] - box[0]) * scale[ped], rel=1e-3)
+        checked += 1
     assert checked > 20

@@ -63,13 +63,19 @@ def kitti_label_fields(
     scale = np.ones(len(boxes)) if width_scale is None else width_scale[boxes.category]
     narrow = np.flatnonzero(scale != 1.0)  # (only these: the others stay bit-identical)
     if len(narrow):
-        x1, x2 = xyxy[narrow, 0], xyxy[narrow, 2]
-        centre, half = (x1 + x2) / 2, (x2 - x1) / 2 * scale[narrow]
-        xyxy[narrow, 0], xyxy[narrow, 2] = centre - half, centre + half
+        xyxy[narrow] = narrow_about_centre(xyxy[narrow], scale[narrow])
     xyxy, visible = clip_boxes_to_image(xyxy, visible, camera)
     alpha = wrap_angle(rotation_y - np.arctan2(location[:, 0], location[:, 2]))
     fields = np.column_stack([alpha, hwl, location, rotation_y])
     return fields, xyxy, visible
+
+
+def narrow_about_centre(xyxy: FloatArray, scale: FloatArray) -> FloatArray:
+    """2D boxes (N, 4) with their widths scaled by ``scale`` (N,) about their centres."""
+    out = np.array(xyxy, dtype=float)
+    centre, half = (out[:, 0] + out[:, 2]) / 2, (out[:, 2] - out[:, 0]) / 2 * scale
+    out[:, 0], out[:, 2] = centre - half, centre + half
+    return out
 
 
 #: a detection's 2D box is its own (not its 3D box's projection) when their IoU is below this;
@@ -112,10 +118,8 @@ class ImageBoxStats:
             ok = np.isfinite(det).all(axis=1) & (det_w > 0) & (det[:, 3] > det[:, 1])
             ok &= (detections.camera == camera_index) & in_front & visible & (proj_w > 0)
         own[ok] = iou_xyxy(det[ok], proj[ok]) < OWN_BOX_IOU
-        counted = own
-        np.add.at(self.seen, detections.category[counted], 1.0)
-        np.add.at(self.log_ratio, detections.category[counted],
-                  np.log(det_w[counted] / proj_w[counted]))  # fmt: skip
+        np.add.at(self.seen, detections.category[own], 1.0)
+        np.add.at(self.log_ratio, detections.category[own], np.log(det_w[own] / proj_w[own]))
         return own
 
     def width_scale(self) -> FloatArray:
@@ -151,17 +155,12 @@ def kitti_lines(
         has = rows >= 0
         if own_rows is not None:
             has[has] = own_rows[rows[has]]
-        det_xyxy = detections.xyxy_image[rows[has]].copy()
+        det_xyxy = detections.xyxy_image[rows[has]]
         ok = np.isfinite(det_xyxy).all(axis=1)
         idx = np.flatnonzero(has)[ok]
         det_xyxy = det_xyxy[ok]
         if detection_width_scale is not None:
-            scale = detection_width_scale[rows[idx]]
-            centre, half = (
-                (det_xyxy[:, 0] + det_xyxy[:, 2]) / 2,
-                (det_xyxy[:, 2] - det_xyxy[:, 0]) / 2,
-            )
-            det_xyxy[:, 0], det_xyxy[:, 2] = centre - half * scale, centre + half * scale
+            det_xyxy = narrow_about_centre(det_xyxy, detection_width_scale[rows[idx]])
         xyxy = xyxy.copy()
         xyxy[idx] = det_xyxy
         visible = visible.copy()
