@@ -892,9 +892,9 @@ def convert_kitti(
         number of pose lines, else the largest frame index in labels/detections + 1. Rows beyond
         an explicit length are dropped (logged).
     image_detector : folder under ``detections/`` of a 2D image detector's boxes,
-        ``<split>/<Class>/<seq>.txt`` (:func:`read_image_detections`): each detection takes the
-        box of its class that overlaps its own 2D box most (:func:`fuse_image_boxes`). A class
-        without a file keeps its own boxes (logged).
+        ``<split>/<Class>/<seq>.txt`` (:func:`read_image_detections`): detections take the boxes
+        of their class that overlap their own 2D boxes (IoU >= 0.5, one-to-one, Hungarian:
+        :func:`fuse_image_boxes`). A class without a file keeps its own boxes (logged).
 
     Returns
     -------
