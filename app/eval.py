@@ -81,8 +81,9 @@ def run(args: argparse.Namespace) -> int:
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]
     config = load_config(args.config)
     width_scale = config.image_width_scales()
-    if config.image_boxes.value != "projection":
-        # the tracks file keeps the tracked boxes, not the detections' 2D boxes
+    if config.image_boxes.value == "detection":
+        # the tracks file keeps the tracked boxes, not the detections' 2D boxes ("auto" writes
+        # the same as "projection" for a LiDAR detector's boxes, so it gets no note)
         print(
             f"mctrack eval: {args.config}: image_boxes = {config.image_boxes.value!r} is not"
             " applied here; the KITTI files are written with the tracked boxes' projections",

@@ -113,6 +113,36 @@ def detectors_table(root: Path) -> tuple[list[tuple[str, dict[str, Any]]], list[
     return rows, anatomy_rows
 
 
+#: An image detector of the kit whose 2D boxes `mctrack kitti --image-detector` fuses, and its classes.
+IMAGE_DETECTOR = ("rrc_2d", ["car", "pedestrian"])
+
+
+def image_detector_section(root: Path) -> list[str]:
+    """PointRCNN with the kit's image detector's 2D boxes (`--image-detector`), online and
+    offline, beside PointRCNN alone; [] when the kit has no such detections."""
+    name, classes = IMAGE_DETECTOR
+    if not (root / "detections" / name).is_dir():
+        return []
+    rows = []
+    for mode in ("online", "offline"):
+        for image_detector in (None, name):
+            res = kitti(root, classes, detector="pointrcnn", mode=mode,
+                        image_detector=image_detector)  # fmt: skip
+            label = "pointrcnn" if image_detector is None else f"pointrcnn + {name}"
+            rows += [(f"{label}, {c}, {mode}", res["metrics"][c]) for c in classes]
+    return [
+        "## A 2D detector's boxes",
+        "",
+        "KITTI scores 2D boxes. PointRCNN's are the projections of its 3D boxes; with"
+        f" `--image-detector {name}` each PointRCNN detection takes the kit's RRC 2D box that"
+        " overlaps it at IoU >= 0.5 (one to one), and a matched track writes that box"
+        " (`image_boxes = auto`, docs/detectors.md section 6). Command: `mctrack kitti --classes"
+        f" C [--mode offline] [--image-detector {name}] --out DIR`.",
+        "",
+        table(rows),
+    ]
+
+
 #: Confidence levels of the self-calibration's chain rule compared (None: persistence alone).
 SELF_LEVELS = (None, 0.6, 0.7, 0.8, 0.9, 0.95)
 
@@ -936,6 +966,7 @@ def main() -> int:
     noise = noise_section(root, args.robustness, FIXED_R)
     floor = noise_floor_section(root) if args.robustness else []
     offline_held_out = offline_section(args.offline_choice, args.earlier_offline)
+    image_detector_lines = image_detector_section(root)
     anatomy_lines = fp_anatomy_section(anatomy_rows)
     offline_noise_runs = offline_robustness_runs(root, args.robustness)
     offline_noise = offline_robustness_section(args.robustness, offline_noise_runs)
@@ -1024,6 +1055,7 @@ def main() -> int:
         table(detector_rows),
         *tune_section(args.tune),
         *offline_held_out,
+        *image_detector_lines,
         *anatomy_lines,
         *no_profile,
         *robustness_section(args.robustness),

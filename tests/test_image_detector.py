@@ -120,7 +120,7 @@ def test_kitti_run_with_an_image_detector_writes_its_boxes(
     assert fused["image_boxes"] == "auto" and fused["image_detector"] == "img"
     assert "no pedestrian image boxes" in caplog.text and "took an image box" in caplog.text
     plain = run_kitti(out=tmp_path / "plain", **common)
-    assert plain["image_boxes"] == "projection"
+    assert plain["image_boxes"] == "auto"  # (the default: the projections of LiDAR boxes)
     assert written(tmp_path / "fused") > 0.5 and written(tmp_path / "plain") == 0.0
 
 

@@ -216,7 +216,7 @@ def test_auto_image_boxes_decide_from_the_frames_so_far(tmp_path: Path) -> None:
 def test_image_boxes_setting_is_checked() -> None:
     from tracker.errors import InputError
 
-    assert load_config("kitti").image_boxes.value == "projection"
+    assert load_config("kitti").image_boxes.value == "auto"
     assert load_config("kitti", overrides={"image_boxes": "auto"}).image_boxes.value == "auto"
     with pytest.raises(InputError, match="image_boxes"):
         load_config("kitti", overrides={"image_boxes": "detector"})
