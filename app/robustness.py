@@ -33,9 +33,9 @@ from tracker.config import ScoreSource, load_config
 from tracker.errors import InputError
 from tracker.eval.perturb import (
     CLEAN,
-    IMAGE_BOXES,
+    JITTERED_BOXES,
     NOISE_LEVELS,
-    ImageBoxes,
+    JitteredBoxes,
     Rescore,
     perturb_frames,
 )
@@ -74,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--image-boxes",
-        choices=IMAGE_BOXES,
+        choices=JITTERED_BOXES,
         default="follow",
         help="what the centre and yaw jitter does to a detection's 2D box: follow = moves it"
         " with its 3D box's projection (a LiDAR detector's 2D box is that projection); keep ="
@@ -120,7 +120,7 @@ def run_robustness(
     levels: Sequence[str] = (CLEAN, "noise", "double"),
     seeds: Sequence[int] = (0, 1, 2),
     score_sigma: float = 0.0,
-    image_boxes: ImageBoxes = "follow",
+    image_boxes: JitteredBoxes = "follow",
     rescore: Rescore | None = None,
     profile: Path | None = None,
     out: Path,

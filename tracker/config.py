@@ -127,6 +127,9 @@ class LifecycleConfig:
     confirm_prob: float = 1.0
     max_misses_tentative: int = 0  # misses after which an unconfirmed track is deleted
     max_misses_output: int = 0  # consecutive misses during which a coasting track is still output
+    # a missed track coasts (is output) only once it has this many hits: a track confirmed by one
+    # confident box and then missed is most likely a one-frame false positive (1: any track)
+    coast_min_hits: int = 1
     max_misses: int = 30  # consecutive misses after which a track is deleted
     # online: a live track is output only while the mean log-odds of its hits' scores reaches
     # this (0: more likely real than not; -inf: off, "-inf" in JSON). The track-level analogue of

@@ -130,12 +130,13 @@ class _PerCategory:
         self.confirm_score = arr(lambda c: c.lifecycle.confirm_score)
         self.max_misses_tentative = arr(lambda c: c.lifecycle.max_misses_tentative)
         self.max_misses_output = arr(lambda c: c.lifecycle.max_misses_output)
+        self.coast_min_hits = arr(lambda c: c.lifecycle.coast_min_hits)
         self.max_misses = arr(lambda c: c.lifecycle.max_misses)
         self.vertical_gain = arr(lambda c: c.vertical_gain)
         self.any_vertical_smoothing = bool(np.any(self.vertical_gain[self.tracked] < 1.0))
         with np.errstate(divide="ignore"):  # confirm_prob 1: an infinite threshold (never)
             self.confirm_evidence = -np.log1p(-arr(lambda c: c.lifecycle.confirm_prob))
-        # the five lifecycle thresholds per category, gathered once per frame
+        # the lifecycle thresholds per category, gathered once per frame
         self.lifecycle = np.column_stack(
             [
                 self.min_hits,
@@ -144,6 +145,7 @@ class _PerCategory:
                 self.max_misses,
                 self.max_misses_tentative,
                 self.confirm_evidence,
+                self.coast_min_hits,
             ]
         )
         # the online output gate on a track's mean log-odds (-inf: off)
@@ -728,9 +730,8 @@ class MCTracker:
             return self._lifecycle_compiled(hit, born)
         misses = np.where(hit, 0, tr.misses + 1)
         tr.misses = misses
-        min_hits, confirm_score, max_output, max_live, max_tentative, confirm_evidence = (
-            cat.lifecycle[tr.category].T
-        )
+        (min_hits, confirm_score, max_output, max_live, max_tentative, confirm_evidence,
+         coast_hits) = cat.lifecycle[tr.category].T  # fmt: skip
         old_status = tr.status
         status = old_status.copy()
         tentative = old_status == _TENTATIVE
@@ -748,7 +749,7 @@ class MCTracker:
         missed = ~hit
         live = ~tentative & missed  # missed this frame: misses >= 1
         status[live] = _COASTING
-        status[live & (misses > max_output)] = _LOST
+        status[live & ((misses > max_output) | (tr.hits < coast_hits))] = _LOST
         dead = (live & (misses > max_live)) | (tentative & missed & (misses > max_tentative))
         tr.status = status
         change = None

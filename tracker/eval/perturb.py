@@ -44,8 +44,8 @@ Rescore = Callable[[IntArray, FloatArray, FloatArray], FloatArray]
 
 #: What the centre and yaw jitter does to a detection's 2D box: moves it with the 3D box's
 #: projection ("follow") or leaves it ("keep").
-ImageBoxes = Literal["follow", "keep"]
-IMAGE_BOXES: tuple[ImageBoxes, ...] = ("follow", "keep")
+JitteredBoxes = Literal["follow", "keep"]
+JITTERED_BOXES: tuple[JitteredBoxes, ...] = ("follow", "keep")
 
 #: Candidate positions drawn per false positive; the first inside the camera's view is kept.
 _FP_TRIES = 8
@@ -124,7 +124,7 @@ def perturb_frames(
     *,
     seed: int,
     rescore: Rescore | None = None,
-    image_boxes: ImageBoxes = "follow",
+    image_boxes: JitteredBoxes = "follow",
 ) -> list[Frame]:
     """Perturbed copies of detection frames (one or more scenes, each in time order).
 
@@ -147,8 +147,8 @@ def perturb_frames(
     ValueError : score noise on boxes without a raw score (``score_raw`` NaN), or an unknown
         ``image_boxes``.
     """
-    if image_boxes not in IMAGE_BOXES:
-        raise ValueError(f"image_boxes: expected one of {IMAGE_BOXES}, got {image_boxes!r}")
+    if image_boxes not in JITTERED_BOXES:
+        raise ValueError(f"image_boxes: expected one of {JITTERED_BOXES}, got {image_boxes!r}")
     out = list(frames)
     if spec.is_clean:
         return out

@@ -31,8 +31,9 @@ def lifecycle_kernel(
 ) -> tuple:  # pragma: no cover (compiled)
     """The per-category lifecycle rules of ``MCTracker._lifecycle``, one pass over the tracks.
 
-    ``thresholds`` (C, 6) per category: min_hits, confirm_score, max_misses_output,
-    max_misses, max_misses_tentative, confirm_evidence (``-log(1 - confirm_prob)``). Returns the
+    ``thresholds`` (C, 7) per category: min_hits, confirm_score, max_misses_output,
+    max_misses, max_misses_tentative, confirm_evidence (``-log(1 - confirm_prob)``),
+    coast_min_hits. Returns the
     new status (int8), the new consecutive misses, and per track the flags CONFIRMED_NOW,
     REACQUIRED_FROM_LOST, LOST_NOW, DEAD.
     """
@@ -59,7 +60,7 @@ def lifecycle_kernel(
         elif old == _TENTATIVE:
             dead = miss > th[4]
         else:  # missed a live track: coast, then lost, then deleted
-            state = _LOST if miss > th[2] else _COASTING
+            state = _LOST if miss > th[2] or hits[t] < th[6] else _COASTING
             dead = miss > th[3]
         if dead:
             flags[t] |= DEAD
