@@ -36,6 +36,7 @@ def config(**lifecycle: int | float):
         "max_misses_output": 1,
         "max_misses": 3,
         "max_misses_tentative": 0,
+        "coast_min_hits": 1,
         **lifecycle,
     }
     return load_config(
@@ -241,6 +242,32 @@ def test_tentative_track_dies_on_first_miss_and_confirm_score() -> None:
     assert len(tracker.step(frame(1, []))) == 0  # tentative + miss -> deleted
     out = tracker.step(frame(2, [30.0], scores=[0.99]))  # confident: confirmed at birth
     assert out.boxes.track_id.tolist() == [1]
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+@pytest.mark.parametrize("coast_min_hits", [1, 2])
+def test_a_track_coasts_only_after_coast_min_hits(compiled: bool, coast_min_hits: int) -> None:
+    """Two tracks confirmed at birth by a confident box (confirm_score 0.95), coasting output up
+    to 2 misses: the one seen once (a one-frame false positive's pattern) is written for its
+    misses only with coast_min_hits 1; the one seen twice coasts either way. A lost track seen
+    once still lives: its box back within max_misses keeps its id."""
+    cfg = config(confirm_score=0.95, max_misses_output=2, max_misses=5,
+                 coast_min_hits=coast_min_hits)  # fmt: skip
+    tracker = MCTracker(cfg, compiled=compiled)
+    seen = [tracker.step(frame(0, [10.0], scores=[0.99])).boxes.track_id.tolist()]
+    seen.append(tracker.step(frame(1, [40.0], scores=[0.99])).boxes.track_id.tolist())
+    seen.append(tracker.step(frame(2, [41.0], scores=[0.99])).boxes.track_id.tolist())
+    for i in (3, 4):
+        out = tracker.step(frame(i, []))
+        seen.append(out.boxes.track_id.tolist())
+        assert (out.status == TrackStatus.COASTING).all()
+    # track 0: one hit at frame 0, missed from frame 1; track 1: hits at 1 and 2, missed from 3
+    if coast_min_hits == 1:
+        assert seen == [[0], [0, 1], [0, 1], [1], [1]]
+    else:
+        assert seen == [[0], [1], [1], [1], [1]]
+    out = tracker.step(frame(5, [10.0], scores=[0.99]))
+    assert out.boxes.track_id.tolist() == [0]  # track 0 reacquired (5 misses <= max_misses)
 
 
 @pytest.mark.parametrize("compiled", [True, False])
