@@ -46,7 +46,9 @@ def test_width_scale_narrows_only_its_class_about_the_centre() -> None:
     assert pairs > 20
 
 
-def test_eval_writes_boxes_with_the_given_configs_width(tmp_path: Path) -> None:
+def test_eval_writes_boxes_with_the_given_configs_width(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     """`mctrack eval --config` shapes the static metrics' 2D boxes like the tracking run did:
     the shipped pedestrian width gives another pedestrian HOTA than no narrowing."""
     import json
@@ -67,6 +69,13 @@ def test_eval_writes_boxes_with_the_given_configs_width(tmp_path: Path) -> None:
         assert main([*args, "--config", name]) == 0
         hota[name] = json.loads((out / "eval.json").read_text())["static"]["pedestrian"]["HOTA"]
     assert hota["kitti"] > hota["kitti_reference"] + 1.0
+    # kitti's image_boxes auto writes projections for these boxes: no note; detection mode's
+    # boxes are not in a tracks file, which the note says
+    assert "image_boxes" not in capsys.readouterr().err
+    detection = tmp_path / "detection.toml"
+    detection.write_text('base = "kitti"\nimage_boxes = "detection"\n')
+    assert main([*args, "--config", str(detection)]) == 0
+    assert "image_boxes = 'detection' is not applied here" in capsys.readouterr().err
 
 
 # -- which 2D box a matched track reports (image_boxes) ------------------------------------------
