@@ -734,16 +734,18 @@ def image_boxes_section(
         "",
         "The benchmark moves a jittered detection's 2D box with its 3D box's projection"
         " (`--image-boxes follow`, the default): a LiDAR detector's 2D box is that projection."
-        " A 2D box from an image head would not move (`--image-boxes keep`). The tracker writes"
-        " the projection of its tracked 3D box either way, so the rule only changes what the"
-        " image-plane matching stage sees. HOTA, mean over the same seeds (Δ from clean);"
+        " A 2D box from an image head would not move (`--image-boxes keep`). A matched track"
+        " writes its detection's 2D box where that box is not its 3D box's projection"
+        " (`image_boxes = auto`, shipped), else the projection of its tracked 3D box: under"
+        " `keep` a jittered detection's box is the detector's unmoved one, and it is written;"
+        " under `follow` the projection is. HOTA, mean over the same seeds (Δ from clean);"
         f" {online['detector']}, `mctrack robustness ... --image-boxes keep`:",
         "",
         *robustness_table(columns, deltas=True),
         "",
-        f"Online, the `noise` level costs {compare}. A tracker that writes the 2D box of its"
-        " last matched detection instead, as AB3DMOT does, is spared the jitter under `keep`"
-        " only; under `follow` its boxes carry all of it (the jittered ground truth above).",
+        f"Online, the `noise` level costs {compare}. Writing the detection's box, as AB3DMOT"
+        " always does, spares the jitter under `keep` only; under `follow` those boxes carry all"
+        " of it (the jittered ground truth above), so there `auto` writes the projection.",
         "",
     ]
 
