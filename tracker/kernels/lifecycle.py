@@ -33,9 +33,8 @@ def lifecycle_kernel(
 
     ``thresholds`` (C, 7) per category: min_hits, confirm_score, max_misses_output,
     max_misses, max_misses_tentative, confirm_evidence (``-log(1 - confirm_prob)``),
-    coast_min_hits. Returns the
-    new status (int8), the new consecutive misses, and per track the flags CONFIRMED_NOW,
-    REACQUIRED_FROM_LOST, LOST_NOW, DEAD.
+    coast_min_hits. Returns the new status (int8), the new consecutive misses, and per track the
+    flags CONFIRMED_NOW, REACQUIRED_FROM_LOST, LOST_NOW, DEAD.
     """
     n = status.shape[0]
     new_status = np.empty(n, dtype=np.int8)
