@@ -3,7 +3,8 @@
     python bench/make_results.py [--kitti-root ../shared/data/kitti/tracking] [--skip-speed]
         [--tune car.json pedestrian.json ...] [--robustness robustness.json]
         [--earlier-tunes earlier_car_online.json ...] [--earlier-offline car_offline.json]
-        [--offline-choice car_offline_choice.json pedestrian_offline_choice.json]
+        [--offline-choice car_offline_score_choice.json pedestrian_offline_choice.json]
+        [--earlier-offline-choice car_offline_choice.json pedestrian_offline_score_choice.json]
 
 Runs (same PointRCNN detections, same TrackEval KITTI 2D-box protocol, 11 validation sequences):
   1. our tuned config online (car, pedestrian, cyclist) and offline (car), and offline's
@@ -810,18 +811,21 @@ def _shipped_value(cls: str, key: str) -> Any:
     return node
 
 
-def offline_section(choices: list[str], earlier: list[str]) -> list[str]:
+def offline_section(
+    choices: list[str], earlier: list[str], earlier_choices: list[str] = ()
+) -> list[str]:
     """Held-out figures of offline mode from the records of bench/offline_from_online.py: each
     fold of an online tune tracks its held-out sequences with the fold's settings, online and
     offline, with the config's offline-only values and with those chosen on the fold's training
-    sequences; ``earlier``: separately tuned offline records, quoted."""
+    sequences; ``earlier``: separately tuned offline records, quoted; ``earlier_choices``:
+    records of other grids whose choice did not hold out better (not shipped), quoted."""
     if not choices:
         return []
     lines = [
         "### Offline, held out",
         "",
-        "`kitti_offline` is the online settings plus whole-track post-processing (track score"
-        " gate 0, interpolation up to 30 frames, the RTS smoothers of position and heading, one"
+        "`kitti_offline` is the online settings plus whole-track post-processing (a whole-track"
+        " score gate, interpolation up to 30 frames, the RTS smoothers of position and heading, one"
         " size per track). A few offline-only settings could be chosen on labels like the online"
         " ones: each fold of an online tune chooses them by the tune's objective (HOTA over the"
         " detectors, clean and perturbed) in offline mode on its training sequences, then tracks"
@@ -862,6 +866,20 @@ def offline_section(choices: list[str], earlier: list[str]) -> list[str]:
         notes.append(
             f"- {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s; `{rec['command']}`):"
             f" {grid}; the folds chose {folds}; {verdict}."
+        )
+    for path in earlier_choices:
+        rec = json.loads(Path(path).read_text())
+        choice, cls = rec["choice"], rec["class"]
+        grid = ", ".join(f"`{k}` in {v}" for k, v in choice["grid"].items())
+        pairs = ", ".join(
+            f"{det} {m['offline_first']['HOTA']:.2f} / {m['offline']['HOTA']:.2f}"
+            for det, m in rec["held_out"].items()
+        )
+        notes.append(
+            f"- Not shipped: {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s;"
+            f" `{rec['command']}`, the other offline values as shipped when it ran): {grid};"
+            f" held out, plain values / chosen per fold: {pairs}; on all sequences the choice"
+            f" would be {_point(choice['final']['chosen'])}."
         )
     lines += ["", *notes, ""]
     for path in earlier:
@@ -986,6 +1004,10 @@ def main() -> int:
         "--offline-choice", nargs="*", default=[],
         help="records of bench/offline_from_online.py --choose (held-out offline figures)",
     )  # fmt: skip
+    parser.add_argument(
+        "--earlier-offline-choice", nargs="*", default=[],
+        help="records of offline_from_online.py grids that did not ship, quoted",
+    )  # fmt: skip
     parser.add_argument("--out", default=str(ROOT / "docs" / "results.md"))
     args = parser.parse_args()
     root = Path(args.kitti_root)
@@ -1008,7 +1030,9 @@ def main() -> int:
     buffers = buffer_section(root, args.robustness)
     noise = noise_section(root, args.robustness, FIXED_R)
     floor = noise_floor_section(root) if args.robustness else []
-    offline_held_out = offline_section(args.offline_choice, args.earlier_offline)
+    offline_held_out = offline_section(
+        args.offline_choice, args.earlier_offline, args.earlier_offline_choice
+    )
     image_detector_lines = image_detector_section(root)
     anatomy_lines = fp_anatomy_section(anatomy_rows)
     offline_noise_runs = offline_robustness_runs(root, args.robustness)

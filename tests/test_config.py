@@ -94,13 +94,13 @@ def test_base_inheritance_and_loops(tmp_path: Path) -> None:
     online = load_config("kitti")
     assert offline.mode.value == "offline" and online.mode.value == "online"
     # offline is the online settings plus its own post-processing (its TOML's [offline]) and
-    # the offline-only values it sets per category (pedestrians' tentative misses)
-    ped = offline.per_category["pedestrian"]
-    assert ped.lifecycle.max_misses_tentative == 1
-    same = dataclasses.replace(
-        ped, lifecycle=dataclasses.replace(ped.lifecycle, max_misses_tentative=0)
-    )
-    assert {**offline.per_category, "pedestrian": same} == online.per_category
+    # the offline-only values it sets per category (tentative misses, the whole-track gate)
+    offline_only = ("max_misses_tentative", "offline_track_score_min")
+    assert offline.per_category != online.per_category
+    for name, cat in offline.per_category.items():
+        plain = {k: getattr(online.per_category[name].lifecycle, k) for k in offline_only}
+        same = dataclasses.replace(cat, lifecycle=dataclasses.replace(cat.lifecycle, **plain))
+        assert same == online.per_category[name], name
     own = tomllib.loads((CONFIGS / "kitti_offline.toml").read_text())["offline"]
     assert offline.offline.track_score_min == own["track_score_min"]
     assert offline.offline != online.offline

@@ -97,3 +97,40 @@ def test_offline_mode_writes_one_size_per_track() -> None:
     on, off = lengths(True), lengths(False)
     assert len(on) == 12 and np.ptp(on) < 1e-9 and 4.0 < on[0] < 4.6
     assert np.ptp(off) > 0.05
+
+
+def test_a_class_can_ask_more_of_a_whole_track_offline() -> None:
+    """lifecycle.offline_track_score_min: offline keeps a track of that class only if its mean
+    log-odds also exceeds it; other classes keep offline.track_score_min alone."""
+    from tracker.boxes import Boxes
+    from tracker.categories import category_index
+    from tracker.config import load_config
+    from tracker.frame import Frame
+    from tracker.pipeline import run_scene
+
+    car, ped = category_index("car"), category_index("pedestrian")
+    # two cars far apart (p 0.6 and 0.9: log-odds 0.41 and 2.2) and a pedestrian at p 0.6
+    frames = [
+        Frame(
+            scene="s", frame_id=i, timestamp_secs=0.1 * i,
+            boxes=Boxes.create(
+                xyz=[[10.0 + 0.5 * i, 0.0, 0.8], [10.0 + 0.5 * i, 30.0, 0.8], [5.0, -20.0, 0.9]],
+                lwh=[[4.0, 1.8, 1.6], [4.0, 1.8, 1.6], [0.8, 0.6, 1.7]], yaw=[0.0, 0.0, 0.0],
+                category=[car, car, ped], score=[0.6, 0.9, 0.6],
+            ),
+        )
+        for i in range(12)
+    ]  # fmt: skip
+
+    def kept(car_min: float) -> tuple[set[float], set[int]]:
+        overrides = {
+            "categories": ["car", "pedestrian"],
+            "category": {"car": {"lifecycle": {"offline_track_score_min": car_min}}},
+        }
+        result = run_scene(frames, load_config("kitti_offline", overrides=overrides))
+        rows = Boxes.concat([o.boxes for o in result.outputs])
+        cars = {round(float(y)) for y in rows.xyz[rows.category == car, 1]}
+        return cars, {int(c) for c in rows.category}
+
+    assert kept(float("-inf")) == ({0, 30}, {car, ped})  # offline.track_score_min 0: all kept
+    assert kept(1.0) == ({30}, {car, ped})  # the p 0.6 car goes, the p 0.6 pedestrian stays

@@ -152,8 +152,13 @@ def test_shipped_offline_choices_are_the_records() -> None:
 
     config = load_config("kitti_offline")
     docs = Path(__file__).resolve().parents[1] / "docs" / "tune"
-    paths = sorted(docs.glob("*_offline_choice.json"))
-    assert [p.name for p in paths] == ["car_offline_choice.json", "pedestrian_offline_choice.json"]
+    paths = sorted(docs.glob("*_offline*_choice.json"))
+    assert [p.name for p in paths] == [
+        "car_offline_choice.json",
+        "car_offline_score_choice.json",
+        "pedestrian_offline_choice.json",
+        "pedestrian_offline_score_choice.json",
+    ]
     for path in paths:
         rec = json.loads(path.read_text())
         held = rec["held_out"]

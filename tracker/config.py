@@ -136,6 +136,9 @@ class LifecycleConfig:
     # offline.track_score_min: a persistent false positive gathers noisy-OR evidence from many
     # weak hits (its errors are correlated across frames), its mean stays low
     track_score_min: float = -np.inf
+    # offline: a whole track of this class is kept only if the mean log-odds of its hits' scores
+    # also exceeds this (on top of offline.track_score_min; -inf: that value alone)
+    offline_track_score_min: float = -np.inf
 
 
 @dataclass(frozen=True, slots=True)

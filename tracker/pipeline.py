@@ -2,8 +2,9 @@
 
 Offline mode (reference §2.9, improved): run online with the offline config, then per track
   1. score = mean logit of its real detections; drop the whole track if score <= threshold
-     or it has fewer than ``min_hits`` detections (tentative rows are kept for confirmed tracks:
-     offline, a track's first detections need not wait for its confirmation),
+     (``offline.track_score_min``, or its class's ``lifecycle.offline_track_score_min`` where
+     higher) or it has fewer than ``min_hits`` detections (tentative rows are kept for
+     confirmed tracks: offline, a track's first detections need not wait for its confirmation),
   2. fill interior gaps (up to ``interpolate_max_gap`` frames) by linear interpolation of
      position, size, heading (on the circle) and velocity — replacing coasting predictions,
   3. drop trailing coasting rows after the last real detection (offline knows the track ended),
@@ -48,7 +49,7 @@ class RemovedTrack:
     category: str
     detections: int  # its real (matched or born) detections
     score: float  # mean logit of its detections
-    reason: str  # "track_score" (score <= offline.track_score_min) or "min_hits"
+    reason: str  # "track_score" (score <= the offline track score threshold) or "min_hits"
 
 
 @dataclass(frozen=True, slots=True)
@@ -124,11 +125,12 @@ def offline_postprocess(
         score = float(logit[rows].mean())
         tracks_score[int(tid)] = score
         name = CATEGORIES[int(boxes.category[rows[0]])]
-        min_hits = config.per_category[name].lifecycle.min_hits
-        if score <= config.offline.track_score_min or len(rows) < min_hits:
+        lifecycle = config.per_category[name].lifecycle
+        score_min = max(config.offline.track_score_min, lifecycle.offline_track_score_min)
+        if score <= score_min or len(rows) < lifecycle.min_hits:
             keep[rows] = False
             if removed is not None:
-                reason = "track_score" if score <= config.offline.track_score_min else "min_hits"
+                reason = "track_score" if score <= score_min else "min_hits"
                 removed.append(RemovedTrack(int(tid), name, len(rows), score, reason))
             continue
         for a, b in itertools.pairwise(rows):
