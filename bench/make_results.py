@@ -4,7 +4,7 @@
         [--tune car.json pedestrian.json ...] [--robustness robustness.json]
         [--earlier-tunes earlier_car_online.json ...] [--earlier-offline car_offline.json]
         [--offline-choice car_offline_score_choice.json pedestrian_offline_choice.json]
-        [--earlier-offline-choice car_offline_choice.json pedestrian_offline_score_choice.json]
+        [--unshipped-offline-choice car_offline_choice.json pedestrian_offline_score_choice.json]
 
 Runs (same PointRCNN detections, same TrackEval KITTI 2D-box protocol, 11 validation sequences):
   1. our tuned config online (car, pedestrian, cyclist) and offline (car), and offline's
@@ -31,7 +31,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -811,14 +811,19 @@ def _shipped_value(cls: str, key: str) -> Any:
     return node
 
 
+def _grid_text(choice: dict[str, Any]) -> str:
+    """An offline_from_online.py record's grid, for the notes."""
+    return ", ".join(f"`{k}` in {v}" for k, v in choice["grid"].items())
+
+
 def offline_section(
-    choices: list[str], earlier: list[str], earlier_choices: list[str] = ()
+    choices: list[str], earlier: list[str], unshipped: Sequence[str] = ()
 ) -> list[str]:
     """Held-out figures of offline mode from the records of bench/offline_from_online.py: each
     fold of an online tune tracks its held-out sequences with the fold's settings, online and
     offline, with the config's offline-only values and with those chosen on the fold's training
-    sequences; ``earlier``: separately tuned offline records, quoted; ``earlier_choices``:
-    records of other grids whose choice did not hold out better (not shipped), quoted."""
+    sequences; ``earlier``: separately tuned offline records, quoted; ``unshipped``: records of
+    other grids whose choice did not hold out better (not shipped), quoted."""
     if not choices:
         return []
     lines = [
@@ -855,7 +860,7 @@ def offline_section(
                 f" {chosen['HOTA']:.2f}{mark[1]} | {ship['HOTA'] - on['HOTA']:+.2f} |"
                 f" {ship['MOTA']:.2f} | {ship['IDSW']} |"
             )
-        grid = ", ".join(f"`{k}` in {v}" for k, v in choice["grid"].items())
+        grid = _grid_text(choice)
         folds = "; ".join(f"{'/'.join(f['test'])}: {_point(f['chosen'])}" for f in choice["folds"])
         verdict = (
             f"shipped: {_point(final)} (chosen on all sequences)"
@@ -867,10 +872,10 @@ def offline_section(
             f"- {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s; `{rec['command']}`):"
             f" {grid}; the folds chose {folds}; {verdict}."
         )
-    for path in earlier_choices:
+    for path in unshipped:
         rec = json.loads(Path(path).read_text())
         choice, cls = rec["choice"], rec["class"]
-        grid = ", ".join(f"`{k}` in {v}" for k, v in choice["grid"].items())
+        grid = _grid_text(choice)
         pairs = ", ".join(
             f"{det} {m['offline_first']['HOTA']:.2f} / {m['offline']['HOTA']:.2f}"
             for det, m in rec["held_out"].items()
@@ -1005,7 +1010,7 @@ def main() -> int:
         help="records of bench/offline_from_online.py --choose (held-out offline figures)",
     )  # fmt: skip
     parser.add_argument(
-        "--earlier-offline-choice", nargs="*", default=[],
+        "--unshipped-offline-choice", nargs="*", default=[],
         help="records of offline_from_online.py grids that did not ship, quoted",
     )  # fmt: skip
     parser.add_argument("--out", default=str(ROOT / "docs" / "results.md"))
@@ -1031,7 +1036,7 @@ def main() -> int:
     noise = noise_section(root, args.robustness, FIXED_R)
     floor = noise_floor_section(root) if args.robustness else []
     offline_held_out = offline_section(
-        args.offline_choice, args.earlier_offline, args.earlier_offline_choice
+        args.offline_choice, args.earlier_offline, args.unshipped_offline_choice
     )
     image_detector_lines = image_detector_section(root)
     anatomy_lines = fp_anatomy_section(anatomy_rows)

@@ -122,7 +122,7 @@ def test_a_class_can_ask_more_of_a_whole_track_offline() -> None:
         for i in range(12)
     ]  # fmt: skip
 
-    def kept(car_min: float) -> tuple[set[float], set[int]]:
+    def kept(car_min: float) -> tuple[set[int], set[int]]:
         overrides = {
             "categories": ["car", "pedestrian"],
             "category": {"car": {"lifecycle": {"offline_track_score_min": car_min}}},
