@@ -81,6 +81,33 @@ def test_a_scene_noise_does_not_depend_on_the_other_scenes() -> None:
     assert not _all(alone).equals(_all(renamed))
 
 
+def test_a_class_noise_does_not_depend_on_the_other_classes(scene: list[Frame]) -> None:
+    """One stream per class: a class perturbed alone (`--classes pedestrian`) gets the boxes it
+    gets beside the others, drops, jitter, false positives and score noise alike."""
+    spec = dataclasses.replace(NOISE_LEVELS["double"], score_sigma=0.5)
+    together = perturb_frames(scene, spec, seed=2)
+    categories = np.unique(_all(scene).category)
+    assert len(categories) == 2
+    for c in categories:
+        only = [dataclasses.replace(f, boxes=f.boxes[f.boxes.category == c]) for f in scene]
+        alone = perturb_frames(only, spec, seed=2)
+        for x, y in zip(together, alone, strict=True):
+            assert x.boxes[x.boxes.category == c].equals(y.boxes)
+        assert (_all(alone).track_id == -1).sum() > 0  # the false positives were compared too
+    # the classes' streams differ: the same boxes relabelled draw other noise
+    relabelled = [
+        dataclasses.replace(f, boxes=f.boxes.replace(category=np.full(len(f.boxes), categories[0])))
+        for f in scene
+    ]
+    swapped = [
+        dataclasses.replace(f, boxes=f.boxes.replace(category=np.full(len(f.boxes), categories[1])))
+        for f in scene
+    ]
+    a = perturb_frames(relabelled, spec, seed=2)
+    b = perturb_frames(swapped, spec, seed=2)
+    assert not np.array_equal(_all(a).xyz[:100], _all(b).xyz[:100])
+
+
 def test_clean_spec_is_the_identity(scene: list[Frame]) -> None:
     out = perturb_frames(scene, NOISE_LEVELS["clean"], seed=0)
     assert all(o is f for o, f in zip(out, scene, strict=True))

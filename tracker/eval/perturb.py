@@ -14,15 +14,18 @@ range the scene's real boxes of the class cover in their camera, at that box's h
 camera's view; a uniform heading; the (score, raw score) pair of another real box of the class.
 Its 2D box is the projection of its 3D box (FPs that do not project into the image are dropped).
 
-The stream is seeded per scene from ``(seed, sha256(scene name))``, so a scene's noise does not
-depend on which other scenes are run or in which order, and the same seed gives the same boxes.
-Each box draws its drop, jitter and score variates whatever the spec, so at one seed a stronger
-level drops a superset of a weaker level's boxes (common random numbers across levels).
+Each class of each scene has its own stream, seeded from ``(seed, sha256(scene name / class
+name))``, so a class's noise does not depend on which other scenes or classes are run, or in which
+order (`--classes pedestrian` perturbs the pedestrians as `--classes car,pedestrian,cyclist`
+does), and the same seed gives the same boxes. Each box draws its drop, jitter and score variates
+whatever the spec, so at one seed a stronger level drops a superset of a weaker level's boxes
+(common random numbers across levels).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -33,6 +36,7 @@ from numpy.typing import NDArray
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.camera import NEAR_PLANE_M, project_boxes_batched
+from tracker.categories import CATEGORIES
 from tracker.frame import Frame
 from tracker.geometry import wrap_angle
 from tracker.io.convert.kitti import _sigmoid
@@ -109,12 +113,13 @@ def sigmoid_rescore(
     return _sigmoid(np.asarray(score_raw, dtype=np.float64))
 
 
-def scene_rng(seed: int, scene: str) -> np.random.Generator:
-    """The generator of one scene: from the seed and a stable hash of the name (not ``hash()``,
-    which is salted per process)."""
+def class_rng(seed: int, scene: str, category: int) -> np.random.Generator:
+    """The generator of one class of one scene: from the seed and a stable hash of the scene and
+    class names (not ``hash()``, which is salted per process)."""
     if seed < 0:
         raise ValueError(f"seed must be >= 0, got {seed}")
-    digest = np.frombuffer(hashlib.sha256(scene.encode()).digest()[:16], dtype=np.uint32)
+    key = f"{scene}/{CATEGORIES[int(category)]}".encode()
+    digest = np.frombuffer(hashlib.sha256(key).digest()[:16], dtype=np.uint32)
     return np.random.default_rng([seed, *(int(x) for x in digest)])
 
 
@@ -132,7 +137,8 @@ def perturb_frames(
     ----------
     frames : detection frames; each scene's frames are perturbed together.
     spec : the noise; a clean spec returns the input frames unchanged.
-    seed : >= 0; with the scene name it seeds each scene's generator (:func:`scene_rng`).
+    seed : >= 0; with the scene and class names it seeds each class's generator
+        (:func:`class_rng`).
     rescore : raw score -> ``score`` after score noise (default :func:`sigmoid_rescore`).
     image_boxes : "follow": the jitter moves each detector 2D box with its 3D box's projection;
         "keep": 2D boxes stay as given (see the module docstring).
@@ -159,7 +165,7 @@ def perturb_frames(
         perturbed = _perturb_scene(
             [frames[i] for i in rows],
             spec,
-            scene_rng(seed, scene),
+            functools.partial(class_rng, seed, scene),
             rescore or sigmoid_rescore,
             move_image_boxes=image_boxes == "follow",
         )
@@ -199,7 +205,7 @@ class _Cameras:
 def _perturb_scene(
     frames: Sequence[Frame],
     spec: PerturbSpec,
-    rng: np.random.Generator,
+    rng_of: Callable[[int], np.random.Generator],
     rescore: Rescore,
     *,
     move_image_boxes: bool,
@@ -209,10 +215,14 @@ def _perturb_scene(
     boxes = Boxes.concat([f.boxes for f in frames])
     cams = _Cameras.of(frames)
     n = len(boxes)
-    # Drawn in a fixed order whatever the spec (see the module docstring).
-    u_drop = rng.random(n)
-    z_xy = rng.standard_normal((n, 2))
-    z_yaw = rng.standard_normal(n)
+    rngs = {int(c): rng_of(int(c)) for c in np.unique(boxes.category)}
+    # Each class's stream, drawn in a fixed order whatever the spec (see the module docstring).
+    u_drop, z_xy, z_yaw = np.empty(n), np.empty((n, 2)), np.empty(n)
+    for category, rng in rngs.items():
+        rows = np.flatnonzero(boxes.category == category)
+        u_drop[rows] = rng.random(len(rows))
+        z_xy[rows] = rng.standard_normal((len(rows), 2))
+        z_yaw[rows] = rng.standard_normal(len(rows))
 
     xyz = boxes.xyz.copy()
     xyz[:, :2] += spec.centre_sigma_m * z_xy
@@ -225,14 +235,18 @@ def _perturb_scene(
         flat_camera = np.where(keep, cams.flat(frame_of, boxes.camera), -1)  # kept boxes only
         xyxy = _moved_image_boxes(boxes, xyz, yaw, flat_camera, cams)
     real = boxes.replace(xyz=xyz, yaw=yaw, xyxy_image=xyxy)[keep]
-    fps, fp_frame = _false_positives(boxes, frame_of, spec.fp_rate, cams, rng)
+    fps, fp_frame = _false_positives(boxes, frame_of, spec.fp_rate, cams, rngs)
     out = Boxes.concat([real, fps])
     out_frame = np.concatenate([frame_of[keep], fp_frame])
 
     if spec.score_sigma > 0:
         if np.isnan(out.score_raw).any():
             raise ValueError("score noise needs the raw detector score (score_raw is NaN)")
-        raw = out.score_raw + spec.score_sigma * rng.standard_normal(len(out))
+        z_score = np.empty(len(out))
+        for category, rng in rngs.items():
+            rows = np.flatnonzero(out.category == category)
+            z_score[rows] = rng.standard_normal(len(rows))
+        raw = out.score_raw + spec.score_sigma * z_score
         ego = np.array([np.asarray(f.world_from_ego, np.float64)[:2, 3] for f in frames])
         ego = ego.reshape(-1, 2)[out_frame]
         range_m = np.hypot(out.xyz[:, 0] - ego[:, 0], out.xyz[:, 1] - ego[:, 1])
@@ -269,16 +283,21 @@ def _moved_image_boxes(
 
 
 def _false_positives(
-    boxes: Boxes, frame_of: IntArray, fp_rate: float, cams: _Cameras, rng: np.random.Generator
+    boxes: Boxes,
+    frame_of: IntArray,
+    fp_rate: float,
+    cams: _Cameras,
+    rngs: dict[int, np.random.Generator],
 ) -> tuple[Boxes, IntArray]:
-    """The scene's false positives (see the module docstring) and the frame of each."""
+    """The scene's false positives (see the module docstring) and the frame of each; each class
+    draws from its own generator in ``rngs``."""
     parts: list[Boxes] = []
     frames: list[IntArray] = []
     if fp_rate <= 0:
         return Boxes.empty(), np.zeros(0, dtype=np.int64)
     num_frames = len(cams.count)
     world_from_camera = np.linalg.inv(cams.camera_from_world)  # (K, 4, 4)
-    for category in np.unique(boxes.category):  # sorted: a fixed draw order
+    for category, rng in sorted(rngs.items()):
         of_class = np.flatnonzero(boxes.category == category)
         flat = cams.flat(frame_of[of_class], boxes.camera[of_class])
         donors = of_class[flat >= 0]  # boxes in a camera give size, camera and height
