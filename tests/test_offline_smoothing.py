@@ -134,3 +134,76 @@ def test_a_class_can_ask_more_of_a_whole_track_offline() -> None:
 
     assert kept(float("-inf")) == ({0, 30}, {car, ped})  # offline.track_score_min 0: all kept
     assert kept(1.0) == ({30}, {car, ped})  # the p 0.6 car goes, the p 0.6 pedestrian stays
+
+
+def _walker_frames(*, others: bool) -> list:
+    """A pedestrian walking at 1 m/s along x, seen in frames 0-14 and 40-54 (hidden 2.5 s: longer
+    than the online tracker coasts), and, with ``others``, from frame 40 a pedestrian 1.5 m beside
+    where the walker reappears and a car 0.3 m from it."""
+    from tracker.boxes import Boxes
+    from tracker.categories import category_index
+    from tracker.frame import Frame
+
+    car, ped = category_index("car"), category_index("pedestrian")
+    frames = []
+    for i in range(55):
+        xyz, lwh, cat = [], [], []
+        if i < 15 or i >= 40:
+            xyz.append([8.0 + 0.1 * i, 0.0, 0.9])
+            lwh.append([0.8, 0.6, 1.7])
+            cat.append(ped)
+        if others and i >= 40:
+            xyz.append([8.0 + 0.1 * i, 1.5, 0.9])
+            lwh.append([0.8, 0.6, 1.7])
+            cat.append(ped)
+            xyz.append([8.0 + 0.1 * i, -0.3, 0.8])
+            lwh.append([4.0, 1.8, 1.6])
+            cat.append(car)
+        frames.append(
+            Frame(
+                scene="s", frame_id=i, timestamp_secs=0.1 * i,
+                boxes=Boxes.create(
+                    xyz=xyz, lwh=lwh, yaw=np.zeros(len(xyz)), category=cat,
+                    score=np.full(len(xyz), 0.9),
+                ),
+            )
+        )  # fmt: skip
+    return frames
+
+
+def test_offline_stitching_joins_a_track_hidden_longer_than_the_tracker_coasts() -> None:
+    """offline.stitch_max_gap: the walker's two tracks become one, its hidden frames filled; off,
+    or with a shorter gap, two ids. One track continues one other (the nearer pedestrian), and
+    only of its class (not the car at the spot)."""
+    from tracker.boxes import Boxes
+    from tracker.categories import category_index
+    from tracker.config import load_config
+    from tracker.pipeline import run_scene
+
+    def ids(frames: list, gap: int) -> dict[int, list[int]]:
+        overrides = {"offline": {"stitch_max_gap": gap, "stitch_distance_m": 2.0}}
+        result = run_scene(frames, load_config("kitti_offline", overrides=overrides))
+        by_id: dict[int, list[int]] = {}
+        for out in result.outputs:
+            for t in out.boxes.track_id.tolist():  # (only the walker's rows here)
+                by_id.setdefault(t, []).append(out.frame_id)
+        return by_id
+
+    walker = _walker_frames(others=False)
+    assert len(ids(walker, 0)) == 2  # off: the tracker lost it, a new track took over
+    (frames,) = ids(walker, 40).values()
+    assert frames == list(range(55))  # one track, the hidden 25 frames interpolated
+    assert len(ids(walker, 20)) == 2  # a gap longer than stitch_max_gap is not bridged
+    overrides = {"offline": {"stitch_max_gap": 40, "stitch_distance_m": 2.0}}
+    crowd = run_scene(
+        _walker_frames(others=True), load_config("kitti_offline", overrides=overrides)
+    )
+    rows = Boxes.concat([o.boxes for o in crowd.outputs])
+    ped = rows.category == category_index("pedestrian")
+    on_walker = ped & (np.abs(rows.xyz[:, 1]) < 0.5)
+    beside = ped & (np.abs(rows.xyz[:, 1] - 1.5) < 0.5)
+    car = ~ped
+    assert len(set(rows.track_id[on_walker].tolist())) == 1 and on_walker.sum() == 55
+    for other in (beside, car):  # each keeps one id of its own
+        assert other.sum() == 15 and len(set(rows.track_id[other].tolist())) == 1
+        assert not set(rows.track_id[other].tolist()) & set(rows.track_id[on_walker].tolist())

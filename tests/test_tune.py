@@ -158,6 +158,7 @@ def test_shipped_offline_choices_are_the_records() -> None:
         "car_offline_score_choice.json",
         "pedestrian_offline_choice.json",
         "pedestrian_offline_score_choice.json",
+        "pedestrian_offline_stitch_choice.json",
     ]
     for path in paths:
         rec = json.loads(path.read_text())

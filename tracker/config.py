@@ -201,6 +201,11 @@ class OfflineConfig:
     rts_heading: bool = False
     # offline only: each track gets one size, the mean of its detected rows' (filtered) sizes
     constant_size: bool = False
+    # offline only: a kept track that starts at most this many frames after another of its class
+    # ended, where that one's constant-velocity extrapolation puts it (within stitch_distance_m),
+    # continues it under its id (one-to-one, Hungarian on the distance; 0 = off)
+    stitch_max_gap: int = 0
+    stitch_distance_m: float = 1.0
 
 
 @dataclass(frozen=True, slots=True)

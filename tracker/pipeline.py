@@ -15,7 +15,10 @@ Offline mode (reference §2.9, improved): run online with the offline config, th
      acceleration too), and with ``offline.rts_heading`` their heading from the heading filter's
      smoother over its detected yaws (:func:`tracker.smoothing.rts_smooth_heading`),
   5. (``offline.constant_size``) give each track one size, the mean of its detected rows'
-     (:func:`mean_size_per_track`): a rigid object's size does not change.
+     (:func:`mean_size_per_track`): a rigid object's size does not change,
+  6. (``offline.stitch_max_gap`` > 0) between 1 and 2, join fragments: a kept track that starts soon
+     after another of its class ended, where that one's constant-velocity extrapolation puts it,
+     continues it under its id (:func:`stitch_tracks`), so its gap is filled like any other.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from tracker.config import TrackerConfig, TrackingMode
 from tracker.events import Observer, TrackOutput, TrackStatus
 from tracker.frame import Frame
 from tracker.geometry import wrap_angle
+from tracker.matching import hungarian
 from tracker.mctracker import MCTracker, motion_noise_tables
 from tracker.smoothing import rts_smooth, rts_smooth_heading
 
@@ -117,13 +121,11 @@ def offline_postprocess(
     keep = real.copy()
     new_src: list[tuple[int, int, int, float]] = []  # (frame index, row before, row after, w)
     logit = score_log_odds(boxes.score)
-    tracks_score: dict[int, float] = {}
     for tid in np.unique(boxes.track_id):
         rows = np.flatnonzero((boxes.track_id == tid) & real)
         if not len(rows):
             continue
         score = float(logit[rows].mean())
-        tracks_score[int(tid)] = score
         name = CATEGORIES[int(boxes.category[rows[0]])]
         lifecycle = config.per_category[name].lifecycle
         score_min = max(config.offline.track_score_min, lifecycle.offline_track_score_min)
@@ -132,7 +134,17 @@ def offline_postprocess(
             if removed is not None:
                 reason = "track_score" if score <= score_min else "min_hits"
                 removed.append(RemovedTrack(int(tid), name, len(rows), score, reason))
-            continue
+    if config.offline.stitch_max_gap > 0:
+        times = np.array([o.time_secs for o in outputs])
+        track_id = stitch_tracks(
+            boxes, frame_index, times, keep,
+            max_gap=config.offline.stitch_max_gap, distance_m=config.offline.stitch_distance_m,
+        )  # fmt: skip
+        boxes = boxes.replace(track_id=track_id)
+    tracks_score: dict[int, float] = {}
+    for tid in np.unique(boxes.track_id[keep]):
+        rows = np.flatnonzero((boxes.track_id == tid) & keep)
+        tracks_score[int(tid)] = float(logit[rows].mean())
         for a, b in itertools.pairwise(rows):
             gap = frame_index[b] - frame_index[a] - 1
             if 0 < gap <= config.offline.interpolate_max_gap:
@@ -230,6 +242,46 @@ def offline_postprocess(
             )
         )
     return result
+
+
+def stitch_tracks(
+    boxes: Boxes,
+    frame_index: np.ndarray,
+    times: np.ndarray,
+    keep: np.ndarray,
+    *,
+    max_gap: int,
+    distance_m: float,
+) -> np.ndarray:
+    """(N,) track ids with fragments joined: a kept track B that starts 1..``max_gap`` frames
+    after a kept track A of its class ends continues A (takes A's id) when A's last position,
+    carried forward at A's last velocity to B's first frame, is within ``distance_m`` of B's first
+    position. Each track continues at most one and is continued by at most one (Hungarian on that
+    distance); chains join. Rows outside ``keep`` keep their ids."""
+    track_id = boxes.track_id.copy()
+    kept = np.flatnonzero(keep)  # in frame order (rows are flattened frame by frame)
+    ids, of = np.unique(track_id[kept], return_inverse=True)
+    if len(ids) < 2:
+        return track_id
+    first = kept[np.unique(of, return_index=True)[1]]
+    last = kept[len(kept) - 1 - np.unique(of[::-1], return_index=True)[1]]
+    f0, f1 = frame_index[first], frame_index[last]
+    gap = f0[None, :] - f1[:, None]  # (A, B) frames from A's end to B's start
+    ok = (gap >= 1) & (gap <= max_gap) & (boxes.category[last][:, None] == boxes.category[first])
+    dt = times[f0][None, :] - times[f1][:, None]
+    ahead = boxes.xyz[last, None, :2] + boxes.velocity[last, None, :] * dt[..., None]
+    dist = np.linalg.norm(ahead - boxes.xyz[first][None, :, :2], axis=-1)
+    m = hungarian(np.where(ok, dist, np.inf), max_cost_per_row=np.full(len(ids), distance_m))
+    parent = np.arange(len(ids))
+    parent[m.pairs[:, 1]] = m.pairs[:, 0]
+    root = parent.copy()
+    for b in np.argsort(f0, kind="stable"):  # A starts before B: its root is already final
+        root[b] = root[parent[b]]
+    log.debug(
+        "stitching: %d of %d tracks continue another", (root != np.arange(len(ids))).sum(), len(ids)
+    )
+    track_id[kept] = ids[root[of]]
+    return track_id
 
 
 def mean_size_per_track(lwh: np.ndarray, track_id: np.ndarray, keep: np.ndarray) -> np.ndarray:
