@@ -18,7 +18,8 @@ Offline mode (reference §2.9, improved): run online with the offline config, th
      (:func:`mean_size_per_track`): a rigid object's size does not change,
   6. (``offline.stitch_max_gap`` > 0) between 1 and 2, join fragments: a kept track that starts soon
      after another of its class ended, where that one's constant-velocity extrapolation puts it,
-     continues it under its id (:func:`stitch_tracks`), so its gap is filled like any other.
+     continues it under its id (:func:`stitch_tracks`), so its gap is filled like any other
+     (up to ``interpolate_max_gap`` frames).
 """
 
 from __future__ import annotations
@@ -257,7 +258,8 @@ def stitch_tracks(
     after a kept track A of its class ends continues A (takes A's id) when A's last position,
     carried forward at A's last velocity to B's first frame, is within ``distance_m`` of B's first
     position. Each track continues at most one and is continued by at most one (Hungarian on that
-    distance); chains join. Rows outside ``keep`` keep their ids."""
+    distance; dense over the scene's kept tracks); chains join. Rows outside ``keep`` keep their
+    ids."""
     track_id = boxes.track_id.copy()
     kept = np.flatnonzero(keep)  # in frame order (rows are flattened frame by frame)
     ids, of = np.unique(track_id[kept], return_inverse=True)

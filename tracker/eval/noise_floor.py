@@ -19,9 +19,9 @@ through the tracker's KITTI writer with the shipped ``kitti`` config's 2D box wi
 The Δ of the online filter from ``clean`` is what a perfect online tracker, with an ideal
 constant-velocity filter, loses to the jitter alone; drops and false positives add to it. It is
 not a floor for a tracker on real detections: their boxes are noisy already and independent
-errors add in variance, so the same jitter costs such a tracker less (PointRCNN's cars lose about
-half of what perfect boxes lose: docs/results.md). It gives the scale of what the jitter does to
-the written 2D boxes and how much of it filtering can take back.
+errors add in variance, so the same jitter costs such a tracker less (PointRCNN's cars lose less
+than half of what perfect boxes lose: docs/results.md). It gives the scale of what the jitter does
+to the written 2D boxes and how much of it filtering can take back.
 """
 
 from __future__ import annotations

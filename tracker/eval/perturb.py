@@ -17,9 +17,10 @@ Its 2D box is the projection of its 3D box (FPs that do not project into the ima
 Each class of each scene has its own stream, seeded from ``(seed, sha256(scene name / class
 name))``, so a class's noise does not depend on which other scenes or classes are run, or in which
 order (`--classes pedestrian` perturbs the pedestrians as `--classes car,pedestrian,cyclist`
-does), and the same seed gives the same boxes. Each box draws its drop, jitter and score variates
+does), and the same seed gives the same boxes. Each box draws its drop and jitter variates
 whatever the spec, so at one seed a stronger level drops a superset of a weaker level's boxes
-(common random numbers across levels).
+(common random numbers across levels); score noise is drawn after the false positives, only when
+asked for.
 """
 
 from __future__ import annotations
@@ -118,6 +119,8 @@ def class_rng(seed: int, scene: str, category: int) -> np.random.Generator:
     class names (not ``hash()``, which is salted per process)."""
     if seed < 0:
         raise ValueError(f"seed must be >= 0, got {seed}")
+    if not 0 <= category < len(CATEGORIES):
+        raise ValueError(f"category must index tracker.categories.CATEGORIES, got {category}")
     key = f"{scene}/{CATEGORIES[int(category)]}".encode()
     digest = np.frombuffer(hashlib.sha256(key).digest()[:16], dtype=np.uint32)
     return np.random.default_rng([seed, *(int(x) for x in digest)])
