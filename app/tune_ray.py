@@ -13,9 +13,11 @@ depend on which finish first.
 Resume: each search is one Ray Tune experiment, ``OUT/ray_tune/<search>`` (fold0, fold1, ...,
 all). Run the same command again after an interruption and a finished search is read back, an
 unfinished one continues from its saved state (``Tuner.restore``): finished trials are kept and
-the trials that were running start again. ``OUT/ray_tune/run.json`` holds the options the run
-was started with; a different command line on the same ``--out`` is refused. Ray Tune saves its
-state with pickle, so resume only from a folder this command wrote.
+the trials that were running start again. Each save is also packed whole into
+``OUT/ray_tune/<search>.resume.zip`` (:class:`_Snapshot`): Ray Tune's own copy of it can be cut
+short by a kill. ``OUT/ray_tune/run.json`` holds the options the run was started with; a
+different command line on the same ``--out`` is refused. Ray Tune saves its state with pickle,
+so resume only from a folder this command wrote.
 
 This module imports Ray; app/tune.py imports it only for ``--ray``.
 """
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 import functools
 import hashlib
+import io
 import json
 import os
 import shutil
@@ -32,6 +35,7 @@ import signal
 import sys
 import tempfile
 import threading
+import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -46,7 +50,7 @@ from app.tune import Objective, Search, Trials, make_sampler, objective_value, s
 from tracker.config import config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import write_bytes_atomic, write_text_atomic
 
 METRIC = "hota"  # the objective's name in a trial's result
 # The Optuna trial number, added to each trial's config: a restored ResultGrid does not keep the
@@ -60,6 +64,97 @@ CHECKPOINT_SECONDS = "1"
 
 # the driver's progress bar; a module global because Ray Tune pickles its callbacks
 _PROGRESS: list[Callable[[int], Any]] = []
+
+
+# Ray Tune's own state files at the top of an experiment folder (trials, searcher, search
+# generator, callbacks), as its TuneController and SearchGenerator name them
+RAY_STATE_FILES = (
+    "experiment_state-*.json",
+    "search_gen_state-*.json",
+    "searcher-state-*.pkl",
+    "callback-states-*.pkl",
+)
+SNAPSHOT_SUFFIX = ".resume.zip"  # OUT/ray_tune/<search>.resume.zip, beside the experiment
+
+
+class _Snapshot(tune.Callback):
+    """Keeps ``OUT/ray_tune/<search>.resume.zip``: Ray Tune's state as of its last save, whole.
+
+    Ray Tune writes its state files to a staging folder, then copies the folder to
+    ``OUT/ray_tune/<search>`` in the background, file by file and in parallel. A hard kill
+    during that copy leaves the trials of one save beside the searcher of an earlier one, and
+    the restored run fails (the searcher does not know a trial) or runs trials again. Ray Tune
+    asks its callbacks for their state right after writing all its own files of a save, so
+    that is when this packs them into one file, replaced atomically; a resume puts them back
+    first (:func:`restore_snapshot`).
+    """
+
+    def __init__(self) -> None:
+        self._storage: Any = None
+
+    def on_step_begin(self, iteration: int, trials: list, **info: Any) -> None:
+        if trials:
+            self._storage = trials[0].storage
+
+    def on_trial_start(self, iteration: int, trials: list, trial: Any, **info: Any) -> None:
+        self._storage = trial.storage
+
+    def get_state(self) -> dict | None:
+        if self._storage is not None:
+            experiment = Path(self._storage.experiment_fs_path)
+            write_snapshot(
+                Path(self._storage.experiment_driver_staging_path),
+                experiment.with_name(experiment.name + SNAPSHOT_SUFFIX),
+            )
+        return None  # stateless: Ray Tune writes no file for it
+
+
+def _is_state_name(name: str) -> bool:
+    """A name Ray Tune gives a state file (and no path: the snapshot is input on resume)."""
+    return "/" not in name and any(Path(name).match(pattern) for pattern in RAY_STATE_FILES)
+
+
+def _is_state_file(path: Path) -> bool:
+    return path.is_file() and _is_state_name(path.name)
+
+
+def write_snapshot(staging: Path, snapshot: Path) -> None:
+    """Packs Ray Tune's state files in ``staging`` into ``snapshot`` (complete or unchanged)."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        for path in sorted(staging.iterdir()):
+            if _is_state_file(path):
+                archive.writestr(path.name, path.read_bytes())
+    write_bytes_atomic(snapshot, buffer.getvalue())
+
+
+def restore_snapshot(experiment: Path, snapshot: Path) -> int:
+    """Puts the state files of ``snapshot`` back in ``experiment``, in place of whatever a kill
+    left there, and removes the folders of trials that state does not hold (they are proposed
+    again). Returns how many trial folders were removed."""
+    try:
+        with zipfile.ZipFile(snapshot) as archive:
+            files = {name: archive.read(name) for name in archive.namelist()}
+        names = sorted(n for n in files if Path(n).match(RAY_STATE_FILES[0]))
+        if not names or any(not _is_state_name(n) for n in files):
+            raise ValueError("not Ray Tune's state files")
+        state = json.loads(files[names[-1]])  # Ray Tune restores from the newest
+        kept = {f"trial_{json.loads(t[0])['trial_id']}" for t in state["trial_data"]}
+    except (OSError, ValueError, KeyError, TypeError, IndexError, zipfile.BadZipFile) as exc:
+        raise InputError(
+            f"{snapshot}: not a saved Ray Tune search ({exc}); pass another --out"
+        ) from None
+    for path in experiment.iterdir():
+        if _is_state_file(path):
+            path.unlink()
+    for name, data in files.items():
+        write_bytes_atomic(experiment / name, data)
+    removed = 0
+    for path in sorted(experiment.glob("trial_*")):
+        if path.is_dir() and path.name not in kept:
+            shutil.rmtree(path)
+            removed += 1
+    return removed
 
 
 class _Progress(tune.Callback):
@@ -210,6 +305,12 @@ class RaySearch:
                 {"cpu": 1},
             )
             path = self.state / key
+            snapshot = path.with_name(key + SNAPSHOT_SUFFIX)
+            if path.exists() and not snapshot.is_file():
+                # killed before its first save that held a trial: nothing to keep
+                shutil.rmtree(path)
+            elif snapshot.is_file():
+                restore_snapshot(path, snapshot)
             if tune.Tuner.can_restore(str(path)):
                 self.resumed.append(key)
                 tuner = tune.Tuner.restore(str(path), trainable=trainable, restart_errored=True)
@@ -236,7 +337,7 @@ class RaySearch:
                         storage_path=str(self.state),
                         verbose=0,
                         failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),
-                        callbacks=[_Progress()],
+                        callbacks=[_Progress(), _Snapshot()],
                     ),
                 )
             grid, ctrl_c = _fit(tuner)

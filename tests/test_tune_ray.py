@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+import zipfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -68,16 +69,16 @@ def _finished(out: Path, search: str) -> dict[str, str]:
 
 
 def _saved(out: Path, search: str) -> set[str]:
-    """The trials finished as of Ray Tune's last saved experiment state: what a resume keeps.
-    (Its result file is written first, so a trial that finished just before a hard kill may
-    not be in the state yet: docs/scale.md, Resume.)"""
-    states = sorted((out / "ray_tune" / search).glob("experiment_state-*.json"))
-    if not states:
+    """The trials finished as of Ray Tune's last save: what a resume keeps. Read from the
+    snapshot of that save (app.tune_ray._Snapshot), as the copy of the state in the experiment
+    folder may be cut short by a kill, and a trial's result file is written before the save."""
+    snapshot = out / "ray_tune" / f"{search}.resume.zip"
+    if not snapshot.is_file():
         return set()
-    try:
-        trials = [json.loads(t[0]) for t in json.loads(states[-1].read_text())["trial_data"]]
-    except ValueError:  # being written right now
-        return set()
+    with zipfile.ZipFile(snapshot) as archive:
+        names = sorted(n for n in archive.namelist() if n.startswith("experiment_state-"))
+        state = json.loads(archive.read(names[-1]))
+    trials = [json.loads(t[0]) for t in state["trial_data"]]
     return {f"trial_{t['trial_id']}" for t in trials if t["status"] == "TERMINATED"}
 
 
@@ -184,6 +185,10 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     _wait_until(proc, lambda: len(_saved(tmp_path, "fold1")) >= 1)
     os.killpg(proc.pid, signal.SIGKILL)
     _finish(proc)
+    # Ray Tune copies its state to the experiment folder in the background, file by file: a
+    # kill during the copy leaves files of two saves, or half a file. Make it so, every time.
+    for path in (tmp_path / "ray_tune" / "fold1").glob("*-*.*"):
+        path.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
     assert not (tmp_path / "tune.json").exists()
     fold0 = _finished(tmp_path, "fold0")
     assert len(fold0) == trials
@@ -250,3 +255,44 @@ def test_seqs_must_be_labelled_and_at_least_one_per_fold(
     assert main(["tune", "--seqs", "0001", "--folds", "2", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--folds 2 needs at least as many --seqs (got 1)" in err[0], err
+
+
+def test_a_resume_puts_back_the_last_whole_save(tmp_path: Path) -> None:
+    """What a kill during Ray Tune's background copy leaves (half a state file, a newer
+    session's file, a trial the saved state never held) is replaced by the snapshot."""
+    tune_ray = pytest.importorskip("app.tune_ray")
+    staging, experiment = tmp_path / "staging", tmp_path / "fold1"
+    staging.mkdir()
+    experiment.mkdir()
+    trial = json.dumps({"trial_id": "aaa", "status": "TERMINATED"})
+    saved = {
+        "experiment_state-s1.json": json.dumps({"trial_data": [[trial, "{}"]]}).encode(),
+        "search_gen_state-s1.json": b"generator",
+        "searcher-state-s1.pkl": b"searcher",
+    }
+    for name, data in saved.items():
+        (staging / name).write_bytes(data)
+    (staging / "trial_aaa").mkdir()  # trial folders are not part of the snapshot
+    snapshot = tmp_path / "fold1.resume.zip"
+    tune_ray.write_snapshot(staging, snapshot)
+
+    for name, data in saved.items():
+        (experiment / name).write_bytes(data[: len(data) // 2])
+    (experiment / "experiment_state-s2.json").write_text("{")
+    (experiment / "tuner.pkl").write_bytes(b"tuner")
+    for name in ("trial_aaa", "trial_bbb"):
+        (experiment / name).mkdir()
+        (experiment / name / "result.json").write_text("{}")
+    assert tune_ray.restore_snapshot(experiment, snapshot) == 1
+    assert {p.name: p.read_bytes() for p in experiment.glob("*-*.*")} == saved
+    assert sorted(p.name for p in experiment.iterdir()) == [
+        *sorted(saved),
+        "trial_aaa",
+        "tuner.pkl",
+    ]
+
+    snapshot.write_bytes(b"PK not a zip")
+    with pytest.raises(
+        tune_ray.InputError, match=r"fold1\.resume\.zip: not a saved Ray Tune search"
+    ):
+        tune_ray.restore_snapshot(experiment, snapshot)
