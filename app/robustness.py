@@ -13,9 +13,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import re
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,7 @@ from tracker.eval.perturb import (
     JITTERED_BOXES,
     NOISE_LEVELS,
     JitteredBoxes,
+    PerturbSpec,
     Rescore,
     perturb_frames,
 )
@@ -64,6 +66,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="clean,noise,double",
         help=f"noise levels, from {', '.join(NOISE_LEVELS)} (clean is always run; drop, jitter"
         " and fp are the parts of noise, one at a time)",
+    )
+    parser.add_argument(
+        "--level",
+        action="append",
+        default=[],
+        metavar="NAME:drop=R:centre=M:yaw=DEG:fp=R",
+        help="a level of your own, run after --levels (repeatable): drop rate in [0, 1], centre"
+        " jitter σ in metres, yaw jitter σ in degrees, false positives per real box; parts left"
+        " out are 0 (e.g. double_jitter:centre=0.3:yaw=5)",
     )
     parser.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (integers >= 0)")
     parser.add_argument(
@@ -99,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         detector=args.detector,
         levels=_names(args.levels),
+        custom_levels=dict(parse_level(text) for text in args.level),
         seeds=_seeds(args.seeds),
         score_sigma=args.score_sigma,
         image_boxes=args.image_boxes,
@@ -118,6 +130,7 @@ def run_robustness(
     config_name: str | Path = "kitti",
     detector: str = "pointrcnn",
     levels: Sequence[str] = (CLEAN, "noise", "double"),
+    custom_levels: Mapping[str, PerturbSpec] | None = None,
     seeds: Sequence[int] = (0, 1, 2),
     score_sigma: float = 0.0,
     image_boxes: JitteredBoxes = "follow",
@@ -128,6 +141,7 @@ def run_robustness(
 ) -> dict[str, Any]:
     """The benchmark; returns (and writes) ``out/robustness.json``.
 
+    ``custom_levels`` are levels of the caller's own (name -> noise), run after ``levels``.
     ``rescore`` maps (category, raw score) to the tracker's score after score noise (default:
     the detector's calibration profile, ``profile`` or the shipped one, when the config asks for
     calibrated scores; else the converter's sigmoid).
@@ -143,10 +157,14 @@ def run_robustness(
         raise InputError(f"unknown noise level(s) {unknown}; known: {', '.join(NOISE_LEVELS)}")
     if score_sigma < 0 or not np.isfinite(score_sigma):
         raise InputError(f"--score-sigma must be a finite value >= 0, got {score_sigma}")
+    custom_levels = dict(custom_levels or {})
+    taken = [name for name in custom_levels if name in NOISE_LEVELS]
+    if taken:
+        raise InputError(f"--level: {taken} already name built-in levels; choose other names")
     specs = {CLEAN: NOISE_LEVELS[CLEAN]}  # the reference every drop is measured from
-    for name in levels:
+    for name, spec in [*((n, NOISE_LEVELS[n]) for n in levels), *custom_levels.items()]:
         if name != CLEAN:
-            specs[name] = dataclasses.replace(NOISE_LEVELS[name], score_sigma=score_sigma)
+            specs[name] = dataclasses.replace(spec, score_sigma=score_sigma)
     label_dir = kitti_root / "training" / "label_02"
     missing = [str(label_dir / f"{s}.txt") for s in seqs if not (label_dir / f"{s}.txt").is_file()]
     if missing:
@@ -207,6 +225,7 @@ def run_robustness(
         "mode": config.mode.value,
         "seeds": list(seeds),
         "image_boxes": image_boxes,
+        "custom_levels": list(custom_levels),
         "evaluator": EVALUATOR,
         "spread": "standard deviation over seeds (ddof=1; 0 for one run)",
         "levels": {
@@ -274,11 +293,14 @@ def table_lines(report: dict[str, Any], *, markdown: bool) -> list[str]:
 
 def markdown_lines(report: dict[str, Any]) -> list[str]:
     seeds = ",".join(map(str, report["seeds"]))
+    custom = report.get("custom_levels", [])  # (reports written before the option)
     command = (
         f"mctrack robustness --detector {report['detector']} --classes "
         f"{','.join(report['classes'])} --config {report['config']} --levels "
-        f"{','.join(report['levels'])} --seeds {seeds}"
+        f"{','.join(n for n in report['levels'] if n not in custom)} --seeds {seeds}"
     )
+    for name in custom:
+        command += f" --level {level_text(name, report['levels'][name]['spec'])}"
     image_boxes = report.get("image_boxes", "follow")  # (reports written before the option)
     if image_boxes != "follow":
         command += f" --image-boxes {image_boxes}"
@@ -299,6 +321,48 @@ def markdown_lines(report: dict[str, Any]) -> list[str]:
         f"Command: `{command}` ({report['wall_seconds']} s).",
         "",
     ]
+
+
+# --level's parts: its name for a PerturbSpec field (score noise is --score-sigma, for all)
+_LEVEL_PARTS = {
+    "drop": "drop_rate",
+    "centre": "centre_sigma_m",
+    "yaw": "yaw_sigma_deg",
+    "fp": "fp_rate",
+}
+
+
+def parse_level(text: str) -> tuple[str, PerturbSpec]:
+    """``NAME:drop=R:centre=M:yaw=DEG:fp=R`` (parts optional, 0 when left out)."""
+    name, *parts = text.split(":")
+    if not re.fullmatch(r"[A-Za-z0-9_-]{1,64}", name):
+        raise InputError(
+            f"--level {text!r}: the name must be 1-64 letters, digits, '_' or '-' "
+            "(it names the level's folder under --out)"
+        )
+    values: dict[str, float] = {}
+    for part in parts:
+        key, _, value = part.partition("=")
+        if key not in _LEVEL_PARTS or key in values:
+            raise InputError(
+                f"--level {text!r}: {part!r} is not one of {', '.join(_LEVEL_PARTS)} "
+                "(each once, as key=value)"
+            )
+        try:
+            values[key] = float(value)
+        except ValueError:
+            raise InputError(f"--level {text!r}: {key} must be a number, got {value!r}") from None
+    try:
+        spec = PerturbSpec(**{_LEVEL_PARTS[k]: v for k, v in values.items()})
+    except ValueError as exc:
+        raise InputError(f"--level {text!r}: {exc}") from None
+    return name, spec
+
+
+def level_text(name: str, spec: dict[str, float]) -> str:
+    """The ``--level`` argument that makes the level ``name`` with noise ``spec``."""
+    parts = [f"{k}={spec[f]:g}" for k, f in _LEVEL_PARTS.items() if spec[f]]
+    return ":".join([name, *parts])
 
 
 def _names(text: str) -> list[str]:

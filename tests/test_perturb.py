@@ -326,6 +326,57 @@ def test_robustness_command_on_the_sample(
     assert clean["summary"]["car"]["HOTA_mean"] == round(plain["metrics"]["car"]["HOTA"], 3)
 
 
+def test_a_level_of_your_own(
+    sample_kit: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--level NAME:...: run after --levels, recorded, and in the markdown's command line; the
+    same noise as a built-in level gives the same figures."""
+    from app.robustness import level_text, parse_level
+
+    assert parse_level("j2:centre=0.3:yaw=5") == (
+        "j2",
+        PerturbSpec(centre_sigma_m=0.3, yaw_sigma_deg=5.0),
+    )
+    noise = dataclasses.asdict(NOISE_LEVELS["noise"])
+    assert parse_level(level_text("mine", noise)) == ("mine", NOISE_LEVELS["noise"])
+
+    out = tmp_path / "rob"
+    args = ["--kitti-root", str(sample_kit), "--seqs", "0001", "--classes", "car", "--seeds", "0"]
+    level = "mine:drop=0.1:centre=0.15:yaw=2:fp=0.02"  # the built-in noise level
+    argv = ["robustness", *args, "--levels", "noise", "--level", level, "--out", str(out)]
+    assert main(argv) == 0
+    capsys.readouterr()
+    report = json.loads((out / "robustness.json").read_text())
+    assert list(report["levels"]) == ["clean", "noise", "mine"]
+    assert report["custom_levels"] == ["mine"]
+    mine, builtin = report["levels"]["mine"], report["levels"]["noise"]
+    assert mine["spec"] == builtin["spec"] and mine["runs"] == builtin["runs"]
+    assert (out / "runs" / "mine" / "seed0" / "0001.txt").is_file()
+    assert f"--levels clean,noise --seeds 0 --level {level}`" in (out / "robustness.md").read_text()
+
+
+@pytest.mark.parametrize(
+    ("level", "message"),
+    [
+        ("../up:drop=0.1", "the name must be"),
+        ("a:drop=0.1:drop=0.2", "each once"),
+        ("a:sigma=0.3", "'sigma=0.3' is not one of drop, centre, yaw, fp"),
+        ("a:centre=far", "centre must be a number"),
+        ("a:drop=1.5", "drop_rate: expected <= 1"),
+        ("a:fp=-1", "fp_rate: expected a finite value >= 0"),
+        ("noise:drop=0.2", "already name built-in levels"),
+    ],
+)
+def test_bad_levels_are_one_line_errors(
+    sample_kit: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], level: str, message: str
+) -> None:
+    argv = ["robustness", "--kitti-root", str(sample_kit), "--seqs", "0001", "--level", level]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and "--level" in err, err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
