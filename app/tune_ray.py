@@ -157,6 +157,20 @@ def restore_snapshot(experiment: Path, snapshot: Path) -> int:
     return removed
 
 
+def prepare_resume(experiment: Path) -> str:
+    """Before a search runs: puts back its last whole save (``"restored"``), removes a folder
+    that has none (``"started over"``: killed before a save held a trial), or ``"new"``."""
+    snapshot = experiment.with_name(experiment.name + SNAPSHOT_SUFFIX)
+    if snapshot.is_file():
+        experiment.mkdir(parents=True, exist_ok=True)
+        restore_snapshot(experiment, snapshot)
+        return "restored"
+    if experiment.exists():
+        shutil.rmtree(experiment)
+        return "started over"
+    return "new"
+
+
 class _Progress(tune.Callback):
     """Moves the driver's progress bar by one per finished trial."""
 
@@ -305,12 +319,12 @@ class RaySearch:
                 {"cpu": 1},
             )
             path = self.state / key
-            snapshot = path.with_name(key + SNAPSHOT_SUFFIX)
-            if path.exists() and not snapshot.is_file():
-                # killed before its first save that held a trial: nothing to keep
-                shutil.rmtree(path)
-            elif snapshot.is_file():
-                restore_snapshot(path, snapshot)
+            if prepare_resume(path) == "started over":
+                print(
+                    f"mctrack tune: search {key} was stopped before its first save that held a "
+                    "trial; it starts over",
+                    file=sys.stderr,
+                )
             if tune.Tuner.can_restore(str(path)):
                 self.resumed.append(key)
                 tuner = tune.Tuner.restore(str(path), trainable=trainable, restart_errored=True)

@@ -283,13 +283,19 @@ def test_a_resume_puts_back_the_last_whole_save(tmp_path: Path) -> None:
     for name in ("trial_aaa", "trial_bbb"):
         (experiment / name).mkdir()
         (experiment / name / "result.json").write_text("{}")
-    assert tune_ray.restore_snapshot(experiment, snapshot) == 1
+    assert tune_ray.prepare_resume(experiment) == "restored"
     assert {p.name: p.read_bytes() for p in experiment.glob("*-*.*")} == saved
     assert sorted(p.name for p in experiment.iterdir()) == [
         *sorted(saved),
         "trial_aaa",
         "tuner.pkl",
     ]
+
+
+    other = tmp_path / "fold2"  # stopped before a save held a trial: no snapshot
+    (other / "trial_ccc").mkdir(parents=True)
+    assert tune_ray.prepare_resume(other) == "started over" and not other.exists()
+    assert tune_ray.prepare_resume(other) == "new"
 
     snapshot.write_bytes(b"PK not a zip")
     with pytest.raises(
