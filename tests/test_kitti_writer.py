@@ -149,7 +149,9 @@ def test_auto_image_boxes_keep_the_projection_of_projected_detections(tmp_path: 
 def test_auto_image_boxes_write_a_detections_own_box(tmp_path: Path) -> None:
     """Detections with 2D boxes of their own (an image head's) in even rows: a track matched
     to one writes its detection's box as it is (already narrower than the projection: never
-    widened); a track matched to a projected box, or coasting, writes its projection."""
+    widened); a track matched to a projected box writes its projection; a coasting track
+    carries the own box of its last match along with its projection, or writes the projection
+    when that match had none."""
     from tracker.io.writers import write_kitti_sequence
 
     frames, outputs = _sample_run()
@@ -164,19 +166,62 @@ def test_auto_image_boxes_write_a_detections_own_box(tmp_path: Path) -> None:
         write_kitti_sequence(tmp_path / f"{name}.txt", outputs, fr, image_boxes=mode,
                              width_scale=scale)  # fmt: skip
     proj, auto = _lines_by_frame(tmp_path / "proj.txt"), _lines_by_frame(tmp_path / "auto.txt")
-    matched = projected_rows = 0
+    matched = projected_rows = carried_rows = 0
+    last_own: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # own box written, projection then
     for out, frame in zip(outputs, own, strict=True):
         written = {int(ln.split()[1]): ln.split() for ln in auto.get(out.frame_id, [])}
         projected = {int(ln.split()[1]): ln.split() for ln in proj.get(out.frame_id, [])}
-        for tid, row in zip(out.boxes.track_id, out.det_row, strict=True):
-            if row >= 0 and row % 2 == 0 and int(tid) in written:
-                box = np.array(written[int(tid)][6:10], float)
+        for tid, row in zip(out.boxes.track_id.tolist(), out.det_row.tolist(), strict=True):
+            if tid not in projected:  # out of the image: nothing to compare
+                if row >= 0 and row % 2:
+                    last_own.pop(tid, None)
+                continue
+            proj_box = np.array(projected[tid][6:10], float)
+            box = np.array(written[tid][6:10], float)
+            assert written[tid][:6] + written[tid][10:] == projected[tid][:6] + projected[tid][10:]
+            if row >= 0 and row % 2 == 0:
                 np.testing.assert_allclose(box, frame.boxes.xyxy_image[row], atol=1e-3)
+                last_own[tid] = (box, proj_box)
                 matched += 1
-            elif int(tid) in projected:
-                assert written[int(tid)] == projected[int(tid)]
+            elif row < 0 and tid in last_own:
+                was, then = last_own[tid]
+                scale = (proj_box[2:] - proj_box[:2]) / (then[2:] - then[:2])
+                centre_then, centre_now = (
+                    (then[:2] + then[2:]) / 2,
+                    (proj_box[:2] + proj_box[2:]) / 2,
+                )
+                moved = np.r_[centre_now + (was[:2] - centre_then) * scale,
+                              centre_now + (was[2:] - centre_then) * scale]  # fmt: skip
+                np.testing.assert_allclose(box, moved, atol=0.05)
+                carried_rows += 1
+            else:
+                assert written[tid] == projected[tid]
+                if row >= 0:
+                    last_own.pop(tid, None)
                 projected_rows += 1
-    assert matched > 100 and projected_rows > 100
+    assert matched > 100 and projected_rows > 100 and carried_rows > 10
+
+
+def test_a_carried_box_keeps_its_offset_from_the_projection() -> None:
+    """The projection moves 10 px right and doubles in size about its centre: the own box
+    moves and scales with it; a track matched to a box not its own forgets its box."""
+    from tracker.io.writers import CarriedBoxes
+
+    carried = CarriedBoxes()
+    ids = np.array([7, 8])
+    own = np.array([[100.0, 50.0, 120.0, 90.0], [0.0, 0.0, 10.0, 10.0]])
+    then = np.array([[98.0, 48.0, 118.0, 88.0], [0.0, 0.0, 10.0, 10.0]])  # centre (108, 68)
+    carried.remember(ids, own, then, other=np.zeros(0, dtype=np.int64))
+    now = np.array([[np.nan] * 4, [88.0, 28.0, 128.0, 108.0]])  # 8: no projection now
+    at, boxes = carried.carry(np.array([8, 7]), now)
+    assert at.tolist() == [1]  # track 7, at index 1 of the ids asked
+    # centre now (108, 68) + 10 px; (100 - 108) * 2 = -16, (50 - 68) * 2 = -36, ...
+    now_7 = np.array([98.0, 48.0, 138.0, 128.0])  # centre (118, 88), twice the size
+    at, boxes = carried.carry(np.array([7]), now_7[None])
+    np.testing.assert_allclose(boxes, [[102.0, 52.0, 142.0, 132.0]])
+    carried.remember(np.zeros(0, dtype=np.int64), np.zeros((0, 4)), np.zeros((0, 4)),
+                     other=np.array([7]))  # fmt: skip
+    assert len(carried.carry(np.array([7]), now_7[None])[0]) == 0
 
 
 def test_projected_boxes_of_their_own_are_narrowed_like_projections(tmp_path: Path) -> None:

@@ -291,7 +291,6 @@ def test_a_resume_puts_back_the_last_whole_save(tmp_path: Path) -> None:
         "tuner.pkl",
     ]
 
-
     other = tmp_path / "fold2"  # stopped before a save held a trial: no snapshot
     (other / "trial_ccc").mkdir(parents=True)
     assert tune_ray.prepare_resume(other) == "started over" and not other.exists()

@@ -128,6 +128,50 @@ class ImageBoxStats:
         return np.minimum(1.0, self.target / ratio)
 
 
+class CarriedBoxes:
+    """The 2D box a coasting track writes after a frame it wrote its detection's own box.
+
+    Per track, the last written box and the track's projected box in that frame. While the
+    track coasts, the own box is carried as the projection moves: shifted with its centre and
+    scaled with its size, so it keeps its offset from the projection (where an image head's box
+    is better than the projection of the tracked box, it stays better for a few frames). A
+    track's memory is cleared when it writes a box that is not its own. Uses past frames only:
+    online output stays online.
+    """
+
+    def __init__(self) -> None:
+        self._own: dict[int, tuple[FloatArray, FloatArray]] = {}
+
+    def remember(
+        self, track_ids: np.ndarray, own_xyxy: FloatArray, proj_xyxy: FloatArray, other: np.ndarray
+    ) -> None:
+        """This frame's own boxes (and the projections) of ``track_ids``; ``other``: the ids
+        of tracks matched to a detection without one (forgotten)."""
+        for tid in other.tolist():
+            self._own.pop(tid, None)
+        for tid, own, proj in zip(track_ids.tolist(), own_xyxy, proj_xyxy, strict=True):
+            self._own[tid] = (own, proj)
+
+    def carry(self, track_ids: np.ndarray, proj_xyxy: FloatArray) -> tuple[np.ndarray, FloatArray]:
+        """For coasting tracks with their projections now: (indices into ``track_ids`` that
+        have a box to carry, those boxes)."""
+        found = [i for i, tid in enumerate(track_ids.tolist()) if tid in self._own]
+        if not found:
+            return np.zeros(0, dtype=np.int64), np.zeros((0, 4))
+        idx = np.asarray(found, dtype=np.int64)
+        own = np.array([self._own[int(track_ids[i])][0] for i in found])
+        then = np.array([self._own[int(track_ids[i])][1] for i in found])
+        now = np.asarray(proj_xyxy, dtype=float)[idx]
+        size_then = then[:, 2:] - then[:, :2]
+        ok = np.isfinite(now).all(axis=1) & (size_then > 0).all(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            scale = (now[:, 2:] - now[:, :2]) / size_then  # (w, h) now / then
+        centre_then, centre_now = (then[:, :2] + then[:, 2:]) / 2, (now[:, :2] + now[:, 2:]) / 2
+        corner_min = centre_now + (own[:, :2] - centre_then) * scale
+        corner_max = centre_now + (own[:, 2:] - centre_then) * scale
+        return idx[ok], np.hstack([corner_min, corner_max])[ok]
+
+
 def kitti_lines(
     output: TrackOutput,
     camera: Camera,
@@ -136,6 +180,7 @@ def kitti_lines(
     width_scale: FloatArray | None = None,
     own_rows: np.ndarray | None = None,
     detection_width_scale: FloatArray | None = None,
+    carried: CarriedBoxes | None = None,
 ) -> list[str]:
     """label_02 lines of one frame: boxes not visible in the image are left out (KITTI GT only
     annotates objects in the camera view, so anything else would count as a false positive).
@@ -144,7 +189,9 @@ def kitti_lines(
     each projected 2D box about its centre (before clipping to the image). With ``detections``
     (the frame's input boxes), a track matched this frame reports its detection's own 2D box
     instead, where ``own_rows`` (per detection; None: every detection) says so, its width
-    scaled about its centre by ``detection_width_scale`` (per detection; None: 1).
+    scaled about its centre by ``detection_width_scale`` (per detection; None: 1). With
+    ``carried`` (the sequence's :class:`CarriedBoxes`, frames in order), a coasting track
+    reports its last own box carried along.
     """
     boxes = output.boxes
     if not len(boxes):
@@ -161,10 +208,17 @@ def kitti_lines(
         det_xyxy = det_xyxy[ok]
         if detection_width_scale is not None:
             det_xyxy = narrow_about_centre(det_xyxy, detection_width_scale[rows[idx]])
-        xyxy = xyxy.copy()
+        proj, xyxy = xyxy, xyxy.copy()
         xyxy[idx] = det_xyxy
         visible = visible.copy()
         visible[idx] = True
+        if carried is not None:
+            ids = boxes.track_id
+            coasting = np.flatnonzero(rows < 0)
+            at, moved = carried.carry(ids[coasting], proj[coasting])
+            xyxy[coasting[at]] = moved
+            other = np.setdiff1d(np.flatnonzero(rows >= 0), idx)
+            carried.remember(ids[idx], det_xyxy, proj[idx], ids[other])
     lines = []
     for i in np.flatnonzero(visible):
         name = KITTI_CLASS_NAMES.get(CATEGORIES[boxes.category[i]], CATEGORIES[boxes.category[i]])
@@ -193,10 +247,12 @@ def write_kitti_sequence(
     the 2D box of a track matched in a frame is its projection, its detection's 2D box, or
     (auto) its detection's box where that box is its own, not its 3D box's projection
     (:class:`ImageBoxStats`; the width convention is learnt from the frames up to the one
-    written, so online output stays online)."""
+    written, so online output stays online); with auto, a coasting track carries its last own
+    box along (:class:`CarriedBoxes`). ``outputs`` are in frame order."""
     mode = ImageBoxes(image_boxes)
     by_frame = {f.frame_id: f for f in frames}
     stats = ImageBoxStats(np.ones(len(CATEGORIES)) if width_scale is None else width_scale)
+    carried = CarriedBoxes() if mode is ImageBoxes.AUTO else None
     lines: list[str] = []
     for out in outputs:
         frame = by_frame[out.frame_id]
@@ -215,7 +271,7 @@ def write_kitti_sequence(
             kitti_lines(
                 out, camera, dets, width_scale=width_scale,
                 own_rows=(dets.camera == index) if mode is ImageBoxes.DETECTION else own,
-                detection_width_scale=scale,
+                detection_width_scale=scale, carried=carried,
             )
         )  # fmt: skip
     write_text_atomic(path, lines)
