@@ -78,7 +78,8 @@ class ImageBoxes(enum.Enum):
     PROJECTION = "projection"  # the tracked 3D box's projection, always
     DETECTION = "detection"  # the matched detection's own 2D box
     # the detection's 2D box where it is its own, not its 3D box's projection (an image
-    # head's), else the projection (tracker.io.writers.ImageBoxStats)
+    # head's), else the projection (tracker.io.writers.ImageBoxStats); a coasting track
+    # carries its last own box along with its projection (tracker.io.writers.CarriedBoxes)
     AUTO = "auto"
 
 
