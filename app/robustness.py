@@ -110,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         detector=args.detector,
         levels=_names(args.levels),
-        custom_levels=dict(parse_level(text) for text in args.level),
+        custom_levels=parse_levels(args.level),
         seeds=_seeds(args.seeds),
         score_sigma=args.score_sigma,
         image_boxes=args.image_boxes,
@@ -158,9 +158,12 @@ def run_robustness(
     if score_sigma < 0 or not np.isfinite(score_sigma):
         raise InputError(f"--score-sigma must be a finite value >= 0, got {score_sigma}")
     custom_levels = dict(custom_levels or {})
-    taken = [name for name in custom_levels if name in NOISE_LEVELS]
+    taken = [name for name in custom_levels if name.lower() in NOISE_LEVELS]
     if taken:
         raise InputError(f"--level: {taken} already name built-in levels; choose other names")
+    bad = [name for name in custom_levels if not LEVEL_NAME.fullmatch(name)]
+    if bad:  # (the name is a folder under out/runs)
+        raise InputError(f"--level: names {bad} are not 1-64 letters, digits, '_' or '-'")
     specs = {CLEAN: NOISE_LEVELS[CLEAN]}  # the reference every drop is measured from
     for name, spec in [*((n, NOISE_LEVELS[n]) for n in levels), *custom_levels.items()]:
         if name != CLEAN:
@@ -332,10 +335,25 @@ _LEVEL_PARTS = {
 }
 
 
+LEVEL_NAME = re.compile(r"[A-Za-z0-9_-]{1,64}")
+
+
+def parse_levels(texts: Sequence[str]) -> dict[str, PerturbSpec]:
+    """``--level`` arguments, by name; a name given twice (in any case: it names a folder) is an
+    error."""
+    levels: dict[str, PerturbSpec] = {}
+    for text in texts:
+        name, spec = parse_level(text)
+        if name.lower() in {n.lower() for n in levels}:
+            raise InputError(f"--level {text!r}: a level named {name!r} is given already")
+        levels[name] = spec
+    return levels
+
+
 def parse_level(text: str) -> tuple[str, PerturbSpec]:
     """``NAME:drop=R:centre=M:yaw=DEG:fp=R`` (parts optional, 0 when left out)."""
     name, *parts = text.split(":")
-    if not re.fullmatch(r"[A-Za-z0-9_-]{1,64}", name):
+    if not LEVEL_NAME.fullmatch(name):
         raise InputError(
             f"--level {text!r}: the name must be 1-64 letters, digits, '_' or '-' "
             "(it names the level's folder under --out)"
@@ -361,8 +379,14 @@ def parse_level(text: str) -> tuple[str, PerturbSpec]:
 
 def level_text(name: str, spec: dict[str, float]) -> str:
     """The ``--level`` argument that makes the level ``name`` with noise ``spec``."""
-    parts = [f"{k}={spec[f]:g}" for k, f in _LEVEL_PARTS.items() if spec[f]]
+    parts = [f"{k}={_number(spec[f])}" for k, f in _LEVEL_PARTS.items() if spec[f]]
     return ":".join([name, *parts])
+
+
+def _number(value: float) -> str:
+    """The shortest text that reads back as ``value``."""
+    short = f"{value:g}"
+    return short if float(short) == value else repr(value)
 
 
 def _names(text: str) -> list[str]:

@@ -36,6 +36,7 @@ import sys
 import tempfile
 import threading
 import zipfile
+import zlib
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -68,11 +69,12 @@ _PROGRESS: list[Callable[[int], Any]] = []
 
 # Ray Tune's own state files at the top of an experiment folder (trials, searcher, search
 # generator, callbacks), as its TuneController and SearchGenerator name them
+# (Ray writes its callbacks' states after asking them, so those are not part of a whole save;
+# none of ours keeps state)
 RAY_STATE_FILES = (
     "experiment_state-*.json",
     "search_gen_state-*.json",
     "searcher-state-*.pkl",
-    "callback-states-*.pkl",
 )
 SNAPSHOT_SUFFIX = ".resume.zip"  # OUT/ray_tune/<search>.resume.zip, beside the experiment
 
@@ -102,10 +104,11 @@ class _Snapshot(tune.Callback):
     def get_state(self) -> dict | None:
         if self._storage is not None:
             experiment = Path(self._storage.experiment_fs_path)
-            write_snapshot(
-                Path(self._storage.experiment_driver_staging_path),
-                experiment.with_name(experiment.name + SNAPSHOT_SUFFIX),
-            )
+            snapshot = experiment.with_name(experiment.name + SNAPSHOT_SUFFIX)
+            try:
+                write_snapshot(Path(self._storage.experiment_driver_staging_path), snapshot)
+            except OSError as exc:  # the previous snapshot stays whole; a resume starts there
+                print(f"mctrack tune: could not write {snapshot} ({exc})", file=sys.stderr)
         return None  # stateless: Ray Tune writes no file for it
 
 
@@ -140,7 +143,10 @@ def restore_snapshot(experiment: Path, snapshot: Path) -> int:
             raise ValueError("not Ray Tune's state files")
         state = json.loads(files[names[-1]])  # Ray Tune restores from the newest
         kept = {f"trial_{json.loads(t[0])['trial_id']}" for t in state["trial_data"]}
-    except (OSError, ValueError, KeyError, TypeError, IndexError, zipfile.BadZipFile) as exc:
+    except (
+        OSError, EOFError, ValueError, KeyError, TypeError, IndexError, zipfile.BadZipFile,
+        zlib.error,
+    ) as exc:  # fmt: skip
         raise InputError(
             f"{snapshot}: not a saved Ray Tune search ({exc}); pass another --out"
         ) from None
@@ -158,17 +164,30 @@ def restore_snapshot(experiment: Path, snapshot: Path) -> int:
 
 
 def prepare_resume(experiment: Path) -> str:
-    """Before a search runs: puts back its last whole save (``"restored"``), removes a folder
-    that has none (``"started over"``: killed before a save held a trial), or ``"new"``."""
+    """Before a search runs: puts back its last whole save (``"restored"``); leaves a folder
+    without one that holds trials to Ray Tune's own restore (``"unsnapshotted"``: written by a
+    version before the snapshots); removes one that holds none (``"started over"``: stopped
+    before a save after a trial started); else ``"new"``."""
     snapshot = experiment.with_name(experiment.name + SNAPSHOT_SUFFIX)
     if snapshot.is_file():
         experiment.mkdir(parents=True, exist_ok=True)
         restore_snapshot(experiment, snapshot)
         return "restored"
-    if experiment.exists():
-        shutil.rmtree(experiment)
-        return "started over"
-    return "new"
+    if not experiment.exists():
+        return "new"
+    if (experiment / "tuner.pkl").is_file() and _holds_trials(experiment):
+        return "unsnapshotted"
+    shutil.rmtree(experiment)
+    return "started over"
+
+
+def _holds_trials(experiment: Path) -> bool:
+    """Whether Ray Tune's newest experiment state in ``experiment`` lists a trial."""
+    states = sorted(experiment.glob(RAY_STATE_FILES[0]))
+    try:
+        return bool(states and json.loads(states[-1].read_bytes())["trial_data"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
 
 
 class _Progress(tune.Callback):
@@ -319,10 +338,17 @@ class RaySearch:
                 {"cpu": 1},
             )
             path = self.state / key
-            if prepare_resume(path) == "started over":
+            how = prepare_resume(path)
+            if how == "started over":
                 print(
-                    f"mctrack tune: search {key} was stopped before its first save that held a "
-                    "trial; it starts over",
+                    f"mctrack tune: search {key} was stopped before its first save after a trial "
+                    "started; it starts over",
+                    file=sys.stderr,
+                )
+            elif how == "unsnapshotted":
+                print(
+                    f"mctrack tune: search {key} was saved by an earlier version, without a whole "
+                    f"snapshot; resuming from Ray Tune's own copy in {path}",
                     file=sys.stderr,
                 )
             if tune.Tuner.can_restore(str(path)):

@@ -339,6 +339,8 @@ def test_a_level_of_your_own(
     )
     noise = dataclasses.asdict(NOISE_LEVELS["noise"])
     assert parse_level(level_text("mine", noise)) == ("mine", NOISE_LEVELS["noise"])
+    odd = PerturbSpec(centre_sigma_m=0.1234567891, fp_rate=1 / 3)
+    assert parse_level(level_text("odd", dataclasses.asdict(odd))) == ("odd", odd)
 
     out = tmp_path / "rob"
     args = ["--kitti-root", str(sample_kit), "--seqs", "0001", "--classes", "car", "--seeds", "0"]
@@ -364,13 +366,15 @@ def test_a_level_of_your_own(
         ("a:centre=far", "centre must be a number"),
         ("a:drop=1.5", "drop_rate: expected <= 1"),
         ("a:fp=-1", "fp_rate: expected a finite value >= 0"),
-        ("noise:drop=0.2", "already name built-in levels"),
+        ("Noise:drop=0.2", "already name built-in levels"),
+        ("a:drop=0.1 --level A:drop=0.2", "a level named 'A' is given already"),
     ],
 )
 def test_bad_levels_are_one_line_errors(
     sample_kit: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], level: str, message: str
 ) -> None:
-    argv = ["robustness", "--kitti-root", str(sample_kit), "--seqs", "0001", "--level", level]
+    levels = [arg for text in level.split(" --level ") for arg in ("--level", text)]
+    argv = ["robustness", "--kitti-root", str(sample_kit), "--seqs", "0001", *levels]
     assert main([*argv, "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err and "--level" in err, err

@@ -291,10 +291,27 @@ def test_a_resume_puts_back_the_last_whole_save(tmp_path: Path) -> None:
         "tuner.pkl",
     ]
 
-    other = tmp_path / "fold2"  # stopped before a save held a trial: no snapshot
+    other = tmp_path / "fold2"  # stopped before a save after a trial started: no snapshot
     (other / "trial_ccc").mkdir(parents=True)
+    (other / "experiment_state-s1.json").write_text('{"trial_data": []}')
+    (other / "tuner.pkl").write_bytes(b"tuner")
     assert tune_ray.prepare_resume(other) == "started over" and not other.exists()
     assert tune_ray.prepare_resume(other) == "new"
+    # a folder an earlier version wrote (trials saved, no snapshot): left to Ray Tune's restore
+    (other / "trial_ccc").mkdir(parents=True)
+    (other / "experiment_state-s1.json").write_text(json.dumps({"trial_data": [[trial, "{}"]]}))
+    (other / "tuner.pkl").write_bytes(b"tuner")
+    assert tune_ray.prepare_resume(other) == "unsnapshotted" and (other / "trial_ccc").is_dir()
+
+    # a snapshot whose compressed data is damaged (zlib fails): a one-line error
+    with zipfile.ZipFile(snapshot) as archive:
+        info = archive.getinfo("experiment_state-s1.json")
+    whole = bytearray(snapshot.read_bytes())
+    data = info.header_offset + 30 + len(info.filename) + len(info.extra)
+    whole[data : data + 4] = b"\xff\xff\xff\xff"  # not a deflate block
+    snapshot.write_bytes(bytes(whole))
+    with pytest.raises(tune_ray.InputError, match="not a saved Ray Tune search"):
+        tune_ray.restore_snapshot(experiment, snapshot)
 
     snapshot.write_bytes(b"PK not a zip")
     with pytest.raises(

@@ -216,7 +216,9 @@ def kitti_lines(
             ids = boxes.track_id
             coasting = np.flatnonzero(rows < 0)
             at, moved = carried.carry(ids[coasting], proj[coasting])
-            xyxy[coasting[at]] = moved
+            # into the image, as every written box; one left with no area keeps the projection
+            moved, inside = clip_boxes_to_image(moved, np.ones(len(at), dtype=bool), camera)
+            xyxy[coasting[at[inside]]] = moved[inside]
             other = np.setdiff1d(np.flatnonzero(rows >= 0), idx)
             carried.remember(ids[idx], det_xyxy, proj[idx], ids[other])
     lines = []
