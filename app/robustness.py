@@ -70,7 +70,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--level",
         action="append",
-        default=[],
         metavar="NAME:drop=R:centre=M:yaw=DEG:fp=R",
         help="a level of your own, run after --levels (repeatable): drop rate in [0, 1], centre"
         " jitter σ in metres, yaw jitter σ in degrees, false positives per real box; parts left"
@@ -110,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         detector=args.detector,
         levels=_names(args.levels),
-        custom_levels=parse_levels(args.level),
+        custom_levels=parse_levels(args.level or []),
         seeds=_seeds(args.seeds),
         score_sigma=args.score_sigma,
         image_boxes=args.image_boxes,
