@@ -131,18 +131,24 @@ def write_snapshot(staging: Path, snapshot: Path) -> None:
     write_bytes_atomic(snapshot, buffer.getvalue())
 
 
-def restore_snapshot(experiment: Path, snapshot: Path) -> int:
+def _trial_folders(experiment_state: bytes) -> set[str]:
+    """The trial folders (``trial_<id>``, :func:`_trial_dirname`) an experiment state lists."""
+    return {
+        f"trial_{json.loads(t[0])['trial_id']}" for t in json.loads(experiment_state)["trial_data"]
+    }
+
+
+def restore_snapshot(experiment: Path, snapshot: Path) -> None:
     """Puts the state files of ``snapshot`` back in ``experiment``, in place of whatever a kill
     left there, and removes the folders of trials that state does not hold (they are proposed
-    again). Returns how many trial folders were removed."""
+    again)."""
     try:
         with zipfile.ZipFile(snapshot) as archive:
             files = {name: archive.read(name) for name in archive.namelist()}
         names = sorted(n for n in files if Path(n).match(RAY_STATE_FILES[0]))
         if not names or any(not _is_state_name(n) for n in files):
             raise ValueError("not Ray Tune's state files")
-        state = json.loads(files[names[-1]])  # Ray Tune restores from the newest
-        kept = {f"trial_{json.loads(t[0])['trial_id']}" for t in state["trial_data"]}
+        kept = _trial_folders(files[names[-1]])  # Ray Tune restores from the newest
     except (
         OSError, EOFError, ValueError, KeyError, TypeError, IndexError, zipfile.BadZipFile,
         zlib.error,
@@ -155,12 +161,9 @@ def restore_snapshot(experiment: Path, snapshot: Path) -> int:
             path.unlink()
     for name, data in files.items():
         write_bytes_atomic(experiment / name, data)
-    removed = 0
     for path in sorted(experiment.glob("trial_*")):
         if path.is_dir() and path.name not in kept:
             shutil.rmtree(path)
-            removed += 1
-    return removed
 
 
 def prepare_resume(experiment: Path) -> str:
@@ -185,8 +188,8 @@ def _holds_trials(experiment: Path) -> bool:
     """Whether Ray Tune's newest experiment state in ``experiment`` lists a trial."""
     states = sorted(experiment.glob(RAY_STATE_FILES[0]))
     try:
-        return bool(states and json.loads(states[-1].read_bytes())["trial_data"])
-    except (OSError, ValueError, KeyError, TypeError):
+        return bool(states and _trial_folders(states[-1].read_bytes()))
+    except (OSError, ValueError, KeyError, TypeError, IndexError):
         return False
 
 

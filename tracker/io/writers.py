@@ -155,12 +155,14 @@ class CarriedBoxes:
     def carry(self, track_ids: np.ndarray, proj_xyxy: FloatArray) -> tuple[np.ndarray, FloatArray]:
         """For coasting tracks with their projections now: (indices into ``track_ids`` that
         have a box to carry, those boxes)."""
-        found = [i for i, tid in enumerate(track_ids.tolist()) if tid in self._own]
+        found = [
+            (i, self._own[tid]) for i, tid in enumerate(track_ids.tolist()) if tid in self._own
+        ]
         if not found:
             return np.zeros(0, dtype=np.int64), np.zeros((0, 4))
-        idx = np.asarray(found, dtype=np.int64)
-        own = np.array([self._own[int(track_ids[i])][0] for i in found])
-        then = np.array([self._own[int(track_ids[i])][1] for i in found])
+        idx = np.array([i for i, _ in found], dtype=np.int64)
+        own = np.array([box for _, (box, _) in found])
+        then = np.array([proj for _, (_, proj) in found])
         now = np.asarray(proj_xyxy, dtype=float)[idx]
         size_then = then[:, 2:] - then[:, :2]
         ok = np.isfinite(now).all(axis=1) & (size_then > 0).all(axis=1)
