@@ -1,0 +1,175 @@
+"""Where a run's false negatives are, and whether the detector saw them (an oracle, on the labels).
+
+    python bench/fn_anatomy.py RESULTS_DIR --detector NAME [--kitti-root ROOT] [--class car]
+
+RESULTS_DIR holds KITTI result files (`mctrack kitti --out DIR` writes them to DIR/data). A
+ground-truth row that TrackEval keeps after its KITTI preprocessing and that the frame's
+Hungarian matching (2D IoU >= 0.5) leaves unpaired is a false negative. It is classed twice:
+
+- *seen*: some box of the detector's, of the class and at any score, overlaps it at IoU >= 0.5
+  (the detections written as a result file, one id per box, through the same preprocessing).
+  An unseen row can only come back by interpolating or extrapolating a track;
+- where it sits in its object's history: before the object's first matched frame, after its
+  last, in between, or an object the run never matches.
+
+It also reports the false-positive rows before a track's first true positive
+(bench/fp_anatomy.py) whose object, the one the track matches first, has no label at all in that
+frame: the detector and the tracker found an object the annotators had not labelled yet.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from app.inputs import default_kitti_root
+from tracker.eval.kitti import evaluate_kitti_sequence
+
+PLACES = ("before", "inside", "after", "never matched")
+
+
+def _pairs(gt_ids: np.ndarray, trk_ids: np.ndarray, sim: np.ndarray) -> dict[int, int]:
+    """``{ground-truth id: result id}`` of one frame: Hungarian on IoU >= 0.5 (TrackEval's)."""
+    if not sim.size:
+        return {}
+    score = np.where(sim >= 0.5 - np.finfo(float).eps, sim, 0.0)
+    r, c = linear_sum_assignment(-score)
+    return {int(gt_ids[a]): int(trk_ids[b]) for a, b in zip(r, c, strict=True) if score[a, b] > 0}
+
+
+def _length(*files: Path) -> int:
+    """A sequence's length: its last labelled, tracked or detected frame + 1."""
+    frames = [
+        int(line.split(maxsplit=1)[0])
+        for f in files
+        if f.is_file()
+        for line in f.read_text().splitlines()
+        if line.strip()
+    ]
+    return max(frames, default=-1) + 1
+
+
+def classify_misses(
+    label_file: Path, result_file: Path, detection_file: Path, cls: str
+) -> Counter[tuple[str, bool]]:
+    """Count one sequence's false negatives by ``(place, seen)`` (see the module docstring).
+    ``detection_file``: the detector's boxes in the KITTI result format, one id per box."""
+    n = _length(label_file, result_file, detection_file)
+    run = evaluate_kitti_sequence(
+        label_file=label_file, result_file=result_file, num_timesteps=n, classes=[cls],
+        keep_id_inputs=True,
+    ).id_inputs[cls]  # fmt: skip
+    dets = evaluate_kitti_sequence(
+        label_file=label_file, result_file=detection_file, num_timesteps=n, classes=[cls],
+        keep_id_inputs=True,
+    ).id_inputs[cls]  # fmt: skip
+    matched = [_pairs(*(x[t] for x in run)) for t in range(n)]
+    first: dict[int, int] = {}
+    last: dict[int, int] = {}
+    for t, pairs in enumerate(matched):
+        for gid in pairs:
+            first.setdefault(gid, t)
+            last[gid] = t
+    counts: Counter[tuple[str, bool]] = Counter()
+    for t in range(n):
+        gt_ids, _, sim = (x[t] for x in dets)
+        seen = (
+            set(gt_ids[sim.max(axis=1) >= 0.5 - np.finfo(float).eps].tolist())
+            if sim.size
+            else set()
+        )
+        for gid in run[0][t].tolist():
+            if gid in matched[t]:
+                continue
+            if gid not in first:
+                place = PLACES[3]
+            else:
+                place = PLACES[0] if t < first[gid] else PLACES[2] if t > last[gid] else PLACES[1]
+            counts[place, gid in seen] += 1
+    return counts
+
+
+def unlabelled_leading_rows(label_file: Path, result_file: Path, cls: str) -> tuple[int, int]:
+    """(false-positive rows before their track's first true positive, those of them whose
+    object, the ground truth the track matches first, has no row in the label file that frame)."""
+    from fp_anatomy import KINDS, classify
+
+    n = _length(label_file, result_file)
+    kinds = classify(result_file, label_file, n, cls)
+    run = evaluate_kitti_sequence(
+        label_file=label_file, result_file=result_file, num_timesteps=n, classes=[cls],
+        keep_id_inputs=True,
+    ).id_inputs[cls]  # fmt: skip
+    first: dict[int, int] = {}  # track id -> the ground-truth id it matches first
+    for t in range(n):
+        for gid, tid in _pairs(*(x[t] for x in run)).items():
+            first.setdefault(tid, gid)
+    labelled = {
+        (int(c[0]), int(c[1]))
+        for c in (line.split() for line in label_file.read_text().splitlines())
+        if len(c) > 1
+    }
+    leading = [key for key, kind in kinds.items() if kind == KINDS[1]]
+    return len(leading), sum((t, first[tid]) not in labelled for t, tid in leading)
+
+
+def write_detections(kitti_root: Path, detector: str, seqs: list[str], cls: str, out: Path) -> None:
+    """The detector's boxes of ``cls`` (any layout the tracker reads) as KITTI result files, one
+    id per box, so TrackEval's preprocessing treats them as it treats a run's rows."""
+    from tracker.categories import category_index
+    from tracker.io.convert.kitti import convert_kitti
+
+    frames, _ = convert_kitti(kitti_root, seqs=seqs, detector=detector, classes=[cls])
+    name = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}[cls]
+    out.mkdir(parents=True, exist_ok=True)
+    for seq, scene in frames.items():
+        lines, next_id = [], 0
+        for t, frame in enumerate(scene):
+            keep = frame.boxes.category == category_index(cls)
+            for box in frame.boxes.xyxy_image[keep]:
+                if np.isfinite(box).all():
+                    coords = " ".join(f"{v:.2f}" for v in box)
+                    lines.append(f"{t} {next_id} {name} 0 0 0 {coords} 1 1 1 0 0 10 0 1\n")
+                    next_id += 1
+        (out / f"{seq}.txt").write_text("".join(lines))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("results", type=Path)
+    parser.add_argument("--detector", required=True, help="the run's detections folder name")
+    parser.add_argument("--kitti-root", type=Path, default=None)
+    parser.add_argument("--class", dest="cls", default="car")
+    args = parser.parse_args()
+    root = args.kitti_root or default_kitti_root()
+    label_dir = root / "training" / "label_02"
+    seqs = sorted(f.stem for f in args.results.glob("*.txt"))
+    counts: Counter[tuple[str, bool]] = Counter()
+    leading = unlabelled = 0
+    with tempfile.TemporaryDirectory(prefix="fn-anatomy-") as tmp:
+        write_detections(root, args.detector, seqs, args.cls, Path(tmp))
+        for seq in seqs:
+            label, result = label_dir / f"{seq}.txt", args.results / f"{seq}.txt"
+            counts += classify_misses(label, result, Path(tmp) / f"{seq}.txt", args.cls)
+            a, b = unlabelled_leading_rows(label, result, args.cls)
+            leading, unlabelled = leading + a, unlabelled + b
+    print("| missed rows | " + " | ".join(PLACES) + " | all |")
+    print("|---|" + "---:|" * (len(PLACES) + 1))
+    for seen in (True, False):
+        cells = [counts[p, seen] for p in PLACES]
+        name = "a detection at IoU >= 0.5" if seen else "no detection at IoU >= 0.5"
+        print(f"| {name} | " + " | ".join(map(str, cells)) + f" | {sum(cells)} |")
+    print(
+        f"false positives before their track's first true positive: {leading}, of which their"
+        f" object has no label in that frame: {unlabelled}"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
