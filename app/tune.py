@@ -130,6 +130,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=",".join(VALIDATION_SEQS),
         help="labelled sequences the folds are made of (default: the 11 validation sequences)",
     )
+    parser.add_argument(
+        "--search",
+        action="append",
+        default=None,
+        metavar="KEY=KIND:LOW:HIGH",
+        help="also search this setting of the class, KIND int, float or log (repeatable; e.g. "
+        "lifecycle.max_misses_tentative=int:0:2)",
+    )
     parser.add_argument("--out", required=True, help="output folder (tune.json, best.toml)")
     parser.add_argument(
         "--ray",
@@ -146,6 +154,50 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="with --ray: trials at once (default: the cluster's CPUs)",
     )
+
+
+def parse_search(text: str) -> tuple[str, tuple[str, float, float]]:
+    """``--search KEY=KIND:LOW:HIGH`` → ``(key, (kind, low, high))``."""
+    key, _, spec = text.partition("=")
+    parts = spec.split(":")
+    if not key.strip() or len(parts) != 3:
+        example = "lifecycle.min_hits=int:2:5"
+        raise InputError(f"--search {text!r}: expected KEY=KIND:LOW:HIGH (e.g. {example})")
+    kind, low_text, high_text = (p.strip() for p in parts)
+    if kind not in ("int", "float", "log"):
+        raise InputError(f"--search {text!r}: KIND must be int, float or log, not {kind!r}")
+    try:
+        low, high = float(low_text), float(high_text)
+    except ValueError:
+        raise InputError(f"--search {text!r}: LOW and HIGH must be numbers") from None
+    if not low < high or (kind == "log" and low <= 0):
+        raise InputError(f"--search {text!r}: needs LOW < HIGH (and LOW > 0 for log)")
+    if kind == "int" and not (low.is_integer() and high.is_integer()):
+        raise InputError(f"--search {text!r}: int bounds must be whole numbers")
+    return key.strip(), (kind, low, high)
+
+
+def searched_settings(
+    texts: Sequence[str], config: Any, cls: str
+) -> dict[str, tuple[str, float, float]]:
+    """``--search`` texts → space entries, each key checked against the loaded ``config``: a
+    number setting of ``cls`` (or ``offline.``), an integer one searched as ``int``."""
+    space = {}
+    for text in texts:
+        key, spec = parse_search(text)
+        space[key] = spec
+        if key in ("lifecycle.confirm_nines", "pose.ca.r"):  # (the tune's own encodings)
+            continue
+        try:
+            current = _raw_value(config, cls, key)
+        except AttributeError as err:
+            message = f"--search {text!r}: not a setting of the {cls} config ({err})"
+            raise InputError(message) from None
+        if isinstance(current, bool) or not isinstance(current, int | float):
+            raise InputError(f"--search {text!r}: not a number in the {cls} config")
+        if isinstance(current, int) and spec[0] != "int":
+            raise InputError(f"--search {text!r}: {key} is an integer: KIND int")
+    return space
 
 
 def folds_by_frames(lengths: dict[str, int], k: int) -> list[list[str]]:
@@ -340,6 +392,12 @@ def _run(args: argparse.Namespace) -> int:
         import_ray()  # the one-line error when the extra is not installed, before any work
     elif args.max_concurrent is not None:
         raise InputError("--max-concurrent needs --ray (local trials run one at a time)")
+    cls = args.cls
+    config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
+    base = {"categories": [cls], "mode": args.mode}
+    base_config = load_config(config_name, overrides=base)  # fail early on a bad config
+    space = search_space(cls, args.mode, r_scale=base_config.per_category[cls].pose.r_scale > 0)
+    space.update(searched_settings(args.search or [], base_config, cls))
     root = args.kitti_root or default_kitti_root()
     detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
     seqs = [s.strip().zfill(4) for s in args.seqs.split(",") if s.strip()]
@@ -351,11 +409,6 @@ def _run(args: argparse.Namespace) -> int:
     unlabelled = [s for s in seqs if not (label_dir / f"{s}.txt").is_file()]
     if unlabelled:
         raise InputError(f"--seqs: no labels for {', '.join(unlabelled)} in {label_dir}")
-    cls = args.cls
-    config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
-    base = {"categories": [cls], "mode": args.mode}
-    base_config = load_config(config_name, overrides=base)  # fail early on a bad config
-    space = search_space(cls, args.mode, r_scale=base_config.per_category[cls].pose.r_scale > 0)
     out = Path(args.out)
     ray_search = None
     if args.ray is not None:
@@ -491,16 +544,22 @@ def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> d
             value: Any = -math.log10(max(1.0 - p, 1e-12))
         elif key == "pose.ca.r":
             value = config.per_category[cls].pose.ca.r[0]
-        elif key.startswith("offline."):
-            value = getattr(config.offline, key.split(".", 1)[1])
         else:
-            value = config.per_category[cls]
-            for part in key.split("."):
-                value = getattr(value, part)
+            value = _raw_value(config, cls, key)
         values[key] = min(max(value, low), high)
         if kind == "int":
             values[key] = int(values[key])
     return values
+
+
+def _raw_value(config: Any, cls: str, key: str) -> Any:
+    """A setting's value in a loaded config: ``offline.<name>`` or a dotted key of the class's."""
+    if key.startswith("offline."):
+        return getattr(config.offline, key.split(".", 1)[1])
+    value = config.per_category[cls]
+    for part in key.split("."):
+        value = getattr(value, part)
+    return value
 
 
 def search_space(

@@ -305,6 +305,8 @@ class RaySearch:
             "max_concurrent": args.max_concurrent,
             "kitti_root": str(root.resolve()),
         }
+        if args.search:  # (only when given: folders of runs without it still resume)
+            options["search"] = list(args.search)
         state = out / STATE_DIR
         check_options(state / "run.json", options)
         return cls(args.ray, args.workers, args.max_concurrent, args.trials, state, options)

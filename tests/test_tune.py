@@ -14,7 +14,9 @@ from app.tune import (
     _current,
     noise_levels,
     objective_value,
+    parse_search,
     search_space,
+    searched_settings,
     settings_to_overrides,
 )
 from tracker.config import load_config
@@ -192,3 +194,51 @@ def test_offline_choice_grid_parses_and_refuses_a_bare_key() -> None:
     }
     with pytest.raises(SystemExit, match="expected KEY=V1,V2"):
         _parse_choose(["offline.rts_r_multiple"])
+
+
+def test_search_adds_a_setting_the_config_accepts() -> None:
+    assert parse_search("lifecycle.max_misses_tentative=int:0:2") == (
+        "lifecycle.max_misses_tentative", ("int", 0.0, 2.0),
+    )  # fmt: skip
+    config = load_config("kitti", overrides={"categories": ["pedestrian"]})
+    extra = searched_settings(
+        ["lifecycle.max_misses_tentative=int:0:2", "bev.buffer=float:0.1:0.6"], config, "pedestrian"
+    )
+    assert extra == {
+        "lifecycle.max_misses_tentative": ("int", 0.0, 2.0),
+        "bev.buffer": ("float", 0.1, 0.6),
+    }
+    first = _current("kitti", {"categories": ["pedestrian"]}, "pedestrian", extra)
+    assert first == {"lifecycle.max_misses_tentative": 0, "bev.buffer": 0.3}
+    overrides = settings_to_overrides("pedestrian", {"lifecycle.max_misses_tentative": 2})
+    tuned = load_config("kitti", overrides=overrides).per_category["pedestrian"]
+    assert tuned.lifecycle.max_misses_tentative == 2
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("lifecycle.max_misses_tentative=int:0", "expected KEY=KIND:LOW:HIGH"),
+        ("bev.cost_max=normal:1:2", "KIND must be int, float or log"),
+        ("bev.cost_max=float:2:1", "needs LOW < HIGH"),
+        ("pose.r_scale=log:0:10", "LOW > 0 for log"),
+        ("lifecycle.min_hits=int:1.5:3", "whole numbers"),
+        ("lifecycle.no_such=int:0:2", "not a setting of the pedestrian config"),
+        ("bev=float:1:2", "not a number"),
+        ("lifecycle.max_misses_tentative=float:0:2", "is an integer: KIND int"),
+    ],
+)
+def test_a_bad_search_is_a_one_line_error_before_any_work(
+    text: str, message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(
+        [
+            "tune", "--class", "pedestrian", "--kitti-root", str(tmp_path / "no_kit"),
+            "--search", text, "--out", str(tmp_path / "t"),
+        ]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith(f"mctrack tune: error: --search {text!r}") and message in last
+    assert not (tmp_path / "t").exists()
