@@ -27,6 +27,7 @@ import argparse
 import dataclasses
 import json
 import logging
+import math
 import multiprocessing
 import shutil
 import tempfile
@@ -170,6 +171,8 @@ def parse_search(text: str) -> tuple[str, tuple[str, float, float]]:
         low, high = float(low_text), float(high_text)
     except ValueError:
         raise InputError(f"--search {text!r}: LOW and HIGH must be numbers") from None
+    if not (math.isfinite(low) and math.isfinite(high)):
+        raise InputError(f"--search {text!r}: LOW and HIGH must be finite")
     if not low < high or (kind == "log" and low <= 0):
         raise InputError(f"--search {text!r}: needs LOW < HIGH (and LOW > 0 for log)")
     if kind == "int" and not (low.is_integer() and high.is_integer()):
@@ -177,26 +180,44 @@ def parse_search(text: str) -> tuple[str, tuple[str, float, float]]:
     return key.strip(), (kind, low, high)
 
 
-def searched_settings(
-    texts: Sequence[str], config: Any, cls: str
+def with_searched(
+    space: dict[str, tuple[str, float, float]],
+    texts: Sequence[str],
+    config: Any,
+    cls: str,
+    mode: str,
 ) -> dict[str, tuple[str, float, float]]:
-    """``--search`` texts → space entries, each key checked against the loaded ``config``: a
-    number setting of ``cls`` (or ``offline.``), an integer one searched as ``int``."""
-    space = {}
+    """``space`` with the ``--search`` settings added, each checked against the loaded
+    ``config``: a number setting of ``cls`` (``offline.<name>`` in offline mode), searched as an
+    ``int`` if it is one, not searched already and not set by a searched one."""
+    space = dict(space)
     for text in texts:
         key, spec = parse_search(text)
+        where = f"--search {text!r}"
+        if key in space:
+            kind, low, high = space[key]
+            raise InputError(f"{where}: {key} is searched already ({kind} {low:g}..{high:g})")
+        if key == "lifecycle.confirm_prob":
+            raise InputError(f"{where}: searched already, as lifecycle.confirm_nines")
+        if key == "pose.r_scale" and "pose.ca.r" in space:
+            raise InputError(f"{where}: this config's filter has a fixed r (pose.ca.r, searched)")
+        if key.startswith("offline.") and mode != "offline":
+            raise InputError(f"{where}: an offline setting, searched with --mode offline only")
+        section, value = ("[offline]", config.offline) if key.startswith("offline.") else (
+            f"the {cls} settings", config.per_category[cls]
+        )  # fmt: skip
+        parts = key.split(".")[1:] if key.startswith("offline.") else key.split(".")
+        for part in parts:
+            if not dataclasses.is_dataclass(value) or not hasattr(value, part):
+                raise InputError(f"{where}: {section} have no setting {key!r}")
+            value = getattr(value, part)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise InputError(f"{where}: {key} is not a number setting")
+        if isinstance(value, int) != (spec[0] == "int"):
+            need = "int" if isinstance(value, int) else "float or log"
+            what = "an int" if isinstance(value, int) else "a float"
+            raise InputError(f"{where}: {key} is {what} setting: KIND {need}")
         space[key] = spec
-        if key in ("lifecycle.confirm_nines", "pose.ca.r"):  # (the tune's own encodings)
-            continue
-        try:
-            current = _raw_value(config, cls, key)
-        except AttributeError as err:
-            message = f"--search {text!r}: not a setting of the {cls} config ({err})"
-            raise InputError(message) from None
-        if isinstance(current, bool) or not isinstance(current, int | float):
-            raise InputError(f"--search {text!r}: not a number in the {cls} config")
-        if isinstance(current, int) and spec[0] != "int":
-            raise InputError(f"--search {text!r}: {key} is an integer: KIND int")
     return space
 
 
@@ -397,7 +418,7 @@ def _run(args: argparse.Namespace) -> int:
     base = {"categories": [cls], "mode": args.mode}
     base_config = load_config(config_name, overrides=base)  # fail early on a bad config
     space = search_space(cls, args.mode, r_scale=base_config.per_category[cls].pose.r_scale > 0)
-    space.update(searched_settings(args.search or [], base_config, cls))
+    space = with_searched(space, args.search or [], base_config, cls, args.mode)
     root = args.kitti_root or default_kitti_root()
     detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
     seqs = [s.strip().zfill(4) for s in args.seqs.split(",") if s.strip()]
@@ -534,8 +555,6 @@ def _trial_list(trials: Trials) -> list[dict[str, Any]]:
 
 def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> dict[str, Any]:
     """The base config's own values of the searched settings (the first trial)."""
-    import math
-
     config = load_config(config_name, overrides=base)
     values: dict[str, Any] = {}
     for key, (kind, low, high) in space.items():

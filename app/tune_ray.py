@@ -47,7 +47,15 @@ from ray.tune.search import ConcurrencyLimiter
 from ray.tune.search.optuna import OptunaSearch
 
 from app import scenes
-from app.tune import Objective, Search, Trials, make_sampler, objective_value, suggest
+from app.tune import (
+    Objective,
+    Search,
+    Trials,
+    make_sampler,
+    objective_value,
+    parse_search,
+    suggest,
+)
 from tracker.config import config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
@@ -58,6 +66,8 @@ METRIC = "hota"  # the objective's name in a trial's result
 # order of proposal, and the best trial is the first of the best (as Optuna's own rule).
 NUMBER = "optuna_trial"
 STATE_DIR = "ray_tune"  # under --out: one Ray Tune experiment per search, and run.json
+# run.json keys written only when their option is given: a resume without it is a change too
+OPTIONAL_OPTIONS = frozenset({"search"})
 MAX_FAILURES = 3  # re-runs of a trial whose worker process died
 # By default Ray Tune saves an experiment's state no more often than every 10 s; a hard kill
 # then loses the trials finished since. Every second costs one small state write per second.
@@ -306,7 +316,10 @@ class RaySearch:
             "kitti_root": str(root.resolve()),
         }
         if args.search:  # (only when given: folders of runs without it still resume)
-            options["search"] = list(args.search)
+            options["search"] = sorted(
+                f"{key}={kind}:{low:g}:{high:g}"
+                for key, (kind, low, high) in map(parse_search, args.search)
+            )
         state = out / STATE_DIR
         check_options(state / "run.json", options)
         return cls(args.ray, args.workers, args.max_concurrent, args.trials, state, options)
@@ -445,7 +458,9 @@ def check_options(path: Path, options: dict[str, Any]) -> None:
     if not isinstance(saved, dict):
         raise InputError(f"{path}: not a tune run's options; pass another --out")
     changed = [
-        f"{k} {saved.get(k)!r} -> {options[k]!r}" for k in options if saved.get(k) != options[k]
+        f"{k} {saved.get(k)!r} -> {options.get(k)!r}"
+        for k in sorted(options.keys() | (saved.keys() & OPTIONAL_OPTIONS))
+        if saved.get(k) != options.get(k)
     ]
     if changed:
         raise InputError(

@@ -144,15 +144,25 @@ def main() -> int:
     parser.add_argument("results", type=Path)
     parser.add_argument("--detector", required=True, help="the run's detections folder name")
     parser.add_argument("--kitti-root", type=Path, default=None)
-    parser.add_argument("--class", dest="cls", default="car")
+    # (not pedestrians: their labelled 2D boxes are narrower than a LiDAR box's projection, which
+    # the writer narrows and a raw detection's box is not, so "seen" would be undercounted)
+    parser.add_argument("--class", dest="cls", default="car", choices=["car", "cyclist"])
     args = parser.parse_args()
     root = args.kitti_root or default_kitti_root()
     label_dir = root / "training" / "label_02"
     seqs = sorted(f.stem for f in args.results.glob("*.txt"))
+    if not seqs:
+        raise SystemExit(f"{args.results}: no <seq>.txt result files (mctrack kitti: DIR/data)")
+    unlabelled = [s for s in seqs if not (label_dir / f"{s}.txt").is_file()]
+    if unlabelled:
+        raise SystemExit(f"{label_dir}: no labels for {', '.join(unlabelled)}")
     counts: Counter[tuple[str, bool]] = Counter()
     leading = unlabelled = 0
     with tempfile.TemporaryDirectory(prefix="fn-anatomy-") as tmp:
-        write_detections(root, args.detector, seqs, args.cls, Path(tmp))
+        try:
+            write_detections(root, args.detector, seqs, args.cls, Path(tmp))
+        except (OSError, ValueError) as err:  # (InputError is a ValueError)
+            raise SystemExit(f"--detector {args.detector}: {err}") from None
         for seq in seqs:
             label, result = label_dir / f"{seq}.txt", args.results / f"{seq}.txt"
             counts += classify_misses(label, result, Path(tmp) / f"{seq}.txt", args.cls)

@@ -65,3 +65,11 @@ def test_leading_false_positives_of_unlabelled_objects(tmp_path: Path) -> None:
         + [_row(f, 3, D, 0.9) for f in (1, 2, 3)],
     )
     assert unlabelled_leading_rows(labels, results, "car") == (3, 2)
+
+
+def test_misses_after_the_last_match_with_no_detections_at_all(tmp_path: Path) -> None:
+    # car 11 on A in frames 0-3, tracked in 0-1; the detector has no box in any frame
+    labels = _write(tmp_path / "labels.txt", [_row(f, 11, A) for f in range(4)])
+    results = _write(tmp_path / "results.txt", [_row(f, 1, A, 0.9) for f in (0, 1)])
+    dets = _write(tmp_path / "dets.txt", [])
+    assert classify_misses(labels, results, dets, "car") == {("after", False): 2}

@@ -16,8 +16,8 @@ from app.tune import (
     objective_value,
     parse_search,
     search_space,
-    searched_settings,
     settings_to_overrides,
+    with_searched,
 )
 from tracker.config import load_config
 from tracker.errors import InputError
@@ -201,18 +201,28 @@ def test_search_adds_a_setting_the_config_accepts() -> None:
         "lifecycle.max_misses_tentative", ("int", 0.0, 2.0),
     )  # fmt: skip
     config = load_config("kitti", overrides={"categories": ["pedestrian"]})
-    extra = searched_settings(
-        ["lifecycle.max_misses_tentative=int:0:2", "bev.buffer=float:0.1:0.6"], config, "pedestrian"
+    built_in = search_space("pedestrian", "online")
+    space = with_searched(
+        built_in,
+        ["lifecycle.max_misses_tentative=int:0:2", "bev.buffer=float:0.1:0.6"],
+        config,
+        "pedestrian",
+        "online",
     )
-    assert extra == {
+    assert space == {
+        **built_in,
         "lifecycle.max_misses_tentative": ("int", 0.0, 2.0),
         "bev.buffer": ("float", 0.1, 0.6),
     }
+    extra = {k: v for k, v in space.items() if k not in built_in}
     first = _current("kitti", {"categories": ["pedestrian"]}, "pedestrian", extra)
     assert first == {"lifecycle.max_misses_tentative": 0, "bev.buffer": 0.3}
     overrides = settings_to_overrides("pedestrian", {"lifecycle.max_misses_tentative": 2})
     tuned = load_config("kitti", overrides=overrides).per_category["pedestrian"]
     assert tuned.lifecycle.max_misses_tentative == 2
+    offline = load_config("kitti_offline", overrides={"categories": ["car"]})
+    space = with_searched({}, ["offline.stitch_max_gap=int:0:40"], offline, "car", "offline")
+    assert space == {"offline.stitch_max_gap": ("int", 0.0, 40.0)}
 
 
 @pytest.mark.parametrize(
@@ -221,11 +231,17 @@ def test_search_adds_a_setting_the_config_accepts() -> None:
         ("lifecycle.max_misses_tentative=int:0", "expected KEY=KIND:LOW:HIGH"),
         ("bev.cost_max=normal:1:2", "KIND must be int, float or log"),
         ("bev.cost_max=float:2:1", "needs LOW < HIGH"),
+        ("bev.buffer=float:0:inf", "must be finite"),
         ("pose.r_scale=log:0:10", "LOW > 0 for log"),
         ("lifecycle.min_hits=int:1.5:3", "whole numbers"),
-        ("lifecycle.no_such=int:0:2", "not a setting of the pedestrian config"),
-        ("bev=float:1:2", "not a number"),
-        ("lifecycle.max_misses_tentative=float:0:2", "is an integer: KIND int"),
+        ("lifecycle.no_such=int:0:2", "pedestrian settings have no setting 'lifecycle.no_such'"),
+        ("bev=float:1:2", "bev is not a number setting"),
+        ("pose.ca.r=log:0.1:1", "pose.ca.r is not a number setting"),
+        ("lifecycle.max_misses_tentative=float:0:2", "is an int setting: KIND int"),
+        ("bev.buffer=int:0:2", "is a float setting: KIND float or log"),
+        ("bev.cost_max=float:1:3", "bev.cost_max is searched already (float 1..2)"),
+        ("lifecycle.confirm_prob=float:0.9:0.99", "searched already, as lifecycle.confirm_nines"),
+        ("offline.stitch_max_gap=int:0:40", "searched with --mode offline only"),
     ],
 )
 def test_a_bad_search_is_a_one_line_error_before_any_work(
@@ -240,5 +256,19 @@ def test_a_bad_search_is_a_one_line_error_before_any_work(
     err = capsys.readouterr().err
     assert code == 2 and "Traceback" not in err
     last = err.strip().splitlines()[-1]
-    assert last.startswith(f"mctrack tune: error: --search {text!r}") and message in last
+    assert last.startswith(f"mctrack tune: error: --search {text!r}") and message in last, last
     assert not (tmp_path / "t").exists()
+
+
+def test_a_search_given_twice_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(
+        [
+            "tune", "--class", "pedestrian", "--kitti-root", str(tmp_path / "no_kit"), "--search",
+            "bev.buffer=float:0.1:0.6", "--search", "bev.buffer=float:0.2:0.6",
+            "--out", str(tmp_path / "t"),
+        ]
+    )  # fmt: skip
+    assert code == 2
+    assert "bev.buffer is searched already (float 0.1..0.6)" in capsys.readouterr().err

@@ -318,3 +318,20 @@ def test_a_resume_puts_back_the_last_whole_save(tmp_path: Path) -> None:
         tune_ray.InputError, match=r"fold1\.resume\.zip: not a saved Ray Tune search"
     ):
         tune_ray.restore_snapshot(experiment, snapshot)
+
+
+def test_a_resume_with_other_search_settings_is_refused(tmp_path: Path) -> None:
+    """--search is recorded only when given: older folders resume, a dropped or changed --search
+    is a change, its order and spelling are not."""
+    tune_ray = pytest.importorskip("app.tune_ray")
+    run_json = tmp_path / "ray_tune" / "run.json"
+    run_json.parent.mkdir()
+    run_json.write_text(json.dumps({"class": "car", "search": ["bev.buffer=float:0.1:0.6"]}))
+    tune_ray.check_options(run_json, {"class": "car", "search": ["bev.buffer=float:0.1:0.6"]})
+    for options in ({"class": "car"}, {"class": "car", "search": ["bev.buffer=float:0.2:0.6"]}):
+        with pytest.raises(tune_ray.InputError, match=r"started with other options.*search"):
+            tune_ray.check_options(run_json, options)
+    run_json.write_text(json.dumps({"class": "car"}))  # a run from before --search
+    tune_ray.check_options(run_json, {"class": "car"})
+    with pytest.raises(tune_ray.InputError, match="search None -> "):
+        tune_ray.check_options(run_json, {"class": "car", "search": ["bev.buffer=float:0.1:0.6"]})
