@@ -203,14 +203,11 @@ def with_searched(
             raise InputError(f"{where}: this config's filter has a fixed r (pose.ca.r, searched)")
         if key.startswith("offline.") and mode != "offline":
             raise InputError(f"{where}: an offline setting, searched with --mode offline only")
-        section, value = ("[offline]", config.offline) if key.startswith("offline.") else (
-            f"the {cls} settings", config.per_category[cls]
-        )  # fmt: skip
-        parts = key.split(".")[1:] if key.startswith("offline.") else key.split(".")
-        for part in parts:
-            if not dataclasses.is_dataclass(value) or not hasattr(value, part):
-                raise InputError(f"{where}: {section} have no setting {key!r}")
-            value = getattr(value, part)
+        try:
+            value = _raw_value(config, cls, key)
+        except AttributeError:
+            section = "[offline]" if key.startswith("offline.") else cls
+            raise InputError(f"{where}: the {section} settings have no setting {key!r}") from None
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise InputError(f"{where}: {key} is not a number setting")
         if isinstance(value, int) != (spec[0] == "int"):

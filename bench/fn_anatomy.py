@@ -23,23 +23,20 @@ import argparse
 import tempfile
 from collections import Counter
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
+from fp_anatomy import KINDS, classify, id_inputs, matched_columns
 
 from app.inputs import default_kitti_root
-from tracker.eval.kitti import evaluate_kitti_sequence
 
 PLACES = ("before", "inside", "after", "never matched")
 
 
 def _pairs(gt_ids: np.ndarray, trk_ids: np.ndarray, sim: np.ndarray) -> dict[int, int]:
-    """``{ground-truth id: result id}`` of one frame: Hungarian on IoU >= 0.5 (TrackEval's)."""
-    if not sim.size:
-        return {}
-    score = np.where(sim >= 0.5 - np.finfo(float).eps, sim, 0.0)
-    r, c = linear_sum_assignment(-score)
-    return {int(gt_ids[a]): int(trk_ids[b]) for a, b in zip(r, c, strict=True) if score[a, b] > 0}
+    """``{ground-truth id: result id}`` of one frame's true positives."""
+    r, c = matched_columns(sim)
+    return dict(zip(gt_ids[r].tolist(), trk_ids[c].tolist(), strict=True))
 
 
 def _length(*files: Path) -> int:
@@ -55,20 +52,16 @@ def _length(*files: Path) -> int:
 
 
 def classify_misses(
-    label_file: Path, result_file: Path, detection_file: Path, cls: str
+    label_file: Path, result_file: Path, detection_file: Path, cls: str, *, run: Any = None
 ) -> Counter[tuple[str, bool]]:
     """Count one sequence's false negatives by ``(place, seen)`` (see the module docstring).
-    ``detection_file``: the detector's boxes in the KITTI result format, one id per box."""
+    ``detection_file``: the detector's boxes in the KITTI result format, one id per box; ``run``:
+    the result file's ``fp_anatomy.id_inputs``, when already computed."""
     n = _length(label_file, result_file, detection_file)
-    run = evaluate_kitti_sequence(
-        label_file=label_file, result_file=result_file, num_timesteps=n, classes=[cls],
-        keep_id_inputs=True,
-    ).id_inputs[cls]  # fmt: skip
-    dets = evaluate_kitti_sequence(
-        label_file=label_file, result_file=detection_file, num_timesteps=n, classes=[cls],
-        keep_id_inputs=True,
-    ).id_inputs[cls]  # fmt: skip
-    matched = [_pairs(*(x[t] for x in run)) for t in range(n)]
+    if run is None:
+        run = id_inputs(result_file, label_file, n, cls)
+    dets = id_inputs(detection_file, label_file, n, cls)
+    matched = [_pairs(*(x[t] for x in run)) for t in range(len(run[0]))]
     first: dict[int, int] = {}
     last: dict[int, int] = {}
     for t, pairs in enumerate(matched):
@@ -76,14 +69,11 @@ def classify_misses(
             first.setdefault(gid, t)
             last[gid] = t
     counts: Counter[tuple[str, bool]] = Counter()
-    for t in range(n):
-        gt_ids, _, sim = (x[t] for x in dets)
-        seen = (
-            set(gt_ids[sim.max(axis=1) >= 0.5 - np.finfo(float).eps].tolist())
-            if sim.size
-            else set()
-        )
-        for gid in run[0][t].tolist():
+    for t, gt_ids in enumerate(run[0]):
+        det_gt, _, sim = (x[t] for x in dets)
+        covered = sim.max(axis=1) >= 0.5 - np.finfo(float).eps if sim.size else []
+        seen = set(det_gt[covered].tolist()) if sim.size else set()
+        for gid in gt_ids.tolist():
             if gid in matched[t]:
                 continue
             if gid not in first:
@@ -94,19 +84,18 @@ def classify_misses(
     return counts
 
 
-def unlabelled_leading_rows(label_file: Path, result_file: Path, cls: str) -> tuple[int, int]:
+def unlabelled_leading_rows(
+    label_file: Path, result_file: Path, cls: str, *, run: Any = None
+) -> tuple[int, int]:
     """(false-positive rows before their track's first true positive, those of them whose
-    object, the ground truth the track matches first, has no row in the label file that frame)."""
-    from fp_anatomy import KINDS, classify
-
+    object, the ground truth the track matches first, has no row in the label file that frame).
+    ``run``: the result file's ``fp_anatomy.id_inputs``, when already computed."""
     n = _length(label_file, result_file)
-    kinds = classify(result_file, label_file, n, cls)
-    run = evaluate_kitti_sequence(
-        label_file=label_file, result_file=result_file, num_timesteps=n, classes=[cls],
-        keep_id_inputs=True,
-    ).id_inputs[cls]  # fmt: skip
+    if run is None:
+        run = id_inputs(result_file, label_file, n, cls)
+    kinds = classify(result_file, label_file, n, cls, inputs=run)
     first: dict[int, int] = {}  # track id -> the ground-truth id it matches first
-    for t in range(n):
+    for t in range(len(run[0])):
         for gid, tid in _pairs(*(x[t] for x in run)).items():
             first.setdefault(tid, gid)
     labelled = {
@@ -165,8 +154,10 @@ def main() -> int:
             raise SystemExit(f"--detector {args.detector}: {err}") from None
         for seq in seqs:
             label, result = label_dir / f"{seq}.txt", args.results / f"{seq}.txt"
-            counts += classify_misses(label, result, Path(tmp) / f"{seq}.txt", args.cls)
-            a, b = unlabelled_leading_rows(label, result, args.cls)
+            detections = Path(tmp) / f"{seq}.txt"
+            run = id_inputs(result, label, _length(label, result, detections), args.cls)
+            counts += classify_misses(label, result, detections, args.cls, run=run)
+            a, b = unlabelled_leading_rows(label, result, args.cls, run=run)
             leading, unlabelled = leading + a, unlabelled + b
     print("| missed rows | " + " | ".join(PLACES) + " | all |")
     print("|---|" + "---:|" * (len(PLACES) + 1))

@@ -31,23 +31,39 @@ from tracker.eval.kitti import evaluate_kitti, evaluate_kitti_sequence
 KINDS = ("whole track", "before first TP", "after last TP", "inside")
 
 
-def classify(
-    result_file: Path, label_file: Path, length: int, cls: str
-) -> dict[tuple[int, int], str]:
-    """``{(frame, track id): kind}`` of the false-positive rows of one sequence."""
-    ev = evaluate_kitti_sequence(
+def id_inputs(result_file: Path, label_file: Path, length: int, cls: str) -> Any:
+    """TrackEval's preprocessed ``(gt ids, result ids, similarities)`` per frame of a sequence,
+    under the files' own ids."""
+    return evaluate_kitti_sequence(
         label_file=label_file, result_file=result_file, num_timesteps=length,
         classes=[cls], keep_id_inputs=True,
-    )  # fmt: skip
-    _, trk_ids, sims = ev.id_inputs[cls]
+    ).id_inputs[cls]  # fmt: skip
+
+
+def matched_columns(sim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One frame's true positives: (ground-truth rows, result columns) the Hungarian matching on
+    2D IoU >= 0.5 pairs, as TrackEval's CLEAR matching."""
+    if not sim.size:
+        return np.zeros(0, int), np.zeros(0, int)
+    score = np.where(sim >= 0.5 - np.finfo(float).eps, sim, 0.0)
+    r, c = linear_sum_assignment(-score)
+    ok = score[r, c] > 0
+    return r[ok], c[ok]
+
+
+def classify(
+    result_file: Path, label_file: Path, length: int, cls: str, *, inputs: Any = None
+) -> dict[tuple[int, int], str]:
+    """``{(frame, track id): kind}`` of the false-positive rows of one sequence (``inputs``:
+    its :func:`id_inputs`, when already computed)."""
+    if inputs is None:
+        inputs = id_inputs(result_file, label_file, length, cls)
+    _, trk_ids, sims = inputs
     tp: dict[int, list[int]] = {}
     fp: list[tuple[int, int]] = []
     for frame, (ids, sim) in enumerate(zip(trk_ids, sims, strict=True)):
         hit = np.zeros(len(ids), bool)
-        if sim.size:
-            score = np.where(sim >= 0.5 - np.finfo(float).eps, sim, 0.0)
-            r, c = linear_sum_assignment(-score)
-            hit[c[score[r, c] > 0]] = True
+        hit[matched_columns(sim)[1]] = True
         for tid, h in zip(ids.tolist(), hit, strict=True):
             if h:
                 tp.setdefault(tid, []).append(frame)
