@@ -39,7 +39,7 @@ def _pairs(gt_ids: np.ndarray, trk_ids: np.ndarray, sim: np.ndarray) -> dict[int
     return dict(zip(gt_ids[r].tolist(), trk_ids[c].tolist(), strict=True))
 
 
-def _length(*files: Path) -> int:
+def sequence_length(*files: Path) -> int:
     """A sequence's length: its last labelled, tracked or detected frame + 1."""
     frames = [
         int(line.split(maxsplit=1)[0])
@@ -57,7 +57,7 @@ def classify_misses(
     """Count one sequence's false negatives by ``(place, seen)`` (see the module docstring).
     ``detection_file``: the detector's boxes in the KITTI result format, one id per box; ``run``:
     the result file's ``fp_anatomy.id_inputs``, when already computed."""
-    n = _length(label_file, result_file, detection_file)
+    n = sequence_length(label_file, result_file, detection_file)
     if run is None:
         run = id_inputs(result_file, label_file, n, cls)
     dets = id_inputs(detection_file, label_file, n, cls)
@@ -90,7 +90,7 @@ def unlabelled_leading_rows(
     """(false-positive rows before their track's first true positive, those of them whose
     object, the ground truth the track matches first, has no row in the label file that frame).
     ``run``: the result file's ``fp_anatomy.id_inputs``, when already computed."""
-    n = _length(label_file, result_file)
+    n = sequence_length(label_file, result_file)
     if run is None:
         run = id_inputs(result_file, label_file, n, cls)
     kinds = classify(result_file, label_file, n, cls, inputs=run)
@@ -155,7 +155,7 @@ def main() -> int:
         for seq in seqs:
             label, result = label_dir / f"{seq}.txt", args.results / f"{seq}.txt"
             detections = Path(tmp) / f"{seq}.txt"
-            run = id_inputs(result, label, _length(label, result, detections), args.cls)
+            run = id_inputs(result, label, sequence_length(label, result, detections), args.cls)
             counts += classify_misses(label, result, detections, args.cls, run=run)
             a, b = unlabelled_leading_rows(label, result, args.cls, run=run)
             leading, unlabelled = leading + a, unlabelled + b
