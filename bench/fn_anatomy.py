@@ -12,9 +12,10 @@ Hungarian matching (2D IoU >= 0.5) leaves unpaired is a false negative. It is cl
 - where it sits in its object's history: before the object's first matched frame, after its
   last, in between, or an object the run never matches.
 
-It also reports the false-positive rows before a track's first true positive
-(bench/fp_anatomy.py) whose object, the one the track matches first, has no label at all in that
-frame: the detector and the tracker found an object the annotators had not labelled yet.
+It also reports the false-positive rows before a track's first true positive and after its last
+(bench/fp_anatomy.py) whose object, the one the track matches first (last), has no label at all
+in that frame: the detector and the tracker found an object the annotators had not labelled yet,
+or no longer.
 """
 
 from __future__ import annotations
@@ -84,27 +85,34 @@ def classify_misses(
     return counts
 
 
-def unlabelled_leading_rows(
+def unlabelled_end_rows(
     label_file: Path, result_file: Path, cls: str, *, run: Any = None
-) -> tuple[int, int]:
-    """(false-positive rows before their track's first true positive, those of them whose
-    object, the ground truth the track matches first, has no row in the label file that frame).
-    ``run``: the result file's ``fp_anatomy.id_inputs``, when already computed."""
+) -> dict[str, tuple[int, int]]:
+    """``{kind: (rows, unlabelled)}`` for the false-positive rows before their track's first true
+    positive (``fp_anatomy.KINDS[1]``) and after its last (``KINDS[2]``): how many, and how many
+    of them whose object, the ground truth the track matches first (last), has no row in the
+    label file that frame. ``run``: the result file's ``fp_anatomy.id_inputs``, when already
+    computed."""
     n = sequence_length(label_file, result_file)
     if run is None:
         run = id_inputs(result_file, label_file, n, cls)
     kinds = classify(result_file, label_file, n, cls, inputs=run)
     first: dict[int, int] = {}  # track id -> the ground-truth id it matches first
+    last: dict[int, int] = {}  # ... and last
     for t in range(len(run[0])):
         for gid, tid in _pairs(*(x[t] for x in run)).items():
             first.setdefault(tid, gid)
+            last[tid] = gid
     labelled = {
         (int(c[0]), int(c[1]))
         for c in (line.split() for line in label_file.read_text().splitlines())
         if len(c) > 1
     }
-    leading = [key for key, kind in kinds.items() if kind == KINDS[1]]
-    return len(leading), sum((t, first[tid]) not in labelled for t, tid in leading)
+    out = {}
+    for kind, object_of in ((KINDS[1], first), (KINDS[2], last)):
+        rows = [key for key, k in kinds.items() if k == kind]
+        out[kind] = (len(rows), sum((t, object_of[tid]) not in labelled for t, tid in rows))
+    return out
 
 
 def write_detections(kitti_root: Path, detector: str, seqs: list[str], cls: str, out: Path) -> None:
@@ -146,7 +154,7 @@ def main() -> int:
     if unlabelled:
         raise SystemExit(f"{label_dir}: no labels for {', '.join(unlabelled)}")
     counts: Counter[tuple[str, bool]] = Counter()
-    leading = unlabelled = 0
+    ends: Counter[tuple[str, int]] = Counter()
     with tempfile.TemporaryDirectory(prefix="fn-anatomy-") as tmp:
         try:
             write_detections(root, args.detector, seqs, args.cls, Path(tmp))
@@ -157,18 +165,21 @@ def main() -> int:
             detections = Path(tmp) / f"{seq}.txt"
             run = id_inputs(result, label, sequence_length(label, result, detections), args.cls)
             counts += classify_misses(label, result, detections, args.cls, run=run)
-            a, b = unlabelled_leading_rows(label, result, args.cls, run=run)
-            leading, unlabelled = leading + a, unlabelled + b
+            for kind, pair in unlabelled_end_rows(label, result, args.cls, run=run).items():
+                ends[kind, 0] += pair[0]
+                ends[kind, 1] += pair[1]
     print("| missed rows | " + " | ".join(PLACES) + " | all |")
     print("|---|" + "---:|" * (len(PLACES) + 1))
     for seen in (True, False):
         cells = [counts[p, seen] for p in PLACES]
         name = "a detection at IoU >= 0.5" if seen else "no detection at IoU >= 0.5"
         print(f"| {name} | " + " | ".join(map(str, cells)) + f" | {sum(cells)} |")
-    print(
-        f"false positives before their track's first true positive: {leading}, of which their"
-        f" object has no label in that frame: {unlabelled}"
-    )
+    ends_text = {KINDS[1]: "before their track's first", KINDS[2]: "after their track's last"}
+    for kind, where in ends_text.items():
+        print(
+            f"false positives {where} true positive: {ends[kind, 0]}, of which their object has"
+            f" no label in that frame: {ends[kind, 1]}"
+        )
     return 0
 
 

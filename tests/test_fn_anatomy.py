@@ -1,5 +1,6 @@
 """bench/fn_anatomy.py: missed ground truth classed by whether a detection covered it and where it
-sits in its object's history; leading false positives whose object is not labelled yet."""
+sits in its object's history; false positives at a track's ends whose object is not labelled
+then."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import pytest
 pytest.importorskip("trackeval")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
-from fn_anatomy import classify_misses, unlabelled_leading_rows
+from fn_anatomy import classify_misses, unlabelled_end_rows
 
 TAIL = "1.5 1.6 3.9 0.0 1.6 10.0 0.0"
 # four cars' 2D boxes (80 px tall, above KITTI's 25 px), apart from each other
@@ -64,7 +65,25 @@ def test_leading_false_positives_of_unlabelled_objects(tmp_path: Path) -> None:
         + [_row(0, 3, D_SHIFTED, 0.9)]
         + [_row(f, 3, D, 0.9) for f in (1, 2, 3)],
     )
-    assert unlabelled_leading_rows(labels, results, "car") == (3, 2)
+    ends = unlabelled_end_rows(labels, results, "car")
+    assert ends == {"before first TP": (3, 2), "after last TP": (0, 0)}
+
+
+def test_trailing_false_positives_of_objects_no_longer_labelled(tmp_path: Path) -> None:
+    # car 12 on C is labelled in frames 0-1 and tracked in 0-3: two trailing rows, unlabelled;
+    # car 13 on D is labelled in frames 0-3, but the track's frame-3 box misses it: labelled
+    labels = _write(
+        tmp_path / "labels.txt",
+        [_row(f, 12, C) for f in (0, 1)] + [_row(f, 13, D) for f in range(4)],
+    )
+    results = _write(
+        tmp_path / "results.txt",
+        [_row(f, 2, C, 0.9) for f in range(4)]
+        + [_row(f, 3, D, 0.9) for f in (0, 1, 2)]
+        + [_row(3, 3, D_SHIFTED, 0.9)],
+    )
+    ends = unlabelled_end_rows(labels, results, "car")
+    assert ends == {"before first TP": (0, 0), "after last TP": (3, 2)}
 
 
 def test_misses_after_the_last_match_with_no_detections_at_all(tmp_path: Path) -> None:
