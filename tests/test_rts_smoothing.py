@@ -12,6 +12,7 @@ from tracker.categories import category_index
 from tracker.config import load_config
 from tracker.frame import Frame
 from tracker.geometry import wrap_angle
+from tracker.mctracker import motion_noise_tables
 from tracker.pipeline import run_scene
 from tracker.smoothing import rts_smooth, rts_smooth_heading
 
@@ -102,7 +103,8 @@ def test_removes_the_online_filters_lag() -> None:
 
 def test_offline_mode_writes_the_smoothed_track() -> None:
     """kitti_offline (rts on): a detected row's x, y and velocity are the smoother's over the
-    track's detections; off, they are the online filter's."""
+    track's detections, its r offline.rts_r_multiple times the filter's; off, they are the online
+    filter's."""
     car = category_index("car")
     rng = np.random.default_rng(5)
     t = 0.1 * np.arange(30)
@@ -130,7 +132,10 @@ def test_offline_mode_writes_the_smoothed_track() -> None:
         )
 
     config = load_config("kitti_offline", overrides={"categories": ["car"], "category": car_pose})
-    want = rts_smooth(t, np.arange(30), np.zeros(30, int), centres, np.full(30, car), config)
+    r = motion_noise_tables(config)[2] * config.offline.rts_r_multiple  # (kitti_offline: 3)
+    want = rts_smooth(
+        t, np.arange(30), np.zeros(30, int), centres, np.full(30, car), config, motion_r=r
+    )
     xy_on, v_on = run(True)
     np.testing.assert_allclose(xy_on, want[..., 0], atol=1e-9)
     np.testing.assert_allclose(v_on, want[..., 1], atol=1e-9)
