@@ -52,38 +52,26 @@ def test_misses_are_classed_by_detection_and_place(tmp_path: Path) -> None:
     }
 
 
-def test_leading_false_positives_of_unlabelled_objects(tmp_path: Path) -> None:
+@pytest.mark.parametrize("end", ["before first TP", "after last TP"])
+def test_false_positives_at_a_tracks_ends_whose_object_is_unlabelled(
+    tmp_path: Path, end: str
+) -> None:
     # car 9 on C is labelled from frame 2, tracked from frame 0: two leading rows, unlabelled;
-    # car 10 on D is labelled from frame 0, but the track's frame-0 box misses it: labelled
+    # car 10 on D is labelled from frame 0, but the track's frame-0 box misses it: labelled.
+    # "after last TP": the same scene backwards in time (labelled up to frame 1, tracked to 3)
+    t = (lambda f: f) if end == "before first TP" else (lambda f: 3 - f)
     labels = _write(
         tmp_path / "labels.txt",
-        [_row(f, 9, C) for f in (2, 3)] + [_row(f, 10, D) for f in range(4)],
+        [_row(t(f), 9, C) for f in (2, 3)] + [_row(t(f), 10, D) for f in range(4)],
     )
     results = _write(
         tmp_path / "results.txt",
-        [_row(f, 2, C, 0.9) for f in range(4)]
-        + [_row(0, 3, D_SHIFTED, 0.9)]
-        + [_row(f, 3, D, 0.9) for f in (1, 2, 3)],
+        [_row(t(f), 2, C, 0.9) for f in range(4)]
+        + [_row(t(0), 3, D_SHIFTED, 0.9)]
+        + [_row(t(f), 3, D, 0.9) for f in (1, 2, 3)],
     )
-    ends = unlabelled_end_rows(labels, results, "car")
-    assert ends == {"before first TP": (3, 2), "after last TP": (0, 0)}
-
-
-def test_trailing_false_positives_of_objects_no_longer_labelled(tmp_path: Path) -> None:
-    # car 12 on C is labelled in frames 0-1 and tracked in 0-3: two trailing rows, unlabelled;
-    # car 13 on D is labelled in frames 0-3, but the track's frame-3 box misses it: labelled
-    labels = _write(
-        tmp_path / "labels.txt",
-        [_row(f, 12, C) for f in (0, 1)] + [_row(f, 13, D) for f in range(4)],
-    )
-    results = _write(
-        tmp_path / "results.txt",
-        [_row(f, 2, C, 0.9) for f in range(4)]
-        + [_row(f, 3, D, 0.9) for f in (0, 1, 2)]
-        + [_row(3, 3, D_SHIFTED, 0.9)],
-    )
-    ends = unlabelled_end_rows(labels, results, "car")
-    assert ends == {"before first TP": (0, 0), "after last TP": (3, 2)}
+    other = "after last TP" if end == "before first TP" else "before first TP"
+    assert unlabelled_end_rows(labels, results, "car") == {end: (3, 2), other: (0, 0)}
 
 
 def test_misses_after_the_last_match_with_no_detections_at_all(tmp_path: Path) -> None:
