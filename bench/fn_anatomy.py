@@ -27,17 +27,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fp_anatomy import KINDS, classify, id_inputs, matched_columns
+from fp_anatomy import KINDS, classify, id_inputs, matched_ids
 
 from app.inputs import default_kitti_root
 
 PLACES = ("before", "inside", "after", "never matched")
-
-
-def _pairs(gt_ids: np.ndarray, trk_ids: np.ndarray, sim: np.ndarray) -> dict[int, int]:
-    """``{ground-truth id: result id}`` of one frame's true positives."""
-    r, c = matched_columns(sim)
-    return dict(zip(gt_ids[r].tolist(), trk_ids[c].tolist(), strict=True))
 
 
 def sequence_length(*files: Path) -> int:
@@ -62,7 +56,7 @@ def classify_misses(
     if run is None:
         run = id_inputs(result_file, label_file, n, cls)
     dets = id_inputs(detection_file, label_file, n, cls)
-    matched = [_pairs(*(x[t] for x in run)) for t in range(len(run[0]))]
+    matched = [matched_ids(*(x[t] for x in run)) for t in range(len(run[0]))]
     first: dict[int, int] = {}
     last: dict[int, int] = {}
     for t, pairs in enumerate(matched):
@@ -100,7 +94,7 @@ def unlabelled_end_rows(
     first: dict[int, int] = {}  # track id -> the ground-truth id it matches first
     last: dict[int, int] = {}  # ... and last
     for t in range(len(run[0])):
-        for gid, tid in _pairs(*(x[t] for x in run)).items():
+        for gid, tid in matched_ids(*(x[t] for x in run)).items():
             first.setdefault(tid, gid)
             last[tid] = gid
     labelled = {

@@ -51,6 +51,12 @@ def matched_columns(sim: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return r[ok], c[ok]
 
 
+def matched_ids(gt_ids: np.ndarray, trk_ids: np.ndarray, sim: np.ndarray) -> dict[int, int]:
+    """``{ground-truth id: result id}`` of one frame's true positives (:func:`matched_columns`)."""
+    r, c = matched_columns(sim)
+    return dict(zip(gt_ids[r].tolist(), trk_ids[c].tolist(), strict=True))
+
+
 def classify(
     result_file: Path, label_file: Path, length: int, cls: str, *, inputs: Any = None
 ) -> dict[tuple[int, int], str]:

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from fn_anatomy import sequence_length, write_detections
-from fp_anatomy import id_inputs, matched_columns
+from fp_anatomy import id_inputs, matched_ids
 
 from app.inputs import default_kitti_root
 from tracker.eval.kitti import evaluate_kitti
@@ -43,12 +43,11 @@ UNMATCHED_ID0 = 1_000_000
 def true_positive_ids(inputs: Any) -> dict[tuple[int, int], int]:
     """``{(frame, result id): ground-truth id}`` of one sequence's true positives, from its
     ``fp_anatomy.id_inputs``."""
-    pairs = {}
-    for t, (gt_ids, trk_ids, sim) in enumerate(zip(*inputs, strict=True)):
-        r, c = matched_columns(sim)
-        for g, k in zip(gt_ids[r].tolist(), trk_ids[c].tolist(), strict=True):
-            pairs[t, k] = g
-    return pairs
+    return {
+        (t, k): g
+        for t, frame in enumerate(zip(*inputs, strict=True))
+        for g, k in matched_ids(*frame).items()
+    }
 
 
 def relabel(result_file: Path, tp_ids: dict[tuple[int, int], int], *, keep_others: bool) -> str:
@@ -96,19 +95,19 @@ def ceiling_rows(
     """``(name, metrics)`` of each row of the module docstring's table. ``detections``: a folder
     of the detector's boxes as result files, one id per box (``fn_anatomy.write_detections``)."""
     seqs = sorted(f.stem for f in detections.glob("*.txt"))
-    sources = {str(run): run for run in runs} | {"detector": detections}
+    folders = [*runs, detections]  # (the last one: the detector's)
     lengths = {
-        s: sequence_length(label_dir / f"{s}.txt", *(d / f"{s}.txt" for d in sources.values()))
-        for s in seqs
+        s: sequence_length(label_dir / f"{s}.txt", *(d / f"{s}.txt" for d in folders)) for s in seqs
     }
     variants: dict[str, dict[str, str]] = {}
-    for name, folder in sources.items():
+    for folder in folders:
+        name = str(folder)
         for s in seqs:
             f, label = folder / f"{s}.txt", label_dir / f"{s}.txt"
             if not f.is_file():
                 raise SystemExit(f"{f}: missing (the detector's sequences are {', '.join(seqs)})")
             tp = true_positive_ids(id_inputs(f, label, lengths[s], cls))
-            if name == "detector":
+            if folder is detections:
                 oracle = relabel(f, tp, keep_others=False)
                 variants.setdefault("oracle", {})[s] = oracle
                 variants.setdefault("oracle interpolated", {})[s] = interpolate(oracle, max_gap)
