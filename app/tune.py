@@ -118,7 +118,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "detections, comma-separated, or 'none' (default: %(default)s)",
     )
     parser.add_argument(
-        "--noise-seed", type=int, default=0, help="perturbation seed (default: %(default)s)"
+        "--noise-seed",
+        type=seed_list,
+        default=(0,),
+        metavar="SEED[,SEED...]",
+        help="perturbation seed(s); with several, each noisy level is drawn once per seed and "
+        "the objective averages the draws (default: 0)",
     )
     parser.add_argument(
         "--workers",
@@ -239,9 +244,41 @@ def noise_levels(text: str) -> list[str]:
     return [n for n in dict.fromkeys(names) if n != CLEAN]
 
 
+def seed_list(text: str) -> tuple[int, ...]:
+    """``--noise-seed 0`` or ``0,1,2`` → the seeds, in order, each once."""
+    try:
+        seeds = tuple(dict.fromkeys(int(t) for t in text.split(",")))
+    except ValueError:
+        wanted = "SEED[,SEED...] (integers)"
+        raise argparse.ArgumentTypeError(f"expected {wanted}, got {text!r}") from None
+    if any(s < 0 for s in seeds):
+        raise argparse.ArgumentTypeError(f"seeds must be >= 0, got {text!r}")
+    return seeds
+
+
+def draw_levels(levels: Sequence[str], seeds: Sequence[int]) -> list[str]:
+    """The runs' level names: clean once, each noisy level once per perturbation seed (its own
+    name with one seed, ``LEVEL@SEED`` with several; :func:`base_level` undoes it)."""
+    return [
+        level if level == CLEAN or len(seeds) == 1 else f"{level}@{seed}"
+        for level in levels
+        for seed in ((0,) if level == CLEAN else seeds)
+    ]
+
+
+def base_level(run_level: str) -> str:
+    """``noise@2`` → ``noise`` (the level a draw belongs to)."""
+    return run_level.partition("@")[0]
+
+
 def objective_value(metrics: dict[tuple[str, str], dict[str, Any]]) -> float:
-    """The search's objective: HOTA averaged over every (detector, noise level) scored."""
-    return sum(m["HOTA"] for m in metrics.values()) / len(metrics)
+    """The search's objective: HOTA averaged over every (detector, noise level) scored, a
+    level's draws (one per perturbation seed) averaged first, so more draws of the noise give a
+    steadier estimate of the same objective, not more weight to the noise."""
+    draws: dict[tuple[str, str], list[float]] = {}
+    for (det, level), m in metrics.items():
+        draws.setdefault((det, base_level(level)), []).append(m["HOTA"])
+    return sum(sum(v) / len(v) for v in draws.values()) / len(draws)
 
 
 def settings_to_overrides(cls: str, params: dict[str, Any]) -> dict[str, Any]:
@@ -334,20 +371,31 @@ class Objective:
 
 
 def level_frames(
-    raw: dict[str, list[Frame]], profile: Any, specs: dict[str, Any], seed: int
+    raw: dict[str, list[Frame]], profile: Any, specs: dict[str, Any], seeds: Sequence[int]
 ) -> dict[str, dict[str, list[Frame]]]:
-    """``{level: {seq: frames}}``: the raw frames calibrated with ``profile``, then perturbed per
-    noise level (``specs``: level -> PerturbSpec; the clean level is the calibrated frames),
-    seeded per scene so every trial and fold sees the same noise."""
+    """``{run level: {seq: frames}}``: the raw frames calibrated with ``profile``, then
+    perturbed per noise level (``specs``: level -> PerturbSpec; the clean level is the
+    calibrated frames) and per seed (names: :func:`draw_levels`), seeded per scene so every
+    trial and fold sees the same noise."""
     from tracker.calibration import calibrate_frames
 
     clean = {s: calibrate_frames(f, profile) for s, f in raw.items()}
-    return {
-        level: clean
-        if level == CLEAN
-        else {s: perturb_frames(f, spec, seed=seed) for s, f in clean.items()}
-        for level, spec in specs.items()
-    }
+    out: dict[str, dict[str, list[Frame]]] = {}
+    for level, spec in specs.items():
+        names = draw_levels([level], seeds)
+        for name, seed in zip(names, seeds if level != CLEAN else (0,), strict=True):
+            out[name] = (
+                clean
+                if level == CLEAN
+                else {s: perturb_frames(f, spec, seed=seed) for s, f in clean.items()}
+            )
+    return out
+
+
+def record_seeds(record: dict[str, Any]) -> tuple[int, ...]:
+    """A tune record's perturbation seeds (``noise_seed``: one int, or a list)."""
+    seeds = record.get("noise_seed", 0)
+    return tuple(seeds) if isinstance(seeds, list) else (int(seeds),)
 
 
 def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
@@ -459,7 +507,8 @@ def _run(args: argparse.Namespace) -> int:
             for level, frames in level_frames(raw[det], profile, specs, args.noise_seed).items():
                 _FRAMES[(det, key, level)] = frames
 
-    objective = Objective(tuple(detectors), tuple(levels), config_name, base, cls, str(label_dir))
+    runs = tuple(draw_levels(levels, args.noise_seed))
+    objective = Objective(tuple(detectors), runs, config_name, base, cls, str(label_dir))
     first = _current(config_name, base, cls, space)
     n_startup = startup_trials(args.trials)
     work = Path(tempfile.mkdtemp(prefix="mctrack-tune-"))
@@ -470,7 +519,7 @@ def _run(args: argparse.Namespace) -> int:
         "folds": folds, "trials_per_search": args.trials, "seed": args.seed,
         "sampler": f"optuna TPESampler, {n_startup} random startup trials", "space": space,
         "noise": {lv: dataclasses.asdict(NOISE_LEVELS[lv]) for lv in levels if lv != CLEAN},
-        "noise_seed": args.noise_seed,
+        "noise_seed": noise_seed_value(args.noise_seed),
     }  # fmt: skip
     start = time.perf_counter()
     try:
@@ -517,7 +566,7 @@ def _run(args: argparse.Namespace) -> int:
                 for det, level in objective.runs
             }
             record["cross_validated"] = {det: heldout[(det, CLEAN)] for det in detectors}
-            record["cross_validated_noise"] = _by_level(heldout, levels)
+            record["cross_validated_noise"] = _by_level(heldout, runs)
             trials = search("all", list(lengths), args.seed + 100, first)
             params, value = best_trial(trials)
             final = objective.metrics("all", list(lengths), params, work / "final", pool.map)
@@ -526,7 +575,7 @@ def _run(args: argparse.Namespace) -> int:
                 "overrides": settings_to_overrides(cls, params),
                 "objective": round(value, 3),
                 "in_sample": {det: final[(det, CLEAN)] for det in detectors},
-                "in_sample_noise": _by_level(final, levels),
+                "in_sample_noise": _by_level(final, runs),
                 "trials": _trial_list(trials),
             }
             if ray_search is not None:
@@ -544,6 +593,11 @@ def _run(args: argparse.Namespace) -> int:
     write_text_atomic(out / "tune.json", [json.dumps(record, indent=2)])
     _print(record)
     return 0
+
+
+def noise_seed_value(seeds: Sequence[int]) -> int | list[int]:
+    """``noise_seed`` as records keep it: one int (as before several were possible), or a list."""
+    return seeds[0] if len(seeds) == 1 else list(seeds)
 
 
 def _trial_list(trials: Trials) -> list[dict[str, Any]]:

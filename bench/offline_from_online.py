@@ -1,7 +1,7 @@
 """Held-out figures of offline mode (`kitti_offline`: the online settings + post-processing).
 
     python bench/offline_from_online.py [docs/tune/car_online.json] [--kitti-root ROOT]
-        [--choose KEY=V1,V2,... ...] [--out RECORD.json]
+        [--choose KEY=V1,V2,... ...] [--noise-seed SEED[,SEED...]] [--out RECORD.json]
 
 For each fold of a `mctrack tune --mode online` record, the fold's chosen settings (with score
 profiles fitted on the fold's training sequences, as the tune does) track the fold's held-out
@@ -14,8 +14,11 @@ then takes the combination with the best objective of the tune (HOTA averaged ov
 detectors and its clean and perturbed detections) in offline mode on its training sequences,
 and tracks its held-out sequences with it (and with the grid's first point, the plain values,
 for comparison); the final choice, made the same way on all the
-sequences with the shipped settings and profiles, is what `kitti_offline` ships. `--out` writes
-the whole record (docs/tune/<class>_offline_choice.json).
+sequences with the shipped settings and profiles, is what `kitti_offline` ships. The noise is
+drawn with the record's perturbation seed, or once per seed of `--noise-seed` (the objective
+averages a level's draws first): a choice between values a few tenths of HOTA apart can turn
+on one draw of the noise. `--out` writes the whole record
+(docs/tune/<class>_offline_choice.json).
 """
 
 from __future__ import annotations
@@ -35,9 +38,13 @@ from app.tune import (
     Objective,
     _evaluate_dir,
     _track_and_score,
+    draw_levels,
     folds_by_frames,
     level_frames,
+    noise_seed_value,
     objective_value,
+    record_seeds,
+    seed_list,
     settings_to_overrides,
 )
 from tracker.calibration import find_profile
@@ -59,6 +66,7 @@ def held_out(
     modes: tuple[str, ...] = ("online", "offline"),
     profile: str = "labels",
     choose: dict[str, list[Any]] | None = None,
+    noise_seeds: tuple[int, ...] | None = None,
     workers: int = 2,
 ) -> dict[str, Any]:
     """``{detector: {mode: metrics}}`` over the record's held-out folds.
@@ -68,7 +76,9 @@ def held_out(
     the tune does), or "self", the label-free profile fitted on the detections themselves (what
     a detector without a profile gets). ``choose``: offline-only settings and their candidates,
     chosen per fold on its training sequences (module docstring); the choices are returned
-    under ``"choice"``, and offline mode at the grid's first point under ``"offline_first"``."""
+    under ``"choice"``, and offline mode at the grid's first point under ``"offline_first"``.
+    ``noise_seeds``: the perturbation seeds of the objective's noisy levels (default: the
+    record's)."""
     if profile not in ("labels", "self"):
         raise ValueError(f"profile: expected 'labels' or 'self', got {profile!r}")
     record = json.loads(record_path.read_text())
@@ -84,8 +94,8 @@ def held_out(
     specs = {CLEAN: None} | (
         {lv: PerturbSpec(**spec) for lv, spec in record.get("noise", {}).items()} if choose else {}
     )
-    seed = record.get("noise_seed", 0)
-    levels = tuple(specs)
+    seeds = noise_seeds or record_seeds(record)
+    levels = tuple(draw_levels(list(specs), seeds))
     lengths: dict[str, int] = {}
     grid = (
         [dict(zip(choose, combo, strict=True)) for combo in itertools.product(*choose.values())]
@@ -93,7 +103,9 @@ def held_out(
         else []
     )
     out: dict[str, Any] = {}
-    choice: dict[str, Any] = {"grid": choose, "levels": list(levels), "folds": []}
+    choice: dict[str, Any] = {
+        "grid": choose, "levels": list(specs), "noise_seed": noise_seed_value(seeds), "folds": []
+    }  # fmt: skip
     added: list[tuple[str, str, str]] = []  # the _FRAMES keys this call sets
     try:
         for det in dets:  # calibrated (and perturbed) frames per (detector, fold, level)
@@ -113,7 +125,7 @@ def held_out(
                     else fit_profile(det, train, gt or {}, [cls])
                 )
             for key, fitted in profiles.items():
-                for level, frames in level_frames(raw, fitted, specs, seed).items():
+                for level, frames in level_frames(raw, fitted, specs, seeds).items():
                     added.append((det, key, level))
                     tune._FRAMES[det, key, level] = frames
         with (
@@ -184,6 +196,13 @@ def main() -> int:
     parser.add_argument("record", nargs="?", default=str(ROOT / "docs/tune/car_online.json"))
     parser.add_argument("--kitti-root", type=Path, default=None)
     parser.add_argument("--choose", action="append", default=[], metavar="KEY=V1,V2,...")
+    parser.add_argument(
+        "--noise-seed",
+        type=seed_list,
+        default=None,
+        metavar="SEED[,SEED...]",
+        help="perturbation seed(s) of the objective's noise (default: the record's)",
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", type=Path, default=None, help="write the record here (JSON)")
     args = parser.parse_args()
@@ -192,6 +211,7 @@ def main() -> int:
         Path(args.record),
         args.kitti_root or default_kitti_root(),
         choose=_parse_choose(args.choose) or None,
+        noise_seeds=args.noise_seed,
         workers=args.workers,
     )
     choice = figures.pop("choice", None)
@@ -216,7 +236,9 @@ def main() -> int:
         cls = json.loads(Path(args.record).read_text())["class"]
         record = {"class": cls, "online_record": Path(args.record).name, "held_out": figures,
                   "choice": choice, "command": " ".join(["python bench/offline_from_online.py",
-                  f"docs/tune/{Path(args.record).name}", *(f"--choose {c}" for c in args.choose)]),
+                  f"docs/tune/{Path(args.record).name}", *(f"--choose {c}" for c in args.choose),
+                  *([f"--noise-seed {','.join(map(str, args.noise_seed))}"]
+                    if args.noise_seed else [])]),
                   "seconds": round(time.perf_counter() - start, 1)}  # fmt: skip
         write_text_atomic(args.out, [json.dumps(record, indent=1) + "\n"])
     return 0

@@ -12,9 +12,13 @@ from app.tune import (
     CAR_SPACE,
     ONLINE_SPACE,
     _current,
+    base_level,
+    draw_levels,
+    level_frames,
     noise_levels,
     objective_value,
     parse_search,
+    record_seeds,
     search_space,
     settings_to_overrides,
     with_searched,
@@ -39,6 +43,60 @@ def test_objective_averages_hota_over_every_detector_and_level() -> None:
         ("b", "noise"): {"HOTA": 30.0},
     }
     assert objective_value(metrics) == pytest.approx(60.0)
+
+
+def test_the_objective_averages_a_levels_draws_before_the_levels() -> None:
+    """Three draws of the noise estimate the same objective as one, with less spread: the noisy
+    level keeps its weight beside the clean one."""
+    assert draw_levels(["clean", "noise"], [0]) == ["clean", "noise"]
+    runs = draw_levels(["clean", "noise", "double"], [0, 7])
+    assert runs == ["clean", "noise@0", "noise@7", "double@0", "double@7"]
+    assert [base_level(r) for r in runs] == ["clean", "noise", "noise", "double", "double"]
+    metrics = {
+        ("a", "clean"): {"HOTA": 80.0},
+        ("a", "noise@0"): {"HOTA": 70.0},
+        ("a", "noise@7"): {"HOTA": 60.0},
+        ("b", "clean"): {"HOTA": 60.0},
+        ("b", "noise@0"): {"HOTA": 30.0},
+        ("b", "noise@7"): {"HOTA": 40.0},
+    }
+    # (80 + 65 + 60 + 35) / 4, not the mean of the six runs (56.67)
+    assert objective_value(metrics) == pytest.approx(60.0)
+    assert record_seeds({"noise_seed": 0}) == (0,) and record_seeds({}) == (0,)
+    assert record_seeds({"noise_seed": [0, 100]}) == (0, 100)
+
+
+def test_each_seed_draws_its_own_noise_of_the_same_clean_frames(kitti_root: Path) -> None:
+    from tracker.calibration import find_profile
+    from tracker.eval.perturb import NOISE_LEVELS
+    from tracker.io.convert.kitti import convert_kitti
+
+    raw = {"0013": convert_kitti(kitti_root, seqs=["0013"], classes=["car"])[0]["0013"][:20]}
+    specs = {"clean": None, "noise": NOISE_LEVELS["noise"]}
+    profile = find_profile("pointrcnn")
+    one = level_frames(raw, profile, specs, [0])
+    two = level_frames(raw, profile, specs, [0, 1])
+    assert list(one) == ["clean", "noise"] and list(two) == ["clean", "noise@0", "noise@1"]
+
+    def centres(frames: list) -> list:
+        return [f.boxes.xyz.round(6).tolist() for f in frames]
+
+    assert centres(two["clean"]["0013"]) == centres(one["clean"]["0013"])
+    assert centres(two["noise@0"]["0013"]) == centres(one["noise"]["0013"])  # seed 0 is seed 0
+    assert centres(two["noise@1"]["0013"]) != centres(two["noise@0"]["0013"])
+    assert centres(two["noise@0"]["0013"]) != centres(two["clean"]["0013"])
+
+
+@pytest.mark.parametrize("seeds", ["x", "0,-1", "1.5"])
+def test_a_bad_noise_seed_is_a_one_line_error(
+    seeds: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_:  # argparse's own error: usage, then one line
+        main(["tune", "--noise-seed", seeds, "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and "Traceback" not in err
+    assert "--noise-seed" in err.strip().splitlines()[-1]
+    assert not (tmp_path / "t").exists()
 
 
 def test_searched_values_become_overrides_the_config_accepts() -> None:
