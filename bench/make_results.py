@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from app.kitti import run_kitti
+from app.tune import record_seeds
 from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
 
@@ -791,6 +792,9 @@ def tune_section(paths: list[str]) -> list[str]:
     for path in paths:
         rec = json.loads(Path(path).read_text())
         noise = ",".join(rec.get("noise", {})) or "none"
+        seeds = record_seeds(rec)
+        if seeds != (0,):  # (the default is left out, as the records' commands did)
+            noise += f" --noise-seed {','.join(map(str, seeds))}"
         lines.append(
             f"- `mctrack tune --class {rec['class']} --mode {rec['mode']} --detectors "
             f"{','.join(rec['detectors'])} --trials {rec['trials_per_search']} --folds "
