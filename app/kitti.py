@@ -197,8 +197,7 @@ class KittiSceneJob:
                 result_file,
                 outputs,
                 frames,
-                image_boxes=self.config.image_boxes,
-                width_scale=self.config.image_width_scales(),
+                **self.config.kitti_writer_options(),
             )
             write_bytes_atomic(
                 scenes.part_path(self.out, index, "json"), tracks_scene_json(seq, frames, outputs)

@@ -203,8 +203,7 @@ def run_robustness(
                     run_dir / f"{seq}.txt",
                     result.outputs,
                     noisy,
-                    image_boxes=config.image_boxes,
-                    width_scale=config.image_width_scales(),
+                    **config.kitti_writer_options(),
                 )
                 bar.update(len(frames))
             metrics = evaluate_kitti(

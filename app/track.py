@@ -114,8 +114,7 @@ class TrackSceneJob:
                 path_in(self.out / "data", scene, ".txt"),
                 result.outputs,
                 frames,
-                image_boxes=self.config.image_boxes,
-                width_scale=self.config.image_width_scales(),
+                **self.config.kitti_writer_options(),
             )
         ids = {int(t) for o in result.outputs for t in o.boxes.track_id}
         return SceneRecord(

@@ -43,7 +43,7 @@ from app.inputs import (
     default_kitti_root,
     positive_int,
 )
-from tracker.config import load_config
+from tracker.config import BUILTIN, load_config, toml_value
 from tracker.errors import InputError
 from tracker.eval.perturb import CLEAN, NOISE_LEVELS, perturb_frames
 from tracker.frame import Frame
@@ -416,8 +416,7 @@ def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
             result_dir / f"{seq}.txt",
             result.outputs,
             frames[seq],
-            image_boxes=config.image_boxes,
-            width_scale=config.image_width_scales(),
+            **config.kitti_writer_options(),
         )
     if not evaluate:
         return {}
@@ -591,8 +590,34 @@ def _run(args: argparse.Namespace) -> int:
     record["seconds"] = round(time.perf_counter() - start, 1)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "tune.json", [json.dumps(record, indent=2)])
+    write_text_atomic(out / "best.toml", [best_config_toml(record)])
     _print(record)
+    print(f"wrote {out / 'tune.json'} and {out / 'best.toml'} (use: --config {out / 'best.toml'})")
     return 0
+
+
+def best_config_toml(record: dict[str, Any]) -> str:
+    """The settings the search chose on all sequences as a config file (``--config
+    best.toml``): the tuned config as its base, the chosen values over it, every other class and
+    setting as in the base."""
+    base = record["config"]
+    if base not in BUILTIN:  # a file: its absolute path, so best.toml works from anywhere
+        base = str(Path(base).resolve())
+    held_out = ", ".join(f"{d} {m['HOTA']:.2f}" for d, m in record["cross_validated"].items())
+    in_sample = ", ".join(f"{d} {m['HOTA']:.2f}" for d, m in record["final"]["in_sample"].items())
+    lines = [
+        f"# `mctrack tune --class {record['class']} --mode {record['mode']}`: the settings chosen"
+        " on all sequences (the record: tune.json beside this file)",
+        f"# HOTA held out: {held_out}; in-sample: {in_sample}",
+        f"base = {toml_value(base)}",
+    ]
+    overrides = record["final"]["overrides"]
+    tables = [(f"category.{c}", v) for c, v in overrides.get("category", {}).items()]
+    if "offline" in overrides:
+        tables.append(("offline", overrides["offline"]))
+    for name, values in tables:
+        lines += ["", f"[{name}]", *(f"{k} = {toml_value(v)}" for k, v in values.items())]
+    return "\n".join(lines) + "\n"
 
 
 def noise_seed_value(seeds: Sequence[int]) -> int | list[int]:

@@ -367,3 +367,81 @@ def test_detection_boxes_of_another_camera_are_not_written(tmp_path: Path) -> No
         assert got[2] - got[0] == pytest.approx((box[2] - box[0]) * scale[ped], rel=1e-3)
         checked += 1
     assert checked > 20
+
+
+def test_window_means_equal_a_loop_over_each_groups_frames() -> None:
+    from tracker.io.writers import window_means
+
+    rng = np.random.default_rng(3)
+    group = rng.integers(0, 4, 60)
+    frame = np.array([rng.choice(200, 1)[0] for _ in group])
+    keep = np.unique(np.column_stack([group, frame]), axis=0, return_index=True)[1]
+    group, frame = group[keep], frame[keep]  # one row per group and frame
+    values = rng.normal(size=(len(group), 3))
+    got = window_means(frame, group, values, 5)
+    for i in range(len(group)):
+        near = (group == group[i]) & (np.abs(frame - frame[i]) <= 5)
+        np.testing.assert_allclose(got[i], values[near].mean(axis=0))
+
+
+def _offline_run() -> tuple[list, list]:
+    frames = read_baseversion(SAMPLE / "detections.json.gz")["0001"]
+    frames = calibrate_frames(frames, find_profile("pointrcnn"))
+    return frames, run_scene(frames, load_config("kitti_offline")).outputs
+
+
+def _written(path: Path) -> dict[tuple[int, int], np.ndarray]:
+    return {
+        (int(f[0]), int(f[1])): np.array(f[6:10], float)
+        for f in (ln.split() for ln in path.read_text().splitlines())
+    }
+
+
+def test_offline_smoothing_averages_an_image_heads_noise(tmp_path: Path) -> None:
+    """An image head whose boxes sit at a fixed offset from the 3D boxes' projections, each with
+    its own noise (σ 4 px a corner): offline, the written boxes of matched tracks come nearer the
+    noise-free ones, and nothing else changes."""
+    from tracker.io.writers import write_kitti_sequence
+
+    frames, outputs = _offline_run()
+    rng = np.random.default_rng(0)
+    clean = _with_image_boxes(frames, _image_head)
+    noisy = _with_image_boxes(frames, lambda b: _image_head(b) + rng.normal(0, 4.0, b.shape))
+    scale = load_config("kitti_offline").image_width_scales()
+    runs = (("clean", clean, 0), ("clean_smooth", clean, 15), ("raw", noisy, 0),
+            ("smooth", noisy, 15))  # fmt: skip
+    for name, fr, window in runs:
+        write_kitti_sequence(tmp_path / f"{name}.txt", outputs, fr, image_boxes="auto",
+                             width_scale=scale, own_box_window=window)  # fmt: skip
+    truth, truth_smooth, raw, smooth = (_written(tmp_path / f"{n}.txt") for n, _, _ in runs)
+    assert raw.keys() == smooth.keys() == truth.keys() == truth_smooth.keys()
+    matched = {
+        (o.frame_id, int(t))
+        for o in outputs
+        for t, r in zip(o.boxes.track_id, o.det_row, strict=True)
+        if r >= 0
+    }
+    own = sorted(matched & raw.keys())
+    err_raw = np.mean([np.abs(raw[k] - truth[k]).mean() for k in own])
+    err_smooth = np.mean([np.abs(smooth[k] - truth[k]).mean() for k in own])
+    # the noise that is left: the same smoothing of the noise-free boxes is nearly the same box
+    noise_left = np.mean([np.abs(smooth[k] - truth_smooth[k]).mean() for k in own])
+    assert len(own) > 300 and err_smooth < 0.8 * err_raw and noise_left < 0.4 * err_raw
+    others = sorted(raw.keys() - matched)  # coasting and interpolated rows
+    assert others and all(np.array_equal(raw[k], smooth[k]) for k in others)
+
+
+def test_offline_smoothing_leaves_projected_boxes_alone(tmp_path: Path) -> None:
+    """PointRCNN's 2D boxes are its 3D boxes' projections: there is no own box to smooth, and
+    the file is the same byte for byte; the window comes from the offline config only."""
+    from tracker.io.writers import write_kitti_sequence
+
+    frames, outputs = _offline_run()
+    for window in (0, 15):
+        write_kitti_sequence(tmp_path / f"{window}.txt", outputs, frames, image_boxes="auto",
+                             own_box_window=window)  # fmt: skip
+    assert (tmp_path / "0.txt").read_bytes() == (tmp_path / "15.txt").read_bytes()
+    assert load_config("kitti_offline").kitti_writer_options()["own_box_window"] == 15  # 1.5 s
+    assert load_config("kitti").kitti_writer_options()["own_box_window"] == 0
+    plain = load_config("kitti_offline", overrides={"offline": {"smooth_image_boxes": False}})
+    assert plain.kitti_writer_options()["own_box_window"] == 0

@@ -99,6 +99,36 @@ def test_a_bad_noise_seed_is_a_one_line_error(
     assert not (tmp_path / "t").exists()
 
 
+def test_the_chosen_settings_are_written_as_a_config_file(tmp_path: Path) -> None:
+    """best.toml: the tuned config as its base and the chosen values over it; loaded, it is the
+    base with the record's overrides (to the file's 6 decimals), every other class untouched."""
+    from app.tune import best_config_toml
+
+    user = tmp_path / "mine.toml"
+    user.write_text('base = "kitti_offline"\n[category.car]\nscore_min = 0.3\n')
+    params = {"score_min": 0.1234567, "lifecycle.min_hits": 3, "lifecycle.confirm_nines": 2.0,
+              "offline.rts_r_multiple": 4.0}  # fmt: skip
+    for config, overrides in (
+        ("kitti", settings_to_overrides("pedestrian", params)),
+        (str(user), settings_to_overrides("pedestrian", params)),
+    ):
+        record = {
+            "class": "pedestrian", "mode": "offline", "config": config,
+            "cross_validated": {"pointrcnn": {"HOTA": 53.0}},
+            "final": {"overrides": overrides, "in_sample": {"pointrcnn": {"HOTA": 54.0}}},
+        }  # fmt: skip
+        where = tmp_path / "out" / "best.toml"  # elsewhere than a user base: its path is absolute
+        where.parent.mkdir(exist_ok=True)
+        where.write_text(best_config_toml(record))
+        got, want = load_config(str(where)), load_config(config, overrides=overrides)
+        ped, base_ped = got.per_category["pedestrian"], want.per_category["pedestrian"]
+        assert ped.score_min == pytest.approx(0.123457, abs=1e-9)
+        assert ped.lifecycle == base_ped.lifecycle and ped.pose == base_ped.pose
+        assert got.per_category["car"] == want.per_category["car"]
+        assert got.offline == want.offline and got.offline.rts_r_multiple == 4.0
+        assert got.mode == want.mode
+
+
 def test_searched_values_become_overrides_the_config_accepts() -> None:
     params = {
         "score_min": 0.1,
@@ -183,6 +213,10 @@ def test_fold_searches_do_not_start_from_the_shipped_settings(
                  "--noise", "none", "--workers", "2", "--out", str(tmp_path)])  # fmt: skip
     assert code == 0
     record = json.loads((tmp_path / "tune.json").read_text())
+    best = load_config(str(tmp_path / "best.toml"))  # the chosen settings, as a config file
+    assert best.per_category["car"].score_min == pytest.approx(
+        record["final"]["best"]["score_min"], abs=1e-6
+    )
     shipped = _current("kitti", {"categories": ["car"]}, "car", search_space("car", "online"))
     assert record["final"]["trials"][0]["params"] == pytest.approx(shipped)
     assert len(record["cv"]) == 2

@@ -38,6 +38,7 @@ from scipy.special import expit, logit
 
 from tracker.boxes import FloatArray, IntArray
 from tracker.categories import CATEGORIES, category_index
+from tracker.config import toml_value
 from tracker.errors import InputError
 from tracker.frame import Frame
 
@@ -309,40 +310,22 @@ def profile_toml(profile: ScoreProfile) -> str:
         "# Made by `mctrack calibrate` (or, without labels, by `mctrack kitti`'s"
         " self-calibration); see tracker/calibration.py.",
         f"version = {PROFILE_VERSION}",
-        f"detector = {_toml_value(profile.detector)}",
+        f"detector = {toml_value(profile.detector)}",
         "",
         "[fitted_on]",
-        *(f"{k} = {_toml_value(v)}" for k, v in profile.fitted_on.items()),
+        *(f"{k} = {toml_value(v)}" for k, v in profile.fitted_on.items()),
     ]
     for name, score_map in profile.maps.items():
         lines += [
             "",
             f"[class.{name}]",
-            f"raw = {_toml_value([round(float(v), 4) for v in score_map.raw])}",
-            f"prob = {_toml_value([round(float(v), 4) for v in score_map.prob])}",
+            f"raw = {toml_value([round(float(v), 4) for v in score_map.raw])}",
+            f"prob = {toml_value([round(float(v), 4) for v in score_map.prob])}",
             *(
-                [f"range = {_toml_value(score_map.range_term.as_dict())}"]
+                [f"range = {toml_value(score_map.range_term.as_dict())}"]
                 if score_map.range_term
                 else []
             ),
-            f"quality = {_toml_value(dict(profile.quality.get(name, {})))}",
+            f"quality = {toml_value(dict(profile.quality.get(name, {})))}",
         ]
     return "\n".join(lines) + "\n"
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if not math.isfinite(value):
-            return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-        return repr(round(value, 6))
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, Mapping):
-        return "{ " + ", ".join(f"{k} = {_toml_value(v)}" for k, v in value.items()) + " }"
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise TypeError(f"cannot write {type(value).__name__} to TOML")

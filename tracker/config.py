@@ -23,6 +23,7 @@ import enum
 import math
 import tomllib
 import typing
+from collections.abc import Mapping
 from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path
@@ -207,6 +208,10 @@ class OfflineConfig:
     # continues it under its id (one-to-one, Hungarian on the distance; 0 = off)
     stitch_max_gap: int = 0
     stitch_distance_m: float = 1.0
+    # offline only: a track's written own 2D boxes (an image head's, not projections; see
+    # image_boxes) keep their offset from its projection averaged over smooth_seconds
+    # (tracker.io.writers.smooth_own_boxes)
+    smooth_image_boxes: bool = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -237,6 +242,17 @@ class TrackerConfig:
     @property
     def nominal_dt_secs(self) -> float:
         return 1.0 / self.frame_rate_hz
+
+    def kitti_writer_options(self) -> dict[str, Any]:
+        """The keywords of :func:`tracker.io.writers.write_kitti_sequence` this config sets."""
+        window = 0
+        if self.mode is TrackingMode.OFFLINE and self.offline.smooth_image_boxes:
+            window = round(self.offline.smooth_seconds * self.frame_rate_hz) | 1  # odd
+        return {
+            "image_boxes": self.image_boxes,
+            "width_scale": self.image_width_scales(),
+            "own_box_window": window,
+        }
 
     def image_width_scales(self) -> FloatArray:
         """``image_width_scale`` per global category index (1 where not tracked)."""
@@ -450,3 +466,22 @@ def config_to_dict(cfg: Any) -> Any:
     if isinstance(cfg, float) and np.isinf(cfg):
         return str(cfg)  # JSON has no infinity: "-inf" / "inf", read back by _coerce
     return cfg
+
+
+def toml_value(value: Any) -> str:
+    """A TOML value (number, string, bool, list or inline table; floats to 6 decimals)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+        return repr(round(value, 6))
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, Mapping):
+        return "{ " + ", ".join(f"{k} = {toml_value(v)}" for k, v in value.items()) + " }"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from tracker.boxes import Boxes, FloatArray
+from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.camera import clip_boxes_to_image, project_boxes
 from tracker.categories import CATEGORIES
 from tracker.config import ImageBoxes
@@ -195,10 +195,31 @@ def kitti_lines(
     ``carried`` (the sequence's :class:`CarriedBoxes`, frames in order), a coasting track
     reports its last own box carried along.
     """
+    rows = kitti_rows(
+        output, camera, detections, width_scale=width_scale, own_rows=own_rows,
+        detection_width_scale=detection_width_scale, carried=carried,
+    )  # fmt: skip
+    return [] if rows is None else format_kitti_lines(output, *rows[:3])
+
+
+def kitti_rows(
+    output: TrackOutput,
+    camera: Camera,
+    detections: Boxes | None = None,
+    *,
+    width_scale: FloatArray | None = None,
+    own_rows: np.ndarray | None = None,
+    detection_width_scale: FloatArray | None = None,
+    carried: CarriedBoxes | None = None,
+) -> tuple[FloatArray, FloatArray, np.ndarray, FloatArray, IntArray] | None:
+    """What :func:`kitti_lines` writes, before formatting: ``fields``, the written ``xyxy``,
+    ``visible``, the projections ``proj`` (N, 4) and the rows that wrote their detection's own
+    box (indices); None for a frame without tracks."""
     boxes = output.boxes
     if not len(boxes):
-        return []
+        return None
     fields, xyxy, visible = kitti_label_fields(boxes, camera, width_scale=width_scale)
+    proj, idx = xyxy, np.zeros(0, dtype=np.int64)
     if detections is not None:
         rows = output.det_row
         has = rows >= 0
@@ -223,6 +244,31 @@ def kitti_lines(
             xyxy[coasting[at[inside]]] = moved[inside]
             other = np.setdiff1d(np.flatnonzero(rows >= 0), idx)
             carried.remember(ids[idx], det_xyxy, proj[idx], ids[other])
+    return fields, xyxy, visible, proj, idx
+
+
+def window_means(frame: IntArray, group: IntArray, values: FloatArray, half: int) -> FloatArray:
+    """Each row's mean of ``values`` (n, k) over the rows of its ``group`` whose ``frame`` lies
+    within ``half`` of its own (one row per group and frame), by cumulative sums per group."""
+    frame, group = np.asarray(frame), np.asarray(group)
+    values = np.asarray(values, dtype=np.float64)
+    out = np.empty_like(values)
+    order = np.lexsort((frame, group))
+    starts = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0])
+    for run in np.split(order, starts[1:]):
+        f = frame[run]
+        lo = np.searchsorted(f, f - half, side="left")
+        hi = np.searchsorted(f, f + half, side="right")
+        csum = np.vstack([np.zeros(values.shape[1]), np.cumsum(values[run], axis=0)])
+        out[run] = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+    return out
+
+
+def format_kitti_lines(
+    output: TrackOutput, fields: FloatArray, xyxy: FloatArray, visible: np.ndarray
+) -> list[str]:
+    """One frame's label_02 lines of the visible rows."""
+    boxes = output.boxes
     lines = []
     for i in np.flatnonzero(visible):
         name = KITTI_CLASS_NAMES.get(CATEGORIES[boxes.category[i]], CATEGORIES[boxes.category[i]])
@@ -244,6 +290,7 @@ def write_kitti_sequence(
     *,
     image_boxes: ImageBoxes | str = ImageBoxes.PROJECTION,
     width_scale: FloatArray | None = None,
+    own_box_window: int = 0,
 ) -> int:
     """Write one sequence's KITTI tracking result file; returns the number of lines.
 
@@ -258,6 +305,7 @@ def write_kitti_sequence(
     stats = ImageBoxStats(np.ones(len(CATEGORIES)) if width_scale is None else width_scale)
     carried = CarriedBoxes() if mode is ImageBoxes.AUTO else None
     lines: list[str] = []
+    collected: list[tuple[TrackOutput, tuple, Camera]] = []  # (own_box_window) frames' rows
     for out in outputs:
         frame = by_frame[out.frame_id]
         index = frame.camera_index(camera_name)
@@ -271,15 +319,60 @@ def write_kitti_sequence(
         own = stats.update(dets, camera, index)
         # an own box takes the learnt width factor, a projection the class's (detection mode)
         scale = np.where(own, stats.width_scale()[dets.category], stats.target[dets.category])
-        lines.extend(
-            kitti_lines(
-                out, camera, dets, width_scale=width_scale,
-                own_rows=(dets.camera == index) if mode is ImageBoxes.DETECTION else own,
-                detection_width_scale=scale, carried=carried,
-            )
+        rows = kitti_rows(
+            out, camera, dets, width_scale=width_scale,
+            own_rows=(dets.camera == index) if mode is ImageBoxes.DETECTION else own,
+            detection_width_scale=scale, carried=carried,
         )  # fmt: skip
+        if rows is None:
+            continue
+        if own_box_window >= 3:
+            collected.append((out, rows, camera))
+        else:
+            lines.extend(format_kitti_lines(out, *rows[:3]))
+    if collected:
+        smooth_own_boxes(collected, own_box_window)
+        for out, rows, _ in collected:
+            lines.extend(format_kitti_lines(out, *rows[:3]))
     write_text_atomic(path, lines)
     return len(lines)
+
+
+def smooth_own_boxes(collected: list[tuple[TrackOutput, tuple, Camera]], window: int) -> None:
+    """Offline: each track's written own boxes (an image head's, not projections) with their
+    offset from the track's projection averaged over ``window`` frames centred on each.
+
+    An own box is the projection's box moved and scaled: ``own = c + r * s`` per corner, with
+    ``c`` and ``s`` the projection's centre and size and ``r`` the relative offset. The
+    projection carries the motion (its 3D box is smoothed offline); ``r`` is the image head's
+    disagreement with it, which changes slowly, while each box's own error does not: averaging
+    ``r`` over the track's own boxes within the window keeps the first and averages the second.
+    In place on the collected rows' written boxes."""
+    frame_no, tid, rel, where = [], [], [], []
+    for k, (out, (_, xyxy, _, proj, idx), _) in enumerate(collected):
+        p = proj[idx]
+        centre = np.hstack([(p[:, :2] + p[:, 2:]) / 2] * 2)
+        size = np.hstack([p[:, 2:] - p[:, :2]] * 2)
+        ok = np.isfinite(centre).all(axis=1) & (size > 0).all(axis=1)
+        if not ok.any():
+            continue
+        idx, centre, size = idx[ok], centre[ok], size[ok]
+        frame_no.append(np.full(len(idx), out.frame_id))
+        tid.append(out.boxes.track_id[idx])
+        rel.append((xyxy[idx] - centre) / size)
+        where.append((k, idx, centre, size))
+    if not where:
+        return
+    smoothed = window_means(
+        np.concatenate(frame_no), np.concatenate(tid), np.concatenate(rel), window // 2
+    )
+    at = 0
+    for k, idx, centre, size in where:  # (the rows in the order they were collected)
+        _, (_, xyxy, _, _, _), camera = collected[k]
+        r = smoothed[at : at + len(idx)]
+        at += len(idx)
+        box, ok = clip_boxes_to_image(centre + r * size, np.ones(len(idx), dtype=bool), camera)
+        xyxy[idx[ok]] = box[ok]
 
 
 def write_tracks_file(
