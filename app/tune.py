@@ -598,8 +598,8 @@ def _run(args: argparse.Namespace) -> int:
 
 def best_config_toml(record: dict[str, Any]) -> str:
     """The settings the search chose on all sequences as a config file (``--config
-    best.toml``): the tuned config as its base, the chosen values over it, every other class and
-    setting as in the base."""
+    best.toml``): the tuned config as its base, the search's mode and the chosen values (exact)
+    over it, every other class and setting as in the base."""
     base = record["config"]
     if base not in BUILTIN:  # a file: its absolute path, so best.toml works from anywhere
         base = str(Path(base).resolve())
@@ -610,13 +610,15 @@ def best_config_toml(record: dict[str, Any]) -> str:
         " on all sequences (the record: tune.json beside this file)",
         f"# HOTA held out: {held_out}; in-sample: {in_sample}",
         f"base = {toml_value(base)}",
+        f"mode = {toml_value(record['mode'])}",  # (the search's, whatever the base file says)
     ]
     overrides = record["final"]["overrides"]
     tables = [(f"category.{c}", v) for c, v in overrides.get("category", {}).items()]
     if "offline" in overrides:
         tables.append(("offline", overrides["offline"]))
     for name, values in tables:
-        lines += ["", f"[{name}]", *(f"{k} = {toml_value(v)}" for k, v in values.items())]
+        exact = (f"{k} = {toml_value(v, decimals=None)}" for k, v in values.items())
+        lines += ["", f"[{name}]", *exact]
     return "\n".join(lines) + "\n"
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tracker.boxes import Boxes
 from tracker.calibration import calibrate_frames, find_profile
 from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
@@ -445,3 +446,32 @@ def test_offline_smoothing_leaves_projected_boxes_alone(tmp_path: Path) -> None:
     assert load_config("kitti").kitti_writer_options()["own_box_window"] == 0
     plain = load_config("kitti_offline", overrides={"offline": {"smooth_image_boxes": False}})
     assert plain.kitti_writer_options()["own_box_window"] == 0
+
+
+def test_a_sliver_of_projection_at_the_image_edge_stays_out_of_the_average() -> None:
+    """Track 1 writes own boxes 10 px right of its projection in 3 frames; in the middle frame
+    its projection is cut by the image edge to a 2 px sliver (a tenth of its width): that row
+    keeps its box and leaves the others' offset alone. In the full frames the offset is the
+    same, so the average changes nothing."""
+    from tracker.events import TrackOutput
+    from tracker.frame import Camera
+    from tracker.io.writers import smooth_own_boxes
+
+    camera = Camera("CAM_FRONT", np.eye(3, 4), np.eye(4), 1242, 375)
+    boxes = Boxes.create(xyz=np.zeros((1, 3)), lwh=np.ones((1, 3)), yaw=np.zeros(1),
+                         category=np.zeros(1, dtype=np.int64), track_id=np.array([1]))  # fmt: skip
+    out = [TrackOutput("s", k, k / 10, boxes, np.zeros((1, 2)), np.zeros(1, np.int8),
+                       np.zeros(1, np.int64), np.ones(1, np.int8)) for k in range(3)]  # fmt: skip
+    proj = [np.array([[100.0, 100.0, 120.0, 150.0]]), np.array([[0.0, 100.0, 2.0, 150.0]]),
+            np.array([[104.0, 100.0, 124.0, 150.0]])]  # fmt: skip
+    own = [p + np.array([10.0, 0.0, 10.0, 0.0]) for p in proj]
+    own[1] = np.array([[0.0, 100.0, 30.0, 150.0]])  # the head's box: the visible part
+    in_view = [np.ones(1), np.array([0.1]), np.ones(1)]
+    collected = [
+        (out[k], (None, own[k].copy(), np.ones(1, bool), proj[k], np.array([0]), in_view[k]),
+         camera)
+        for k in range(3)
+    ]  # fmt: skip
+    smooth_own_boxes(collected, 15)
+    for k in range(3):
+        np.testing.assert_allclose(collected[k][1][1], own[k])

@@ -100,18 +100,17 @@ def test_a_bad_noise_seed_is_a_one_line_error(
 
 
 def test_the_chosen_settings_are_written_as_a_config_file(tmp_path: Path) -> None:
-    """best.toml: the tuned config as its base and the chosen values over it; loaded, it is the
-    base with the record's overrides (to the file's 6 decimals), every other class untouched."""
+    """best.toml: the tuned config as its base, the search's mode and the chosen values over it;
+    loaded, it is the base with the record's overrides, to the last bit, every other class as
+    in the base."""
     from app.tune import best_config_toml
 
     user = tmp_path / "mine.toml"
-    user.write_text('base = "kitti_offline"\n[category.car]\nscore_min = 0.3\n')
-    params = {"score_min": 0.1234567, "lifecycle.min_hits": 3, "lifecycle.confirm_nines": 2.0,
-              "offline.rts_r_multiple": 4.0}  # fmt: skip
-    for config, overrides in (
-        ("kitti", settings_to_overrides("pedestrian", params)),
-        (str(user), settings_to_overrides("pedestrian", params)),
-    ):
+    user.write_text('base = "kitti"\n[category.car]\nscore_min = 0.3\n')
+    params = {"score_min": 0.12345678901, "lifecycle.min_hits": 3, "pose.r_scale": 3e-7,
+              "lifecycle.confirm_nines": 2.0, "offline.rts_r_multiple": 4.0}  # fmt: skip
+    overrides = settings_to_overrides("pedestrian", params)
+    for config in ("kitti", str(user)):  # both online bases; the search ran offline
         record = {
             "class": "pedestrian", "mode": "offline", "config": config,
             "cross_validated": {"pointrcnn": {"HOTA": 53.0}},
@@ -120,13 +119,14 @@ def test_the_chosen_settings_are_written_as_a_config_file(tmp_path: Path) -> Non
         where = tmp_path / "out" / "best.toml"  # elsewhere than a user base: its path is absolute
         where.parent.mkdir(exist_ok=True)
         where.write_text(best_config_toml(record))
-        got, want = load_config(str(where)), load_config(config, overrides=overrides)
-        ped, base_ped = got.per_category["pedestrian"], want.per_category["pedestrian"]
-        assert ped.score_min == pytest.approx(0.123457, abs=1e-9)
-        assert ped.lifecycle == base_ped.lifecycle and ped.pose == base_ped.pose
-        assert got.per_category["car"] == want.per_category["car"]
-        assert got.offline == want.offline and got.offline.rts_r_multiple == 4.0
-        assert got.mode == want.mode
+        got = load_config(str(where))
+        want = load_config(config, overrides={**overrides, "mode": "offline"})
+        assert got.per_category == want.per_category and got.offline == want.offline
+        assert got.per_category["pedestrian"].score_min == 0.12345678901
+        assert got.per_category["pedestrian"].pose.r_scale == 3e-7
+        assert got.mode.value == "offline" and got.offline.rts_r_multiple == 4.0
+        kitti_car = load_config("kitti").per_category["car"].score_min
+        assert got.per_category["car"].score_min == (0.3 if config == str(user) else kitti_car)
 
 
 def test_searched_values_become_overrides_the_config_accepts() -> None:

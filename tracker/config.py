@@ -468,8 +468,9 @@ def config_to_dict(cfg: Any) -> Any:
     return cfg
 
 
-def toml_value(value: Any) -> str:
-    """A TOML value (number, string, bool, list or inline table; floats to 6 decimals)."""
+def toml_value(value: Any, *, decimals: int | None = 6) -> str:
+    """A TOML value (number, string, bool, list or inline table); floats rounded to
+    ``decimals`` (None: exactly, as Python's shortest repr)."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int):
@@ -477,11 +478,12 @@ def toml_value(value: Any) -> str:
     if isinstance(value, float):
         if not math.isfinite(value):
             return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
-        return repr(round(value, 6))
+        return repr(value if decimals is None else round(value, decimals))
     if isinstance(value, str):
         return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(value, Mapping):
-        return "{ " + ", ".join(f"{k} = {toml_value(v)}" for k, v in value.items()) + " }"
+        items = (f"{k} = {toml_value(v, decimals=decimals)}" for k, v in value.items())
+        return "{ " + ", ".join(items) + " }"
     if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(toml_value(v) for v in value) + "]"
+        return "[" + ", ".join(toml_value(v, decimals=decimals) for v in value) + "]"
     raise TypeError(f"cannot write {type(value).__name__} to TOML")

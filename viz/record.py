@@ -332,8 +332,7 @@ def record_scene(
                 classes=classes,
                 camera_name=camera_names[0],
                 result_file=result_file if restricted == label_file else None,
-                width_scale=config.image_width_scales(),
-                image_boxes=config.image_boxes,
+                **config.kitti_writer_options(),
             )
             result.evaluation = evaluation.without_id_inputs()
             result.kitti_metrics = kitti_metrics or evaluation.metrics

@@ -267,12 +267,14 @@ def kitti_evaluation_and_id_events(
     num_timesteps: int | None = None,
     width_scale: FloatArray | None = None,
     image_boxes: ImageBoxes | str = "projection",
+    own_box_window: int = 0,
 ) -> tuple[SequenceEvaluation, IdEvaluation]:
     """One TrackEval evaluation of a sequence and its ID events from the same loading and
     preprocessing (:func:`tracker.eval.kitti.evaluate_kitti_sequence`). ``width_scale``: the
     config's 2D-box model (:func:`tracker.io.writers.kitti_lines`) and ``image_boxes`` its
-    2D-box source (:func:`tracker.io.writers.write_kitti_sequence`), when the file is written
-    here."""
+    2D-box source, ``own_box_window`` its offline smoothing of own boxes
+    (:func:`tracker.io.writers.write_kitti_sequence`; all three:
+    ``TrackerConfig.kitti_writer_options()``), when the file is written here."""
     from tracker.eval.kitti import evaluate_kitti_sequence
     from tracker.io.writers import write_kitti_sequence
 
@@ -287,7 +289,7 @@ def kitti_evaluation_and_id_events(
             result_file = Path(tmp) / f"{label_file.stem}.txt"
             write_kitti_sequence(
                 result_file, outputs, frames, camera_name,
-                image_boxes=image_boxes, width_scale=width_scale,
+                image_boxes=image_boxes, width_scale=width_scale, own_box_window=own_box_window,
             )  # fmt: skip
         evaluation = evaluate_kitti_sequence(
             label_file=label_file,
