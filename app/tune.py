@@ -382,13 +382,11 @@ def level_frames(
     clean = {s: calibrate_frames(f, profile) for s, f in raw.items()}
     out: dict[str, dict[str, list[Frame]]] = {}
     for level, spec in specs.items():
-        names = draw_levels([level], seeds)
-        for name, seed in zip(names, seeds if level != CLEAN else (0,), strict=True):
-            out[name] = (
-                clean
-                if level == CLEAN
-                else {s: perturb_frames(f, spec, seed=seed) for s, f in clean.items()}
-            )
+        if level == CLEAN:
+            out[CLEAN] = clean
+            continue
+        for name, seed in zip(draw_levels([level], seeds), seeds, strict=True):
+            out[name] = {s: perturb_frames(f, spec, seed=seed) for s, f in clean.items()}
     return out
 
 

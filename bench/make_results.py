@@ -821,8 +821,8 @@ def _grid_text(choice: dict[str, Any]) -> str:
     """An offline_from_online.py record's grid (and its noise draws, when several), for the
     notes."""
     grid = ", ".join(f"`{k}` in {v}" for k, v in choice["grid"].items())
-    seeds = choice.get("noise_seed")  # (records before several draws: the tune's one seed)
-    if isinstance(seeds, list):
+    seeds = record_seeds(choice)  # (records before several draws: the tune's one seed)
+    if len(seeds) > 1:
         grid += f", the objective's noise drawn with seeds {', '.join(map(str, seeds))}"
     return grid
 

@@ -243,11 +243,16 @@ class TrackerConfig:
     def nominal_dt_secs(self) -> float:
         return 1.0 / self.frame_rate_hz
 
+    @property
+    def offline_smooth_frames(self) -> int:
+        """``offline.smooth_seconds`` in frames, odd (a window centred on each frame)."""
+        return round(self.offline.smooth_seconds * self.frame_rate_hz) | 1
+
     def kitti_writer_options(self) -> dict[str, Any]:
         """The keywords of :func:`tracker.io.writers.write_kitti_sequence` this config sets."""
         window = 0
         if self.mode is TrackingMode.OFFLINE and self.offline.smooth_image_boxes:
-            window = round(self.offline.smooth_seconds * self.frame_rate_hz) | 1  # odd
+            window = self.offline_smooth_frames
         return {
             "image_boxes": self.image_boxes,
             "width_scale": self.image_width_scales(),

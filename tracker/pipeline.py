@@ -151,7 +151,7 @@ def offline_postprocess(
             if 0 < gap <= config.offline.interpolate_max_gap:
                 for k in range(1, gap + 1):
                     new_src.append((int(frame_index[a]) + k, int(a), int(b), k / (gap + 1)))
-    window = round(config.offline.smooth_seconds * config.frame_rate_hz) | 1  # odd
+    window = config.offline_smooth_frames
     if window >= 3:
         xyz = smooth_positions(boxes.xyz, boxes.track_id, frame_index, keep, window)
         boxes = boxes.replace(xyz=xyz)
