@@ -383,6 +383,14 @@ def test_window_means_equal_a_loop_over_each_groups_frames() -> None:
     for i in range(len(group)):
         near = (group == group[i]) & (np.abs(frame - frame[i]) <= 5)
         np.testing.assert_allclose(got[i], values[near].mean(axis=0))
+    # at other points (a group of no row, frames with no row near: NaN)
+    q_frame, q_group = rng.integers(-10, 210, 40), rng.integers(0, 5, 40)
+    got = window_means(frame, group, values, 5, at=(q_frame, q_group))
+    for i in range(len(q_frame)):
+        near = (group == q_group[i]) & (np.abs(frame - q_frame[i]) <= 5)
+        want = values[near].mean(axis=0) if near.any() else np.full(3, np.nan)
+        np.testing.assert_allclose(got[i], want)
+    assert np.isnan(got).any() and np.isfinite(got).any()
 
 
 def _offline_run() -> tuple[list, list]:
@@ -401,7 +409,8 @@ def _written(path: Path) -> dict[tuple[int, int], np.ndarray]:
 def test_offline_smoothing_averages_an_image_heads_noise(tmp_path: Path) -> None:
     """An image head whose boxes sit at a fixed offset from the 3D boxes' projections, each with
     its own noise (σ 4 px a corner): offline, the written boxes of matched tracks come nearer the
-    noise-free ones, and nothing else changes."""
+    noise-free ones, and so do the boxes coasting and interpolated rows carry (the average
+    offset around their frame, not their track's last own box's)."""
     from tracker.io.writers import write_kitti_sequence
 
     frames, outputs = _offline_run()
@@ -429,7 +438,10 @@ def test_offline_smoothing_averages_an_image_heads_noise(tmp_path: Path) -> None
     noise_left = np.mean([np.abs(smooth[k] - truth_smooth[k]).mean() for k in own])
     assert len(own) > 300 and err_smooth < 0.8 * err_raw and noise_left < 0.4 * err_raw
     others = sorted(raw.keys() - matched)  # coasting and interpolated rows
-    assert others and all(np.array_equal(raw[k], smooth[k]) for k in others)
+    carried_raw = np.mean([np.abs(raw[k] - truth[k]).mean() for k in others])  # 4.1 px
+    carried_left = np.mean([np.abs(smooth[k] - truth_smooth[k]).mean() for k in others])
+    # (their last own box's noise, carried as before, would leave all of it: 4.1 px here)
+    assert len(others) > 100 and carried_left < 0.7 * carried_raw
 
 
 def test_offline_smoothing_leaves_projected_boxes_alone(tmp_path: Path) -> None:

@@ -209,8 +209,8 @@ class OfflineConfig:
     stitch_max_gap: int = 0
     stitch_distance_m: float = 1.0
     # offline only: a track's written own 2D boxes (an image head's, not projections; see
-    # image_boxes) keep their offset from its projection averaged over smooth_seconds
-    # (tracker.io.writers.smooth_own_boxes)
+    # image_boxes) keep their offset from its projection averaged over smooth_seconds, and its
+    # coasting rows carry that average (tracker.io.writers.smooth_own_boxes)
     smooth_image_boxes: bool = False
 
 

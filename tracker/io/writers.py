@@ -247,20 +247,31 @@ def kitti_rows(
     return fields, xyxy, visible, proj, idx, np.nan_to_num(in_view)
 
 
-def window_means(frame: IntArray, group: IntArray, values: FloatArray, half: int) -> FloatArray:
+def window_means(
+    frame: IntArray,
+    group: IntArray,
+    values: FloatArray,
+    half: int,
+    at: tuple[IntArray, IntArray] | None = None,
+) -> FloatArray:
     """Each row's mean of ``values`` (n, k) over the rows of its ``group`` whose ``frame`` lies
-    within ``half`` of its own (one row per group and frame), by cumulative sums per group."""
+    within ``half`` of its own (one row per group and frame), by cumulative sums per group.
+    With ``at`` = (frames, groups) of other points, the means at those points instead (NaN
+    where their group has no row within ``half``)."""
     frame, group = np.asarray(frame), np.asarray(group)
     values = np.asarray(values, dtype=np.float64)
-    out = np.empty_like(values)
+    q_frame, q_group = (frame, group) if at is None else (np.asarray(at[0]), np.asarray(at[1]))
+    out = np.full((len(q_frame), values.shape[1]), np.nan)
     order = np.lexsort((frame, group))
     starts = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0])
     for run in np.split(order, starts[1:]):
-        f = frame[run]
-        lo = np.searchsorted(f, f - half, side="left")
-        hi = np.searchsorted(f, f + half, side="right")
+        queries = np.flatnonzero(q_group == group[run[0]]) if at is not None else run
+        f, q = frame[run], q_frame[queries]
+        lo = np.searchsorted(f, q - half, side="left")
+        hi = np.searchsorted(f, q + half, side="right")
         csum = np.vstack([np.zeros(values.shape[1]), np.cumsum(values[run], axis=0)])
-        out[run] = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out[queries] = (csum[hi] - csum[lo]) / (hi - lo)[:, None]
     return out
 
 
@@ -350,32 +361,55 @@ def smooth_own_boxes(collected: list[tuple[TrackOutput, tuple, Camera]], window:
     A row whose projection the image edge cuts to less than half its width keeps its own box
     and stays out of the averages: a sliver would give any own box a huge offset (and the whole
     projection, unclipped, moves away from an image head's box as the object leaves the view:
-    measured, car HOTA -1.6 with RRC's boxes). In place on the collected rows' written boxes."""
-    frame_no, tid, rel, where = [], [], [], []
+    measured, car HOTA -1.6 with RRC's boxes). A coasting or interpolated row that carries its
+    track's last own box (:class:`CarriedBoxes`) takes the average offset around its own frame
+    instead, where the window holds own boxes of its track. In place on the collected rows'
+    written boxes."""
+    frame_no, tid, rel, where, coast = [], [], [], [], []
     for k, (out, (_, xyxy, _, proj, idx, in_view), _) in enumerate(collected):
-        p = proj[idx]
-        centre = np.hstack([(p[:, :2] + p[:, 2:]) / 2] * 2)
-        size = np.hstack([p[:, 2:] - p[:, :2]] * 2)
-        ok = np.isfinite(centre).all(axis=1) & (size > 0).all(axis=1) & (in_view[idx] >= 0.5)
-        if not ok.any():
+        centre = np.hstack([(proj[:, :2] + proj[:, 2:]) / 2] * 2)
+        size = np.hstack([proj[:, 2:] - proj[:, :2]] * 2)
+        ok = np.isfinite(centre).all(axis=1) & (size > 0).all(axis=1) & (in_view >= 0.5)
+        # coasting rows that carry their track's last own box (CarriedBoxes)
+        carried = np.flatnonzero(ok & (out.det_row < 0) & np.any(xyxy != proj, axis=1))
+        if len(carried):
+            coast.append((k, carried, centre[carried], size[carried]))
+        idx = idx[ok[idx]]
+        if not len(idx):
             continue
-        idx, centre, size = idx[ok], centre[ok], size[ok]
         frame_no.append(np.full(len(idx), out.frame_id))
         tid.append(out.boxes.track_id[idx])
-        rel.append((xyxy[idx] - centre) / size)
-        where.append((k, idx, centre, size))
+        rel.append((xyxy[idx] - centre[idx]) / size[idx])
+        where.append((k, idx, centre[idx], size[idx]))
     if not where:
         return
-    smoothed = window_means(
-        np.concatenate(frame_no), np.concatenate(tid), np.concatenate(rel), window // 2
-    )
+    frame_no, tid, rel = np.concatenate(frame_no), np.concatenate(tid), np.concatenate(rel)
+    half = window // 2
     at = 0
+    smoothed = window_means(frame_no, tid, rel, half)
     for k, idx, centre, size in where:  # (the rows in the order they were collected)
         _, (_, xyxy, *_), camera = collected[k]
         r = smoothed[at : at + len(idx)]
         at += len(idx)
         box, ok = clip_boxes_to_image(centre + r * size, np.ones(len(idx), dtype=bool), camera)
         xyxy[idx[ok]] = box[ok]
+    # a coasting row carries the average offset around its frame instead of its last own
+    # box's (none within the window: it keeps the carried box)
+    if not coast:
+        return
+    queries = (
+        np.concatenate([np.full(len(rows), collected[k][0].frame_id) for k, rows, *_ in coast]),
+        np.concatenate([collected[k][0].boxes.track_id[rows] for k, rows, *_ in coast]),
+    )
+    smoothed = window_means(frame_no, tid, rel, half, at=queries)
+    at = 0
+    for k, rows, centre, size in coast:
+        _, (_, xyxy, *_), camera = collected[k]
+        r = smoothed[at : at + len(rows)]
+        at += len(rows)
+        known = np.isfinite(r).all(axis=1)
+        box, ok = clip_boxes_to_image(centre + r * size, known, camera)
+        xyxy[rows[ok]] = box[ok]
 
 
 def write_tracks_file(
