@@ -487,3 +487,18 @@ def test_a_sliver_of_projection_at_the_image_edge_stays_out_of_the_average() -> 
     smooth_own_boxes(collected, 15)
     for k in range(3):
         np.testing.assert_allclose(collected[k][1][1], own[k])
+
+
+@pytest.mark.parametrize("fill", [0.0, -1.0])
+def test_detections_without_a_2d_box_write_the_projections(tmp_path: Path, fill: float) -> None:
+    """3D-only pipelines write 0 0 0 0 or -1 -1 -1 -1 as the 2D box: no box of their own, so
+    `auto` (offline, with the own boxes' smoothing) writes what `projection` writes."""
+    from tracker.io.writers import write_kitti_sequence
+
+    frames, outputs = _offline_run()
+    write_kitti_sequence(tmp_path / "projection.txt", outputs, frames, image_boxes="projection")
+    blank = _with_image_boxes(frames, lambda b: np.full_like(b, fill))
+    write_kitti_sequence(tmp_path / "auto.txt", outputs, blank, image_boxes="auto",
+                         own_box_window=15)  # fmt: skip
+    text = (tmp_path / "auto.txt").read_text()
+    assert text.count("\n") > 300 and text == (tmp_path / "projection.txt").read_text()
