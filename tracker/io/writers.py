@@ -264,8 +264,13 @@ def window_means(
     out = np.full((len(q_frame), values.shape[1]), np.nan)
     order = np.lexsort((frame, group))
     starts = np.flatnonzero(np.r_[True, np.diff(group[order]) != 0])
+    by_group = np.argsort(q_group, kind="stable")  # a group's queries: one slice of these
+    q_sorted = q_group[by_group]
     for run in np.split(order, starts[1:]):
-        queries = np.flatnonzero(q_group == group[run[0]]) if at is not None else run
+        queries = run
+        if at is not None:
+            g = group[run[0]]
+            queries = by_group[np.searchsorted(q_sorted, g) : np.searchsorted(q_sorted, g, "right")]
         f, q = frame[run], q_frame[queries]
         lo = np.searchsorted(f, q - half, side="left")
         hi = np.searchsorted(f, q + half, side="right")
