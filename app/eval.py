@@ -17,8 +17,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from tracker.boxes import FloatArray
-from tracker.config import load_config
+from tracker.config import ImageBoxes, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
@@ -51,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--detections",
         default=None,
         help="the tracker's input BaseVersion file (needed for the detection, difference and "
-        "curve-fit velocity estimators)",
+        "curve-fit velocity estimators, and for the detections' own 2D boxes that the config's "
+        "image_boxes writes)",
     )
     parser.add_argument("--classes", default="car,pedestrian", help="comma-separated classes")
     parser.add_argument(
@@ -63,8 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config",
         default="kitti",
-        help="the config the tracks were made with: its image_width_scale per class shapes the "
-        "2D boxes written for the KITTI 2D-box protocol (default: kitti)",
+        help="the config the tracks were made with: it shapes the 2D boxes written for the KITTI "
+        "2D-box protocol as the tracking run wrote them (image_width_scale per class; with "
+        "--detections, image_boxes and the offline own-box smoothing) (default: kitti)",
     )
     parser.add_argument("--out", default=None, help="output folder (default: the tracks folder)")
 
@@ -80,19 +81,22 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.labels}: --labels folder not found (KITTI label_02)")
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]
     config = load_config(args.config)
-    width_scale = config.image_width_scales()
-    if config.image_boxes.value == "detection":
-        # the tracks file keeps the tracked boxes, not the detections' 2D boxes ("auto" writes
-        # the same as "projection" for a LiDAR detector's boxes, so it gets no note)
+    writer = config.kitti_writer_options()
+    if args.detections is None and writer["image_boxes"] is not ImageBoxes.PROJECTION:
+        # the tracks file keeps the tracked boxes, not the detections' own 2D boxes
         print(
-            f"mctrack eval: {args.config}: image_boxes = {config.image_boxes.value!r} is not"
-            " applied here; the KITTI files are written with the tracked boxes' projections",
+            f"mctrack eval: {args.config}: image_boxes = {config.image_boxes.value!r} needs the"
+            " detections' 2D boxes (--detections); without them the KITTI files are written with"
+            " the tracked boxes' projections",
             file=sys.stderr,
         )
+        writer = {"width_scale": writer["width_scale"]}
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)
     gt = read_baseversion(args.gt)
     dets = read_baseversion(args.detections) if args.detections else None
+    if dets is not None:
+        check_detections_match(dets, outputs, args.detections)
     result = evaluate_tracks(
         track_frames,
         outputs,
@@ -102,7 +106,7 @@ def run(args: argparse.Namespace) -> int:
         labels=Path(args.labels) if args.labels else None,
         motion=args.motion,
         out=out,
-        width_scale=width_scale,
+        writer=writer,
     )
     print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
     if isinstance(result.get("static"), str):
@@ -120,17 +124,24 @@ def evaluate_tracks(
     labels: Path | None,
     motion: bool,
     out: Path,
-    width_scale: FloatArray | None = None,
+    writer: Mapping[str, Any] | None = None,
 ) -> dict[str, Any]:
     """Static and/or motion metrics of tracker output; writes ``out/eval.json`` and
-    ``out/eval.md`` and returns the JSON content. ``width_scale``: the 2D-box model of the
-    tracking config (:func:`tracker.io.writers.kitti_lines`)."""
+    ``out/eval.md`` and returns the JSON content. ``writer``: the keywords of
+    :func:`tracker.io.writers.write_kitti_sequence` (``TrackerConfig.kitti_writer_options()``;
+    None: projections, full width); a mode other than projection takes its 2D boxes from
+    ``dets`` (:func:`check_detections_match` them first)."""
     from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     result: dict[str, Any] = {"tracks_scenes": sorted(outputs), "classes": list(classes)}
     md = ["# Evaluation", ""]
     if labels is not None:
-        result["static"] = _static_metrics(track_frames, outputs, gt, classes, labels, width_scale)
+        writer = dict(writer or {})
+        mode = ImageBoxes(writer.get("image_boxes", ImageBoxes.PROJECTION))
+        frames = track_frames if mode is ImageBoxes.PROJECTION or dets is None else dets
+        if frames is track_frames:
+            writer["image_boxes"] = ImageBoxes.PROJECTION
+        result["static"] = _static_metrics(frames, outputs, gt, classes, labels, writer)
     else:
         result["static"] = "skipped: static metrics need --labels (KITTI label_02 folder)"
     md += _static_markdown(result["static"])
@@ -153,12 +164,12 @@ def evaluate_tracks(
 
 
 def _static_metrics(
-    track_frames: Mapping[str, Sequence[Frame]],
+    frames: Mapping[str, Sequence[Frame]],  # the writer's: tracks' or detections' (own 2D boxes)
     outputs: Mapping[str, Sequence[TrackOutput]],
     gt: Mapping[str, Sequence[Frame]],
     classes: Sequence[str],
     labels: Path,
-    width_scale: FloatArray | None = None,
+    writer: Mapping[str, Any],
 ) -> dict[str, Any] | str:
     from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
     from tracker.io.writers import write_kitti_sequence
@@ -172,7 +183,7 @@ def _static_metrics(
     lengths = {
         s: 1
         + max(
-            [f.frame_id for f in track_frames[s]] + [f.frame_id for f in gt.get(s, ())],
+            [o.frame_id for o in outputs[s]] + [f.frame_id for f in gt.get(s, ())],
             default=-1,
         )
         for s in outputs
@@ -180,14 +191,27 @@ def _static_metrics(
     with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
         for scene, scene_outputs in outputs.items():
             write_kitti_sequence(
-                path_in(tmp, scene, ".txt"),
-                scene_outputs,
-                track_frames[scene],
-                width_scale=width_scale,
+                path_in(tmp, scene, ".txt"), scene_outputs, frames[scene], **writer
             )
         return evaluate_kitti(
             label_dir=labels, result_dir=Path(tmp), seq_lengths=lengths, classes=static_classes
         )
+
+
+def check_detections_match(
+    dets: Mapping[str, Sequence[Frame]], outputs: Mapping[str, Sequence[TrackOutput]], path: str
+) -> None:
+    """Raise :class:`InputError` unless ``dets`` holds every frame of the tracks and every
+    matched detection row the tracks name (it is the file the tracks were made from)."""
+    for scene, scene_outputs in outputs.items():
+        sizes = {f.frame_id: len(f.boxes) for f in dets.get(scene, ())}
+        for out in scene_outputs:
+            rows = int(out.det_row.max(initial=-1))
+            if out.frame_id not in sizes or rows >= sizes[out.frame_id]:
+                raise InputError(
+                    f"{path}: scene {scene} frame {out.frame_id}: not the detections the tracks"
+                    f" were made from (the tracks match detection row {rows})"
+                )
 
 
 def _static_markdown(static: dict[str, Any] | str) -> list[str]:

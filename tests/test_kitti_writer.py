@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -70,13 +71,51 @@ def test_eval_writes_boxes_with_the_given_configs_width(
         assert main([*args, "--config", name]) == 0
         hota[name] = json.loads((out / "eval.json").read_text())["static"]["pedestrian"]["HOTA"]
     assert hota["kitti"] > hota["kitti_reference"] + 1.0
-    # kitti's image_boxes auto writes projections for these boxes: no note; detection mode's
-    # boxes are not in a tracks file, which the note says
-    assert "image_boxes" not in capsys.readouterr().err
-    detection = tmp_path / "detection.toml"
-    detection.write_text('base = "kitti"\nimage_boxes = "detection"\n')
-    assert main([*args, "--config", str(detection)]) == 0
-    assert "image_boxes = 'detection' is not applied here" in capsys.readouterr().err
+    # the detections' own 2D boxes are not in a tracks file: without --detections kitti's
+    # image_boxes (auto) falls back to the projections, which the note says
+    assert "image_boxes = 'auto' needs the detections' 2D boxes" in capsys.readouterr().err
+
+
+def test_eval_with_the_detections_writes_their_own_boxes_as_the_run_did(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An image head's boxes: `mctrack eval --detections` writes them as the tracking run's
+    writer does (auto, offline smoothing), so it scores what that run's files score, not the
+    projections; detections the tracks were not made from are refused in one line."""
+    import json
+
+    from app.cli import main
+    from tracker.eval.kitti import evaluate_kitti
+    from tracker.io.baseversion import write_baseversion
+    from tracker.io.writers import write_kitti_sequence, write_tracks_file
+
+    cfg = load_config("kitti_offline")
+    frames = read_baseversion(SAMPLE / "detections.json.gz")["0001"]
+    frames = _with_image_boxes(calibrate_frames(frames, find_profile("pointrcnn")), _image_head)
+    outputs = run_scene(frames, cfg).outputs
+    write_tracks_file(tmp_path / "tracks.json", {"0001": (frames, outputs)})
+    write_baseversion(tmp_path / "dets.json", {"0001": frames})
+    labels = SAMPLE / "raw" / "training" / "label_02"
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    write_kitti_sequence(run_dir / "0001.txt", outputs, frames, **cfg.kitti_writer_options())
+    length = {"0001": 1 + max(f.frame_id for f in frames)}
+    want = evaluate_kitti(label_dir=labels, result_dir=run_dir, seq_lengths=length,
+                          classes=["car"])["car"]["HOTA"]  # fmt: skip
+    args = ["eval", str(tmp_path / "tracks.json"), "--gt", str(SAMPLE / "gt.json.gz"),
+            "--labels", str(labels), "--classes", "car", "--config", "kitti_offline"]  # fmt: skip
+    hota = {}
+    for name, extra in (("own", ["--detections", str(tmp_path / "dets.json")]), ("proj", [])):
+        assert main([*args, *extra, "--out", str(tmp_path / name)]) == 0
+        hota[name] = json.loads((tmp_path / name / "eval.json").read_text())["static"]
+    assert hota["own"]["car"]["HOTA"] == pytest.approx(want, abs=1e-9)
+    assert abs(hota["own"]["car"]["HOTA"] - hota["proj"]["car"]["HOTA"]) > 1.0
+    capsys.readouterr()
+    fewer = [dataclasses.replace(f, boxes=f.boxes[np.arange(min(1, len(f.boxes)))]) for f in frames]
+    write_baseversion(tmp_path / "other.json", {"0001": fewer})
+    assert main([*args, "--detections", str(tmp_path / "other.json")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "other.json" in err[0] and "not the detections" in err[0]
 
 
 # -- which 2D box a matched track reports (image_boxes) ------------------------------------------
