@@ -95,7 +95,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--profile",
         default=None,
-        help="score calibration profile (TOML from `mctrack calibrate`); default: the one shipped "
+        help="score calibration profile (TOML from `mctrack calibrate`, or a shipped profile's "
+        "name); default: the one shipped "
         "for --detector, else 'self'. 'self': fitted without labels on the run's own detections "
         "(self_profile.toml in --out); 'none': sigmoid(raw) (configs with scores = 'as_given' "
         "use the scores as converted)",

@@ -19,8 +19,8 @@ from app.scenes import SceneRecord
 from tracker.calibration import (
     ScoreProfile,
     calibrate_frames,
-    load_profile,
     looks_like_probability,
+    profile_by_path_or_name,
     profile_toml,
 )
 from tracker.categories import CATEGORIES
@@ -53,8 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--profile",
         default=None,
-        help="score calibration profile (`mctrack calibrate`, or tracker/profiles/*.toml) applied "
-        "to each box's detection_score_raw; 'self': fitted without labels on the file's own "
+        help="score calibration profile (a TOML file from `mctrack calibrate`, or a shipped "
+        "profile's name: pointrcnn, second_iou, virconv) applied to each box's "
+        "detection_score_raw; 'self': fitted without labels on the file's own "
         "detections (OUT/self_profile.toml); default: detection_score as given",
     )
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
@@ -163,7 +164,7 @@ def _calibrated(
         np.concatenate([f.boxes.score_raw for fr in scenes.values() for f in fr])
     )
     if profile != SELF_PROFILE:
-        loaded = load_profile(profile)
+        loaded = profile_by_path_or_name(profile)
         fitted = None
     else:
         from tracker.eval.calibrate import fit_self_profile

@@ -20,6 +20,7 @@ from tracker.calibration import (
     calibrate_frames,
     fallback_scores,
     load_profile,
+    profile_by_path_or_name,
     profile_toml,
     resolve_profile,
 )
@@ -162,6 +163,20 @@ def test_shipped_profiles_load() -> None:
         q = profile.quality["car"]
         # calibrated better than the raw sigmoid, also on sequences the fit did not see
         assert q["held_out_by_sequence"]["ece"] < q["uncalibrated"]["ece"]
+
+
+def test_profile_given_by_a_shipped_name_or_a_file(tmp_path: Path) -> None:
+    """`--profile virconv` names the shipped profile; a file is read as a file, even where it
+    has a shipped profile's name; anything else is one error naming the value and the names."""
+    by_name = profile_by_path_or_name("virconv")
+    assert profile_toml(by_name) == profile_toml(resolve_profile("virconv"))
+    assert by_name.detector == "virconv"
+    own = tmp_path / "virconv"
+    own.write_text(profile_toml(_profile()))
+    assert profile_by_path_or_name(own).detector == _profile().detector != "virconv"
+    with pytest.raises(InputError) as err:
+        profile_by_path_or_name("virkonv")
+    assert "virkonv" in str(err.value) and "pointrcnn, second_iou, virconv" in str(err.value)
 
 
 def test_missing_profile_warns_and_falls_back(caplog: pytest.LogCaptureFixture) -> None:

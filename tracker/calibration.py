@@ -214,7 +214,7 @@ def resolve_profile(detector: str, path: str | Path | None = None) -> ScoreProfi
     the shipped one; None (with a loud warning: thresholds then mean something else for this
     detector) when there is none."""
     if path is not None:
-        return load_profile(path)
+        return profile_by_path_or_name(path)
     profile = find_profile(detector)
     if profile is None:
         LOG.warning(
@@ -240,6 +240,17 @@ def find_profile(detector: str) -> ScoreProfile | None:
     if detector in builtin_profiles():
         return load_profile(PROFILE_DIR / f"{detector}.toml")
     return None
+
+
+def profile_by_path_or_name(value: str | Path) -> ScoreProfile:
+    """The profile file ``value``, or where no such file exists, the shipped profile of that
+    name (``--profile virconv``)."""
+    if not Path(value).exists() and str(value) in builtin_profiles():
+        return load_profile(PROFILE_DIR / f"{value}.toml")
+    if not Path(value).exists():
+        shipped = ", ".join(builtin_profiles())
+        raise InputError(f"no such profile file, nor a shipped profile ({shipped})", path=value)
+    return load_profile(value)
 
 
 def load_profile(path: str | Path) -> ScoreProfile:
