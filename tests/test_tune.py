@@ -251,6 +251,7 @@ def test_shipped_offline_choices_are_the_records() -> None:
     assert [p.name for p in paths] == [
         "car_offline_choice.json",
         "car_offline_score_choice.json",
+        "car_offline_three_draws_choice.json",  # the same choice, from the car search's rerun
         "pedestrian_offline_choice.json",
         "pedestrian_offline_score_choice.json",
         "pedestrian_offline_stitch_choice.json",
