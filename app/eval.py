@@ -87,7 +87,8 @@ def run(args: argparse.Namespace) -> int:
         print(
             f"mctrack eval: {args.config}: image_boxes = {config.image_boxes.value!r} needs the"
             " detections' 2D boxes (--detections); without them the KITTI files are written with"
-            " the tracked boxes' projections",
+            " the tracked boxes' projections (the same for a LiDAR detector, whose 2D boxes are"
+            " projections)",
             file=sys.stderr,
         )
         writer = {"width_scale": writer["width_scale"]}
