@@ -91,7 +91,6 @@ def run(args: argparse.Namespace) -> int:
             " projections)",
             file=sys.stderr,
         )
-        writer = {"width_scale": writer["width_scale"]}
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)
     gt = read_baseversion(args.gt)
@@ -131,17 +130,17 @@ def evaluate_tracks(
     ``out/eval.md`` and returns the JSON content. ``writer``: the keywords of
     :func:`tracker.io.writers.write_kitti_sequence` (``TrackerConfig.kitti_writer_options()``;
     None: projections, full width); a mode other than projection takes its 2D boxes from
-    ``dets`` (:func:`check_detections_match` them first)."""
+    ``dets`` (:func:`check_detections_match` them first), and without them writes projections."""
     from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     result: dict[str, Any] = {"tracks_scenes": sorted(outputs), "classes": list(classes)}
     md = ["# Evaluation", ""]
     if labels is not None:
         writer = dict(writer or {})
-        mode = ImageBoxes(writer.get("image_boxes", ImageBoxes.PROJECTION))
-        frames = track_frames if mode is ImageBoxes.PROJECTION or dets is None else dets
-        if frames is track_frames:
+        if dets is None:  # a tracks file holds no detection 2D boxes
             writer["image_boxes"] = ImageBoxes.PROJECTION
+        mode = ImageBoxes(writer.get("image_boxes", ImageBoxes.PROJECTION))
+        frames = track_frames if mode is ImageBoxes.PROJECTION else dets
         result["static"] = _static_metrics(frames, outputs, gt, classes, labels, writer)
     else:
         result["static"] = "skipped: static metrics need --labels (KITTI label_02 folder)"

@@ -245,12 +245,13 @@ def find_profile(detector: str) -> ScoreProfile | None:
 def profile_by_path_or_name(value: str | Path) -> ScoreProfile:
     """The profile file ``value``, or where no such file exists, the shipped profile of that
     name (``--profile virconv``)."""
-    if not Path(value).exists() and str(value) in builtin_profiles():
-        return load_profile(PROFILE_DIR / f"{value}.toml")
-    if not Path(value).exists():
+    if Path(value).exists():
+        return load_profile(value)
+    profile = find_profile(str(value))
+    if profile is None:
         shipped = ", ".join(builtin_profiles())
         raise InputError(f"no such profile file, nor a shipped profile ({shipped})", path=value)
-    return load_profile(value)
+    return profile
 
 
 def load_profile(path: str | Path) -> ScoreProfile:

@@ -370,50 +370,36 @@ def smooth_own_boxes(collected: list[tuple[TrackOutput, tuple, Camera]], window:
     track's last own box (:class:`CarriedBoxes`) takes the average offset around its own frame
     instead, where the window holds own boxes of its track. In place on the collected rows'
     written boxes."""
-    frame_no, tid, rel, where, coast = [], [], [], [], []
+    frame_no, tid, rel = [], [], []  # the own boxes' offsets: the samples averaged
+    targets = []  # per frame: the rows rewritten (own, then carried), their c and s
     for k, (out, (_, xyxy, _, proj, idx, in_view), _) in enumerate(collected):
         centre = np.hstack([(proj[:, :2] + proj[:, 2:]) / 2] * 2)
         size = np.hstack([proj[:, 2:] - proj[:, :2]] * 2)
         ok = np.isfinite(centre).all(axis=1) & (size > 0).all(axis=1) & (in_view >= 0.5)
+        own = idx[ok[idx]]
         # coasting rows that carry their track's last own box (CarriedBoxes)
         carried = np.flatnonzero(ok & (out.det_row < 0) & np.any(xyxy != proj, axis=1))
-        if len(carried):
-            coast.append((k, carried, centre[carried], size[carried]))
-        idx = idx[ok[idx]]
-        if not len(idx):
-            continue
-        frame_no.append(np.full(len(idx), out.frame_id))
-        tid.append(out.boxes.track_id[idx])
-        rel.append((xyxy[idx] - centre[idx]) / size[idx])
-        where.append((k, idx, centre[idx], size[idx]))
-    if not where:
-        return
+        rows = np.concatenate([own, carried])
+        if len(rows):
+            targets.append((k, rows, centre[rows], size[rows]))
+        frame_no.append(np.full(len(own), out.frame_id))
+        tid.append(out.boxes.track_id[own])
+        rel.append((xyxy[own] - centre[own]) / size[own])
     frame_no, tid, rel = np.concatenate(frame_no), np.concatenate(tid), np.concatenate(rel)
-    half = window // 2
-    at = 0
-    smoothed = window_means(frame_no, tid, rel, half)
-    for k, idx, centre, size in where:  # (the rows in the order they were collected)
-        _, (_, xyxy, *_), camera = collected[k]
-        r = smoothed[at : at + len(idx)]
-        at += len(idx)
-        box, ok = clip_boxes_to_image(centre + r * size, np.ones(len(idx), dtype=bool), camera)
-        xyxy[idx[ok]] = box[ok]
-    # a coasting row carries the average offset around its frame instead of its last own
-    # box's (none within the window: it keeps the carried box)
-    if not coast:
+    if not len(rel) or not targets:
         return
     queries = (
-        np.concatenate([np.full(len(rows), collected[k][0].frame_id) for k, rows, *_ in coast]),
-        np.concatenate([collected[k][0].boxes.track_id[rows] for k, rows, *_ in coast]),
+        np.concatenate([np.full(len(rows), collected[k][0].frame_id) for k, rows, *_ in targets]),
+        np.concatenate([collected[k][0].boxes.track_id[rows] for k, rows, *_ in targets]),
     )
-    smoothed = window_means(frame_no, tid, rel, half, at=queries)
+    # NaN for a carried row whose track has no own box within the window: it keeps its box
+    smoothed = window_means(frame_no, tid, rel, window // 2, at=queries)
     at = 0
-    for k, rows, centre, size in coast:
+    for k, rows, centre, size in targets:  # (the rows in the order they were collected)
         _, (_, xyxy, *_), camera = collected[k]
         r = smoothed[at : at + len(rows)]
         at += len(rows)
-        known = np.isfinite(r).all(axis=1)
-        box, ok = clip_boxes_to_image(centre + r * size, known, camera)
+        box, ok = clip_boxes_to_image(centre + r * size, np.isfinite(r).all(axis=1), camera)
         xyxy[rows[ok]] = box[ok]
 
 
