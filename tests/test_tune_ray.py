@@ -182,7 +182,9 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
 
     # 2. resumed, then killed outright (the whole process group) during the second search
     proc = _start(args)
-    _wait_until(proc, lambda: len(_saved(tmp_path, "fold1")) >= 1)
+    # (a trial both saved and with its result file copied to the experiment folder: Ray Tune
+    # copies that file in the background, and under load it can land after the save)
+    _wait_until(proc, lambda: bool(_saved(tmp_path, "fold1") & set(_finished(tmp_path, "fold1"))))
     os.killpg(proc.pid, signal.SIGKILL)
     _finish(proc)
     # Ray Tune copies its state to the experiment folder in the background, file by file: a
