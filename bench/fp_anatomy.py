@@ -1,17 +1,20 @@
 """Where a run's false-positive rows are, and what each kind costs (an oracle, on the labels).
 
     python bench/fp_anatomy.py RESULTS_DIR [RESULTS_DIR ...] [--kitti-root ROOT] [--class car]
-        [--trim-p 0.8]
+        [--trim-p 0.8] [--trim-hidden 0.7]
 
-RESULTS_DIR holds KITTI result files (`mctrack kitti --out DIR` writes them to DIR/data). Each
-row that TrackEval keeps after its KITTI preprocessing (distractors, occluded and truncated
-ground truth, small boxes and DontCare regions removed, as for the metrics) is a true positive
-when the frame's Hungarian matching on 2D IoU >= 0.5 pairs it with a ground-truth box, else a
-false positive. A false positive is classed by where it sits in its track: a track with no true
-positive at all, the rows before its first true positive, after its last, or in between. The
-oracle figure is the HOTA change with that kind of row deleted from the files (which no tracker
-can do without labels): what that kind costs. The last column is a label-free rule for comparison:
-each track's rows before its first row of calibrated score >= --trim-p deleted.
+RESULTS_DIR holds KITTI result files, or is a `mctrack kitti --out` folder (they are in its data/).
+Each row that TrackEval keeps after its KITTI preprocessing (distractors, occluded and truncated
+ground truth, small boxes and DontCare regions removed, as for the metrics) is a true positive when
+the frame's Hungarian matching on 2D IoU >= 0.5 pairs it with a ground-truth box, else a false
+positive. A false positive is classed by where it sits in its track: a track with no true positive
+at all, the rows before its first true positive, after its last, or in between. The oracle figure
+is the HOTA change with that kind of row deleted from the files (which no tracker can do without
+labels): what that kind costs. The last two columns are label-free rules for comparison: each
+track's rows before its first row of calibrated score >= --trim-p deleted, and each track's rows
+before its first row that nearer written boxes hide less than --trim-hidden of (the part of its 2D
+box inside the union of the frame's boxes at least 1 m nearer the camera) deleted. A last line per
+run counts the rows at least --trim-hidden hidden, by kind.
 """
 
 from __future__ import annotations
@@ -123,19 +126,94 @@ def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, Any]:
     return {"metrics": base, "counts": dict(counts), "oracle_hota": oracle, "lengths": lengths}
 
 
-def anatomy_row(result_dir: Path, *, label_dir: Path, cls: str, trim_p: float) -> str:
+def anatomy_row(
+    result_dir: Path, *, label_dir: Path, cls: str, trim_p: float, trim_hidden: float = 0.7
+) -> str:
     """A results-table row's cells (markdown, after the run's name): HOTA, FP, each kind's rows
-    (the HOTA change without them), and the HOTA change of :func:`trim_leading` at ``trim_p``."""
+    (the HOTA change without them), and the HOTA changes of :func:`trim_leading` at ``trim_p``
+    and of :func:`trim_hidden_leading` at ``trim_hidden``."""
     a = anatomy(result_dir, label_dir, cls)
     m, counts, oracle = a["metrics"], a["counts"], a["oracle_hota"]
-    with tempfile.TemporaryDirectory(prefix="fp-trim-") as tmp:
-        trim_leading(result_dir, Path(tmp), trim_p)
-        trimmed = evaluate_kitti(
-            label_dir=label_dir, result_dir=Path(tmp), seq_lengths=a["lengths"], classes=[cls]
-        )[cls]
+    changes = []
+    for trim, arg in ((trim_leading, trim_p), (trim_hidden_leading, trim_hidden)):
+        with tempfile.TemporaryDirectory(prefix="fp-trim-") as tmp:
+            trim(result_dir, Path(tmp), arg)
+            trimmed = evaluate_kitti(
+                label_dir=label_dir, result_dir=Path(tmp), seq_lengths=a["lengths"], classes=[cls]
+            )[cls]
+        changes.append(f"{round(trimmed['HOTA'] - m['HOTA'], 2) + 0.0:+.2f}")
     cells = [f"{counts[k]} ({oracle[k] - m['HOTA']:+.2f})" if k in oracle else "0" for k in KINDS]
-    trim = f"{round(trimmed['HOTA'] - m['HOTA'], 2) + 0.0:+.2f}"
-    return f"{m['HOTA']:.2f} | {m['FP']} | {' | '.join(cells)} | {trim}"
+    return f"{m['HOTA']:.2f} | {m['FP']} | {' | '.join(cells)} | {' | '.join(changes)}"
+
+
+def hidden_fraction(xyxy: np.ndarray, depth: np.ndarray, margin: float = 1.0) -> np.ndarray:
+    """(N,) the part of each 2D box (N, 4) inside the union of the boxes whose depth is at least
+    ``margin`` smaller (nearer the camera): exact, on the grid of the boxes' own edges."""
+    out = np.zeros(len(xyxy))
+    for i, box in enumerate(xyxy):
+        near = xyxy[depth < depth[i] - margin]
+        area = (box[2] - box[0]) * (box[3] - box[1])
+        if not len(near) or area <= 0:
+            continue
+        near = np.column_stack(  # clipped to box i
+            [np.maximum(near[:, :2], box[:2]), np.minimum(near[:, 2:], box[2:])]
+        )
+        near = near[(near[:, 2] > near[:, 0]) & (near[:, 3] > near[:, 1])]
+        if not len(near):
+            continue
+        xs, ys = np.unique(near[:, [0, 2]]), np.unique(near[:, [1, 3]])
+        cx, cy = (xs[:-1] + xs[1:]) / 2, (ys[:-1] + ys[1:]) / 2  # cell centres
+        inside_x = (near[:, 0, None] <= cx) & (cx <= near[:, 2, None])  # (M, cells in x)
+        inside_y = (near[:, 1, None] <= cy) & (cy <= near[:, 3, None])
+        covered = (inside_y[:, :, None] & inside_x[:, None, :]).any(axis=0)
+        out[i] = (covered * np.outer(np.diff(ys), np.diff(xs))).sum() / area
+    return out
+
+
+def hidden_rows(result_file: Path) -> dict[tuple[int, int], float]:
+    """``{(frame, track id): hidden fraction}`` of a result file's rows (:func:`hidden_fraction`
+    among the rows of each frame; depth: the camera z of the 3D box)."""
+    by_frame: dict[int, list[list[str]]] = {}
+    for line in result_file.read_text().splitlines():
+        cols = line.split()
+        by_frame.setdefault(int(cols[0]), []).append(cols)
+    hidden = {}
+    for frame, rows in by_frame.items():
+        xyxy = np.array([[float(v) for v in r[6:10]] for r in rows])
+        fractions = hidden_fraction(xyxy, np.array([float(r[15]) for r in rows]))
+        hidden.update({(frame, int(r[1])): h for r, h in zip(rows, fractions, strict=True)})
+    return hidden
+
+
+def trim_hidden_leading(result_dir: Path, out_dir: Path, hidden_max: float) -> None:
+    """A label-free rule, for comparison: each track's rows before its first row that nearer
+    written boxes hide less than ``hidden_max`` of (:func:`hidden_rows`) are deleted; a track
+    never that visible is deleted whole."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for f in sorted(result_dir.glob("*.txt")):
+        first: dict[int, int] = {}  # track id -> its first frame hidden < hidden_max
+        for (frame, tid), h in hidden_rows(f).items():
+            if h < hidden_max:
+                first[tid] = min(frame, first.get(tid, frame))
+        kept = [
+            line for line in f.read_text().splitlines(keepends=True)
+            if int(line.split()[1]) in first and int(line.split()[0]) >= first[int(line.split()[1])]
+        ]  # fmt: skip
+        (out_dir / f.name).write_text("".join(kept))
+
+
+def hidden_counts(result_dir: Path, label_dir: Path, cls: str, hidden_min: float) -> Counter:
+    """Rows at least ``hidden_min`` hidden, by kind: each false-positive kind, and "true
+    positive or not evaluated" for the rest."""
+    counts: Counter = Counter()
+    for f in sorted(result_dir.glob("*.txt")):
+        text = f.read_text() + (label_dir / f.name).read_text()
+        length = max(int(line.split(maxsplit=1)[0]) for line in text.splitlines() if line.strip())
+        kinds = classify(f, label_dir / f.name, length + 1, cls)
+        for key, h in hidden_rows(f).items():
+            if h >= hidden_min:
+                counts[kinds.get(key, "true positive or not evaluated")] += 1
+    return counts
 
 
 def trim_leading(result_dir: Path, out_dir: Path, p_min: float) -> None:
@@ -158,13 +236,14 @@ def trim_leading(result_dir: Path, out_dir: Path, p_min: float) -> None:
         (out_dir / f.name).write_text("".join(kept))
 
 
-def table_head(first: str, trim_p: float) -> list[str]:
+def table_head(first: str, trim_p: float, trim_hidden: float = 0.7) -> list[str]:
     """The header lines of a table of :func:`anatomy_row` rows, after the columns ``first``."""
     kinds = " | ".join(f"{k}: rows (HOTA)" for k in KINDS)
     n = first.count("|") + 1
     return [
-        f"| {first} | HOTA | FP | {kinds} | first rows below p {trim_p:g} trimmed (HOTA) |",
-        "|" + "---|" * n + "---:|---:|" + "---:|" * (len(KINDS) + 1),
+        f"| {first} | HOTA | FP | {kinds} | first rows below p {trim_p:g} trimmed (HOTA) "
+        f"| first rows hidden >= {trim_hidden:g} trimmed (HOTA) |",
+        "|" + "---|" * n + "---:|---:|" + "---:|" * (len(KINDS) + 2),
     ]
 
 
@@ -174,13 +253,32 @@ def main() -> int:
     parser.add_argument("--kitti-root", type=Path, default=None)
     parser.add_argument("--class", dest="cls", default="car")
     parser.add_argument("--trim-p", type=float, default=0.8, help="the trimming rule's score")
+    parser.add_argument(
+        "--trim-hidden", type=float, default=0.7, help="the occlusion trimming rule's fraction"
+    )
     args = parser.parse_args()
     label_dir = (args.kitti_root or default_kitti_root()) / "training" / "label_02"
-    print("\n".join(table_head("run", args.trim_p)))
-    for d in args.results:
-        row = anatomy_row(d, label_dir=label_dir, cls=args.cls, trim_p=args.trim_p)
+    dirs = [results_dir(d) for d in args.results]
+    print("\n".join(table_head("run", args.trim_p, args.trim_hidden)))
+    for d in dirs:
+        row = anatomy_row(
+            d, label_dir=label_dir, cls=args.cls, trim_p=args.trim_p, trim_hidden=args.trim_hidden
+        )
         print(f"| {d} | {row} |", flush=True)
+    for d in dirs:
+        counts = hidden_counts(d, label_dir, args.cls, args.trim_hidden)
+        parts = ", ".join(f"{k} {n}" for k, n in sorted(counts.items()))
+        print(f"{d}: rows at least {args.trim_hidden:g} hidden by nearer rows: {parts}")
     return 0
+
+
+def results_dir(path: Path) -> Path:
+    """The folder of result files: ``path`` or its ``data/`` (a `mctrack kitti --out` folder);
+    a folder with neither is an error naming it."""
+    for d in (path, path / "data"):
+        if any(d.glob("*.txt")):
+            return d
+    raise SystemExit(f"{path}: no KITTI result files (<seq>.txt) in it or in its data/ folder")
 
 
 if __name__ == "__main__":

@@ -104,7 +104,8 @@ def detectors_table(root: Path) -> tuple[list[tuple[str, dict[str, Any]]], list[
                 inspect = None
                 if config == "kitti":
                     label_dir = root / "training" / "label_02"
-                    inspect = partial(anatomy_row, label_dir=label_dir, cls="car", trim_p=TRIM_P)
+                    inspect = partial(anatomy_row, label_dir=label_dir, cls="car", trim_p=TRIM_P,
+                                      trim_hidden=TRIM_HIDDEN)  # fmt: skip
                 res = kitti(root, run_classes, inspect, detector=detector, mode=mode,
                             config_name=config)  # fmt: skip
                 for c in run_classes:
@@ -920,6 +921,8 @@ def offline_section(
 
 #: The calibrated score of fp_anatomy_section's label-free trimming rule (compared, not shipped).
 TRIM_P = 0.8
+#: The hidden fraction of its occlusion trimming rule (the same).
+TRIM_HIDDEN = 0.7
 
 
 def fp_anatomy_section(rows: list[str]) -> list[str]:
@@ -939,17 +942,19 @@ def fp_anatomy_section(rows: list[str]) -> list[str]:
         " DIR/data` on the output of `mctrack kitti --detector D --classes car [--mode offline]"
         " --out DIR`.",
         "",
-        *table_head("detector | mode", TRIM_P),
+        *table_head("detector | mode", TRIM_P, TRIM_HIDDEN),
         *rows,
         "",
         "*Inside*: a row between two of its track's true positives that misses its object"
         " (the track's box left it). *Whole track*: a track never matched (an unlabelled object,"
         " a duplicate, or a box never at IoU 0.5 with its object). *Before first TP* / *after"
         " last TP*: the first and last rows of tracks that do match, before their object's box"
-        " is labelled or matched at IoU 0.5, or after. The last column is a label-free rule for"
-        " the first rows, not shipped: each track's rows before its first detection of"
-        " calibrated score"
-        f" >= {TRIM_P:g} deleted (HOTA change).",
+        " is labelled or matched at IoU 0.5, or after. The last two columns are label-free rules"
+        " for the first rows, not shipped (HOTA change): each track's rows before its first"
+        f" detection of calibrated score >= {TRIM_P:g} deleted, and each track's rows before"
+        f" its first row that nearer written boxes hide less than {TRIM_HIDDEN:g} of (the part"
+        " of its 2D box inside the union of the frame's boxes at least 1 m nearer the camera)"
+        " deleted.",
         "",
     ]
 

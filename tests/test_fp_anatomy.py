@@ -11,7 +11,15 @@ import pytest
 pytest.importorskip("trackeval")
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
-from fp_anatomy import KINDS, anatomy, classify, trim_leading
+import numpy as np
+from fp_anatomy import (
+    KINDS,
+    anatomy,
+    classify,
+    hidden_fraction,
+    trim_hidden_leading,
+    trim_leading,
+)
 
 BOX = (100.0, 100.0, 200.0, 180.0)  # a car's 2D box (80 px tall, above KITTI's 25 px)
 ELSEWHERE = (600.0, 100.0, 700.0, 180.0)
@@ -60,3 +68,37 @@ def test_trimming_deletes_rows_before_the_first_confident_one(scene, tmp_path: P
     kept = [line.split()[:2] for line in open(tmp_path / "trimmed" / "0000.txt")]
     # track 1 from its frame 1 (score 0.9) on; track 2 never reaches 0.8 and goes whole
     assert kept == [[str(f), "1"] for f in range(1, 7)]
+
+
+def test_hidden_fraction_is_the_union_of_nearer_boxes_exactly() -> None:
+    """Against a pixel raster: boxes on integer corners, so every pixel is in or out."""
+    rng = np.random.default_rng(0)
+    corners = np.sort(rng.integers(0, 40, size=(12, 2, 2)), axis=1)  # (box, min/max, x/y)
+    xyxy = np.column_stack([corners[:, 0, 0], corners[:, 0, 1], corners[:, 1, 0] + 1,
+                            corners[:, 1, 1] + 1]).astype(float)  # fmt: skip
+    depth = rng.uniform(5, 40, size=12)
+    got = hidden_fraction(xyxy, depth)
+    for i, (x0, y0, x1, y1) in enumerate(xyxy.astype(int)):
+        raster = np.zeros((41, 41), bool)
+        for j, (a0, b0, a1, b1) in enumerate(xyxy.astype(int)):
+            if depth[j] < depth[i] - 1.0:
+                raster[b0:b1, a0:a1] = True
+        assert got[i] == pytest.approx(raster[y0:y1, x0:x1].mean())
+    assert got.max() > 0.5 and (got == 0).any()  # the draw has hidden and free boxes
+
+
+def test_hidden_trimming_deletes_rows_until_the_track_is_first_seen(tmp_path: Path) -> None:
+    """Track 2 sits behind track 1 (5 m further) in frames 0-1, then beside it."""
+    results = tmp_path / "results"
+    results.mkdir()
+    near = "1.5 1.6 3.9 0.0 1.6 10.0 0.0 0.9"
+    far = "1.5 1.6 3.9 0.0 1.6 15.0 0.0 0.9"
+    rows = []
+    for f in range(4):
+        rows.append(f"{f} 1 Car 0 0 0.0 100.0 100.0 200.0 180.0 {near}\n")
+        x0 = 120.0 if f < 2 else 400.0
+        rows.append(f"{f} 2 Car 0 0 0.0 {x0} 110.0 {x0 + 60} 170.0 {far}\n")
+    (results / "0000.txt").write_text("".join(rows))
+    trim_hidden_leading(results, tmp_path / "trimmed", 0.7)
+    kept = [line.split()[:2] for line in open(tmp_path / "trimmed" / "0000.txt")]
+    assert kept == [["0", "1"], ["1", "1"], ["2", "1"], ["2", "2"], ["3", "1"], ["3", "2"]]
