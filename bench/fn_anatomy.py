@@ -2,8 +2,8 @@
 
     python bench/fn_anatomy.py RESULTS_DIR --detector NAME [--kitti-root ROOT] [--class car]
 
-RESULTS_DIR holds KITTI result files (`mctrack kitti --out DIR` writes them to DIR/data). A
-ground-truth row that TrackEval keeps after its KITTI preprocessing and that the frame's
+RESULTS_DIR holds KITTI result files, or is a `mctrack kitti --out` folder (they are in its data/).
+A ground-truth row that TrackEval keeps after its KITTI preprocessing and that the frame's
 Hungarian matching (2D IoU >= 0.5) leaves unpaired is a false negative. It is classed twice:
 
 - *seen*: some box of the detector's, of the class and at any score, overlaps it at IoU >= 0.5
@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fp_anatomy import KINDS, classify, id_inputs, matched_ids
+from fp_anatomy import KINDS, classify, id_inputs, matched_ids, results_dir
 
 from app.inputs import default_kitti_root
 
@@ -141,9 +141,8 @@ def main() -> int:
     args = parser.parse_args()
     root = args.kitti_root or default_kitti_root()
     label_dir = root / "training" / "label_02"
+    args.results = results_dir(args.results)
     seqs = sorted(f.stem for f in args.results.glob("*.txt"))
-    if not seqs:
-        raise SystemExit(f"{args.results}: no <seq>.txt result files (mctrack kitti: DIR/data)")
     unlabelled = [s for s in seqs if not (label_dir / f"{s}.txt").is_file()]
     if unlabelled:
         raise SystemExit(f"{label_dir}: no labels for {', '.join(unlabelled)}")

@@ -3,9 +3,9 @@
     python bench/hota_ceiling.py --detector NAME [RESULTS_DIR ...] [--kitti-root ROOT]
         [--class car] [--max-gap 30]
 
-Each RESULTS_DIR holds KITTI result files of the detector (`mctrack kitti --out DIR` writes them
-to DIR/data). Every figure is TrackEval's KITTI 2D evaluation, and a true positive is a row that
-its preprocessing keeps and the frame's Hungarian matching (2D IoU >= 0.5) pairs with a
+Each RESULTS_DIR holds KITTI result files of the detector, or is a `mctrack kitti --out` folder
+(they are in its data/). Every figure is TrackEval's KITTI 2D evaluation, and a true positive is a
+row that its preprocessing keeps and the frame's Hungarian matching (2D IoU >= 0.5) pairs with a
 ground-truth row. Rows, best last:
 
 - each run as it is;
@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from fn_anatomy import sequence_length, write_detections
-from fp_anatomy import id_inputs, matched_ids
+from fp_anatomy import id_inputs, matched_ids, results_dir
 
 from app.inputs import default_kitti_root
 from tracker.eval.kitti import evaluate_kitti
@@ -140,6 +140,7 @@ def main() -> int:
     args = parser.parse_args()
     root = args.kitti_root or default_kitti_root()
     label_dir = root / "training" / "label_02"
+    args.results = [results_dir(d) for d in args.results]
     if args.seqs:
         seqs = sorted(args.seqs.split(","))
     elif args.results:

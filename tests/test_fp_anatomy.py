@@ -17,6 +17,7 @@ from fp_anatomy import (
     anatomy,
     classify,
     hidden_fraction,
+    results_dir,
     trim_hidden_leading,
     trim_leading,
 )
@@ -102,3 +103,12 @@ def test_hidden_trimming_deletes_rows_until_the_track_is_first_seen(tmp_path: Pa
     trim_hidden_leading(results, tmp_path / "trimmed", 0.7)
     kept = [line.split()[:2] for line in open(tmp_path / "trimmed" / "0000.txt")]
     assert kept == [["0", "1"], ["1", "1"], ["2", "1"], ["2", "2"], ["3", "1"], ["3", "2"]]
+
+
+def test_a_run_folder_is_read_for_its_data_and_an_empty_one_is_named(tmp_path: Path) -> None:
+    (tmp_path / "run" / "data").mkdir(parents=True)
+    (tmp_path / "run" / "data" / "0000.txt").write_text(_row(0, 1, BOX, 0.9))
+    assert results_dir(tmp_path / "run") == tmp_path / "run" / "data"
+    assert results_dir(tmp_path / "run" / "data") == tmp_path / "run" / "data"
+    with pytest.raises(SystemExit, match="empty: no KITTI result files"):
+        results_dir(tmp_path / "empty")
