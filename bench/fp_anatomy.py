@@ -203,15 +203,20 @@ def trim_hidden_leading(result_dir: Path, out_dir: Path, hidden_max: float) -> N
 
 
 def hidden_counts(result_dir: Path, label_dir: Path, cls: str, hidden_min: float) -> Counter:
-    """Rows at least ``hidden_min`` hidden, by kind: each false-positive kind, and "true
-    positive or not evaluated" for the rest."""
+    """Rows of class ``cls`` at least ``hidden_min`` hidden (by rows of any class), by kind: each
+    false-positive kind, and "true positive or not evaluated" for the rest."""
     counts: Counter = Counter()
     for f in sorted(result_dir.glob("*.txt")):
         text = f.read_text() + (label_dir / f.name).read_text()
         length = max(int(line.split(maxsplit=1)[0]) for line in text.splitlines() if line.strip())
         kinds = classify(f, label_dir / f.name, length + 1, cls)
+        of_class = {
+            (int(c[0]), int(c[1]))
+            for c in map(str.split, f.read_text().splitlines())
+            if c and c[2].lower() == cls
+        }
         for key, h in hidden_rows(f).items():
-            if h >= hidden_min:
+            if h >= hidden_min and key in of_class:
                 counts[kinds.get(key, "true positive or not evaluated")] += 1
     return counts
 

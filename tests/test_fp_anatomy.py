@@ -16,6 +16,7 @@ from fp_anatomy import (
     KINDS,
     anatomy,
     classify,
+    hidden_counts,
     hidden_fraction,
     results_dir,
     trim_hidden_leading,
@@ -89,9 +90,11 @@ def test_hidden_fraction_is_the_union_of_nearer_boxes_exactly() -> None:
 
 
 def test_hidden_trimming_deletes_rows_until_the_track_is_first_seen(tmp_path: Path) -> None:
-    """Track 2 sits behind track 1 (5 m further) in frames 0-1, then beside it."""
-    results = tmp_path / "results"
-    results.mkdir()
+    """Track 2 sits behind track 1 (5 m further) in frames 0-1, then beside it; only track 1's
+    object is labelled."""
+    results, labels = tmp_path / "results", tmp_path / "labels"
+    results.mkdir(), labels.mkdir()
+    (labels / "0000.txt").write_text("".join(_row(f, 7, BOX) for f in range(4)))
     near = "1.5 1.6 3.9 0.0 1.6 10.0 0.0 0.9"
     far = "1.5 1.6 3.9 0.0 1.6 15.0 0.0 0.9"
     rows = []
@@ -103,6 +106,8 @@ def test_hidden_trimming_deletes_rows_until_the_track_is_first_seen(tmp_path: Pa
     trim_hidden_leading(results, tmp_path / "trimmed", 0.7)
     kept = [line.split()[:2] for line in open(tmp_path / "trimmed" / "0000.txt")]
     assert kept == [["0", "1"], ["1", "1"], ["2", "1"], ["2", "2"], ["3", "1"], ["3", "2"]]
+    # track 2's two hidden rows are false positives of a track never matched
+    assert hidden_counts(results, labels, "car", 0.7) == {KINDS[0]: 2}
 
 
 def test_a_run_folder_is_read_for_its_data_and_an_empty_one_is_named(tmp_path: Path) -> None:
