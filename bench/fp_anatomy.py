@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import tempfile
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -189,17 +190,9 @@ def trim_hidden_leading(result_dir: Path, out_dir: Path, hidden_max: float) -> N
     """A label-free rule, for comparison: each track's rows before its first row that nearer
     written boxes hide less than ``hidden_max`` of (:func:`hidden_rows`) are deleted; a track
     never that visible is deleted whole."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    for f in sorted(result_dir.glob("*.txt")):
-        first: dict[int, int] = {}  # track id -> its first frame hidden < hidden_max
-        for (frame, tid), h in hidden_rows(f).items():
-            if h < hidden_max:
-                first[tid] = min(frame, first.get(tid, frame))
-        kept = [
-            line for line in f.read_text().splitlines(keepends=True)
-            if int(line.split()[1]) in first and int(line.split()[0]) >= first[int(line.split()[1])]
-        ]  # fmt: skip
-        (out_dir / f.name).write_text("".join(kept))
+    _trim_before_first(
+        result_dir, out_dir, lambda f: [k for k, h in hidden_rows(f).items() if h < hidden_max]
+    )
 
 
 def hidden_counts(result_dir: Path, label_dir: Path, cls: str, hidden_min: float) -> Counter:
@@ -225,17 +218,26 @@ def trim_leading(result_dir: Path, out_dir: Path, p_min: float) -> None:
     """A label-free rule, for comparison: each track's rows before its first row whose score
     (the calibrated detection score the writer keeps) reaches ``p_min`` are deleted; a track
     that never reaches it is deleted whole."""
+
+    def confident(f: Path) -> list[tuple[int, int]]:
+        rows = map(str.split, f.read_text().splitlines())
+        return [(int(c[0]), int(c[1])) for c in rows if float(c[17]) >= p_min]
+
+    _trim_before_first(result_dir, out_dir, confident)
+
+
+def _trim_before_first(
+    result_dir: Path, out_dir: Path, rows_of: Callable[[Path], list[tuple[int, int]]]
+) -> None:
+    """Each result file of ``result_dir`` written to ``out_dir`` without each track's rows before
+    its first ``(frame, track id)`` in ``rows_of(file)``; a track with none there is left out."""
     out_dir.mkdir(parents=True, exist_ok=True)
     for f in sorted(result_dir.glob("*.txt")):
-        lines = f.read_text().splitlines(keepends=True)
-        first: dict[int, int] = {}  # track id -> its first frame scoring >= p_min
-        for line in lines:
-            cols = line.split()
-            if float(cols[17]) >= p_min:
-                tid, frame = int(cols[1]), int(cols[0])
-                first[tid] = min(frame, first.get(tid, frame))
+        first: dict[int, int] = {}  # track id -> its first qualifying frame
+        for frame, tid in rows_of(f):
+            first[tid] = min(frame, first.get(tid, frame))
         kept = [
-            line for line in lines
+            line for line in f.read_text().splitlines(keepends=True)
             if int(line.split()[1]) in first and int(line.split()[0]) >= first[int(line.split()[1])]
         ]  # fmt: skip
         (out_dir / f.name).write_text("".join(kept))

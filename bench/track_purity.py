@@ -43,6 +43,7 @@ from tracker.pipeline import run_scene  # noqa: E402
 LABEL_M = 1.0
 #: the classes of the distance between the two objects of a change (metres)
 SEPARATION_BINS = (0.5, 1.0, 2.0)
+SEPARATION_NAMES = ("0-0.5 m", "0.5-1.0 m", "1.0-2.0 m", "2.0+ m")
 
 
 def label_detections(frames: Sequence[Frame], truth: Sequence[Frame], category: int) -> list[Frame]:
@@ -90,9 +91,7 @@ def object_changes(
                 counts["first object gone"] += 1
                 continue
             d = float(np.linalg.norm(where[i, a] - where[i, b]))
-            k = int(np.searchsorted(SEPARATION_BINS, d, side="right"))
-            edges = ("0", *map(str, SEPARATION_BINS), "")
-            counts[f"{edges[k]}-{edges[k + 1]} m".replace("- m", "+ m")] += 1
+            counts[SEPARATION_NAMES[int(np.searchsorted(SEPARATION_BINS, d, side="right"))]] += 1
     counts["object-track pairs"] = len(pairs)
     counts["objects"] = len({obj for obj, _ in pairs})
     return counts
