@@ -43,6 +43,7 @@ from typing import Any
 
 import ray
 from ray import tune
+from ray.exceptions import RayActorError
 from ray.tune.search import ConcurrencyLimiter
 from ray.tune.search.optuna import OptunaSearch
 
@@ -372,7 +373,7 @@ class RaySearch:
                 )
             if tune.Tuner.can_restore(str(path)):
                 self.resumed.append(key)
-                tuner = tune.Tuner.restore(str(path), trainable=trainable, restart_errored=True)
+                tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_errored=True)
             else:
                 searcher = OptunaSearch(
                     space=functools.partial(_suggest_numbered, space=space),
@@ -400,6 +401,22 @@ class RaySearch:
                     ),
                 )
             grid, ctrl_c = _fit(tuner)
+            for _ in range(MAX_FAILURES):
+                # Ray Tune re-runs a trial whose worker dies while it runs, but fails one whose
+                # (reused) worker dies while being handed the trial (still PENDING then). Run
+                # those again, as a resume does. (resume_errored: restart_errored gives the
+                # trial a new id, which Ray's OptunaSearch does not know: a KeyError.)
+                died = sum(isinstance(r.error, RayActorError) for r in grid)
+                if ctrl_c or not died:
+                    break
+                print(
+                    f"mctrack tune: the worker process of {died} trial(s) of search {key} died "
+                    "before the trial began; running it again",
+                    file=sys.stderr,
+                )
+                prepare_resume(path)
+                tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_errored=True)
+                grid, ctrl_c = _fit(tuner)
             trials = self._trials(grid, key)
             if ctrl_c or len(trials) < self.trials:
                 self.stopped = f"search {key} stopped after {len(trials)} of {self.trials} trials"

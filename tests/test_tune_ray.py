@@ -33,10 +33,11 @@ def _tune_args(kitti_root: Path, out: Path, trials: int, *extra: str) -> list[st
             "--workers", "2", "--out", str(out), *extra]  # fmt: skip
 
 
-def _start(args: list[str]) -> subprocess.Popen:
+def _start(args: list[str], env: dict[str, str] | None = None) -> subprocess.Popen:
     return subprocess.Popen(
         [sys.executable, "-m", "app.cli", *args],
         cwd=ROOT,
+        env=None if env is None else {**os.environ, **env},
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -68,18 +69,24 @@ def _finished(out: Path, search: str) -> dict[str, str]:
     return found
 
 
-def _saved(out: Path, search: str) -> set[str]:
-    """The trials finished as of Ray Tune's last save: what a resume keeps. Read from the
-    snapshot of that save (app.tune_ray._Snapshot), as the copy of the state in the experiment
-    folder may be cut short by a kill, and a trial's result file is written before the save."""
+def _saved_trials(out: Path, search: str) -> list[dict[str, Any]]:
+    """The trials as of Ray Tune's last save: what a resume keeps. Read from the snapshot of
+    that save (app.tune_ray._Snapshot), as the copy of the state in the experiment folder may
+    be cut short by a kill, and a trial's result file is written before the save."""
     snapshot = out / "ray_tune" / f"{search}.resume.zip"
     if not snapshot.is_file():
-        return set()
+        return []
     with zipfile.ZipFile(snapshot) as archive:
         names = sorted(n for n in archive.namelist() if n.startswith("experiment_state-"))
         state = json.loads(archive.read(names[-1]))
-    trials = [json.loads(t[0]) for t in state["trial_data"]]
-    return {f"trial_{t['trial_id']}" for t in trials if t["status"] == "TERMINATED"}
+    return [json.loads(t[0]) for t in state["trial_data"]]
+
+
+def _saved(out: Path, search: str) -> set[str]:
+    """The trials finished as of the last save."""
+    return {
+        f"trial_{t['trial_id']}" for t in _saved_trials(out, search) if t["status"] == "TERMINATED"
+    }
 
 
 def _wait_until(proc: subprocess.Popen, ready: Callable[[], bool], timeout: float = 300) -> None:
@@ -228,6 +235,65 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     assert status == 2, output[-3000:]
     lines = [line for line in output.splitlines() if "error" in line]
     assert len(lines) == 1 and "trials 4 -> 5" in lines[0] and "another --out" in lines[0]
+
+
+# Loaded by every Python process of a run (PYTHONPATH): the first reset of a reused trial
+# process (Ray Tune handing it its next trial) creates the marker file, then sleeps, so a test
+# can kill the process at that moment.
+SLOW_FIRST_RESET = """
+import os, time
+if os.environ.get("SLOW_FIRST_RESET"):
+    from ray.tune.trainable import function_trainable as ft
+    reset = ft.FunctionTrainable.reset_config
+    def slow(self, new_config):
+        try:
+            os.close(os.open(os.environ["SLOW_FIRST_RESET"], os.O_CREAT | os.O_EXCL))
+            time.sleep(3)
+        except FileExistsError:
+            pass
+        return reset(self, new_config)
+    ft.FunctionTrainable.reset_config = slow
+"""
+
+
+def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
+    kitti_root: Path, local_record: dict[str, Any], tmp_path: Path
+) -> None:
+    """Ray Tune fails (not retries) a trial whose reused process dies while being handed it.
+    A resume runs such a trial again, and so does the command itself; the search is the
+    uninterrupted one."""
+    hook, marker, out = tmp_path / "hook", tmp_path / "resetting", tmp_path / "out"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(SLOW_FIRST_RESET)
+    env = {"PYTHONPATH": f"{hook}{os.pathsep}{ROOT}", "SLOW_FIRST_RESET": str(marker)}
+    args = _tune_args(kitti_root, out, 4, "--ray", "--max-concurrent", "1")
+
+    def kill_the_resetting_process(proc: subprocess.Popen) -> None:
+        _wait_until(proc, marker.exists)
+        workers = [p for p, cmd in _descendants(proc.pid) if cmd.startswith("ray::ImplicitFunc")]
+        assert workers, _descendants(proc.pid)
+        for pid in workers:
+            os.kill(pid, signal.SIGKILL)
+
+    # 1. the failed trial saved, then the run killed: the resume runs it again
+    proc = _start(args, env)
+    kill_the_resetting_process(proc)
+    _wait_until(proc, lambda: any(t["status"] == "ERROR" for t in _saved_trials(out, "fold0")))
+    os.killpg(proc.pid, signal.SIGKILL)
+    _finish(proc)
+    # 2. resumed, and the process killed again while being handed a trial: the command runs
+    # that trial again once the others are done
+    marker.unlink()
+    proc = _start(args, env)
+    kill_the_resetting_process(proc)
+    status, output = _finish(proc)
+    assert status == 0, output[-3000:]
+    assert "died before the trial began; running it again" in output
+    assert len(list((out / "ray_tune" / "fold0").glob("trial_*/error.txt"))) == 2
+    for search in ("fold0", "fold1", "all"):
+        assert len(list((out / "ray_tune" / search).glob("trial_*"))) == 4
+    record = json.loads((out / "tune.json").read_text())
+    assert _searches(record) == _prefix(local_record, 4)
 
 
 def test_ray_without_the_extra_is_a_one_line_error(
