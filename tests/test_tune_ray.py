@@ -131,6 +131,11 @@ def _descendants(pid: int) -> list[tuple[int, str]]:
     return found
 
 
+def _trial_processes(proc: subprocess.Popen) -> list[int]:
+    """The run's Ray Tune trial processes (a process between two searches has another name)."""
+    return [pid for pid, cmd in _descendants(proc.pid) if cmd.startswith("ray::ImplicitFunc")]
+
+
 @pytest.fixture(scope="module")
 def ray_installed() -> None:
     pytest.importorskip("ray.tune", reason="Ray Tune is an optional extra: pip install -e '.[ray]'")
@@ -210,10 +215,8 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     # 3. resumed to the end, with the trial process killed once during the last search: Ray
     # Tune runs that trial again (FailureConfig)
     proc = _start(args)
-    _wait_until(proc, lambda: len(_finished(tmp_path, "all")) >= 1)
-    workers = [pid for pid, cmd in _descendants(proc.pid) if cmd.startswith("ray::ImplicitFunc")]
-    assert workers, _descendants(proc.pid)
-    for pid in workers:  # this run's trial process (reused from trial to trial)
+    _wait_until(proc, lambda: len(_finished(tmp_path, "all")) >= 1 and _trial_processes(proc))
+    for pid in _trial_processes(proc):  # this run's trial process (reused from trial to trial)
         os.kill(pid, signal.SIGKILL)
     status, output = _finish(proc)
     assert status == 0, output[-3000:]
@@ -270,7 +273,7 @@ def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
 
     def kill_the_resetting_process(proc: subprocess.Popen) -> None:
         _wait_until(proc, marker.exists)
-        workers = [p for p, cmd in _descendants(proc.pid) if cmd.startswith("ray::ImplicitFunc")]
+        workers = _trial_processes(proc)
         assert workers, _descendants(proc.pid)
         for pid in workers:
             os.kill(pid, signal.SIGKILL)
