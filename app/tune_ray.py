@@ -13,11 +13,11 @@ depend on which finish first.
 Resume: each search is one Ray Tune experiment, ``OUT/ray_tune/<search>`` (fold0, fold1, ...,
 all). Run the same command again after an interruption and a finished search is read back, an
 unfinished one continues from its saved state (``Tuner.restore``): finished trials are kept and
-the trials that were running start again. Each save is also packed whole into
-``OUT/ray_tune/<search>.resume.zip`` (:class:`_Snapshot`): Ray Tune's own copy of it can be cut
-short by a kill. ``OUT/ray_tune/run.json`` holds the options the run was started with; a
-different command line on the same ``--out`` is refused. Ray Tune saves its state with pickle,
-so resume only from a folder this command wrote.
+the trials that were running, or had failed, start again under their own ids. Each save is also
+packed whole into ``OUT/ray_tune/<search>.resume.zip`` (:class:`_Snapshot`): Ray Tune's own copy
+of it can be cut short by a kill. ``OUT/ray_tune/run.json`` holds the options the run was
+started with; a different command line on the same ``--out`` is refused. Ray Tune saves its state
+with pickle, so resume only from a folder this command wrote.
 
 This module imports Ray; app/tune.py imports it only for ``--ray``.
 """
