@@ -410,8 +410,8 @@ class RaySearch:
                 if ctrl_c or not died:
                     break
                 print(
-                    f"mctrack tune: the worker process of {died} trial(s) of search {key} died "
-                    "before the trial began; running it again",
+                    f"mctrack tune: {died} trial(s) of search {key} failed as their worker "
+                    "process died; running them again",
                     file=sys.stderr,
                 )
                 prepare_resume(path)

@@ -291,7 +291,7 @@ def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
     kill_the_resetting_process(proc)
     status, output = _finish(proc)
     assert status == 0, output[-3000:]
-    assert "died before the trial began; running it again" in output
+    assert "failed as their worker process died; running them again" in output
     assert len(list((out / "ray_tune" / "fold0").glob("trial_*/error.txt"))) == 2
     for search in ("fold0", "fold1", "all"):
         assert len(list((out / "ray_tune" / search).glob("trial_*"))) == 4
