@@ -371,9 +371,15 @@ class RaySearch:
                     f"snapshot; resuming from Ray Tune's own copy in {path}",
                     file=sys.stderr,
                 )
+
+            def restore() -> Any:
+                # resume_errored: a failed trial runs again under its own id (restart_errored
+                # gives it a new one, which Ray's OptunaSearch does not know: a KeyError)
+                return tune.Tuner.restore(str(path), trainable=trainable, resume_errored=True)
+
             if tune.Tuner.can_restore(str(path)):
                 self.resumed.append(key)
-                tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_errored=True)
+                tuner = restore()
             else:
                 searcher = OptunaSearch(
                     space=functools.partial(_suggest_numbered, space=space),
@@ -404,8 +410,7 @@ class RaySearch:
             for _ in range(MAX_FAILURES):
                 # Ray Tune re-runs a trial whose worker dies while it runs, but fails one whose
                 # (reused) worker dies while being handed the trial (still PENDING then). Run
-                # those again, as a resume does. (resume_errored: restart_errored gives the
-                # trial a new id, which Ray's OptunaSearch does not know: a KeyError.)
+                # those again, as a resume does.
                 died = sum(isinstance(r.error, RayActorError) for r in grid)
                 if ctrl_c or not died:
                     break
@@ -415,8 +420,7 @@ class RaySearch:
                     file=sys.stderr,
                 )
                 prepare_resume(path)
-                tuner = tune.Tuner.restore(str(path), trainable=trainable, resume_errored=True)
-                grid, ctrl_c = _fit(tuner)
+                grid, ctrl_c = _fit(restore())
             trials = self._trials(grid, key)
             if ctrl_c or len(trials) < self.trials:
                 self.stopped = f"search {key} stopped after {len(trials)} of {self.trials} trials"
