@@ -136,6 +136,40 @@ def _trial_processes(proc: subprocess.Popen) -> list[int]:
     return [pid for pid, cmd in _descendants(proc.pid) if cmd.startswith("ray::ImplicitFunc")]
 
 
+# Loaded by every Python process of a run (PYTHONPATH), so a test can kill a trial process at a
+# chosen moment. SLOW_FIRST_RESET=MARKER: the first reset of a reused trial process (Ray Tune
+# handing it its next trial) creates MARKER, then sleeps. SLOW_REPORT=SECONDS: each trial sleeps
+# that long before it reports its result (it is running meanwhile).
+HOOKS = """
+import os, time
+if os.environ.get("SLOW_FIRST_RESET"):
+    from ray.tune.trainable import function_trainable as ft
+    reset = ft.FunctionTrainable.reset_config
+    def slow(self, new_config):
+        try:
+            os.close(os.open(os.environ["SLOW_FIRST_RESET"], os.O_CREAT | os.O_EXCL))
+            time.sleep(3)
+        except FileExistsError:
+            pass
+        return reset(self, new_config)
+    ft.FunctionTrainable.reset_config = slow
+if os.environ.get("SLOW_REPORT"):
+    import ray.tune
+    report = ray.tune.report
+    def slow_report(*args, **kwargs):
+        time.sleep(float(os.environ["SLOW_REPORT"]))
+        return report(*args, **kwargs)
+    ray.tune.report = slow_report
+"""
+
+
+def _hook_env(folder: Path, **env: str) -> dict[str, str]:
+    """The environment of a run with :data:`HOOKS` (``env`` chooses which)."""
+    folder.mkdir(exist_ok=True)
+    (folder / "sitecustomize.py").write_text(HOOKS)
+    return {"PYTHONPATH": f"{folder}{os.pathsep}{ROOT}", **env}
+
+
 @pytest.fixture(scope="module")
 def ray_installed() -> None:
     pytest.importorskip("ray.tune", reason="Ray Tune is an optional extra: pip install -e '.[ray]'")
@@ -213,8 +247,9 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     assert len(before_ctrl_c) < trials or len(before_kill) < trials
 
     # 3. resumed to the end, with the trial process killed once during the last search: Ray
-    # Tune runs that trial again (FailureConfig)
-    proc = _start(args)
+    # Tune runs that trial again (FailureConfig). Each trial waits 2 s before it reports, so the
+    # kill lands in a trial, not after the search's last one (seen under load).
+    proc = _start(args, _hook_env(tmp_path / "hook", SLOW_REPORT="2"))
     _wait_until(proc, lambda: len(_finished(tmp_path, "all")) >= 1 and _trial_processes(proc))
     for pid in _trial_processes(proc):  # this run's trial process (reused from trial to trial)
         os.kill(pid, signal.SIGKILL)
@@ -223,6 +258,8 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     record = json.loads((tmp_path / "tune.json").read_text())
     assert record["ray"]["resumed_searches"] == ["fold0", "fold1"]
     assert list((tmp_path / "ray_tune" / "all").glob("trial_*/error.txt"))  # the killed trial
+    slowed = [json.loads(text)["time_this_iter_s"] for text in _finished(tmp_path, "all").values()]
+    assert min(slowed) >= 2  # (the hook took effect)
     assert _finished(tmp_path, "fold0") == fold0
     fold1 = _finished(tmp_path, "fold1")
     assert {k: fold1[k] for k in before_kill} == before_kill
@@ -240,35 +277,14 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     assert len(lines) == 1 and "trials 4 -> 5" in lines[0] and "another --out" in lines[0]
 
 
-# Loaded by every Python process of a run (PYTHONPATH): the first reset of a reused trial
-# process (Ray Tune handing it its next trial) creates the marker file, then sleeps, so a test
-# can kill the process at that moment.
-SLOW_FIRST_RESET = """
-import os, time
-if os.environ.get("SLOW_FIRST_RESET"):
-    from ray.tune.trainable import function_trainable as ft
-    reset = ft.FunctionTrainable.reset_config
-    def slow(self, new_config):
-        try:
-            os.close(os.open(os.environ["SLOW_FIRST_RESET"], os.O_CREAT | os.O_EXCL))
-            time.sleep(3)
-        except FileExistsError:
-            pass
-        return reset(self, new_config)
-    ft.FunctionTrainable.reset_config = slow
-"""
-
-
 def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
     kitti_root: Path, local_record: dict[str, Any], tmp_path: Path
 ) -> None:
     """Ray Tune fails (not retries) a trial whose reused process dies while being handed it.
     A resume runs such a trial again, and so does the command itself; the search is the
     uninterrupted one."""
-    hook, marker, out = tmp_path / "hook", tmp_path / "resetting", tmp_path / "out"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(SLOW_FIRST_RESET)
-    env = {"PYTHONPATH": f"{hook}{os.pathsep}{ROOT}", "SLOW_FIRST_RESET": str(marker)}
+    marker, out = tmp_path / "resetting", tmp_path / "out"
+    env = _hook_env(tmp_path / "hook", SLOW_FIRST_RESET=str(marker))
     args = _tune_args(kitti_root, out, 4, "--ray", "--max-concurrent", "1")
 
     def kill_the_resetting_process(proc: subprocess.Popen) -> None:
