@@ -27,23 +27,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from fp_anatomy import KINDS, classify, id_inputs, matched_ids, results_dir
+from fp_anatomy import KINDS, classify, id_inputs, matched_ids, results_dir, sequence_length
 
 from app.inputs import default_kitti_root
 
 PLACES = ("before", "inside", "after", "never matched")
-
-
-def sequence_length(*files: Path) -> int:
-    """A sequence's length: its last labelled, tracked or detected frame + 1."""
-    frames = [
-        int(line.split(maxsplit=1)[0])
-        for f in files
-        if f.is_file()
-        for line in f.read_text().splitlines()
-        if line.strip()
-    ]
-    return max(frames, default=-1) + 1
 
 
 def classify_misses(

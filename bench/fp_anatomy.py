@@ -33,6 +33,21 @@ from app.inputs import default_kitti_root
 from tracker.eval.kitti import evaluate_kitti, evaluate_kitti_sequence
 
 KINDS = ("whole track", "before first TP", "after last TP", "inside")
+#: The label-free trimming rules' defaults: the calibrated score, the hidden fraction.
+TRIM_P = 0.8
+TRIM_HIDDEN = 0.7
+
+
+def sequence_length(*files: Path) -> int:
+    """A sequence's length: its last labelled, tracked or detected frame + 1."""
+    frames = [
+        int(line.split(maxsplit=1)[0])
+        for f in files
+        if f.is_file()
+        for line in f.read_text().splitlines()
+        if line.strip()
+    ]
+    return max(frames, default=-1) + 1
 
 
 def id_inputs(result_file: Path, label_file: Path, length: int, cls: str) -> Any:
@@ -97,11 +112,7 @@ def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, Any]:
     """A run's metrics, its false-positive rows counted by kind, the HOTA with each kind
     deleted (an oracle) and the sequence lengths used."""
     files = sorted(result_dir.glob("*.txt"))
-    lengths = {}
-    for f in files:  # a sequence's length: its last labelled or tracked frame + 1
-        text = f.read_text() + (label_dir / f.name).read_text()
-        rows = [line.split(maxsplit=1)[0] for line in text.splitlines() if line.strip()]
-        lengths[f.stem] = max(int(r) for r in rows) + 1
+    lengths = {f.stem: sequence_length(f, label_dir / f.name) for f in files}
     kinds = {f.stem: classify(f, label_dir / f.name, lengths[f.stem], cls) for f in files}
     base = evaluate_kitti(
         label_dir=label_dir, result_dir=result_dir, seq_lengths=lengths, classes=[cls]
@@ -128,7 +139,12 @@ def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, Any]:
 
 
 def anatomy_row(
-    result_dir: Path, *, label_dir: Path, cls: str, trim_p: float, trim_hidden: float = 0.7
+    result_dir: Path,
+    *,
+    label_dir: Path,
+    cls: str,
+    trim_p: float = TRIM_P,
+    trim_hidden: float = TRIM_HIDDEN,
 ) -> str:
     """A results-table row's cells (markdown, after the run's name): HOTA, FP, each kind's rows
     (the HOTA change without them), and the HOTA changes of :func:`trim_leading` at ``trim_p``
@@ -200,9 +216,7 @@ def hidden_counts(result_dir: Path, label_dir: Path, cls: str, hidden_min: float
     false-positive kind, and "true positive or not evaluated" for the rest."""
     counts: Counter = Counter()
     for f in sorted(result_dir.glob("*.txt")):
-        text = f.read_text() + (label_dir / f.name).read_text()
-        length = max(int(line.split(maxsplit=1)[0]) for line in text.splitlines() if line.strip())
-        kinds = classify(f, label_dir / f.name, length + 1, cls)
+        kinds = classify(f, label_dir / f.name, sequence_length(f, label_dir / f.name), cls)
         of_class = {
             (int(c[0]), int(c[1]))
             for c in map(str.split, f.read_text().splitlines())
@@ -243,7 +257,7 @@ def _trim_before_first(
         (out_dir / f.name).write_text("".join(kept))
 
 
-def table_head(first: str, trim_p: float, trim_hidden: float = 0.7) -> list[str]:
+def table_head(first: str, trim_p: float = TRIM_P, trim_hidden: float = TRIM_HIDDEN) -> list[str]:
     """The header lines of a table of :func:`anatomy_row` rows, after the columns ``first``."""
     kinds = " | ".join(f"{k}: rows (HOTA)" for k in KINDS)
     n = first.count("|") + 1
@@ -259,10 +273,11 @@ def main() -> int:
     parser.add_argument("results", nargs="+", type=Path)
     parser.add_argument("--kitti-root", type=Path, default=None)
     parser.add_argument("--class", dest="cls", default="car")
-    parser.add_argument("--trim-p", type=float, default=0.8, help="the trimming rule's score")
+    parser.add_argument("--trim-p", type=float, default=TRIM_P, help="the trimming rule's score")
     parser.add_argument(
-        "--trim-hidden", type=float, default=0.7, help="the occlusion trimming rule's fraction"
-    )
+        "--trim-hidden", type=float, default=TRIM_HIDDEN,
+        help="the occlusion trimming rule's fraction",
+    )  # fmt: skip
     args = parser.parse_args()
     label_dir = (args.kitti_root or default_kitti_root()) / "training" / "label_02"
     dirs = [results_dir(d) for d in args.results]

@@ -30,8 +30,8 @@ from itertools import pairwise
 from pathlib import Path
 from typing import Any
 
-from fn_anatomy import sequence_length, write_detections
-from fp_anatomy import id_inputs, matched_ids, results_dir
+from fn_anatomy import write_detections
+from fp_anatomy import id_inputs, matched_ids, results_dir, sequence_length
 
 from app.inputs import default_kitti_root
 from tracker.eval.kitti import evaluate_kitti

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from app.kitti import run_kitti
-from app.tune import record_seeds
+from app.tune import base_level, record_seeds
 from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
 
@@ -104,8 +104,7 @@ def detectors_table(root: Path) -> tuple[list[tuple[str, dict[str, Any]]], list[
                 inspect = None
                 if config == "kitti":
                     label_dir = root / "training" / "label_02"
-                    inspect = partial(anatomy_row, label_dir=label_dir, cls="car", trim_p=TRIM_P,
-                                      trim_hidden=TRIM_HIDDEN)  # fmt: skip
+                    inspect = partial(anatomy_row, label_dir=label_dir, cls="car")
                 res = kitti(root, run_classes, inspect, detector=detector, mode=mode,
                             config_name=config)  # fmt: skip
                 for c in run_classes:
@@ -780,10 +779,10 @@ def tune_section(paths: list[str]) -> list[str]:
         noisy = rec.get("cross_validated_noise", {})
         for det, m in rec["cross_validated"].items():
             final = rec["final"]["in_sample"][det]
-            draws: dict[str, list[float]] = {}  # level -> HOTA of each draw ("level@seed")
+            draws: dict[str, list[float]] = {}  # level -> HOTA of each of its draws
             for key, per_det in noisy.items():
                 if det in per_det:
-                    draws.setdefault(key.split("@")[0], []).append(per_det[det]["HOTA"])
+                    draws.setdefault(base_level(key), []).append(per_det[det]["HOTA"])
             noise = "; ".join(
                 f"{np.mean(h):.2f} ({level}" + (f", mean of {len(h)} draws)" if len(h) > 1 else ")")
                 for level, h in draws.items()
@@ -922,17 +921,11 @@ def offline_section(
     return lines
 
 
-#: The calibrated score of fp_anatomy_section's label-free trimming rule (compared, not shipped).
-TRIM_P = 0.8
-#: The hidden fraction of its occlusion trimming rule (the same).
-TRIM_HIDDEN = 0.7
-
-
 def fp_anatomy_section(rows: list[str]) -> list[str]:
     """Where each detector's car false positives sit in their tracks, online and offline, and
     what each kind costs (bench/fp_anatomy.py: the HOTA with those rows deleted, an oracle);
-    ``rows`` from detectors_table's runs."""
-    from fp_anatomy import table_head
+    ``rows`` from detectors_table's runs (the trimming rules at fp_anatomy's defaults)."""
+    from fp_anatomy import TRIM_HIDDEN, TRIM_P, table_head
 
     return [
         "### Where the false positives are",
@@ -945,7 +938,7 @@ def fp_anatomy_section(rows: list[str]) -> list[str]:
         " DIR/data` on the output of `mctrack kitti --detector D --classes car [--mode offline]"
         " --out DIR`.",
         "",
-        *table_head("detector | mode", TRIM_P, TRIM_HIDDEN),
+        *table_head("detector | mode"),
         *rows,
         "",
         "*Inside*: a row between two of its track's true positives that misses its object"
