@@ -21,12 +21,17 @@ from numpy.typing import ArrayLike, NDArray
 
 from tracker.boxes import Boxes, FloatArray
 from tracker.frame import Camera
-from tracker.geometry import BOX_EDGES, corners_3d
+from tracker.geometry import BOX_EDGES, corners_3d, wrap_angle
 
 BoolArray = NDArray[np.bool_]
 
 #: Default near plane (metres in front of the camera) for clipping.
 NEAR_PLANE_M = 0.1
+
+#: z-up world (x forward, y left, z up) from camera axes (x right, y down, z forward).
+WORLD_FROM_CAMERA_AXES: FloatArray = np.array(
+    [[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
 
 _EDGE_START = np.array([a for a, _ in BOX_EDGES], dtype=np.int64)
 _EDGE_END = np.array([b for _, b in BOX_EDGES], dtype=np.int64)
@@ -268,3 +273,74 @@ def project_boxes_batched(
     xyxy = np.concatenate([lo_clip, hi_clip], axis=1)
     xyxy[~visible] = np.nan
     return seg, xyxy, visible
+
+
+def boxes_world_to_rect(
+    xyz_world: FloatArray, lwh: FloatArray, yaw_world: FloatArray, rect_from_world: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Inverse of :func:`boxes_rect_to_world`: world boxes back to KITTI rect-camera values.
+
+    Use this (then an upright box about the camera's y axis, as KITTI and the reference writer
+    do) to write KITTI results: projecting the z-up world box instead tilts it by the ego's
+    pitch/roll relative to the world (up to ~4° with the ORB-SLAM3 poses), which inflates the
+    2D box.
+
+    Parameters
+    ----------
+    xyz_world : (N, 3) geometric centres. lwh : (N, 3). yaw_world : (N,) radians.
+    rect_from_world : (4, 4) for all boxes, or (N, 4, 4) per box.
+
+    Returns
+    -------
+    xyz_bottom_rect : (N, 3) KITTI ``location`` (bottom centre, rect frame).
+    hwl : (N, 3) KITTI ``dimensions``.
+    rotation_y : (N,) KITTI ``rotation_y`` in (−pi, pi]: the world heading rotated into rect and
+        projected on the camera x-z plane.
+    """
+    xyz_world = np.asarray(xyz_world, dtype=np.float64).reshape(-1, 3)
+    lwh = np.asarray(lwh, dtype=np.float64).reshape(-1, 3)
+    yaw_world = np.asarray(yaw_world, dtype=np.float64).reshape(-1)
+    transform = np.broadcast_to(np.asarray(rect_from_world, dtype=np.float64), (len(lwh), 4, 4))
+    rotation = transform[:, :3, :3]
+    centre_rect = np.einsum("nij,nj->ni", rotation, xyz_world) + transform[:, :3, 3]
+    xyz_bottom_rect = centre_rect + np.stack(
+        [np.zeros(len(lwh)), lwh[:, 2] / 2.0, np.zeros(len(lwh))], axis=1
+    )
+    heading_world = np.stack([np.cos(yaw_world), np.sin(yaw_world), np.zeros(len(lwh))], axis=1)
+    heading_rect = np.einsum("nij,nj->ni", rotation, heading_world)
+    rotation_y = wrap_angle(np.arctan2(-heading_rect[:, 2], heading_rect[:, 0]))
+    return xyz_bottom_rect, lwh[:, ::-1].copy(), rotation_y
+
+
+def project_boxes_upright(
+    boxes: Boxes, camera: Camera
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, BoolArray]:
+    """World boxes as KITTI writes them for a (rectified) camera, and their unclipped 2D boxes.
+
+    Returns ``location`` (N, 3) (bottom centre in the camera, y down), ``hwl`` (N, 3),
+    ``rotation_y`` (N,) (:func:`boxes_world_to_rect`), and the 2D boxes (N, 4) and ``visible``
+    (N,) of :func:`project_boxes` (not clipped to the image) of each box stood *upright in
+    camera axes*, as KITTI annotates it and detectors write it: projecting the z-up world box
+    would tilt it by the ego's pitch/roll relative to the world.
+    """
+    location, hwl, rotation_y = boxes_world_to_rect(
+        boxes.xyz, boxes.lwh, boxes.yaw, camera.camera_from_world
+    )
+    centre_cam = location - np.column_stack(
+        [np.zeros(len(boxes)), hwl[:, 0] / 2.0, np.zeros(len(boxes))]
+    )
+    upright = Boxes.create(
+        xyz=centre_cam @ WORLD_FROM_CAMERA_AXES[:3, :3].T,
+        lwh=boxes.lwh,
+        yaw=-rotation_y - np.pi / 2.0,  # heading about camera -y, as a z-up yaw
+        category=boxes.category,
+    )
+    camera_axes = Camera(
+        camera.name,
+        camera.image_from_camera,
+        np.linalg.inv(WORLD_FROM_CAMERA_AXES),
+        camera.width_px,
+        camera.height_px,
+    )
+    xyxy, visible = project_boxes(upright, camera_axes, clip_to_image=False)
+    return location, hwl, rotation_y, xyxy, visible

@@ -231,6 +231,9 @@ class TrackerConfig:
     # only while at least this fraction of its projected box's width is inside an image: a track
     # leaving the view has an explained miss, not a dropped box (0 = always output)
     coast_min_in_view: float = 0.0
+    # a detection with a 2D box of its own (an image head's) has its 3D centre turned toward that
+    # box's bearing, by the weight the two sources' estimated noise gives (tracker.fusion)
+    image_bearing: bool = False
     offline: OfflineConfig = OfflineConfig()
     scores: ScoreSource = ScoreSource.AS_GIVEN
     source: str = "<defaults>"

@@ -38,6 +38,7 @@ from tracker.categories import CATEGORIES
 from tracker.config import TrackerConfig, TrackingMode
 from tracker.events import Observer, TrackOutput, TrackStatus
 from tracker.frame import Frame
+from tracker.fusion import fuse_scene
 from tracker.geometry import wrap_angle
 from tracker.matching import hungarian
 from tracker.mctracker import MCTracker, motion_noise_tables
@@ -73,6 +74,8 @@ def run_scene(
     outputs: list[TrackOutput] = []
     removed: list[RemovedTrack] = []
     start = time.perf_counter()
+    if config.image_bearing:  # the tracker (and the offline smoothers) see the fused centres
+        frames = fuse_scene(frames, len(CATEGORIES))
     for frame in frames:
         outputs.append(tracker.step(frame))
     if config.mode is TrackingMode.OFFLINE:

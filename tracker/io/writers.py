@@ -15,16 +15,16 @@ from typing import Any
 import numpy as np
 
 from tracker.boxes import Boxes, FloatArray, IntArray
-from tracker.camera import clip_boxes_to_image, project_boxes
+from tracker.camera import clip_boxes_to_image, project_boxes_upright
 from tracker.categories import CATEGORIES
 from tracker.config import ImageBoxes
 from tracker.cost import iou_xyxy
 from tracker.errors import InputError
 from tracker.events import TrackOutput, TrackStatus
 from tracker.frame import Camera, Frame
+from tracker.fusion import OWN_BOX_IOU
 from tracker.geometry import wrap_angle
 from tracker.io.baseversion import frame_to_dict, read_baseversion
-from tracker.io.convert.kitti import WORLD_FROM_CAMERA_AXES, boxes_world_to_rect
 from tracker.io.fileio import compact_json, write_bytes_atomic, write_json_atomic, write_text_atomic
 
 KITTI_CLASS_NAMES = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
@@ -41,26 +41,7 @@ def kitti_label_fields(
     the box *upright in camera axes*, as KITTI annotates it and the reference writer does:
     projecting the z-up world box would tilt it by the ego's pitch/roll relative to the world.
     """
-    location, hwl, rotation_y = boxes_world_to_rect(
-        boxes.xyz, boxes.lwh, boxes.yaw, camera.camera_from_world
-    )
-    centre_cam = location - np.column_stack(
-        [np.zeros(len(boxes)), hwl[:, 0] / 2.0, np.zeros(len(boxes))]
-    )
-    upright = Boxes.create(
-        xyz=centre_cam @ WORLD_FROM_CAMERA_AXES[:3, :3].T,
-        lwh=boxes.lwh,
-        yaw=-rotation_y - np.pi / 2.0,  # heading about camera -y, as a z-up yaw
-        category=boxes.category,
-    )
-    camera_axes = Camera(
-        camera.name,
-        camera.image_from_camera,
-        np.linalg.inv(WORLD_FROM_CAMERA_AXES),
-        camera.width_px,
-        camera.height_px,
-    )
-    xyxy, visible = project_boxes(upright, camera_axes, clip_to_image=False)
+    location, hwl, rotation_y, xyxy, visible = project_boxes_upright(boxes, camera)
     scale = np.ones(len(boxes)) if width_scale is None else width_scale[boxes.category]
     narrow = np.flatnonzero(scale != 1.0)  # (only these: the others stay bit-identical)
     if len(narrow):
@@ -80,12 +61,6 @@ def narrow_about_centre(xyxy: FloatArray, scale: FloatArray) -> FloatArray:
     centre, half = (out[:, 0] + out[:, 2]) / 2, (out[:, 2] - out[:, 0]) / 2 * scale
     out[:, 0], out[:, 2] = centre - half, centre + half
     return out
-
-
-#: a detection's 2D box is its own (not its 3D box's projection) when their IoU is below this;
-#: a projection written by the detector agrees with ours to rounding (IoU >= 0.99 on the three
-#: KITTI detectors of the kit)
-OWN_BOX_IOU = 0.95
 
 
 class ImageBoxStats:

@@ -52,6 +52,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from tracker.boxes import Boxes, FloatArray, IntArray
+from tracker.camera import WORLD_FROM_CAMERA_AXES, boxes_world_to_rect  # noqa: F401 (re-exported)
 from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
@@ -78,11 +79,6 @@ TRAINING_SEQS = tuple(f"{i:04d}" for i in range(21))
 
 FRAME_PERIOD_SECS = 0.1  # KITTI raw recordings run at 10 Hz
 CAMERA_NAME = "CAM_FRONT"
-
-#: z-up world (x forward, y left, z up) from camera axes (x right, y down, z forward).
-WORLD_FROM_CAMERA_AXES: FloatArray = np.array(
-    [[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
-)
 
 #: AB3DMOT detection type codes.
 AB3DMOT_TYPE_CODES: Mapping[int, str] = {1: "pedestrian", 2: "car", 3: "cyclist"}
@@ -718,43 +714,6 @@ def boxes_rect_to_world(
     yaw_world = wrap_angle(np.arctan2(heading_world[:, 1], heading_world[:, 0]))
     lwh = objects.hwl[:, ::-1].copy()
     return xyz_world, lwh, yaw_world
-
-
-def boxes_world_to_rect(
-    xyz_world: FloatArray, lwh: FloatArray, yaw_world: FloatArray, rect_from_world: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Inverse of :func:`boxes_rect_to_world`: world boxes back to KITTI rect-camera values.
-
-    Use this (then an upright box about the camera's y axis, as KITTI and the reference writer
-    do) to write KITTI results: projecting the z-up world box instead tilts it by the ego's
-    pitch/roll relative to the world (up to ~4° with the ORB-SLAM3 poses), which inflates the
-    2D box.
-
-    Parameters
-    ----------
-    xyz_world : (N, 3) geometric centres. lwh : (N, 3). yaw_world : (N,) radians.
-    rect_from_world : (4, 4) for all boxes, or (N, 4, 4) per box.
-
-    Returns
-    -------
-    xyz_bottom_rect : (N, 3) KITTI ``location`` (bottom centre, rect frame).
-    hwl : (N, 3) KITTI ``dimensions``.
-    rotation_y : (N,) KITTI ``rotation_y`` in (−pi, pi]: the world heading rotated into rect and
-        projected on the camera x-z plane.
-    """
-    xyz_world = np.asarray(xyz_world, dtype=np.float64).reshape(-1, 3)
-    lwh = np.asarray(lwh, dtype=np.float64).reshape(-1, 3)
-    yaw_world = np.asarray(yaw_world, dtype=np.float64).reshape(-1)
-    transform = np.broadcast_to(np.asarray(rect_from_world, dtype=np.float64), (len(lwh), 4, 4))
-    rotation = transform[:, :3, :3]
-    centre_rect = np.einsum("nij,nj->ni", rotation, xyz_world) + transform[:, :3, 3]
-    xyz_bottom_rect = centre_rect + np.stack(
-        [np.zeros(len(lwh)), lwh[:, 2] / 2.0, np.zeros(len(lwh))], axis=1
-    )
-    heading_world = np.stack([np.cos(yaw_world), np.sin(yaw_world), np.zeros(len(lwh))], axis=1)
-    heading_rect = np.einsum("nij,nj->ni", rotation, heading_world)
-    rotation_y = wrap_angle(np.arctan2(-heading_rect[:, 2], heading_rect[:, 0]))
-    return xyz_bottom_rect, lwh[:, ::-1].copy(), rotation_y
 
 
 def _sigmoid(x: FloatArray) -> FloatArray:
