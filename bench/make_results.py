@@ -137,8 +137,9 @@ def image_detector_section(root: Path) -> list[str]:
         "",
         "KITTI scores 2D boxes. PointRCNN's are the projections of its 3D boxes; with"
         f" `--image-detector {name}` each PointRCNN detection takes the kit's RRC 2D box that"
-        " overlaps it at IoU >= 0.5 (one to one), and a matched track writes that box"
-        " (`image_boxes = auto`, docs/detectors.md section 6). Command: `mctrack kitti --classes"
+        " overlaps it at IoU >= 0.5 (one to one), a matched track writes that box"
+        " (`image_boxes = auto`) and the detection's centre is turned toward its bearing"
+        " (`image_bearing`; both docs/detectors.md section 6). Command: `mctrack kitti --classes"
         f" C [--mode offline] [--image-detector {name}] --out DIR`.",
         "",
         table(rows),
