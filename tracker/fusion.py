@@ -20,10 +20,10 @@ nothing. Both variances come from the detections themselves, causally, per categ
   a head whose boxes are biased that way is trusted less.
 
 Hence w = min(1, σ²_3D / var δ), 0 until both estimates have ``MIN_SAMPLES`` samples. A box
-counts as its own where its IoU with its 3D box's projection is below ``OWN_BOX_IOU`` and that
-projection lies wholly in front of the camera and inside the image: a box the image edge cuts
-has a cut centre. A LiDAR detector's 2D boxes are projections, so its frames pass through
-unchanged.
+counts as its own where its IoU with its 3D box's projection (as KITTI writes one: the box stood
+upright in the camera's axes) is below ``OWN_BOX_IOU`` and that projection lies wholly in front
+of the camera and inside the image: a box the image edge cuts has a cut centre. A LiDAR
+detector's 2D boxes are projections, so its frames pass through unchanged.
 """
 
 from __future__ import annotations
@@ -184,6 +184,7 @@ def own_boxes(frames: Sequence[Frame]) -> list[_OwnBoxes | None]:
     with np.errstate(invalid="ignore"):
         # the whole projection inside the image: a box the image edge cuts has a cut centre
         ok = in_front & np.isfinite(det).all(axis=1) & (det[:, 2] > det[:, 0])
+        ok &= image_from_camera[:, 0, 0] > 0  # a focal length to turn pixels into angles
         ok &= (proj[:, :2] >= 0).all(axis=1) & (proj[:, 2:] <= size - 1).all(axis=1)
     ok[ok] = iou_xyxy(det[ok], proj[ok]) < OWN_BOX_IOU
     own = np.flatnonzero(ok)
