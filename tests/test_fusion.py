@@ -53,6 +53,14 @@ def _frame(k: int, boxes: Boxes) -> Frame:
     return Frame("s", k, 0.1 * k, boxes, cameras=(CAMERA,))
 
 
+def _trusting(w: float, sigma: float = 1.0) -> BearingFusion:
+    """A fusion whose estimates are given: weight ``w``, disagreement spread ``sigma`` (m)."""
+    fusion = BearingFusion(8)
+    fusion.weight = lambda: np.full(8, w)  # type: ignore[method-assign]
+    fusion.disagreement_sigma = lambda: np.full(8, sigma)  # type: ignore[method-assign]
+    return fusion
+
+
 def _apply(fusion: BearingFusion, frame: Frame) -> Frame:
     return fusion.apply(frame, frame.timestamp_secs, own_boxes([frame])[0])
 
@@ -77,24 +85,22 @@ def test_turn_keeps_range_and_height_and_adds_the_angle() -> None:
 
 
 def test_an_own_box_pulls_its_centre_onto_its_bearing() -> None:
-    fusion = BearingFusion(8)
-    fusion.weight = lambda: np.ones(8)  # type: ignore[method-assign]  # trust the image fully
+    fusion = _trusting(1.0)
     truth = np.array([[15.0, 1.0, 0.85]])
     noisy = truth + np.array([[0.0, 0.3, 0.0]])  # 0.3 m to the left
     fused = _apply(fusion, _frame(0, _boxes(noisy, image_xyz=truth)))
     assert _centre_column(fused.boxes.xyz) == pytest.approx(_centre_column(truth), abs=0.3)
     assert np.linalg.norm(fused.boxes.xyz[0, :2]) == pytest.approx(np.linalg.norm(noisy[0, :2]))
     # half the weight: half the way (to first order)
-    fusion.weight = lambda: np.full(8, 0.5)  # type: ignore[method-assign]
+    fusion = _trusting(0.5)
     half = _apply(fusion, _frame(1, _boxes(noisy, image_xyz=truth)))
     gap = _centre_column(truth) - _centre_column(noisy)
     moved = _centre_column(half.boxes.xyz) - _centre_column(noisy)
     assert moved == pytest.approx(gap / 2, rel=0.05)
 
 
-def test_projections_and_cut_boxes_move_nothing() -> None:
-    fusion = BearingFusion(8)
-    fusion.weight = lambda: np.ones(8)  # type: ignore[method-assign]
+def test_projections_cut_or_implausible_boxes_move_nothing() -> None:
+    fusion = _trusting(1.0)
     frame = _frame(0, _boxes(np.array([[15.0, 1.0, 0.85], [20.0, -2.0, 0.85]])))
     assert own_boxes([frame]) == [None]
     assert _apply(fusion, frame) is frame  # a LiDAR detector's frame: the same object
@@ -103,6 +109,24 @@ def test_projections_and_cut_boxes_move_nothing() -> None:
     cut = _frame(1, _boxes(edge + np.array([[0.0, 0.3, 0.0]]), image_xyz=edge))
     assert own_boxes([cut]) == [None]
     assert _apply(fusion, cut) is cut
+    # an own box outside the image, or without height, is no bearing either
+    truth = np.array([[15.0, 1.0, 0.85]])
+    for xyxy in ([5000.0, 150.0, 5100.0, 250.0], [560.0, 150.0, 590.0, 150.0]):
+        bad = _boxes(truth)
+        bad = bad.replace(xyxy_image=np.array([xyxy]))
+        assert own_boxes([_frame(2, bad)]) == [None]
+    # a camera that is not a rotation and a translation: nothing is turned through it
+    skewed = dataclasses.replace(
+        CAMERA, camera_from_world=CAMERA_FROM_WORLD * [[1.01], [1], [1], [1]]
+    )
+    odd = Frame(
+        "s", 3, 0.3, _boxes(truth + np.array([[0.0, 0.3, 0.0]]), image_xyz=truth), cameras=(skewed,)
+    )
+    assert own_boxes([odd]) == [None]
+    # a disagreement far beyond its estimated spread is a mismatched box: it moves nothing
+    doubtful = _trusting(1.0, sigma=0.05)
+    far = _frame(4, _boxes(truth + np.array([[0.0, 0.3, 0.0]]), image_xyz=truth))
+    assert _apply(doubtful, far) is far
     # a whole scene of projections comes back as it was, frame by frame
     scene = [_frame(k, _boxes(np.array([[15.0 + 0.1 * k, 1.0, 0.85]]))) for k in range(5)]
     assert all(a is b for a, b in zip(fuse_scene(scene, 8), scene, strict=True))
