@@ -157,12 +157,8 @@ def own_boxes(frames: Sequence[Frame]) -> list[_OwnBoxes | None]:
     for k, frame in enumerate(frames):
         b = frame.boxes
         cam = b.camera
-        usable = np.array([_rigid(c) for c in frame.cameras] + [False])  # (camera -1: none)
         finite = np.isfinite(b.xyz).all(axis=1) & np.isfinite(b.lwh).all(axis=1)
-        inside = (cam >= 0) & (cam < len(frame.cameras))
-        seen = np.flatnonzero(
-            inside & usable[np.where(inside, cam, -1)] & finite & np.isfinite(b.yaw)
-        )
+        seen = np.flatnonzero((cam >= 0) & (cam < len(frame.cameras)) & finite & np.isfinite(b.yaw))
         if not len(seen):
             continue
         used = np.unique(cam[seen])
@@ -178,11 +174,15 @@ def own_boxes(frames: Sequence[Frame]) -> list[_OwnBoxes | None]:
     frame_of, row, camera_of, index = (
         np.concatenate(a) for a in (at_frame, at_row, at_camera, at_index)
     )
+    cam_m = np.stack([c.camera_from_world for c in cameras])
+    cam_k = np.stack([c.image_from_camera for c in cameras])
+    usable = _rigid(cam_m, cam_k)[index]
+    if not usable.all():
+        frame_of, row, camera_of, index = (a[usable] for a in (frame_of, row, camera_of, index))
     boxes = Boxes.concat([frames[k].boxes for k in range(len(frames))])
     start = np.cumsum([0] + [len(f.boxes) for f in frames])
     b = boxes[start[frame_of] + row]
-    camera_from_world = np.stack([c.camera_from_world for c in cameras])[index]  # (N, 4, 4)
-    image_from_camera = np.stack([c.image_from_camera for c in cameras])[index]  # (N, 3, 4)
+    camera_from_world, image_from_camera = cam_m[index], cam_k[index]  # (N, 4, 4), (N, 3, 4)
     size = np.array([(c.width_px, c.height_px) for c in cameras], dtype=np.float64)[index]
     # the projection a detector writes: the box upright in camera axes (KITTI's convention and
     # the KITTI writer's, tracker.camera.project_boxes_upright), for boxes wholly in front
@@ -266,14 +266,16 @@ def turn_about_camera(
     return out
 
 
-def _rigid(camera: Camera) -> bool:
-    """Whether a camera's matrices are finite and its ``camera_from_world`` a rotation and a
-    translation (the turn's way back to the world frame is its transpose)."""
-    m, k = camera.camera_from_world, camera.image_from_camera
-    if not (np.isfinite(m).all() and np.isfinite(k).all()):
-        return False
-    r = m[:3, :3]
-    return bool(np.allclose(r.T @ r, np.eye(3), atol=1e-6) and np.allclose(m[3], [0, 0, 0, 1]))
+def _rigid(camera_from_world: FloatArray, image_from_camera: FloatArray) -> np.ndarray:
+    """(N,) whether each camera's matrices (N, 4, 4) and (N, 3, 4) are finite and its
+    ``camera_from_world`` a rotation and a translation (the turn's way back to the world frame
+    is its transpose)."""
+    m, k = camera_from_world, image_from_camera
+    finite = np.isfinite(m).all(axis=(1, 2)) & np.isfinite(k).all(axis=(1, 2))
+    r = np.where(finite[:, None, None], m[:, :3, :3], 0.0)
+    with np.errstate(invalid="ignore", over="ignore"):
+        orthonormal = np.abs(r.transpose(0, 2, 1) @ r - np.eye(3)).max(axis=(1, 2)) <= 1e-6
+    return finite & orthonormal & (np.abs(m[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-12)
 
 
 def _add(counts: IntArray, category: IntArray, magnitude: FloatArray) -> None:
