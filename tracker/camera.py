@@ -278,7 +278,8 @@ def project_boxes_batched(
 def boxes_world_to_rect(
     xyz_world: FloatArray, lwh: FloatArray, yaw_world: FloatArray, rect_from_world: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """Inverse of :func:`boxes_rect_to_world`: world boxes back to KITTI rect-camera values.
+    """Inverse of ``tracker.io.convert.kitti.boxes_rect_to_world``: world boxes back to KITTI
+    rect-camera values.
 
     Use this (then an upright box about the camera's y axis, as KITTI and the reference writer
     do) to write KITTI results: projecting the z-up world box instead tilts it by the ego's
@@ -312,6 +313,19 @@ def boxes_world_to_rect(
     return xyz_bottom_rect, lwh[:, ::-1].copy(), rotation_y
 
 
+def upright_in_camera_axes(
+    location: FloatArray, hwl: FloatArray, rotation_y: FloatArray
+) -> tuple[FloatArray, FloatArray]:
+    """Centres (N, 3) and z-up yaws (N,) of KITTI boxes (:func:`boxes_world_to_rect`'s values)
+    stood upright in camera axes, in the z-up frame ``WORLD_FROM_CAMERA_AXES`` maps the camera's
+    axes to: project them with ``inv(WORLD_FROM_CAMERA_AXES)`` as the camera's pose."""
+    centre_cam = location - np.column_stack(
+        [np.zeros(len(location)), hwl[:, 0] / 2.0, np.zeros(len(location))]
+    )
+    # the heading about camera -y, as a z-up yaw
+    return centre_cam @ WORLD_FROM_CAMERA_AXES[:3, :3].T, -rotation_y - np.pi / 2.0
+
+
 def project_boxes_upright(
     boxes: Boxes, camera: Camera
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, BoolArray]:
@@ -326,15 +340,8 @@ def project_boxes_upright(
     location, hwl, rotation_y = boxes_world_to_rect(
         boxes.xyz, boxes.lwh, boxes.yaw, camera.camera_from_world
     )
-    centre_cam = location - np.column_stack(
-        [np.zeros(len(boxes)), hwl[:, 0] / 2.0, np.zeros(len(boxes))]
-    )
-    upright = Boxes.create(
-        xyz=centre_cam @ WORLD_FROM_CAMERA_AXES[:3, :3].T,
-        lwh=boxes.lwh,
-        yaw=-rotation_y - np.pi / 2.0,  # heading about camera -y, as a z-up yaw
-        category=boxes.category,
-    )
+    xyz, yaw = upright_in_camera_axes(location, hwl, rotation_y)
+    upright = Boxes.create(xyz=xyz, lwh=boxes.lwh, yaw=yaw, category=boxes.category)
     camera_axes = Camera(
         camera.name,
         camera.image_from_camera,

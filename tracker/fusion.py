@@ -34,11 +34,16 @@ from collections.abc import Sequence
 import numpy as np
 
 from tracker.boxes import Boxes, FloatArray, IntArray
-from tracker.camera import NEAR_PLANE_M, WORLD_FROM_CAMERA_AXES, boxes_world_to_rect
+from tracker.camera import (
+    NEAR_PLANE_M,
+    WORLD_FROM_CAMERA_AXES,
+    boxes_world_to_rect,
+    upright_in_camera_axes,
+)
 from tracker.cost import iou_xyxy
 from tracker.frame import Camera, Frame
 from tracker.geometry import corners_3d
-from tracker.noise import _MAD_TO_SIGMA, EDGES, MIN_SAMPLES, _even_steps, histogram_median
+from tracker.noise import EDGES, count_magnitudes, even_steps, robust_square_scale
 
 #: a centre column within this of the projection's (pixels) is the projection's to rounding: it
 #: joins the estimates but moves nothing (a LiDAR detector's small boxes, written to 0.01 px,
@@ -56,8 +61,8 @@ OWN_BOX_IOU = 0.95
 @dataclasses.dataclass(slots=True)
 class _OwnBoxes:
     """One frame's detections with an own 2D box: their rows, world xy, lateral unit vectors
-    (world xy), categories, lengths (the linking radius), bearing gaps θ_2D − θ_3D (rad) and
-    ranges (m)."""
+    (world xy), categories, lengths (the linking radius), bearing gaps θ_2D − θ_3D (rad), lateral
+    disagreements δ = range · gap (m) and cameras."""
 
     rows: IntArray
     xy: FloatArray
@@ -65,7 +70,7 @@ class _OwnBoxes:
     category: IntArray
     length: FloatArray
     gap: FloatArray
-    range_m: FloatArray
+    disagreement: FloatArray
     camera: IntArray
     moves: np.ndarray  # the centre column is at least MIN_GAP_PX from the projection's
 
@@ -85,15 +90,15 @@ class BearingFusion:
 
     def weight(self) -> FloatArray:
         """(C,) w per category (0 where either estimate lacks samples)."""
-        lateral = _variance(self.lateral_counts) / 6.0
-        disagree = _variance(self.disagree_counts)
+        lateral = robust_square_scale(self.lateral_counts) / 6.0
+        disagree = robust_square_scale(self.disagree_counts)
         with np.errstate(invalid="ignore", divide="ignore"):
             w = np.clip(lateral / disagree, 0.0, 1.0)
         return np.where(np.isfinite(w), w, 0.0)
 
     def disagreement_sigma(self) -> FloatArray:
         """(C,) the standard deviation of the lateral disagreement δ (m; NaN: no estimate)."""
-        return np.sqrt(_variance(self.disagree_counts))
+        return np.sqrt(robust_square_scale(self.disagree_counts))
 
     def apply(self, frame: Frame, time_secs: float, own: _OwnBoxes | None) -> Frame:
         """``frame`` with its own-box detections (``own``, from :func:`own_boxes`) turned by ``w``
@@ -103,7 +108,7 @@ class BearingFusion:
             return frame
         spread = self.disagreement_sigma()[own.category]
         with np.errstate(invalid="ignore"):  # (NaN spread: no estimate, and w is 0 anyway)
-            plausible = np.abs(own.range_m * own.gap) <= MAX_GAP_SIGMAS * spread
+            plausible = np.abs(own.disagreement) <= MAX_GAP_SIGMAS * spread
         w = np.where(own.moves & plausible, self.weight()[own.category], 0.0)
         if not w.any():
             return frame
@@ -119,7 +124,7 @@ class BearingFusion:
         if own is None:
             self._frames = []  # a frame without own boxes breaks every chain
             return
-        _add(self.disagree_counts, own.category, np.abs(own.range_m * own.gap))
+        count_magnitudes(self.disagree_counts, own.category, np.abs(own.disagreement))
         link = np.full(len(own.rows), -1, dtype=np.int64)
         if self._frames:
             prev = self._frames[-1][1]
@@ -129,7 +134,7 @@ class BearingFusion:
             nearest = d.argmin(axis=1)
             ok = d[np.arange(len(d)), nearest] <= own.length
             link[ok] = nearest[ok]
-            if len(self._frames) == 2 and _even_steps(
+            if len(self._frames) == 2 and even_steps(
                 self._frames[0][0], self._frames[1][0], time_secs
             ):
                 prev_link = self._frames[-1][2]
@@ -140,7 +145,7 @@ class BearingFusion:
                     first = self._frames[0][1].xy[prev_link[mid]]
                     second = own.xy[cur] - 2.0 * prev.xy[mid] + first
                     ell = np.einsum("ij,ij->i", second, prev.lateral[mid])
-                    _add(self.lateral_counts, own.category[cur], np.abs(ell))
+                    count_magnitudes(self.lateral_counts, own.category[cur], np.abs(ell))
         self._frames = [*self._frames[-1:], (time_secs, own, link)]
 
 
@@ -188,11 +193,8 @@ def own_boxes(frames: Sequence[Frame]) -> list[_OwnBoxes | None]:
     # the KITTI writer's, tracker.camera.project_boxes_upright), for boxes wholly in front
     location, hwl, rotation_y = boxes_world_to_rect(b.xyz, b.lwh, b.yaw, camera_from_world)
     in_front = location[:, 2] - 0.5 * np.hypot(hwl[:, 1], hwl[:, 2]) > NEAR_PLANE_M
-    centre = location - np.column_stack([np.zeros(len(b)), hwl[:, 0] / 2.0, np.zeros(len(b))])
-    corners = (
-        corners_3d(centre @ WORLD_FROM_CAMERA_AXES[:3, :3].T, b.lwh, -rotation_y - np.pi / 2.0)
-        @ WORLD_FROM_CAMERA_AXES[:3, :3]
-    )  # (N, 8, 3) in camera axes
+    xyz_up, yaw_up = upright_in_camera_axes(location, hwl, rotation_y)
+    corners = corners_3d(xyz_up, b.lwh, yaw_up) @ WORLD_FROM_CAMERA_AXES[:3, :3]  # camera axes
     h = corners @ image_from_camera[:, :, :3].transpose(0, 2, 1) + image_from_camera[:, None, :, 3]
     with np.errstate(divide="ignore", invalid="ignore"):
         uv = h[..., :2] / h[..., 2:3]
@@ -220,7 +222,7 @@ def own_boxes(frames: Sequence[Frame]) -> list[_OwnBoxes | None]:
     lateral = np.einsum("nji,nj->ni", m[:, :3, :3], lateral_cam)[:, :2]
     columns = (
         row[own], b.xyz[own, :2], lateral, b.category[own], b.lwh[own, 0], gap,
-        np.hypot(p[:, 0], p[:, 2]), camera_of[own], np.abs(u_det - u_proj) >= MIN_GAP_PX,
+        np.hypot(p[:, 0], p[:, 2]) * gap, camera_of[own], np.abs(u_det - u_proj) >= MIN_GAP_PX,
     )  # fmt: skip
     bounds = np.searchsorted(frame_of[own], np.arange(len(frames) + 1))
     for k in np.flatnonzero(np.diff(bounds)):
@@ -276,18 +278,3 @@ def _rigid(camera_from_world: FloatArray, image_from_camera: FloatArray) -> np.n
     with np.errstate(invalid="ignore", over="ignore"):
         orthonormal = np.abs(r.transpose(0, 2, 1) @ r - np.eye(3)).max(axis=(1, 2)) <= 1e-6
     return finite & orthonormal & (np.abs(m[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-12)
-
-
-def _add(counts: IntArray, category: IntArray, magnitude: FloatArray) -> None:
-    n_bins = counts.shape[1]
-    b = np.clip(np.searchsorted(EDGES, magnitude, side="right") - 1, 0, n_bins - 1)
-    np.add.at(counts, (category, b), 1)
-
-
-def _variance(counts: IntArray) -> FloatArray:
-    """(C,) (1.4826 · median)² of the counted magnitudes; NaN below ``MIN_SAMPLES``."""
-    out = np.full(len(counts), np.nan)
-    ready = np.flatnonzero(counts.sum(axis=1) >= MIN_SAMPLES)
-    if len(ready):
-        out[ready] = (_MAD_TO_SIGMA * histogram_median(counts[ready])) ** 2
-    return out

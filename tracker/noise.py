@@ -62,7 +62,7 @@ class PositionNoise:
         link = np.full(len(xy), -1, dtype=np.int64)  # each box's box in the previous frame
         if self._frames and len(xy) and len(self._frames[-1][1]):
             _, prev_xy, prev_cat, prev_link = self._frames[-1]
-            triples = len(self._frames) == 2 and _even_steps(
+            triples = len(self._frames) == 2 and even_steps(
                 self._frames[0][0], self._frames[1][0], time_secs
             )
             prev2_xy = self._frames[0][1] if triples else prev_xy
@@ -86,15 +86,8 @@ class PositionNoise:
                     if len(cur):
                         p = link[cur]
                         second = xy[cur] - 2.0 * prev_xy[p] + prev2_xy[prev_link[p]]
-                        self._add(category[cur], np.abs(second))
+                        count_magnitudes(self.counts, category[cur], np.abs(second))
         self._frames = [*self._frames[-1:], (time_secs, xy, category, link)]
-
-    def _add(self, category: IntArray, magnitude: FloatArray) -> None:
-        """Count (n, 2) |Δ²z| of boxes of ``category`` (n,) into the histogram."""
-        n_bins = self.counts.shape[1]
-        b = np.clip(np.searchsorted(EDGES, magnitude, side="right") - 1, 0, n_bins - 1)
-        flat = (category[:, None] * n_bins + b).ravel()
-        self.counts += np.bincount(flat, minlength=self.counts.size).reshape(self.counts.shape)
 
     def variance(self) -> FloatArray:
         """(C,) σ² per axis (m²) per category; NaN where fewer than ``MIN_SAMPLES`` counted."""
@@ -102,17 +95,33 @@ class PositionNoise:
             out = np.empty(len(self.counts))
             self._kernels.noise_variance_kernel(self.counts, MIN_SAMPLES, EDGES, _MAD_TO_SIGMA, out)
             return out
-        total = self.counts.sum(axis=1)
-        out = np.full(len(total), np.nan)
-        ready = np.flatnonzero(total >= MIN_SAMPLES)
-        if len(ready):
-            median = histogram_median(self.counts[ready])
-            # a median in the first bin is below the histogram's resolution: no estimate
-            out[ready] = np.where(median > EDGES[1], (_MAD_TO_SIGMA * median) ** 2 / 6.0, np.nan)
-        return out
+        return robust_square_scale(self.counts) / 6.0
 
 
-def _even_steps(t2: float, t1: float, t0: float) -> bool:
+def count_magnitudes(counts: IntArray, category: IntArray, magnitude: FloatArray) -> None:
+    """Count ``magnitude`` (n,) or (n, k) of boxes of ``category`` (n,) into ``counts``
+    (C, bins) on :data:`EDGES`, in place."""
+    n_bins = counts.shape[1]
+    b = np.clip(np.searchsorted(EDGES, magnitude, side="right") - 1, 0, n_bins - 1)
+    rows = category[:, None] if b.ndim == 2 else category
+    flat = (rows * n_bins + b).ravel()
+    counts += np.bincount(flat, minlength=counts.size).reshape(counts.shape)
+
+
+def robust_square_scale(counts: IntArray) -> FloatArray:
+    """(C,) (1.4826 · median)² of the magnitudes counted in each row of ``counts``: the variance
+    of a zero-mean normal whose |values| they are. NaN below ``MIN_SAMPLES`` counts, and where
+    the median lies in the first bin (below the histogram's resolution)."""
+    total = counts.sum(axis=1)
+    out = np.full(len(total), np.nan)
+    ready = np.flatnonzero(total >= MIN_SAMPLES)
+    if len(ready):
+        median = histogram_median(counts[ready])
+        out[ready] = np.where(median > EDGES[1], (_MAD_TO_SIGMA * median) ** 2, np.nan)
+    return out
+
+
+def even_steps(t2: float, t1: float, t0: float) -> bool:
     """Whether the frame steps t2 -> t1 -> t0 are equal within ``STEP_TOLERANCE``."""
     step, before = t0 - t1, t1 - t2
     return abs(step - before) <= STEP_TOLERANCE * max(abs(before), 1e-9)
