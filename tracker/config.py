@@ -107,6 +107,11 @@ class BevConfig:
     alpha: float = 0.5  # FUSION blend weight of the forward prediction
     cost_max: float = 1.4  # accept a pair iff 1 - similarity <= cost_max
     gate_distance_m: float = 10.0  # pairs farther apart than this (BEV centres) are not scored
+    # the gate follows the detections' noise: once the scene's centre noise σ (per axis,
+    # tracker/noise.py) is estimated, pairs farther apart than √(gate_motion_m² + (4σ)²) are not
+    # scored either: the detection's own error (4σ: 99.97 % of it) plus how far the object moves
+    # from where its track predicts it (m). inf: off
+    gate_motion_m: float = math.inf
     # buffered boxes (BIoU, Yang et al. 2023): the cost compares boxes whose length and width
     # are grown by this fraction on each side (l(1 + 2b)), so that centre noise comparable to a
     # small object's size still leaves overlap to score; 0 = the boxes as they are
@@ -376,6 +381,8 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
             raise InputError(f"{source}: category.{name}.bev.buffer must be in [0, 2]")
         if not 0.0 < cfg.vertical_gain <= 1.0:
             raise InputError(f"{source}: category.{name}.vertical_gain must be in (0, 1]")
+        if not cfg.bev.gate_motion_m > 0.0:
+            raise InputError(f"{source}: category.{name}.bev.gate_motion_m must be > 0 (inf: off)")
         if not 0.0 <= cfg.pose.r_scale < math.inf:
             raise InputError(f"{source}: category.{name}.pose.r_scale must be finite and >= 0")
     return top

@@ -68,6 +68,10 @@ from tracker.track import TrackTable
 
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
 HEADING_FLIP_VOTES = 3  # consecutive detections disagreeing by > 90° that flip a static track
+# bev.gate_motion_m's allowance for a detection's own error, in standard deviations of the
+# scene's estimated centre noise (per axis): a normal error's 2D distance exceeds 4σ with
+# probability e^(-4²/2) = 0.03 %
+GATE_NOISE_SIGMAS = 4.0
 # TrackStatus values as plain ints: comparing an int8 array with an IntEnum member is slower
 _TENTATIVE, _CONFIRMED = int(TrackStatus.TENTATIVE), int(TrackStatus.CONFIRMED)
 _COASTING, _LOST = int(TrackStatus.COASTING), int(TrackStatus.LOST)
@@ -112,6 +116,11 @@ class _PerCategory:
         self.bev_cost_max = arr(lambda c: c.bev.cost_max)
         self.gate_m = arr(lambda c: c.bev.gate_distance_m)
         self.gate_sq = self.gate_m**2
+        # the distance gate that follows the detections' noise (bev.gate_motion_m)
+        self.gate_motion_sq = (
+            np.where(self.tracked, arr(lambda c: c.bev.gate_motion_m), np.inf) ** 2
+        )
+        self.any_motion_gate = bool(np.any(np.isfinite(self.gate_motion_sq)))
         # the cost's factors of a BEV box [x, y, l, w, yaw]: l and w grown by 1 + 2 buffer
         scale = 1.0 + 2.0 * arr(lambda c: c.bev.buffer)
         self.buffer_lw = np.ones((n, 5))
@@ -123,9 +132,7 @@ class _PerCategory:
         # the stage-2 shortcut's gates, wider by 1 µm and 1 nrad than the real gate's
         self.rv_distance_gate_sq_loose = (self.rv_distance_gate + 1e-6) ** 2
         self.rv_yaw_gate_loose = self.rv_yaw_gate + 1e-9
-        self.rv_gate_within_bev_gate = bool(
-            np.all(self.rv_distance_gate[self.tracked] < self.gate_m[self.tracked] * (1 - 1e-9))
-        )
+        self.rv_gate_within_bev_gate = self.rv_within(self.gate_sq)
         self.min_hits = arr(lambda c: c.lifecycle.min_hits)
         self.confirm_score = arr(lambda c: c.lifecycle.confirm_score)
         self.max_misses_tentative = arr(lambda c: c.lifecycle.max_misses_tentative)
@@ -170,6 +177,13 @@ class _PerCategory:
         # r of x and y from the detections' estimated noise (tracker.noise) where > 0
         self.r_scale = np.where(self.tracked, arr(lambda c: c.pose.r_scale), 0.0)
         self.any_r_scale = bool(np.any(self.r_scale > 0))
+        self.follows_noise = self.any_r_scale or self.any_motion_gate
+
+    def rv_within(self, gate_sq: FloatArray) -> bool:
+        """Whether stage 2's distance gate lies inside the BEV gate ``gate_sq`` (squared, per
+        category) for every tracked category (stage 2's shortcut relies on it)."""
+        t = self.tracked
+        return bool(np.all(self.rv_distance_gate[t] < np.sqrt(gate_sq[t]) * (1 - 1e-9)))
 
     def _motion_noise(self, c: CategoryConfig) -> kalman.DiagonalNoise:
         """Per-axis P0/Q/R (5, k) of one category for the tracker's motion model."""
@@ -221,8 +235,12 @@ class MCTracker:
         self._tracks = TrackTable.empty(order=self._cat.motion_model.order)
         # the R table in effect: the config's, with x and y following the noise estimate
         self.motion_r = self._cat.motion_r.copy()
+        # the BEV distance gate in effect (squared, per category): the config's, narrowed by
+        # bev.gate_motion_m once the noise is estimated
+        self.gate_sq = self._cat.gate_sq.copy()
+        self._rv_within_bev_gate = self._cat.rv_gate_within_bev_gate
         self._noise = (
-            PositionNoise(len(CATEGORIES), self._kernels) if self._cat.any_r_scale else None
+            PositionNoise(len(CATEGORIES), self._kernels) if self._cat.follows_noise else None
         )
         self._next_id = 0
         self._last_time: float | None = None
@@ -252,12 +270,24 @@ class MCTracker:
         return output
 
     def _follow_noise(self, dets: Boxes, time_secs: float) -> None:
-        """Update the detections' noise estimate with this frame's boxes, and r of x and y
-        (``pose.r_scale`` × the estimate) where it exists."""
+        """Update the detections' noise estimate with this frame's boxes, then r of x and y
+        (``pose.r_scale`` × the estimate) and the distance gate (``bev.gate_motion_m``) where
+        it exists."""
         assert self._noise is not None
         self._noise.update(time_secs, dets.xyz[:, :2], dets.lwh[:, 0], dets.category)
         scale = self._cat.r_scale
         variance = self._noise.variance()
+        if self._cat.any_motion_gate:
+            # a detection's distance from its track's prediction: its own error (per axis σ,
+            # GATE_NOISE_SIGMAS of it) plus the object's motion the filter did not predict
+            known = np.isfinite(variance)
+            radius_sq = self._cat.gate_motion_sq + GATE_NOISE_SIGMAS**2 * np.where(
+                known, variance, 0
+            )
+            self.gate_sq = np.where(
+                known, np.minimum(self._cat.gate_sq, radius_sq), self._cat.gate_sq
+            )
+            self._rv_within_bev_gate = self._cat.rv_within(self.gate_sq)
         r = scale * variance
         ready = (scale > 0) & np.isfinite(r) & (r > 0)
         if ready.any():
@@ -402,12 +432,12 @@ class MCTracker:
             det_bev *= cat.buffer_lw[dets.category]
         if cat.all_forward and self._kernels is not None:
             cost, mask = self._kernels.bev_cost_kernel(
-                bev, tr.category, det_bev, dets.category, cat.gate_sq, cat.w1, cat.w2
+                bev, tr.category, det_bev, dets.category, self.gate_sq, cat.w1, cat.w2
             )
             return cost, mask
         same = tr.category[:, None] == dets.category[None, :]
         delta = bev[:, None, :2] - dets.xyz[None, :, :2]
-        near = np.einsum("tdk,tdk->td", delta, delta) < cat.gate_m[tr.category][:, None] ** 2
+        near = np.einsum("tdk,tdk->td", delta, delta) < self.gate_sq[tr.category][:, None]
         mask = same & near
         w1, w2 = cat.w1[tr.category], cat.w2[tr.category]
         if cat.all_forward:
@@ -472,7 +502,7 @@ class MCTracker:
         # the BEV gate, which is wider than this stage's.
         if shortcut and (
             (
-                cat.rv_gate_within_bev_gate
+                self._rv_within_bev_gate
                 and bev_mask is not None
                 and not bev_mask[rows][:, cols].any()
             )
