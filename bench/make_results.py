@@ -5,6 +5,7 @@
         [--earlier-tunes earlier_car_online.json ...] [--earlier-offline car_offline.json]
         [--offline-choice car_offline_score_choice.json pedestrian_offline_choice.json]
         [--unshipped-offline-choice car_offline_choice.json pedestrian_offline_score_choice.json]
+        [--online-choice ped_online_motion_gate_choice.json]
 
 Runs (same PointRCNN detections, same TrackEval KITTI 2D-box protocol, 11 validation sequences):
   1. our tuned config online (car, pedestrian, cyclist) and offline (car), and offline's
@@ -831,6 +832,54 @@ def _grid_text(choice: dict[str, Any]) -> str:
     return grid
 
 
+def online_choice_section(choices: Sequence[str]) -> list[str]:
+    """Online values added to a searched record and chosen per fold (records of
+    bench/offline_from_online.py --choose-online): each fold of the online tune takes the grid
+    point with the best objective online on its training sequences, with the fold's searched
+    settings held, and tracks its held-out sequences with it, online and offline."""
+    if not choices:
+        return []
+    lines = [
+        "### Online values chosen per fold",
+        "",
+        "A value added after a search is chosen like an offline one, the record's searched"
+        " settings held: each fold of the online tune takes the grid point with the best"
+        " objective (online, its training sequences) and tracks its held-out sequences with it,"
+        " online and offline (`kitti_offline`'s offline values), and with the grid's first point"
+        " (the record's settings alone). It ships (the choice made the same way on all the"
+        " sequences) only where choosing holds out better; the class's held-out figures are then"
+        " these, not the tune record's above.",
+        "",
+        "| class | detector | HOTA online, held out, the record's settings |"
+        " online, chosen per fold | offline, chosen per fold | MOTA online (chosen) |"
+        " IDSW online (chosen) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+    notes = []
+    for path in choices:
+        rec = json.loads(Path(path).read_text())
+        choice, cls = rec["choice"], rec["class"]
+        final = choice["final"]["chosen"]
+        shipped = all(_shipped_value(cls, k) == v for k, v in final.items())
+        for det, m in rec["held_out"].items():
+            first, on, off = m["online_first"], m["online"], m["offline"]
+            lines.append(
+                f"| {cls} | {det} | {first['HOTA']:.2f} | {on['HOTA']:.2f} | {off['HOTA']:.2f} |"
+                f" {on['MOTA']:.2f} | {on['IDSW']} |"
+            )
+        folds = "; ".join(f"{'/'.join(f['test'])}: {_point(f['chosen'])}" for f in choice["folds"])
+        verdict = (
+            f"shipped: {_point(final)} (chosen on all sequences)"
+            if shipped
+            else f"not shipped (on all sequences the choice would be {_point(final)})"
+        )
+        notes.append(
+            f"- {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s; `{rec['command']}`):"
+            f" {_grid_text(choice)}; the folds chose {folds}; {verdict}."
+        )
+    return [*lines, "", *notes, ""]
+
+
 def offline_section(
     choices: list[str], earlier: list[str], unshipped: Sequence[str] = ()
 ) -> list[str]:
@@ -1038,6 +1087,10 @@ def main() -> int:
         help="records of bench/offline_from_online.py --choose (held-out offline figures)",
     )  # fmt: skip
     parser.add_argument(
+        "--online-choice", nargs="*", default=[],
+        help="records of bench/offline_from_online.py --choose-online (values added to a tune)",
+    )  # fmt: skip
+    parser.add_argument(
         "--unshipped-offline-choice", nargs="*", default=[],
         help="records of offline_from_online.py grids that did not ship, quoted",
     )  # fmt: skip
@@ -1154,6 +1207,7 @@ def main() -> int:
         "",
         table(detector_rows),
         *tune_section(args.tune),
+        *online_choice_section(args.online_choice),
         *offline_held_out,
         *image_detector_lines,
         *anatomy_lines,

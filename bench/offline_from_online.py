@@ -14,7 +14,11 @@ then takes the combination with the best objective of the tune (HOTA averaged ov
 detectors and its clean and perturbed detections) in offline mode on its training sequences,
 and tracks its held-out sequences with it (and with the grid's first point, the plain values,
 for comparison); the final choice, made the same way on all the
-sequences with the shipped settings and profiles, is what `kitti_offline` ships. The noise is
+sequences with the shipped settings and profiles, is what `kitti_offline` ships. With
+`--choose-online` the settings are online ones, chosen the same way in online mode and applied
+in both modes: one value added to a searched record without searching the rest again.
+`--after CHOICE.json` holds such a record's choices (each fold's own, and the final one) while
+choosing the next. The noise is
 drawn with the record's perturbation seed, or once per seed of `--noise-seed` (the objective
 averages a level's draws first): a choice between values a few tenths of HOTA apart can turn
 on one draw of the noise. `--out` writes the whole record
@@ -68,6 +72,8 @@ def held_out(
     choose: dict[str, list[Any]] | None = None,
     noise_seeds: tuple[int, ...] | None = None,
     workers: int = 2,
+    choose_online: bool = False,
+    after: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """``{detector: {mode: metrics}}`` over the record's held-out folds.
 
@@ -77,6 +83,10 @@ def held_out(
     a detector without a profile gets). ``choose``: offline-only settings and their candidates,
     chosen per fold on its training sequences (module docstring); the choices are returned
     under ``"choice"``, and offline mode at the grid's first point under ``"offline_first"``.
+    ``choose_online``: the settings are online ones, chosen in online mode and applied in both
+    (online mode at the grid's first point under ``"online_first"``). ``after``: the
+    ``"choice"`` of an earlier ``choose_online`` record of the same tune; each fold keeps its
+    own choice from it (and the final choice its final one), in both modes.
     ``noise_seeds``: the perturbation seeds of the objective's noisy levels (default: the
     record's)."""
     if profile not in ("labels", "self"):
@@ -84,11 +94,14 @@ def held_out(
     record = json.loads(record_path.read_text())
     if record["mode"] != "online":
         raise SystemExit(f"{record_path}: an online tune record is needed")
+    if after is not None:
+        record = hold_choices(record, after, record_path)
     cls = record["class"]
     label_dir = root / "training" / "label_02"
     dets = detectors or record["detectors"]
-    if choose and "offline" not in modes:
-        raise ValueError("choose: offline-only settings need the offline mode")
+    choose_mode = "online" if choose_online else "offline"
+    if choose and choose_mode not in modes:
+        raise ValueError(f"choose: {choose_mode} settings need the {choose_mode} mode")
     # the tune's noise levels (each perturbs the calibrated frames) join the objective when
     # choosing; the held-out figures are the clean ones
     specs = {CLEAN: None} | (
@@ -135,9 +148,9 @@ def held_out(
             work = Path(tmp)
 
             def pick(key: str, seqs: list[str], settings: dict[str, Any]) -> dict[str, Any]:
-                """The grid point with the best objective, offline, on ``seqs``."""
-                objective = Objective(tuple(dets), levels, MODES["offline"], {"categories": [cls]},
-                                      cls, str(label_dir))  # fmt: skip
+                """The grid point with the best objective (in ``choose_mode``) on ``seqs``."""
+                objective = Objective(tuple(dets), levels, MODES[choose_mode],
+                                      {"categories": [cls]}, cls, str(label_dir))  # fmt: skip
                 scores, exact = {}, {}
                 for i, point in enumerate(grid):
                     where = work / "choose" / key / str(i)
@@ -147,11 +160,11 @@ def held_out(
                 best = grid[max(exact, key=lambda i: exact[i])]  # the first of ties
                 return {"objective": scores, "chosen": best}
 
-            # with a grid, offline also runs at its first point (the plain values): what
+            # with a grid, the chosen mode also runs at its first point (the plain values): what
             # choosing per fold is compared with
             runs = {mode: MODES[mode] for mode in modes}
             if grid:
-                runs["offline_first"] = MODES["offline"]
+                runs[f"{choose_mode}_first"] = MODES[choose_mode]
             tasks = []
             for k, fold in enumerate(record["cv"]):
                 extra: dict[str, dict[str, Any]] = {}
@@ -159,7 +172,9 @@ def held_out(
                     train = [s for s in lengths if s not in fold["test"]]
                     picked = pick(f"fold{k}", train, fold["best"])
                     choice["folds"].append({"test": fold["test"], **picked})
-                    extra = {"offline": picked["chosen"], "offline_first": grid[0]}
+                    extra = {"offline": picked["chosen"], f"{choose_mode}_first": grid[0]}
+                    if choose_online:
+                        extra["online"] = picked["chosen"]
                 for det in dets:
                     for run, config in runs.items():
                         settings = {**fold["best"], **extra.get(run, {})}
@@ -181,6 +196,20 @@ def held_out(
     return out
 
 
+def hold_choices(record: dict[str, Any], after: dict[str, Any], name: Any) -> dict[str, Any]:
+    """``record`` (an online tune's) with each fold's settings, and the final ones, joined by
+    that fold's (the final) choice of ``after`` (the ``"choice"`` of a ``--choose-online``
+    record of the same tune)."""
+    if [f["test"] for f in after["folds"]] != [f["test"] for f in record["cv"]]:
+        raise SystemExit(f"{name}: --after's folds are not this record's")
+    cv = [
+        {**fold, "best": {**fold["best"], **held["chosen"]}}
+        for fold, held in zip(record["cv"], after["folds"], strict=True)
+    ]
+    final = {**record["final"], "best": {**record["final"]["best"], **after["final"]["chosen"]}}
+    return {**record, "cv": cv, "final": final}
+
+
 def _parse_choose(items: list[str]) -> dict[str, list[Any]]:
     grid = {}
     for item in items:
@@ -196,6 +225,18 @@ def main() -> int:
     parser.add_argument("record", nargs="?", default=str(ROOT / "docs/tune/car_online.json"))
     parser.add_argument("--kitti-root", type=Path, default=None)
     parser.add_argument("--choose", action="append", default=[], metavar="KEY=V1,V2,...")
+    parser.add_argument(
+        "--choose-online",
+        action="store_true",
+        help="the --choose settings are online ones (chosen online, applied in both modes)",
+    )
+    parser.add_argument(
+        "--after",
+        type=Path,
+        default=None,
+        metavar="CHOICE.json",
+        help="an earlier --choose-online record of the same tune: its choices are held",
+    )
     parser.add_argument(
         "--noise-seed",
         type=seed_list,
@@ -213,6 +254,8 @@ def main() -> int:
         choose=_parse_choose(args.choose) or None,
         noise_seeds=args.noise_seed,
         workers=args.workers,
+        choose_online=args.choose_online,
+        after=json.loads(args.after.read_text())["choice"] if args.after else None,
     )
     choice = figures.pop("choice", None)
     if choice:
@@ -225,11 +268,12 @@ def main() -> int:
         )
     for det, by_mode in figures.items():
         on, off = by_mode["online"], by_mode["offline"]
-        first = by_mode.get("offline_first")
+        first_mode = "online" if args.choose_online else "offline"
+        first = by_mode.get(f"{first_mode}_first")
         print(
             f"{det:12s} held out: online {on['HOTA']:.2f}  offline {off['HOTA']:.2f}"
             f"  ({off['HOTA'] - on['HOTA']:+.2f}; FP {on['FP']} -> {off['FP']})"
-            + (f"  offline at the grid's first point {first['HOTA']:.2f}" if first else ""),
+            + (f"  {first_mode} at the grid's first point {first['HOTA']:.2f}" if first else ""),
             flush=True,
         )
     if args.out:
@@ -237,6 +281,8 @@ def main() -> int:
         record = {"class": cls, "online_record": Path(args.record).name, "held_out": figures,
                   "choice": choice, "command": " ".join(["python bench/offline_from_online.py",
                   f"docs/tune/{Path(args.record).name}", *(f"--choose {c}" for c in args.choose),
+                  *(["--choose-online"] if args.choose_online else []),
+                  *([f"--after docs/tune/{args.after.name}"] if args.after else []),
                   *([f"--noise-seed {','.join(map(str, args.noise_seed))}"]
                     if args.noise_seed else [])]),
                   "seconds": round(time.perf_counter() - start, 1)}  # fmt: skip

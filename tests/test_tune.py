@@ -253,7 +253,8 @@ def test_shipped_offline_choices_are_the_records() -> None:
         "car_offline_choice.json",
         "car_offline_score_choice.json",
         "car_offline_three_draws_choice.json",  # the same choice, from the car search's rerun
-        "pedestrian_offline_choice.json",
+        "pedestrian_offline_choice.json",  # superseded (before the online distance gate)
+        "pedestrian_offline_choice_motion_gate.json",
         "pedestrian_offline_choice_noise_only.json",  # superseded
         "pedestrian_offline_score_choice.json",
         "pedestrian_offline_stitch_choice.json",
@@ -283,6 +284,32 @@ def test_shipped_offline_choices_are_the_records() -> None:
         assert {node} == want, (owner, key)
 
 
+def test_shipped_online_choices_are_the_records() -> None:
+    """A value added to a searched record and chosen per fold (bench/offline_from_online.py
+    --choose-online) ships in `kitti` as the record's choice on all sequences only where choosing
+    held out better online than the record's settings alone; else the grid's first point."""
+    import json
+
+    from tracker.config import load_config
+
+    config = load_config("kitti")
+    docs = Path(__file__).resolve().parents[1] / "docs" / "tune"
+    paths = sorted(docs.glob("*_online_*_choice.json"))
+    assert [p.name for p in paths] == ["ped_online_motion_gate_choice.json"]
+    for path in paths:
+        rec = json.loads(path.read_text())
+        held = rec["held_out"]
+        better = sum(m["online"]["HOTA"] for m in held.values()) > sum(
+            m["online_first"]["HOTA"] for m in held.values()
+        )
+        for key, grid in rec["choice"]["grid"].items():
+            node = config.per_category[rec["class"]]
+            for part in key.split("."):
+                node = getattr(node, part)
+            want = rec["choice"]["final"]["chosen"][key] if better else grid[0]
+            assert node == want, key
+
+
 def test_offline_choice_grid_parses_and_refuses_a_bare_key() -> None:
     import sys
 
@@ -295,6 +322,29 @@ def test_offline_choice_grid_parses_and_refuses_a_bare_key() -> None:
     }
     with pytest.raises(SystemExit, match="expected KEY=V1,V2"):
         _parse_choose(["offline.rts_r_multiple"])
+
+
+def test_after_holds_each_folds_own_choice() -> None:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    from offline_from_online import hold_choices
+
+    record = {
+        "cv": [{"test": ["a"], "best": {"x": 1}}, {"test": ["b"], "best": {"x": 2}}],
+        "final": {"best": {"x": 3}, "in_sample": {}},
+    }
+    after = {
+        "folds": [{"test": ["a"], "chosen": {"g": 0.8}}, {"test": ["b"], "chosen": {"g": 1.0}}],
+        "final": {"chosen": {"g": 1.2}},
+    }
+    held = hold_choices(record, after, "r.json")
+    assert [f["best"] for f in held["cv"]] == [{"x": 1, "g": 0.8}, {"x": 2, "g": 1.0}]
+    assert held["final"] == {"best": {"x": 3, "g": 1.2}, "in_sample": {}}
+    assert record["cv"][0]["best"] == {"x": 1}  # the record itself is left as it was
+    after["folds"].reverse()
+    with pytest.raises(SystemExit, match="folds are not this record's"):
+        hold_choices(record, after, "r.json")
 
 
 def test_search_adds_a_setting_the_config_accepts() -> None:
