@@ -72,13 +72,8 @@ ONLINE_SPACE: dict[str, tuple[str, float, float]] = {
 CAR_SPACE: dict[str, tuple[str, float, float]] = {"lifecycle.track_score_min": ("float", -1.5, 0.5)}
 # Searched for pedestrians only: their annotated 2D boxes are narrower than their cuboids'
 # projections (median 1/1.49 on ground truth), while cars' and cyclists' match them (IoU 0.96;
-# bench/kitti_box_shapes.py). And the distance gate's motion allowance: people walk side by side
-# closer than the cost gate reaches (0.6 m apart at cost 1.47), so a track whose own detection is
-# missing takes its neighbour's; the gate widens with the detections' estimated noise.
-PEDESTRIAN_SPACE: dict[str, tuple[str, float, float]] = {
-    "image_width_scale": ("float", 0.6, 1.0),
-    "bev.gate_motion_m": ("float", 0.3, 2.0),
-}
+# bench/kitti_box_shapes.py).
+PEDESTRIAN_SPACE: dict[str, tuple[str, float, float]] = {"image_width_scale": ("float", 0.6, 1.0)}
 OFFLINE_SPACE: dict[str, tuple[str, float, float]] = {
     "score_min": ("log", 0.01, 0.6),
     "birth_score_min": ("float", 0.05, 0.9),
