@@ -832,6 +832,17 @@ def _grid_text(choice: dict[str, Any]) -> str:
     return grid
 
 
+def _judged_text(choice: dict[str, Any], mode: str) -> str:
+    """The held-out objective a choice record was judged by, for the notes ('' if none)."""
+    judged = choice.get("held_out_objective")
+    if not judged:
+        return ""
+    return (
+        f" held-out objective (clean and noisy) {judged[f'{mode}_first']:.2f} at the grid's first"
+        f" point, {judged[mode]:.2f} chosen per fold;"
+    )
+
+
 def online_choice_section(choices: Sequence[str]) -> list[str]:
     """Online values added to a searched record and chosen per fold (records of
     bench/offline_from_online.py --choose-online): each fold of the online tune takes the grid
@@ -847,8 +858,9 @@ def online_choice_section(choices: Sequence[str]) -> list[str]:
         " objective (online, its training sequences) and tracks its held-out sequences with it,"
         " online and offline (`kitti_offline`'s offline values), and with the grid's first point"
         " (the record's settings alone). It ships (the choice made the same way on all the"
-        " sequences) only where choosing holds out better; the class's held-out figures are then"
-        " these, not the tune record's above.",
+        " sequences) only where choosing holds out better on the objective it is made by (clean"
+        " and noisy held-out detections); the class's held-out figures are then these, not the"
+        " tune record's above.",
         "",
         "| class | detector | HOTA online, held out, the record's settings |"
         " online, chosen per fold | offline, chosen per fold | MOTA online (chosen) |"
@@ -875,7 +887,8 @@ def online_choice_section(choices: Sequence[str]) -> list[str]:
         )
         notes.append(
             f"- {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s; `{rec['command']}`):"
-            f" {_grid_text(choice)}; the folds chose {folds}; {verdict}."
+            f" {_grid_text(choice)}; the folds chose {folds};{_judged_text(choice, 'online')}"
+            f" {verdict}."
         )
     return [*lines, "", *notes, ""]
 
@@ -901,7 +914,9 @@ def offline_section(
         " its held-out sequences with the fold's settings online, offline with the plain values"
         " (the grid's first point) and offline with its choice. A choice ships (the one made the"
         " same way on all the sequences) only where choosing per fold holds out better than the"
-        " plain values; that decision itself looks at held-out figures, so the better of the two"
+        " plain values, on the objective the choice is made by (clean and noisy held-out"
+        " detections) where the record holds it, else (records before December 2026) on the"
+        " clean figure; that decision itself looks at held-out figures, so the better of the two"
         " is slightly optimistic.",
         "",
         "| class | detector | HOTA online, held out | offline, plain values (grid's first point) |"
@@ -934,7 +949,7 @@ def offline_section(
         )
         notes.append(
             f"- {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s; `{rec['command']}`):"
-            f" {grid}; the folds chose {folds}; {verdict}."
+            f" {grid}; the folds chose {folds};{_judged_text(choice, 'offline')} {verdict}."
         )
     for path in unshipped:
         rec = json.loads(Path(path).read_text())
