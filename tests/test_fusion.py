@@ -192,8 +192,9 @@ def test_real_pedestrians_under_jitter_with_their_image_boxes_kept(
 ) -> None:
     """PointRCNN's pedestrians in sequence 0019 (the kit's crowds) with the robustness
     benchmark's noise level, their 2D boxes kept where the detector put them: turning each
-    centre toward its box's bearing scores higher; on the clean boxes (projections) nothing
-    moves and the files are the same."""
+    centre toward its box's bearing scores higher, over five draws of the noise (one draw's
+    HOTA varies by about a point: measured +0.73 on average, -0.75 to +2.25 per draw); on the
+    clean boxes (projections) nothing moves and the files are the same."""
     from tracker.calibration import calibrate_frames, resolve_profile
     from tracker.eval.kitti import evaluate_kitti
     from tracker.eval.perturb import NOISE_LEVELS, perturb_frames
@@ -206,13 +207,16 @@ def test_real_pedestrians_under_jitter_with_their_image_boxes_kept(
     )
     calibration = resolve_profile("pointrcnn", None)
     clean = calibrate_frames(detections[seq], calibration)
-    noisy = perturb_frames(
-        clean, NOISE_LEVELS["noise"], seed=0, rescore=calibration.scores, image_boxes="keep"
-    )
+    draws = {
+        f"noise{seed}": perturb_frames(
+            clean, NOISE_LEVELS["noise"], seed=seed, rescore=calibration.scores, image_boxes="keep"
+        )
+        for seed in range(5)
+    }
     config = load_config("kitti", overrides={"categories": ["pedestrian"]})
     assert config.image_bearing
     hota, files = {}, {}
-    for name, frames in (("clean", clean), ("noise", noisy)):
+    for name, frames in {"clean": clean, **draws}.items():
         for on in (False, True):
             run = dataclasses.replace(config, image_bearing=on)
             out = tmp_path / f"{name}_{on}"
@@ -229,4 +233,5 @@ def test_real_pedestrians_under_jitter_with_their_image_boxes_kept(
             )
             hota[name, on] = metrics["pedestrian"]["HOTA"]
     assert files["clean", True] == files["clean", False]
-    assert hota["noise", True] > hota["noise", False] + 0.5, hota
+    gain = np.mean([hota[name, True] - hota[name, False] for name in draws])
+    assert gain > 0.3, hota
