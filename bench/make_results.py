@@ -32,7 +32,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -832,6 +832,23 @@ def _grid_text(choice: dict[str, Any]) -> str:
     return grid
 
 
+def _choice_records(paths: Sequence[str]) -> Iterator[tuple[str, dict, dict, str, dict, bool]]:
+    """Each record of bench/offline_from_online.py --choose in ``paths``: (its path, the record,
+    its choice, its class, the choice on all sequences, whether the configs ship that)."""
+    for path in paths:
+        rec = json.loads(Path(path).read_text())
+        choice, cls = rec["choice"], rec["class"]
+        final = choice["final"]["chosen"]
+        yield (
+            path,
+            rec,
+            choice,
+            cls,
+            final,
+            all(_shipped_value(cls, k) == v for k, v in final.items()),
+        )
+
+
 def _judged_text(choice: dict[str, Any], mode: str) -> str:
     """The held-out objective a choice record was judged by, for the notes ('' if none)."""
     judged = choice.get("held_out_objective")
@@ -868,11 +885,7 @@ def online_choice_section(choices: Sequence[str]) -> list[str]:
         "|---|---|---:|---:|---:|---:|---:|",
     ]
     notes = []
-    for path in choices:
-        rec = json.loads(Path(path).read_text())
-        choice, cls = rec["choice"], rec["class"]
-        final = choice["final"]["chosen"]
-        shipped = all(_shipped_value(cls, k) == v for k, v in final.items())
+    for path, rec, choice, cls, final, shipped in _choice_records(choices):
         for det, m in rec["held_out"].items():
             first, on, off = m["online_first"], m["online"], m["offline"]
             lines.append(
@@ -925,11 +938,7 @@ def offline_section(
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     notes = []
-    for path in choices:
-        rec = json.loads(Path(path).read_text())
-        choice, cls = rec["choice"], rec["class"]
-        final = choice["final"]["chosen"]
-        shipped = all(_shipped_value(cls, k) == v for k, v in final.items())
+    for path, rec, choice, cls, final, shipped in _choice_records(choices):
         for det, m in rec["held_out"].items():
             on, first, chosen = m["online"], m["offline_first"], m["offline"]
             ship = chosen if shipped else first
