@@ -242,6 +242,32 @@ def test_noise_series_is_the_filters_r(rrd: Path, tmp_path: Path) -> None:
     assert np.unique(got).size > 3 and (got[-10:] != pose.ca.r[0]).all()
 
 
+def test_gate_series_is_the_distance_gate_in_effect(tmp_path: Path) -> None:
+    """With ``bev.gate_motion_m`` (the tuned KITTI pedestrians) the recording holds the BEV
+    distance gate's radius per frame, as the tracker's NoiseEstimated events give it: the
+    config's 10 m until the pedestrians' noise is estimated, then sqrt(gate_motion_m² + (4σ)²);
+    cars (no motion gate) have no series."""
+    from tracker.categories import category_index
+    from tracker.events import ListObserver, NoiseEstimated
+
+    det, _ = sample_frames()
+    config = load_config("kitti")
+    record_scene(det, config, None, tmp_path / "gate.rrd")
+    events = ListObserver()
+    run_scene(det, config, observer=events)
+    ped = category_index("pedestrian")
+    want = np.array([e.gate_m[ped] for e in events.of_type(NoiseEstimated)])
+    table = entity_table(tmp_path / "gate.rrd", f"{paths.GATE}/pedestrian")
+    got = pc.list_flatten(table["Scalars:scalars"]).to_numpy()
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    bev = config.per_category["pedestrian"].bev
+    assert got[0] == bev.gate_distance_m  # no estimate in the first frame
+    assert bev.gate_motion_m < got[-1] < 2 * bev.gate_motion_m  # estimated: about 1 m
+    assert not any(
+        p.startswith(f"{paths.entity(paths.GATE)}/car") for p in entity_paths(tmp_path / "gate.rrd")
+    )
+
+
 def test_recorded_id_events_equal_trackeval(rrd: Path, result: RecordResult) -> None:
     """The WARN events in the recording are as many as TrackEval's IDSW and Frag."""
     table = entity_table(rrd, paths.EVENTS)

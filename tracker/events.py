@@ -159,10 +159,13 @@ class TrackOutput:
 class NoiseEstimated:
     """Per global category id: the detections' centre variance estimated so far
     (:mod:`tracker.noise`; NaN until it exists) and the x and y measurement variance the
-    position filter uses, m²; only for categories with ``pose.r_scale`` (NaN elsewhere)."""
+    position filter uses, m², only for categories with ``pose.r_scale`` (NaN elsewhere); and the
+    radius of the BEV distance gate in effect, m, only for categories with ``bev.gate_motion_m``
+    (NaN elsewhere)."""
 
     variance: FloatArray
     r: FloatArray
+    gate_m: FloatArray
 
 
 @dataclass(frozen=True, slots=True)

@@ -299,6 +299,7 @@ class MCTracker:
                 NoiseEstimated(
                     np.where(on, variance, np.nan),
                     np.where(on, self.motion_r[:, Axis.X, 0], np.nan),
+                    np.where(np.isfinite(self._cat.gate_motion_sq), np.sqrt(self.gate_sq), np.nan),
                 )
             )
 

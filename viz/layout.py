@@ -78,6 +78,7 @@ def debug_blueprint(
     switch_track_ids: Sequence[int] = (),
     lag_speed_max_mps: float | None = None,
     noise_view: bool = False,
+    gate_view: bool = False,
 ) -> rrb.Blueprint:
     """The debugging layout.
 
@@ -91,6 +92,8 @@ def debug_blueprint(
     lag_speed_max_mps : top of the lag speed view's y axis (m/s; None: fit all data).
     noise_view : a view of the position filter's r per class over time (a config with
         ``pose.r_scale``: r follows the detections' estimated noise).
+    gate_view : a view of the BEV distance gate's radius per class over time (a config with
+        ``bev.gate_motion_m``: the gate widens with the same estimate).
     """
     # Ego-centric: the view's origin is the ego frame (z up, x = direction of travel), so the
     # eye follows the car at a fixed offset; tracking an entity instead keeps the eye as far
@@ -161,6 +164,13 @@ def debug_blueprint(
             rrb.TimeSeriesView(
                 origin=paths.entity(paths.NOISE),
                 name="position r [m²] per class (from the detections' noise)",
+            )
+        )
+    if gate_view:
+        series.append(
+            rrb.TimeSeriesView(
+                origin=paths.entity(paths.GATE),
+                name="BEV distance gate [m] per class (widens with the detections' noise)",
             )
         )
     velocity = rrb.Tabs(*series, active_tab=0)

@@ -291,9 +291,14 @@ class RerunObserver:
             state.rv_matched = event
 
     def _on_noise(self, event: NoiseEstimated) -> None:
-        """The position filter's r per class, a time series (``noise/<class>``)."""
+        """The position filter's r per class (``noise/<class>``) and the BEV distance gate's
+        radius (``gate/<class>``), time series."""
         for c in np.flatnonzero(np.isfinite(event.r)):
             self._add(f"{paths.NOISE}/{CATEGORIES[c]}", rr.Scalars, 1, scalars=event.r[c : c + 1])
+        for c in np.flatnonzero(np.isfinite(event.gate_m)):
+            self._add(
+                f"{paths.GATE}/{CATEGORIES[c]}", rr.Scalars, 1, scalars=event.gate_m[c : c + 1]
+            )
 
     def _on_lifecycle(self, event: LifecycleChanged) -> None:
         for kind, key, ids in (

@@ -53,6 +53,9 @@ SERIES: Final = (SPEED, VELOCITY_X, VELOCITY_Y, HEADING)
 # noise/<class>: the position filter's measurement variance r (m², x and y), which follows the
 # detections' estimated centre noise with pose.r_scale (tracker/noise.py)
 NOISE: Final = "noise"
+# gate/<class>: the radius of the BEV distance gate in effect (m), which widens with the same
+# estimate where bev.gate_motion_m asks (tracker.mctracker: a pair farther apart is not scored)
+GATE: Final = "gate"
 EVENTS: Final = "events"  # TextLog (WARN): ID switches and fragmentations against the GT
 # Lifecycle lines (born, lost, re-acquired, deleted) go one level down: mixed with the WARN rows
 # in one entity, the 0.41 viewer showed the last lifecycle row with a WARN level.

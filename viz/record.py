@@ -15,6 +15,7 @@ import gc
 import itertools
 import json
 import logging
+import math
 import tempfile
 import time
 import uuid
@@ -384,6 +385,11 @@ def record_scene(
             lag_speed_max_mps=1.15 * result.lag.speed_max_mps if result.lag else None,
             switch_track_ids=[e for s in first_switch for e in (s.old_track_id, s.new_track_id)],
             noise_view=any(c.pose.r_scale > 0 for c in config.per_category.values()),
+            gate_view=any(
+                math.isfinite(config.per_category[name].bev.gate_motion_m)
+                for name in config.categories
+                if name in config.per_category
+            ),
         ),
         make_active=True,
         make_default=True,
