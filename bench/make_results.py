@@ -813,9 +813,9 @@ def _point(point: dict[str, Any]) -> str:
     return ", ".join(f"`{k}` {v}" for k, v in point.items())
 
 
-def _shipped_value(cls: str, key: str) -> Any:
-    """``key`` (``offline.<name>`` or a category key) in the shipped `kitti_offline`."""
-    config = load_config("kitti_offline")
+def _shipped_value(cls: str, key: str, config_name: str = "kitti_offline") -> Any:
+    """``key`` (``offline.<name>`` or a category key) in the shipped config (`kitti_offline`)."""
+    config = load_config(config_name)
     node: Any = config if key.startswith("offline.") else config.per_category[cls]
     for part in key.split("."):
         node = getattr(node, part)
@@ -834,19 +834,16 @@ def _grid_text(choice: dict[str, Any]) -> str:
 
 def _choice_records(paths: Sequence[str]) -> Iterator[tuple[str, dict, dict, str, dict, bool]]:
     """Each record of bench/offline_from_online.py --choose in ``paths``: (its path, the record,
-    its choice, its class, the choice on all sequences, whether the configs ship that)."""
+    its choice, its class, the choice on all sequences, whether the configs ship that: `kitti`
+    for an online choice, `kitti_offline` for an offline one)."""
     for path in paths:
         rec = json.loads(Path(path).read_text())
         choice, cls = rec["choice"], rec["class"]
         final = choice["final"]["chosen"]
-        yield (
-            path,
-            rec,
-            choice,
-            cls,
-            final,
-            all(_shipped_value(cls, k) == v for k, v in final.items()),
-        )
+        online = "online_first" in next(iter(rec["held_out"].values()))
+        config = "kitti" if online else "kitti_offline"
+        shipped = all(_shipped_value(cls, k, config) == v for k, v in final.items())
+        yield path, rec, choice, cls, final, shipped
 
 
 def _judged_text(choice: dict[str, Any], mode: str) -> str:
@@ -968,8 +965,11 @@ def offline_section(
             f"{det} {m['offline_first']['HOTA']:.2f} / {m['offline']['HOTA']:.2f}"
             for det, m in rec["held_out"].items()
         )
+        status = (
+            f"Superseded by `{rec['superseded_by']}`" if "superseded_by" in rec else "Not shipped"
+        )
         notes.append(
-            f"- Not shipped: {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s;"
+            f"- {status}: {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s;"
             f" `{rec['command']}`, the other offline values as shipped when it ran): {grid};"
             f" held out, plain values / chosen per fold: {pairs}; on all sequences the choice"
             f" would be {_point(choice['final']['chosen'])}."

@@ -1,7 +1,8 @@
 """Held-out figures of offline mode (`kitti_offline`: the online settings + post-processing).
 
     python bench/offline_from_online.py [docs/tune/car_online.json] [--kitti-root ROOT]
-        [--choose KEY=V1,V2,... ...] [--noise-seed SEED[,SEED...]] [--out RECORD.json]
+        [--choose KEY=V1,V2,... ...] [--choose-online] [--after CHOICE.json]
+        [--noise-seed SEED[,SEED...]] [--out RECORD.json]
 
 For each fold of a `mctrack tune --mode online` record, the fold's chosen settings (with score
 profiles fitted on the fold's training sequences, as the tune does) track the fold's held-out
@@ -24,7 +25,11 @@ choosing the next. The noise is
 drawn with the record's perturbation seed, or once per seed of `--noise-seed` (the objective
 averages a level's draws first): a choice between values a few tenths of HOTA apart can turn
 on one draw of the noise. `--out` writes the whole record
-(docs/tune/<class>_offline_choice.json).
+(docs/tune/<class>_offline_choice.json; an online choice: docs/tune/<record>_choice.json).
+
+A setting that a `--choose-online` record ships (such as the pedestrians' `bev.gate_motion_m`) is
+not in the tune record's folds: without `--after` that record, every fold runs with the shipped
+value, which was chosen on all the sequences (a warning says so).
 """
 
 from __future__ import annotations
@@ -32,7 +37,9 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
+import math
 import multiprocessing
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -54,6 +61,7 @@ from app.tune import (
     settings_to_overrides,
 )
 from tracker.calibration import find_profile
+from tracker.config import load_config
 from tracker.eval.calibrate import fit_profile, fit_self_profile
 from tracker.eval.perturb import CLEAN, PerturbSpec
 from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti
@@ -86,9 +94,9 @@ def held_out(
     chosen per fold on its training sequences (module docstring); the choices are returned
     under ``"choice"``, and offline mode at the grid's first point under ``"offline_first"``.
     ``choose_online``: the settings are online ones, chosen in online mode and applied in both
-    (online mode at the grid's first point under ``"online_first"``). ``after``: the
-    ``"choice"`` of an earlier ``choose_online`` record of the same tune; each fold keeps its
-    own choice from it (and the final choice its final one), in both modes.
+    (online mode at the grid's first point under ``"online_first"``). ``after``: an earlier
+    ``choose_online`` record of the same tune; each fold keeps its own choice from it (and the
+    final choice its final one), in both modes.
     ``noise_seeds``: the perturbation seeds of the objective's noisy levels (default: the
     record's)."""
     if profile not in ("labels", "self"):
@@ -98,6 +106,16 @@ def held_out(
         raise SystemExit(f"{record_path}: an online tune record is needed")
     if after is not None:
         record = hold_choices(record, after, record_path)
+    held = set(record["cv"][0]["best"]) | (set(choose) if choose and choose_online else set())
+    if "bev.gate_motion_m" not in held and math.isfinite(
+        load_config("kitti").per_category[record["class"]].bev.gate_motion_m
+    ):
+        print(
+            f"warning: {record['class']}'s bev.gate_motion_m is the shipped one in every fold"
+            " (chosen on all sequences); hold its per-fold choice with --after"
+            " docs/tune/<its choice record>",
+            file=sys.stderr,
+        )
     cls = record["class"]
     label_dir = root / "training" / "label_02"
     dets = detectors or record["detectors"]
@@ -230,16 +248,23 @@ def held_out(
 
 
 def hold_choices(record: dict[str, Any], after: dict[str, Any], name: Any) -> dict[str, Any]:
-    """``record`` (an online tune's) with each fold's settings, and the final ones, joined by
-    that fold's (the final) choice of ``after`` (the ``"choice"`` of a ``--choose-online``
-    record of the same tune)."""
-    if [f["test"] for f in after["folds"]] != [f["test"] for f in record["cv"]]:
+    """``record`` (an online tune's, file ``name``) with each fold's settings, and the final
+    ones, joined by that fold's (the final) choice of ``after``: a ``--choose-online`` record
+    made for the same tune record."""
+    if after.get("online_record") != Path(name).name:
+        raise SystemExit(
+            f"--after: made for {after.get('online_record')!r}, not for {Path(name).name!r}"
+        )
+    if not all("online_first" in m for m in after["held_out"].values()):
+        raise SystemExit("--after: not a --choose-online record (its choice is offline-only)")
+    choice = after["choice"]
+    if [f["test"] for f in choice["folds"]] != [f["test"] for f in record["cv"]]:
         raise SystemExit(f"{name}: --after's folds are not this record's")
     cv = [
         {**fold, "best": {**fold["best"], **held["chosen"]}}
-        for fold, held in zip(record["cv"], after["folds"], strict=True)
+        for fold, held in zip(record["cv"], choice["folds"], strict=True)
     ]
-    final = {**record["final"], "best": {**record["final"]["best"], **after["final"]["chosen"]}}
+    final = {**record["final"], "best": {**record["final"]["best"], **choice["final"]["chosen"]}}
     return {**record, "cv": cv, "final": final}
 
 
@@ -288,7 +313,7 @@ def main() -> int:
         noise_seeds=args.noise_seed,
         workers=args.workers,
         choose_online=args.choose_online,
-        after=json.loads(args.after.read_text())["choice"] if args.after else None,
+        after=json.loads(args.after.read_text()) if args.after else None,
     )
     choice = figures.pop("choice", None)
     if choice:

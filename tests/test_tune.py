@@ -309,11 +309,14 @@ def test_shipped_online_choices_are_the_records() -> None:
         rec = json.loads(path.read_text())
         assert "held_out_objective" in rec["choice"]
         better = _held_out_better(rec, "online")
+        cat = config.per_category[rec["class"]]
         for key, grid in rec["choice"]["grid"].items():
-            node = config.per_category[rec["class"]]
+            node = cat
             for part in key.split("."):
                 node = getattr(node, part)
             want = rec["choice"]["final"]["chosen"][key] if better else grid[0]
+            if key == "bev.gate_motion_m":  # (a gate at or beyond gate_distance_m is off)
+                node, want = (min(v, cat.bev.gate_distance_m) for v in (node, want))
             assert node == want, key
 
 
@@ -341,15 +344,21 @@ def test_after_holds_each_folds_own_choice() -> None:
         "cv": [{"test": ["a"], "best": {"x": 1}}, {"test": ["b"], "best": {"x": 2}}],
         "final": {"best": {"x": 3}, "in_sample": {}},
     }
-    after = {
+    choice = {
         "folds": [{"test": ["a"], "chosen": {"g": 0.8}}, {"test": ["b"], "chosen": {"g": 1.0}}],
         "final": {"chosen": {"g": 1.2}},
     }
-    held = hold_choices(record, after, "r.json")
+    after = {"online_record": "r.json", "held_out": {"d": {"online_first": {}}}, "choice": choice}
+    held = hold_choices(record, after, "docs/tune/r.json")
     assert [f["best"] for f in held["cv"]] == [{"x": 1, "g": 0.8}, {"x": 2, "g": 1.0}]
     assert held["final"] == {"best": {"x": 3, "g": 1.2}, "in_sample": {}}
     assert record["cv"][0]["best"] == {"x": 1}  # the record itself is left as it was
-    after["folds"].reverse()
+    with pytest.raises(SystemExit, match=r"made for 'r\.json', not for 'other\.json'"):
+        hold_choices(record, after, "other.json")
+    offline_only = {**after, "held_out": {"d": {"offline_first": {}}}}
+    with pytest.raises(SystemExit, match="not a --choose-online record"):
+        hold_choices(record, offline_only, "r.json")
+    choice["folds"].reverse()
     with pytest.raises(SystemExit, match="folds are not this record's"):
         hold_choices(record, after, "r.json")
 

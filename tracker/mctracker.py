@@ -129,10 +129,9 @@ class _PerCategory:
         self.rv_cost_max = arr(lambda c: c.rv.cost_max)
         self.rv_yaw_gate = np.deg2rad(arr(lambda c: c.rv.yaw_gate_deg))
         self.rv_distance_gate = arr(lambda c: c.rv.distance_gate_m)
-        # the stage-2 shortcut's gates, wider by 1 µm and 1 nrad than the real gate's
-        self.rv_distance_gate_sq_loose = (self.rv_distance_gate + 1e-6) ** 2
+        # the stage-2 shortcut's yaw gate, wider by 1 nrad than the real gate's
         self.rv_yaw_gate_loose = self.rv_yaw_gate + 1e-9
-        self.rv_gate_within_bev_gate = self.rv_within(self.gate_sq)
+        self.rv_gate_within_bev_gate = self.rv_within(self.rv_distance_gate, self.gate_sq)
         self.min_hits = arr(lambda c: c.lifecycle.min_hits)
         self.confirm_score = arr(lambda c: c.lifecycle.confirm_score)
         self.max_misses_tentative = arr(lambda c: c.lifecycle.max_misses_tentative)
@@ -179,11 +178,11 @@ class _PerCategory:
         self.any_r_scale = bool(np.any(self.r_scale > 0))
         self.follows_noise = self.any_r_scale or self.any_motion_gate
 
-    def rv_within(self, gate_sq: FloatArray) -> bool:
-        """Whether stage 2's distance gate lies inside the BEV gate ``gate_sq`` (squared, per
-        category) for every tracked category (stage 2's shortcut relies on it)."""
+    def rv_within(self, rv_gate: FloatArray, gate_sq: FloatArray) -> bool:
+        """Whether stage 2's distance gate ``rv_gate`` (m) lies inside the BEV gate ``gate_sq``
+        (squared), per category, for every tracked category (stage 2's shortcut relies on it)."""
         t = self.tracked
-        return bool(np.all(self.rv_distance_gate[t] < np.sqrt(gate_sq[t]) * (1 - 1e-9)))
+        return bool(np.all(rv_gate[t] < np.sqrt(gate_sq[t]) * (1 - 1e-9)))
 
     def _motion_noise(self, c: CategoryConfig) -> kalman.DiagonalNoise:
         """Per-axis P0/Q/R (5, k) of one category for the tracker's motion model."""
@@ -238,6 +237,9 @@ class MCTracker:
         # the BEV distance gate in effect (squared, per category): the config's, narrowed by
         # bev.gate_motion_m once the noise is estimated
         self.gate_sq = self._cat.gate_sq.copy()
+        # stage 2's distance gate in effect (m, per category): the config's, capped inside the
+        # motion gate so that stage 2 cannot take a box that stage 1's gate refused
+        self.rv_gate = self._cat.rv_distance_gate.copy()
         self._rv_within_bev_gate = self._cat.rv_gate_within_bev_gate
         self._noise = (
             PositionNoise(len(CATEGORIES), self._kernels) if self._cat.follows_noise else None
@@ -287,7 +289,12 @@ class MCTracker:
             self.gate_sq = np.where(
                 known, np.minimum(self._cat.gate_sq, radius_sq), self._cat.gate_sq
             )
-            self._rv_within_bev_gate = self._cat.rv_within(self.gate_sq)
+            if not self.config.rv_reference:  # (the reference's stage 2 keeps its own gate)
+                capped = known & np.isfinite(radius_sq)
+                # just inside (1 µm a metre): stage 2 measures in 3D, never less than in BEV
+                cap = np.sqrt(np.where(capped, radius_sq, np.inf)) * (1 - 1e-6)
+                self.rv_gate = np.minimum(self._cat.rv_distance_gate, cap)
+            self._rv_within_bev_gate = self._cat.rv_within(self.rv_gate, self.gate_sq)
         r = scale * variance
         ready = (scale > 0) & np.isfinite(r) & (r > 0)
         if ready.any():
@@ -517,7 +524,7 @@ class MCTracker:
                         kept_rows[cols],
                         cat.rv_cost_max[category],
                         cat.rv_yaw_gate[category],
-                        cat.rv_distance_gate[category],
+                        self.rv_gate[category],
                         self.config.greedy_order.value,
                     )
                 )
@@ -557,7 +564,7 @@ class MCTracker:
         yaw_gap = np.abs(wrap_angle(track_yaw - dets.yaw[d_cols]))
         dist = np.linalg.norm(track_xyz - dets.xyz[d_cols], axis=1)
         t_category = tr.category[t_rows]
-        ok = (yaw_gap <= cat.rv_yaw_gate[t_category]) & (dist <= cat.rv_distance_gate[t_category])
+        ok = (yaw_gap <= cat.rv_yaw_gate[t_category]) & (dist <= self.rv_gate[t_category])
         accepted = m.subset(ok)
         consumed = m.pairs[:, 1] if reference else accepted.pairs[:, 1]
         if self.observer:
@@ -596,7 +603,7 @@ class MCTracker:
         if not same.any():
             return False
         delta = tr.xyz(rows)[:, None, :] - dets.xyz[cols][None, :, :]
-        gate_sq = cat.rv_distance_gate_sq_loose[category][:, None]
+        gate_sq = (self.rv_gate[category][:, None] + 1e-6) ** 2  # 1 µm wider than the gate
         near = np.einsum("tdk,tdk->td", delta, delta) <= gate_sq
         near &= same
         if not near.any():
