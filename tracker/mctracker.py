@@ -281,18 +281,15 @@ class MCTracker:
         variance = self._noise.variance()
         if self._cat.any_motion_gate:
             # a detection's distance from its track's prediction: its own error (per axis σ,
-            # GATE_NOISE_SIGMAS of it) plus the object's motion the filter did not predict
-            known = np.isfinite(variance)
-            radius_sq = self._cat.gate_motion_sq + GATE_NOISE_SIGMAS**2 * np.where(
-                known, variance, 0
-            )
-            self.gate_sq = np.where(
-                known, np.minimum(self._cat.gate_sq, radius_sq), self._cat.gate_sq
-            )
+            # GATE_NOISE_SIGMAS of it) plus the object's motion the filter did not predict;
+            # no radius (inf) until σ is estimated, or where the class has no motion gate
+            with np.errstate(invalid="ignore"):  # (inf + NaN where both are missing)
+                radius_sq = self._cat.gate_motion_sq + GATE_NOISE_SIGMAS**2 * variance
+            radius_sq = np.where(np.isfinite(radius_sq), radius_sq, np.inf)
+            self.gate_sq = np.minimum(self._cat.gate_sq, radius_sq)
             if not self.config.rv_reference:  # (the reference's stage 2 keeps its own gate)
-                capped = known & np.isfinite(radius_sq)
                 # just inside (1 µm a metre): stage 2 measures in 3D, never less than in BEV
-                cap = np.sqrt(np.where(capped, radius_sq, np.inf)) * (1 - 1e-6)
+                cap = np.sqrt(radius_sq) * (1 - 1e-6)
                 self.rv_gate = np.minimum(self._cat.rv_distance_gate, cap)
             self._rv_within_bev_gate = self._cat.rv_within(self.rv_gate, self.gate_sq)
         r = scale * variance
