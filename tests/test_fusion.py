@@ -163,6 +163,30 @@ def test_the_weight_follows_the_two_noises(sigma_2d: float, expected: float) -> 
     assert fusion.weight()[PED] == pytest.approx(expected, abs=0.15)
 
 
+def test_3d_noise_as_large_as_the_box_is_not_read_low(monkeypatch: pytest.MonkeyPatch) -> None:
+    """3D centres with 0.35 m of noise on 0.8 m boxes and exact image boxes: the lateral noise is
+    read as it is (chains link within 5 σ of the estimate so far, as tracker.noise does), so the
+    weight is near 1; within the box's length alone the large steps are lost, σ_3D reads about a
+    quarter low and the weight about half."""
+    from tracker.noise import robust_square_scale
+
+    def run() -> tuple[float, float]:
+        rng = np.random.default_rng(3)
+        fusion = BearingFusion(8)
+        truth, det, image = _walkers(rng, 400, 0.35, 0.0, gap=4.0)
+        frames = [_frame(k, _boxes(det[k], image_xyz=image[k])) for k in range(len(truth))]
+        for frame, own in zip(frames, own_boxes(frames), strict=True):
+            fusion.apply(frame, frame.timestamp_secs, own)
+        lateral = np.sqrt(robust_square_scale(fusion.lateral_counts)[PED] / 6.0)
+        return float(lateral), float(fusion.weight()[PED])
+
+    lateral, weight = run()
+    assert lateral == pytest.approx(0.35, rel=0.1) and weight > 0.8
+    monkeypatch.setattr("tracker.fusion.LINK_SIGMAS", 0.0)  # the box's length alone
+    lateral, weight = run()
+    assert lateral < 0.8 * 0.35 and weight < 0.6
+
+
 def test_clean_image_boxes_keep_neighbours_apart() -> None:
     """Two pedestrians 0.7 m apart whose 3D centres jitter by 0.25 m: with their clean image
     boxes' bearings the tracker follows each on one id; without, the ids wander."""

@@ -21,13 +21,23 @@ from tracker.noise import MIN_SAMPLES, PositionNoise, second_difference_variance
 CAR, PED = category_index("car"), category_index("pedestrian")
 
 
-def _scene(rng, n_objects=8, frames=60, sigma=0.2, category=CAR, clutter=0.0, spacing=30.0):
-    """(frames) lists of (xy, length, category): objects on curved paths (speed 5-15 m/s,
-    slowly turning, side by side) seen with white noise ``sigma`` per axis, plus ``clutter``
-    false boxes per frame (expected) anywhere in a 200 m square."""
+def _scene(
+    rng,
+    n_objects=8,
+    frames=60,
+    sigma=0.2,
+    category=CAR,
+    clutter=0.0,
+    spacing=30.0,
+    speed=(5.0, 15.0),
+    length=4.0,
+):
+    """(frames) lists of (xy, length, category): objects ``length`` long on curved paths (speed
+    in ``speed`` m/s, slowly turning, side by side) seen with white noise ``sigma`` per axis, plus
+    ``clutter`` false boxes per frame (expected) anywhere in a 200 m square."""
     t = 0.1 * np.arange(frames)
     start = np.column_stack([np.zeros(n_objects), np.arange(n_objects) * spacing])
-    speed = rng.uniform(5, 15, n_objects)[:, None]
+    speed = rng.uniform(*speed, n_objects)[:, None]
     turn = rng.uniform(-0.02, 0.02, n_objects)  # rad/s: lanes 30 m apart never meet
     heading = turn[None, :] * t[:, None]
     vel = speed * np.stack([np.cos(heading), np.sin(heading)], axis=-1)  # (T, n, 2)
@@ -40,7 +50,7 @@ def _scene(rng, n_objects=8, frames=60, sigma=0.2, category=CAR, clutter=0.0, sp
         if n_fp:
             xy = np.vstack([xy, rng.uniform(-100, 100, (n_fp, 2))])
             cat = np.r_[cat, np.full(n_fp, category)]
-        out.append((xy, np.full(len(xy), 4.0), cat))
+        out.append((xy, np.full(len(xy), length), cat))
     return t, out
 
 
@@ -57,6 +67,18 @@ def test_recovers_a_known_white_noise(sigma: float) -> None:
     t, scene = _scene(rng, sigma=sigma, frames=200)
     got = _feed(t, scene).variance()[CAR]
     assert got == pytest.approx(sigma**2, rel=0.12)
+
+
+def test_noise_as_large_as_the_box_is_not_read_low(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Pedestrians (0.8 m boxes, walking) with 0.3 m of noise: a box's step from the frame
+    before often exceeds its length, so links within the length alone keep the small steps and
+    read the noise low; within 5 σ of the estimate so far they keep nearly all of them."""
+    rng = np.random.default_rng(11)
+    t, scene = _scene(rng, sigma=0.3, frames=300, category=PED, speed=(1.0, 1.5), length=0.8)
+    sigma = np.sqrt(_feed(t, scene).variance()[PED])
+    assert sigma == pytest.approx(0.3, rel=0.08)
+    monkeypatch.setattr("tracker.noise.LINK_SIGMAS", 0.0)  # the box's length alone
+    assert np.sqrt(_feed(t, scene).variance()[PED]) < 0.9 * 0.3
 
 
 def test_the_histogram_median_equals_the_exact_one() -> None:

@@ -43,7 +43,13 @@ from tracker.camera import (
 from tracker.cost import iou_xyxy
 from tracker.frame import Camera, Frame
 from tracker.geometry import corners_3d
-from tracker.noise import EDGES, count_magnitudes, even_steps, robust_square_scale
+from tracker.noise import (
+    EDGES,
+    LINK_SIGMAS,
+    count_magnitudes,
+    even_steps,
+    robust_square_scale,
+)
 
 #: a centre column within this of the projection's (pixels) is the projection's to rounding: it
 #: joins the estimates but moves nothing (a LiDAR detector's small boxes, written to 0.01 px,
@@ -61,8 +67,8 @@ OWN_BOX_IOU = 0.95
 @dataclasses.dataclass(slots=True)
 class _OwnBoxes:
     """One frame's detections with an own 2D box: their rows, world xy, lateral unit vectors
-    (world xy), categories, lengths (the linking radius), bearing gaps θ_2D − θ_3D (rad), lateral
-    disagreements δ = range · gap (m) and cameras."""
+    (world xy), categories, lengths (the least linking radius), bearing gaps θ_2D − θ_3D (rad),
+    lateral disagreements δ = range · gap (m) and cameras."""
 
     rows: IntArray
     xy: FloatArray
@@ -132,7 +138,10 @@ class BearingFusion:
                 d = np.linalg.norm(own.xy[:, None] - prev.xy[None], axis=-1)
             d[own.category[:, None] != prev.category[None]] = np.inf
             nearest = d.argmin(axis=1)
-            ok = d[np.arange(len(d)), nearest] <= own.length
+            # within the box's length or LINK_SIGMAS σ_3D, as tracker.noise links
+            lateral_sd = np.sqrt(robust_square_scale(self.lateral_counts) / 6.0)
+            radius = np.fmax(own.length, LINK_SIGMAS * lateral_sd[own.category])
+            ok = d[np.arange(len(d)), nearest] <= radius
             link[ok] = nearest[ok]
             if len(self._frames) == 2 and even_steps(
                 self._frames[0][0], self._frames[1][0], time_secs

@@ -9,11 +9,14 @@ drops the path up to its acceleration (2 cm at 2 m/s² and 10 Hz) and leaves
 var(Δ²z) = (1 + 4 + 1) σ² = 6 σ²: a difference-based variance estimator (Gasser, Sroka and
 Jennen-Steinmetz, Biometrika 1986). The three centres are chained as the self-calibration
 chains boxes (:func:`tracker.eval.calibrate.chain_ids`): each box to the nearest box of its
-class in the previous frame, within the box's own length. A wrong link or a false positive is an
-outlier, so the scale is robust: σ = 1.4826 · median|Δ²z| / √6 (the normal's MAD; Δ²z has
-median 0). The median comes from a histogram of |Δ²z| on log-spaced bins, so each frame costs
-its own boxes and the bins, never the history, and the estimate at frame t uses frames up to t
-only (online).
+class in the previous frame, within the box's own length or ``LINK_SIGMAS`` σ of the estimate so
+far, whichever is larger. The frame-to-frame step of the noise is σ√2 per axis, so a radius of
+5σ holds all but e^(−6.25) ≈ 0.2 % of it; within the length alone, noise comparable to the box
+(a pedestrian's 0.8 m under σ 0.3 m) loses its largest steps and reads about a fifth low. A
+wrong link or a false positive is an outlier, so the scale is robust:
+σ = 1.4826 · median|Δ²z| / √6 (the normal's MAD; Δ²z has median 0). The median comes from a
+histogram of |Δ²z| on log-spaced bins, so each frame costs its own boxes and the bins, never the
+history, and the estimate at frame t uses frames up to t only (online).
 
 Why the tracker wants it: the measurement variance r that tracks best follows the detections'
 noise. On PointRCNN (KITTI, car), r near 0.1-0.3 m² is best on its own boxes, 1.7 with σ 0.15 m
@@ -36,6 +39,9 @@ EDGES = np.geomspace(1e-4, 1e2, 284)
 MIN_SAMPLES = 60
 # Δ²z of a triple whose two frame steps differ by more than this fraction holds a velocity term
 STEP_TOLERANCE = 0.1
+# a box links to a box of the previous frame within max(its length, LINK_SIGMAS σ): the noise's
+# frame-to-frame step (σ√2 per axis, Rayleigh in 2D) lies beyond 5σ with probability e^(−6.25)
+LINK_SIGMAS = 5.0
 _MAD_TO_SIGMA = 1.482602218505602  # 1 / Φ⁻¹(3/4)
 
 
@@ -51,12 +57,14 @@ class PositionNoise:
         self._frames: list[tuple[float, FloatArray, IntArray, IntArray]] = []  # last two
         # the compiled twins (tracker.kernels.load()); None: numpy, the reference
         self._kernels = kernels
+        self._variance: FloatArray | None = None  # variance() of the counts as they are
 
     def update(
         self, time_secs: float, xy: FloatArray, length: FloatArray, category: IntArray
     ) -> None:
         """Add one frame's boxes: ``xy`` (n, 2) world-frame centres (m), ``length`` (n,) their
-        lengths (the linking radius), ``category`` (n,) their categories."""
+        lengths (the linking radius, widened to ``LINK_SIGMAS`` σ of the estimate so far),
+        ``category`` (n,) their categories."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         category = np.asarray(category, dtype=np.int64)
         link = np.full(len(xy), -1, dtype=np.int64)  # each box's box in the previous frame
@@ -66,7 +74,12 @@ class PositionNoise:
                 self._frames[0][0], self._frames[1][0], time_secs
             )
             prev2_xy = self._frames[0][1] if triples else prev_xy
-            length = np.asarray(length, dtype=np.float64)
+            # (fmax: no estimate yet, NaN, leaves the length)
+            length = np.fmax(
+                np.asarray(length, dtype=np.float64),
+                LINK_SIGMAS * np.sqrt(self.variance())[category],
+            )
+            self._variance = None
             if self._kernels is not None:
                 self._kernels.noise_update_kernel(
                     xy, length, category, prev_xy, prev_cat, prev_link, prev2_xy, triples, EDGES,
@@ -91,11 +104,16 @@ class PositionNoise:
 
     def variance(self) -> FloatArray:
         """(C,) σ² per axis (m²) per category; NaN where fewer than ``MIN_SAMPLES`` counted."""
-        if self._kernels is not None:
-            out = np.empty(len(self.counts))
-            self._kernels.noise_variance_kernel(self.counts, MIN_SAMPLES, EDGES, _MAD_TO_SIGMA, out)
-            return out
-        return robust_square_scale(self.counts) / 6.0
+        if self._variance is None:  # (computed once per frame: the tracker and update ask)
+            if self._kernels is not None:
+                out = np.empty(len(self.counts))
+                self._kernels.noise_variance_kernel(
+                    self.counts, MIN_SAMPLES, EDGES, _MAD_TO_SIGMA, out
+                )
+                self._variance = out
+            else:
+                self._variance = robust_square_scale(self.counts) / 6.0
+        return self._variance.copy()
 
 
 def count_magnitudes(counts: IntArray, category: IntArray, magnitude: FloatArray) -> None:
