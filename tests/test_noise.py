@@ -18,7 +18,7 @@ from tracker.kalman import Axis
 from tracker.mctracker import MCTracker
 from tracker.noise import MIN_SAMPLES, PositionNoise, second_difference_variance
 
-CAR, PED = category_index("car"), category_index("pedestrian")
+CAR, PED, CYC = category_index("car"), category_index("pedestrian"), category_index("cyclist")
 
 
 def _scene(
@@ -292,9 +292,13 @@ def test_the_compiled_estimate_equals_numpy() -> None:
     rng = np.random.default_rng(8)
     t, a = _scene(rng, frames=80, sigma=0.2, clutter=3.0)
     _, b = _scene(rng, frames=80, sigma=0.05, category=PED, clutter=1.0)
+    # noise larger than the boxes (0.8 m, σ 0.3 m): links beyond the length, at 5 σ̂
+    _, c = _scene(
+        rng, n_objects=16, frames=80, sigma=0.3, category=CYC, speed=(1.0, 1.5), length=0.8
+    )
     scene = [
-        (np.vstack([x[0], y[0]]), np.r_[x[1], y[1]], np.r_[x[2], y[2]])
-        for x, y in zip(a, b, strict=True)
+        (np.vstack([x[0], y[0], z[0]]), np.r_[x[1], y[1], z[1]], np.r_[x[2], y[2], z[2]])
+        for x, y, z in zip(a, b, c, strict=True)
     ]
     scene[30] = (np.zeros((0, 2)), np.zeros(0), np.zeros(0, dtype=np.int64))  # an empty frame
     scene[40][0][0] = np.nan  # a box without a centre links to nothing in either
@@ -309,3 +313,4 @@ def test_the_compiled_estimate_equals_numpy() -> None:
             compiled_est.variance(), numpy_est.variance(), rtol=1e-12, equal_nan=True
         )
     assert numpy_est.counts[CAR].sum() > MIN_SAMPLES and numpy_est.counts[PED].sum() > MIN_SAMPLES
+    assert np.sqrt(numpy_est.variance()[CYC]) > 0.27  # (within the length alone: 0.23)

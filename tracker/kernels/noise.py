@@ -31,7 +31,8 @@ def noise_update_kernel(
     link: IntArray,
 ) -> None:  # pragma: no cover (compiled)
     """``PositionNoise.update``'s linking and counting, one loop over the boxes: ``link`` (out)
-    each box's nearest box of its class in the previous frame within its length (-1: none);
+    each box's nearest box of its class in the previous frame within ``length[i]``, the
+    caller's linking radius (-1: none);
     with ``triples``, every box chained over three frames adds its |Δ²z| in x and y to
     ``counts`` (C, bins) on ``edges``."""
     n_bins = counts.shape[1]
