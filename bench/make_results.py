@@ -832,18 +832,17 @@ def _grid_text(choice: dict[str, Any]) -> str:
     return grid
 
 
-def _choice_records(paths: Sequence[str]) -> Iterator[tuple[str, dict, dict, str, dict, bool]]:
+def _choice_records(paths: Sequence[str]) -> Iterator[tuple[str, dict, dict, bool]]:
     """Each record of bench/offline_from_online.py --choose in ``paths``: (its path, the record,
-    its choice, its class, the choice on all sequences, whether the configs ship that: `kitti`
-    for an online choice, `kitti_offline` for an offline one)."""
+    the choice on all sequences, whether the configs ship that: `kitti` for an online choice,
+    `kitti_offline` for an offline one)."""
     for path in paths:
         rec = json.loads(Path(path).read_text())
-        choice, cls = rec["choice"], rec["class"]
-        final = choice["final"]["chosen"]
+        final = rec["choice"]["final"]["chosen"]
         online = "online_first" in next(iter(rec["held_out"].values()))
         config = "kitti" if online else "kitti_offline"
-        shipped = all(_shipped_value(cls, k, config) == v for k, v in final.items())
-        yield path, rec, choice, cls, final, shipped
+        shipped = all(_shipped_value(rec["class"], k, config) == v for k, v in final.items())
+        yield path, rec, final, shipped
 
 
 def _judged_text(choice: dict[str, Any], mode: str) -> str:
@@ -854,6 +853,24 @@ def _judged_text(choice: dict[str, Any], mode: str) -> str:
     return (
         f" held-out objective (clean and noisy) {judged[f'{mode}_first']:.2f} at the grid's first"
         f" point, {judged[mode]:.2f} chosen per fold;"
+    )
+
+
+def _choice_note(
+    path: str, rec: dict[str, Any], final: dict, shipped: bool, mode: str, why_not: str = ""
+) -> str:
+    """The note under a choice table: the record, its grid, each fold's choice, the objective it
+    was judged by (``mode``) and whether it ships (``why_not``: said before the would-be choice)."""
+    choice = rec["choice"]
+    folds = "; ".join(f"{'/'.join(f['test'])}: {_point(f['chosen'])}" for f in choice["folds"])
+    verdict = (
+        f"shipped: {_point(final)} (chosen on all sequences)"
+        if shipped
+        else f"not shipped ({why_not}on all sequences the choice would be {_point(final)})"
+    )
+    return (
+        f"- {rec['class']} (`{Path(path).name}`, {rec['seconds']:.0f} s; `{rec['command']}`):"
+        f" {_grid_text(choice)}; the folds chose {folds};{_judged_text(choice, mode)} {verdict}."
     )
 
 
@@ -882,24 +899,15 @@ def online_choice_section(choices: Sequence[str]) -> list[str]:
         "|---|---|---:|---:|---:|---:|---:|",
     ]
     notes = []
-    for path, rec, choice, cls, final, shipped in _choice_records(choices):
+    for path, rec, final, shipped in _choice_records(choices):
+        cls = rec["class"]
         for det, m in rec["held_out"].items():
             first, on, off = m["online_first"], m["online"], m["offline"]
             lines.append(
                 f"| {cls} | {det} | {first['HOTA']:.2f} | {on['HOTA']:.2f} | {off['HOTA']:.2f} |"
                 f" {on['MOTA']:.2f} | {on['IDSW']} |"
             )
-        folds = "; ".join(f"{'/'.join(f['test'])}: {_point(f['chosen'])}" for f in choice["folds"])
-        verdict = (
-            f"shipped: {_point(final)} (chosen on all sequences)"
-            if shipped
-            else f"not shipped (on all sequences the choice would be {_point(final)})"
-        )
-        notes.append(
-            f"- {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s; `{rec['command']}`):"
-            f" {_grid_text(choice)}; the folds chose {folds};{_judged_text(choice, 'online')}"
-            f" {verdict}."
-        )
+        notes.append(_choice_note(path, rec, final, shipped, "online"))
     return [*lines, "", *notes, ""]
 
 
@@ -935,7 +943,8 @@ def offline_section(
         "|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     notes = []
-    for path, rec, choice, cls, final, shipped in _choice_records(choices):
+    for path, rec, final, shipped in _choice_records(choices):
+        cls = rec["class"]
         for det, m in rec["held_out"].items():
             on, first, chosen = m["online"], m["offline_first"], m["offline"]
             ship = chosen if shipped else first
@@ -945,17 +954,8 @@ def offline_section(
                 f" {chosen['HOTA']:.2f}{mark[1]} | {ship['HOTA'] - on['HOTA']:+.2f} |"
                 f" {ship['MOTA']:.2f} | {ship['IDSW']} |"
             )
-        grid = _grid_text(choice)
-        folds = "; ".join(f"{'/'.join(f['test'])}: {_point(f['chosen'])}" for f in choice["folds"])
-        verdict = (
-            f"shipped: {_point(final)} (chosen on all sequences)"
-            if shipped
-            else f"not shipped (the plain values hold out better; on all sequences the"
-            f" choice would be {_point(final)})"
-        )
         notes.append(
-            f"- {cls} (`{Path(path).name}`, {rec['seconds']:.0f} s; `{rec['command']}`):"
-            f" {grid}; the folds chose {folds};{_judged_text(choice, 'offline')} {verdict}."
+            _choice_note(path, rec, final, shipped, "offline", "the plain values hold out better; ")
         )
     for path in unshipped:
         rec = json.loads(Path(path).read_text())
