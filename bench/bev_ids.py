@@ -1,15 +1,18 @@
-"""What a run's association costs, judged in 3D: its HOTA with perfect ids in BEV (an oracle, on
+"""What a run's association costs, judged in 3D: its HOTA with ids assigned in BEV (an oracle, on
 the labels).
 
     python bench/bev_ids.py RESULTS_DIR [RESULTS_DIR ...] [--class pedestrian] [--kitti-root ROOT]
-    python bench/bev_ids.py --robustness OUT [--class pedestrian]
+        [--match-m 1.0]
+    python bench/bev_ids.py --robustness OUT [--class pedestrian] [--match-m 1.0]
 
 Each written row of the class is paired with the ground-truth objects of its frame by the
-distance of their BEV centres (the KITTI files' camera x and z; Hungarian, within 1 m) and takes
-its object's id; the other rows keep an id of their own that no label holds. Both versions are
-scored with TrackEval's KITTI 2D protocol. The rows and their boxes are unchanged, so DetA moves
-only where a relabelled id changes which of two overlapping image boxes a label is matched to;
-the HOTA gained is what the run's association loses.
+distance of their BEV centres (the KITTI files' camera x and z; Hungarian, within --match-m,
+default 1 m) and takes its object's id; the other rows keep an id of their own that no label
+holds. Both versions are scored with TrackEval's KITTI 2D protocol. The rows and their boxes are
+unchanged, so DetA moves only where a relabelled id changes which of two overlapping image boxes
+a label is matched to; the HOTA gained is what the run's association loses (nearly: a row
+farther than --match-m from every object keeps its own id, so the figure depends a little on
+the distance).
 
 ``bench/hota_ceiling.py``'s perfect ids pair rows and labels by 2D IoU instead, as TrackEval
 does; for pedestrians, whose image boxes overlap in groups and whose written box is narrowed
@@ -23,6 +26,7 @@ so it does not tell the tracker's association from the image plane's.
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import tempfile
 from pathlib import Path
@@ -45,22 +49,42 @@ KITTI_TYPE = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
 KEPT = ("HOTA", "DetA", "AssA", "IDSW")
 
 
-def _bev_rows(text: str, kitti_type: str) -> dict[int, list[tuple[int, float, float]]]:
+def _columns(text: str, name: str) -> list[list[str]]:
+    """The non-blank lines of a KITTI label or result file, split; ``ValueError`` naming the file
+    and line where one is not a row (17 columns or more, integer frame and id, numeric x and z)."""
+    rows = []
+    for number, line in enumerate(text.splitlines(), 1):
+        cols = line.split()
+        if not cols:
+            continue
+        try:
+            if len(cols) < 17:
+                raise ValueError(f"{len(cols)} columns, expected 17 or 18")
+            int(cols[0]), int(cols[1]), float(cols[13]), float(cols[15])
+        except ValueError as err:
+            raise ValueError(f"{name}:{number}: not a KITTI tracking row ({err})") from None
+        rows.append(cols)
+    return rows
+
+
+def _bev_rows(text: str, kitti_type: str, name: str) -> dict[int, list[tuple[int, float, float]]]:
     """``{frame: [(id, x, z)]}`` of one file's rows of ``kitti_type`` (camera x and z, metres)."""
     rows: dict[int, list[tuple[int, float, float]]] = {}
-    for line in text.splitlines():
-        cols = line.split()
-        if len(cols) >= 16 and cols[2] == kitti_type:
+    for cols in _columns(text, name):
+        if cols[2] == kitti_type:
             row = (int(cols[1]), float(cols[13]), float(cols[15]))
             rows.setdefault(int(cols[0]), []).append(row)
     return rows
 
 
-def bev_ids(result_text: str, label_text: str, cls: str) -> dict[tuple[int, int], int]:
-    """``{(frame, result id): ground-truth id}`` of the result rows of ``cls`` within
-    :data:`MATCH_M` of an object of their frame (Hungarian on the BEV centre distance)."""
+def bev_ids(
+    result_text: str, label_text: str, cls: str, match_m: float = MATCH_M
+) -> dict[tuple[int, int], int]:
+    """``{(frame, result id): ground-truth id}`` of the result rows of ``cls`` within ``match_m``
+    of an object of their frame (Hungarian on the BEV centre distance)."""
     kitti_type = KITTI_TYPE[cls]
-    labels, results = _bev_rows(label_text, kitti_type), _bev_rows(result_text, kitti_type)
+    labels = _bev_rows(label_text, kitti_type, "labels")
+    results = _bev_rows(result_text, kitti_type, "results")
     pairs: dict[tuple[int, int], int] = {}
     for frame, rows in results.items():
         objects = labels.get(frame)
@@ -69,51 +93,49 @@ def bev_ids(result_text: str, label_text: str, cls: str) -> dict[tuple[int, int]
         r = np.array([(x, z) for _, x, z in rows])
         g = np.array([(x, z) for _, x, z in objects])
         d = np.linalg.norm(r[:, None] - g[None], axis=-1)
-        ri, gi = linear_sum_assignment(np.where(d < MATCH_M, d, 1e9))
+        ri, gi = linear_sum_assignment(np.where(d < match_m, d, 1e9))
         for a, b in zip(ri, gi, strict=True):
-            if d[a, b] < MATCH_M:
+            if d[a, b] < match_m:
                 pairs[frame, rows[a][0]] = objects[b][0]
     return pairs
 
 
-def relabel(result_text: str, label_text: str, cls: str) -> str:
+def relabel(result_text: str, label_text: str, cls: str, match_m: float = MATCH_M) -> str:
     """``result_text`` with each row of ``cls`` under the id :func:`bev_ids` gives it, or
     :data:`UNMATCHED_ID0` + its own id; other classes' rows unchanged."""
-    ids = bev_ids(result_text, label_text, cls)
+    ids = bev_ids(result_text, label_text, cls, match_m)
     out = []
-    for line in result_text.splitlines():
-        cols = line.split()
-        if len(cols) >= 16 and cols[2] == KITTI_TYPE[cls]:
+    for cols in _columns(result_text, "results"):
+        if cols[2] == KITTI_TYPE[cls]:
             key = (int(cols[0]), int(cols[1]))
             cols[1] = str(ids.get(key, UNMATCHED_ID0 + key[1]))
-            line = " ".join(cols)
-        if line.strip():
-            out.append(line + "\n")
+        out.append(" ".join(cols) + "\n")
     return "".join(out)
 
 
-def _lengths(label_dir: Path, results: Path) -> dict[str, int]:
-    """Frames per sequence of ``results``: past the last frame of its labels and its rows."""
-    lengths = {}
-    for f in sorted(results.glob("*.txt")):
-        label = label_dir / f.name
-        if not label.is_file():
-            raise SystemExit(f"{label}: missing (no labels for {f})")
-        last = [int(line.split()[0]) for p in (label, f) for line in p.read_text().splitlines()]
-        lengths[f.stem] = max(last, default=-1) + 1
-    if not lengths:
+def score(
+    results: Path, label_dir: Path, cls: str, match_m: float = MATCH_M
+) -> tuple[dict[str, float], dict[str, float]]:
+    """(as written, with BEV ids) metrics of one folder of KITTI result files; ``SystemExit``
+    naming the file where one is missing or not KITTI rows."""
+    files = sorted(results.glob("*.txt"))
+    if not files:
         raise SystemExit(f"{results}: no <seq>.txt result files")
-    return lengths
-
-
-def score(results: Path, label_dir: Path, cls: str) -> tuple[dict[str, float], dict[str, float]]:
-    """(as written, with BEV ids) metrics of one folder of KITTI result files."""
-    lengths = _lengths(label_dir, results)
+    lengths = {}
     with tempfile.TemporaryDirectory(prefix="bev-ids-") as tmp:
-        for seq in lengths:
-            text = (results / f"{seq}.txt").read_text()
-            label = (label_dir / f"{seq}.txt").read_text()
-            (Path(tmp) / f"{seq}.txt").write_text(relabel(text, label, cls))
+        for f in files:
+            label = label_dir / f.name
+            if not label.is_file():
+                raise SystemExit(f"{label}: missing (no labels for {f})")
+            text, label_text = f.read_text(), label.read_text()
+            try:
+                frames = [int(c[0]) for c in _columns(text, str(f))]
+                frames += [int(c[0]) for c in _columns(label_text, str(label))]
+                relabelled = relabel(text, label_text, cls, match_m)
+            except ValueError as err:
+                raise SystemExit(str(err)) from None
+            lengths[f.stem] = max(frames, default=-1) + 1
+            (Path(tmp) / f.name).write_text(relabelled)
         written, perfect = (
             evaluate_kitti(label_dir=label_dir, result_dir=d, seq_lengths=lengths, classes=[cls])
             for d in (results, Path(tmp))
@@ -124,16 +146,32 @@ def score(results: Path, label_dir: Path, cls: str) -> tuple[dict[str, float], d
         )
 
 
-def robustness_rows(out: Path, label_dir: Path, cls: str) -> list[tuple[str, int, float, float]]:
-    """``(level, seeds, HOTA as written, HOTA with BEV ids)`` per level of a robustness folder,
-    means over its seeds; clean first."""
-    levels = sorted((out / "runs").glob("*"), key=lambda p: (p.name != "clean", p.name))
+def _levels(out: Path) -> list[Path]:
+    """The level folders of a robustness folder: in its report's order where it has one
+    (``robustness.json``), else clean first and the others by name."""
+    found = {p.name: p for p in (out / "runs").glob("*") if p.is_dir()}
+    order: list[str] = []
+    report = out / "robustness.json"
+    if report.is_file():
+        try:
+            order = [str(name) for name in json.loads(report.read_text()).get("levels", [])]
+        except (ValueError, AttributeError):
+            order = []  # (an unreadable report: the folders' own order)
+    rest = sorted(set(found) - set(order), key=lambda n: (n != "clean", n))
+    return [found[n] for n in [*order, *rest] if n in found]
+
+
+def robustness_rows(
+    out: Path, label_dir: Path, cls: str, match_m: float = MATCH_M
+) -> list[tuple[str, int, float, float]]:
+    """``(level, seeds, HOTA as written, HOTA with BEV ids)`` per level of a robustness folder
+    (:func:`_levels`' order), means over its seeds."""
     rows = []
-    for level in levels:
+    for level in _levels(out):
         runs = sorted(p for p in level.iterdir() if p.is_dir())
         if not runs:
             continue
-        pairs = [score(run, label_dir, cls) for run in runs]
+        pairs = [score(run, label_dir, cls, match_m) for run in runs]
         rows.append(
             (
                 level.name,
@@ -153,13 +191,18 @@ def main() -> int:
     parser.add_argument("--robustness", type=Path, default=None, help="a robustness --out folder")
     parser.add_argument("--class", dest="cls", default="pedestrian", choices=list(KITTI_TYPE))
     parser.add_argument("--kitti-root", type=Path, default=None)
+    parser.add_argument(
+        "--match-m", type=float, default=MATCH_M, help="a row's farthest object (BEV, metres)"
+    )
     args = parser.parse_args()
     if not args.results and args.robustness is None:
         parser.error("give RESULTS_DIR folders or --robustness OUT")
     label_dir = (args.kitti_root or default_kitti_root()) / "training" / "label_02"
     if args.robustness is not None:
-        rows = robustness_rows(args.robustness, label_dir, args.cls)
-        clean = rows[0][2:] if rows[0][0] == "clean" else (np.nan, np.nan)
+        rows = robustness_rows(args.robustness, label_dir, args.cls, args.match_m)
+        clean = next((row[2:] for row in rows if row[0] == "clean"), None)
+        if clean is None:
+            raise SystemExit(f"{args.robustness}: no runs/clean/ (the Δ columns are from clean)")
         print(f"| level | seeds | {args.cls} HOTA | Δ | with BEV ids | Δ |")
         print("|---|---:|---:|---:|---:|---:|")
         for name, n, a, b in rows:
@@ -167,7 +210,7 @@ def main() -> int:
             print(f"| {name} | {n} | {a:.2f} | {da:+.2f} | {b:.2f} | {db:+.2f} |")
     for folder in args.results:
         d = folder / "data" if (folder / "data").is_dir() else folder  # (a `mctrack kitti --out`)
-        a, b = score(d, label_dir, args.cls)
+        a, b = score(d, label_dir, args.cls, args.match_m)
         print(
             f"{folder}: HOTA {a['HOTA']:.2f} (DetA {a['DetA']:.2f}, AssA {a['AssA']:.2f});"
             f" with BEV ids {b['HOTA']:.2f} (DetA {b['DetA']:.2f}, AssA {b['AssA']:.2f})"

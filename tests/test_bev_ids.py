@@ -3,6 +3,7 @@ that recovers on a scene where the run swapped two pedestrians."""
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -23,8 +24,8 @@ def _row(frame: int, tid: int, x: float, z: float, kind: str = "Pedestrian") -> 
 
 def _scene(tmp_path: Path) -> tuple[Path, Path]:
     """Pedestrians 4 (x = -1) and 9 (x = +1) walk away from the camera for 10 frames; the run
-    follows them as 1 and 2 but exchanges the ids from frame 5 on, and writes a false row 3 m
-    from both in frame 0."""
+    follows them as 1 and 2 but exchanges the ids from frame 5 on, and writes a false row 3 m or
+    more from either in frame 0."""
     labels, run = tmp_path / "labels", tmp_path / "run"
     labels.mkdir()
     run.mkdir()
@@ -44,7 +45,7 @@ def test_rows_take_the_id_of_the_object_they_are_on(tmp_path: Path) -> None:
     text, label = (run / "0000.txt").read_text(), (labels / "0000.txt").read_text()
     ids = bev_ids(text, label, "pedestrian")
     assert ids[0, 1] == 4 and ids[0, 2] == 9 and ids[5, 1] == 9 and ids[5, 2] == 4
-    assert (0, 3) not in ids  # 3 m from both objects
+    assert (0, 3) not in ids  # 3 m or more from either object
     rows = [line.split() for line in relabel(text, label, "pedestrian").splitlines()]
     assert {r[1] for r in rows if r[0] == "7"} == {"4", "9"}
     assert [r[1] for r in rows if r[0] == "0"][-1] == str(UNMATCHED_ID0 + 3)
@@ -61,14 +62,38 @@ def test_bev_ids_recover_the_swap(tmp_path: Path) -> None:
     assert perfect["DetA"] == pytest.approx(written["DetA"])  # the same rows and boxes
 
 
-def test_robustness_rows_average_the_seeds_clean_first(tmp_path: Path) -> None:
+def test_robustness_rows_average_the_seeds_in_the_reports_order(tmp_path: Path) -> None:
     labels, run = _scene(tmp_path)
+    swapped = (run / "0000.txt").read_text()
+    kept = relabel(swapped, (labels / "0000.txt").read_text(), "pedestrian")  # no swap
     out = tmp_path / "rob"
-    text = (run / "0000.txt").read_text()
-    for level, seed in (("noise", "seed0"), ("noise", "seed1"), ("clean", "clean")):
+    for level, seed, text in (
+        ("noise", "seed0", swapped), ("noise", "seed1", kept), ("clean", "clean", kept),
+        ("blur", "seed0", swapped),
+    ):  # fmt: skip
         (out / "runs" / level / seed).mkdir(parents=True)
         (out / "runs" / level / seed / "0000.txt").write_text(text)
+    (out / "runs" / "README").write_text("not a level")
+    (out / "robustness.json").write_text(json.dumps({"levels": ["clean", "noise"]}))
     rows = robustness_rows(out, labels, "pedestrian")
-    assert [(name, n) for name, n, *_ in rows] == [("clean", 1), ("noise", 2)]
-    assert rows[0][2:] == pytest.approx(rows[1][2:])
-    assert rows[0][3] > rows[0][2]
+    # the report's levels first, in its order; a level it does not list after them
+    assert [(name, n) for name, n, *_ in rows] == [("clean", 1), ("noise", 2), ("blur", 1)]
+    clean, noise, blur = (row[2] for row in rows)
+    assert noise == pytest.approx((clean + blur) / 2)  # the mean of a kept and a swapped run
+    assert blur < clean
+    assert rows[2][3] == pytest.approx(rows[0][3])  # BEV ids undo the swap
+
+
+def test_bad_input_is_one_line_naming_the_file(tmp_path: Path) -> None:
+    labels, run = _scene(tmp_path)
+    with pytest.raises(SystemExit, match=r"no <seq>\.txt"):
+        score(tmp_path / "labels" / "none", labels, "pedestrian")
+    (run / "0001.txt").write_text(_row(0, 1, 0.0, 10.0))
+    with pytest.raises(SystemExit, match=r"labels/0001\.txt: missing"):
+        score(run, labels, "pedestrian")
+    (run / "0001.txt").unlink()
+    (run / "0000.txt").write_text(_row(0, 1, 0.0, 10.0) + "0 2 Pedestrian 0 0\n")
+    with pytest.raises(SystemExit, match=r"run/0000\.txt:2: not a KITTI tracking row"):
+        score(run, labels, "pedestrian")
+    with pytest.raises(SystemExit, match="no runs/"):
+        robustness_rows(tmp_path / "nothing", labels, "pedestrian")
