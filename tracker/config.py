@@ -213,6 +213,10 @@ class OfflineConfig:
     # continues it under its id (one-to-one, Hungarian on the distance; 0 = off)
     stitch_max_gap: int = 0
     stitch_distance_m: float = 1.0
+    # offline only: two neighbouring tracks that exchanged objects get their tails back where,
+    # over this many seconds either side, the difference of their detections is far likelier
+    # with the tails exchanged (tracker.exchange; 0 = off)
+    exchange_seconds: float = 0.0
     # offline only: a track's written own 2D boxes (an image head's, not projections; see
     # image_boxes) keep their offset from its projection averaged over smooth_seconds, and its
     # coasting rows carry that average (tracker.io.writers.smooth_own_boxes)
@@ -370,6 +374,8 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
     )
     if top.frame_rate_hz <= 0:
         raise InputError(f"{source}: frame_rate_hz must be > 0")
+    if not 0.0 <= top.offline.exchange_seconds < math.inf:
+        raise InputError(f"{source}: offline.exchange_seconds must be finite and >= 0")
     if not 0.0 < top.offline.rts_r_multiple < math.inf:
         raise InputError(f"{source}: offline.rts_r_multiple must be finite and > 0")
     if not 0.0 <= top.coast_min_in_view <= 1.0:

@@ -249,6 +249,15 @@ class MCTracker:
         self._last_frame_id: int | None = None
         self._scene: str | None = None
 
+    @property
+    def noise_variance(self) -> FloatArray:
+        """(C,) the detections' centre variance per class and axis (m²) as estimated so far
+        (``tracker.noise``); NaN where not yet estimated, or everywhere when the config follows
+        no noise (no ``pose.r_scale`` and no ``bev.gate_motion_m``)."""
+        if self._noise is None:
+            return np.full(len(CATEGORIES), np.nan)
+        return self._noise.variance()
+
     # -----------------------------------------------------------------------------------------
     def step(self, frame: Frame) -> TrackOutput:
         """Track one frame; returns the confirmed tracks (rows sorted by id)."""

@@ -37,6 +37,7 @@ from tracker.calibration import score_log_odds
 from tracker.categories import CATEGORIES
 from tracker.config import TrackerConfig, TrackingMode
 from tracker.events import Observer, TrackOutput, TrackStatus
+from tracker.exchange import exchange_tails
 from tracker.frame import Frame
 from tracker.fusion import fuse_scene
 from tracker.geometry import wrap_angle
@@ -80,8 +81,9 @@ def run_scene(
         outputs.append(tracker.step(frame))
     if config.mode is TrackingMode.OFFLINE:
         outputs = offline_postprocess(
-            outputs, config, removed=removed, frames=frames, motion_r=tracker.motion_r
-        )
+            outputs, config, removed=removed, frames=frames, motion_r=tracker.motion_r,
+            noise_variance=tracker.noise_variance,
+        )  # fmt: skip
     elapsed = time.perf_counter() - start
     scene = frames[0].scene if frames else ""
     if removed:
@@ -103,14 +105,17 @@ def offline_postprocess(
     removed: list[RemovedTrack] | None = None,
     frames: Sequence[Frame] | None = None,
     motion_r: np.ndarray | None = None,
+    noise_variance: np.ndarray | None = None,
 ) -> list[TrackOutput]:
     """Track-score filter and gap interpolation over a whole scene (see module docstring).
 
     Whole tracks removed by the filter are appended to ``removed`` (when given). ``frames``, the
-    scene's input frames, are needed by ``offline.rts`` and ``offline.rts_heading`` (without
-    them they are off). ``motion_r``: the R table the position smoother uses instead of the
-    config's, the tracker's at the scene's end (with ``pose.r_scale``, r from the noise of the
-    whole scene's detections).
+    scene's input frames, are needed by ``offline.rts``, ``offline.rts_heading`` and
+    ``offline.exchange_seconds`` (without them they are off). ``motion_r``: the R table the
+    position smoother uses instead of the config's, the tracker's at the scene's end (with
+    ``pose.r_scale``, r from the noise of the whole scene's detections). ``noise_variance``
+    (C,): the detections' estimated centre variance per class, the tracker's at the scene's end
+    (``offline.exchange_seconds`` needs it).
     """
     if not outputs:
         return outputs
@@ -122,6 +127,15 @@ def offline_postprocess(
     det_row = np.concatenate([o.det_row for o in outputs])
     stage = np.concatenate([o.stage for o in outputs])
     real = det_row >= 0
+    if config.offline.exchange_seconds > 0 and frames is not None and noise_variance is not None:
+        # neighbours that traded objects get their tails back, before the tracks are judged
+        xy = np.full((len(boxes), 2), np.nan)
+        xy[real] = _detection_xy(frames, frame_index[real], det_row[real])
+        track_id = exchange_tails(
+            boxes.track_id, frame_index, np.array([o.time_secs for o in outputs]), xy,
+            boxes.category, np.flatnonzero(real), noise_variance, config.offline.exchange_seconds,
+        )  # fmt: skip
+        boxes = boxes.replace(track_id=track_id)
     keep = real.copy()
     new_src: list[tuple[int, int, int, float]] = []  # (frame index, row before, row after, w)
     logit = score_log_odds(boxes.score)
@@ -162,8 +176,7 @@ def offline_postprocess(
         # the detected rows, smoothed over the track's detections by the online filters rerun
         # forwards and then backwards (tracker.smoothing)
         measured = np.flatnonzero(keep & (det_row >= 0))
-        start = np.cumsum([0] + [len(f.boxes) for f in frames])  # each frame's first detection
-        det_at = start[frame_index[measured]] + det_row[measured]  # into the scene's detections
+        det_at = _detection_index(frames, frame_index[measured], det_row[measured])
         times = np.array([o.time_secs for o in outputs])
         at = (frame_index[measured], boxes.track_id[measured])
         category = boxes.category[measured]
@@ -246,6 +259,22 @@ def offline_postprocess(
             )
         )
     return result
+
+
+def _detection_index(
+    frames: Sequence[Frame], frame_index: np.ndarray, det_row: np.ndarray
+) -> np.ndarray:
+    """Rows' detections as indices into the scene's detections, concatenated frame by frame."""
+    start = np.cumsum([0] + [len(f.boxes) for f in frames])  # each frame's first detection
+    return start[frame_index] + det_row
+
+
+def _detection_xy(
+    frames: Sequence[Frame], frame_index: np.ndarray, det_row: np.ndarray
+) -> np.ndarray:
+    """(K, 2) the BEV centres of the rows' own detections."""
+    xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames])
+    return xy[_detection_index(frames, frame_index, det_row)]
 
 
 def stitch_tracks(
