@@ -10,7 +10,7 @@ from tracker.boxes import Boxes
 from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
 from tracker.events import TrackOutput, TrackStatus
-from tracker.exchange import exchange_gain, exchange_tails
+from tracker.exchange import MIN_SIDE, exchange_gain, exchange_tails, window_gains
 from tracker.frame import Frame
 from tracker.pipeline import offline_postprocess
 
@@ -102,6 +102,27 @@ def test_the_gain_is_the_step_a_line_cannot_follow() -> None:
     assert exchange_gain(t, -d * np.where(after, -1, 1)[:, None], after) < 0  # none: a constant
     crossing = np.column_stack([0.1 * (10 - t), np.zeros(20)])  # d through 0 at a steady rate
     assert exchange_gain(t, crossing, after) < 0
+
+
+def test_window_gains_equal_the_line_fits_they_replace() -> None:
+    """The prefix-sum gains at every start equal exchange_gain's least-squares fits over the
+    same window (frames with gaps, uneven times), and are -inf where a side is short."""
+    rng = np.random.default_rng(3)
+    times = np.cumsum(rng.uniform(0.08, 0.12, 300))
+    frame = np.sort(rng.choice(300, 180, replace=False))
+    d = rng.normal(0.0, 0.5, (180, 2)) + np.where(frame[:, None] > 150, [-0.6, 0.2], [0.6, 0.0])
+    starts = np.arange(1, 300)
+    got = window_gains(times[frame], d, frame, starts, times, 1.5)
+    for k, start in enumerate(starts):
+        lag = times[frame] - times[start]
+        inside = (lag >= -1.5 - 1e-6) & (lag < 1.5 - 1e-6)
+        after = frame >= start
+        if (inside & ~after).sum() < MIN_SIDE or (inside & after).sum() < MIN_SIDE:
+            assert got[k] == -np.inf
+        else:
+            want = exchange_gain(times[frame[inside]], d[inside], after[inside])
+            assert got[k] == pytest.approx(want, rel=1e-9, abs=1e-9)
+    assert np.isfinite(got).sum() > 200 and got.max() > 0
 
 
 def test_offline_mode_gives_the_tails_back() -> None:

@@ -57,6 +57,49 @@ def exchange_gain(times: FloatArray, d: FloatArray, after: np.ndarray) -> float:
     return _line_sse(times, d) - _line_sse(times, flipped)
 
 
+def window_gains(
+    t: FloatArray,
+    d: FloatArray,
+    frame: IntArray,
+    starts: IntArray,
+    times: FloatArray,
+    window_secs: float,
+) -> FloatArray:
+    """(S,) :func:`exchange_gain` at each of ``starts`` (frames), over the rows of (``t``, ``d``)
+    (K,), (K, 2) at frames ``frame`` (K,, increasing) within ``window_secs`` of the start's time
+    (``times``, per frame); -inf where either side has fewer than :data:`MIN_SIDE` rows.
+
+    Vectorised over the starts: each window is a run of rows, so its sums come from prefix sums,
+    and a line's residual is Σd² − (Σd)²/n − (Σ(t − t̄)d)² / Σ(t − t̄)² per axis; the exchanged
+    tails negate the sums after the start."""
+    zero = np.zeros((1, 2))
+    c_t = np.concatenate([[0.0], np.cumsum(t)])
+    c_tt = np.concatenate([[0.0], np.cumsum(t * t)])
+    c_d = np.concatenate([zero, np.cumsum(d, axis=0)])
+    c_td = np.concatenate([zero, np.cumsum(t[:, None] * d, axis=0)])
+    t0 = times[starts]
+    slack = 1e-6  # (frame times are sums of floats)
+    lo = np.searchsorted(t, t0 - window_secs - slack, side="left")
+    hi = np.searchsorted(t, t0 + window_secs - slack, side="left")
+    mid = np.clip(np.searchsorted(frame, starts, side="left"), lo, hi)
+    n = (hi - lo).astype(np.float64)
+    ok = (mid - lo >= MIN_SIDE) & (hi - mid >= MIN_SIDE)
+    n_safe = np.where(ok, n, 1.0)
+    s_t = c_t[hi] - c_t[lo]
+    s_xx = np.where(ok, c_tt[hi] - c_tt[lo] - s_t**2 / n_safe, 1.0)
+
+    def sse_terms(s_d: FloatArray, s_td: FloatArray) -> FloatArray:
+        """The part of the residual that depends on the signs: (Σd)²/n + (Σ(t − t̄)d)²/Σ(t − t̄)²."""
+        centred = s_td - s_t[:, None] * s_d / n_safe[:, None]
+        return (s_d**2 / n_safe[:, None] + centred**2 / s_xx[:, None]).sum(axis=1)
+
+    pre_d, post_d = c_d[mid] - c_d[lo], c_d[hi] - c_d[mid]
+    pre_td, post_td = c_td[mid] - c_td[lo], c_td[hi] - c_td[mid]
+    # SSE_kept − SSE_exchanged: Σd² is the same for both and cancels
+    gain = sse_terms(pre_d - post_d, pre_td - post_td) - sse_terms(pre_d + post_d, pre_td + post_td)
+    return np.where(ok, gain, -np.inf)
+
+
 def exchange_tails(
     track_id: IntArray,
     frame_index: IntArray,
@@ -132,21 +175,13 @@ def _exchanges(
     found = []
     for (a, b), frames in sorted(near.items()):
         both = np.flatnonzero(np.isfinite(position[a, :, 0]) & np.isfinite(position[b, :, 0]))
-        d = position[a, both] - position[b, both]
-        tried = sorted({f + r for f in frames for r in range(-REACH_FRAMES, REACH_FRAMES + 1)})
-        best, best_start = threshold, -1
-        for start in tried:
-            if not 0 < start < n_frames:
-                continue
-            lag = times[both] - times[start]  # (a µs of slack: frame times are sums of floats)
-            inside = (lag >= -window_secs - 1e-6) & (lag < window_secs - 1e-6)
-            after = both >= start
-            if (inside & ~after).sum() < MIN_SIDE or (inside & after).sum() < MIN_SIDE:
-                continue
-            gain = exchange_gain(times[both[inside]], d[inside], after[inside])
-            if gain > best:
-                best, best_start = gain, start
-        if best_start >= 0:
-            found.append((best, int(ids[a]), int(ids[b]), best_start))
+        tried = np.unique(np.add.outer(sorted(frames), np.arange(-REACH_FRAMES, REACH_FRAMES + 1)))
+        tried = tried[(tried > 0) & (tried < n_frames)]
+        gains = window_gains(
+            times[both], position[a, both] - position[b, both], both, tried, times, window_secs
+        )
+        best = int(np.argmax(gains))  # (the earliest of equal gains)
+        if gains[best] > threshold:
+            found.append((float(gains[best]), int(ids[a]), int(ids[b]), int(tried[best])))
     found.sort(key=lambda g: (-g[0], g[1], g[2]))
     return found
