@@ -18,9 +18,10 @@ A line follows two tracks that drift apart or cross (their relative position mov
 when one overtakes the other), so a crossing is no exchange. Each detection's centre has
 variance σ² per axis (the scene's estimated noise, ``tracker.noise``), so d has 2σ², and with
 Gaussian noise the log-likelihood ratio of the exchanged tails against the kept ones is
-(SSE_kept − SSE_exchanged) / (2 · 2σ²). The tails are exchanged at the best t where that ratio
-exceeds e^:data:`LOG_RATIO` (about 150); each track takes part in one exchange per pass, the most
-likely first, and passes repeat until none is left (at most :data:`MAX_PASSES`).
+(SSE_kept − SSE_exchanged) / (2 · 2σ²). The tails are exchanged at the best t where that log
+ratio exceeds :data:`LOG_RATIO` (a likelihood ratio of e^5, about 150); each track takes part in
+one exchange per pass, the most likely first, and passes repeat until none is left (at most
+:data:`MAX_PASSES`).
 """
 
 from __future__ import annotations

@@ -1,6 +1,9 @@
 """Running the tracker over scenes: online, or offline (global) with track-level post-processing.
 
-Offline mode (reference §2.9, improved): run online with the offline config, then per track
+Offline mode (reference §2.9, improved): run online with the offline config, then
+  0. (``offline.exchange_seconds`` > 0) give two neighbouring tracks that traded objects their
+     tails back (:func:`tracker.exchange.exchange_tails`),
+and per track
   1. score = mean logit of its real detections; drop the whole track if score <= threshold
      (``offline.track_score_min``, or its class's ``lifecycle.offline_track_score_min`` where
      higher) or it has fewer than ``min_hits`` detections (tentative rows are kept for
