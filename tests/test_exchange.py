@@ -87,6 +87,48 @@ def test_right_tracks_are_left_alone(start_b: tuple, velocity_b: tuple) -> None:
         assert np.array_equal(_exchange(track, frame, xy, cat, variance=1e-4), track)
 
 
+def test_epoch_times_two_pairs_and_a_class_without_an_estimate() -> None:
+    """Times in epoch seconds (nuScenes, Waymo) give the same exchange as times from 0; two
+    exchanged pairs far apart are both given back in one call; cars beside them, with no noise
+    estimate for their class, are left alone."""
+    noisy, _ = _pair((0.0, 0.6), (1.4, 0.0), 2)
+    track, frame, xy, cat, obj = _rows(noisy, exchanged_from=40)
+    # a second pair 50 m away, exchanged at frame 30, and a third pair of cars, exchanged too
+    far = noisy + np.array([0.0, 50.0])
+    cars = noisy + np.array([0.0, -50.0])
+    track = np.concatenate([track, track + 10, track + 20])
+    track[2 * FRAMES : 4 * FRAMES] = np.where(
+        (frame >= 30) & (frame < 40),
+        3 - (track[2 * FRAMES : 4 * FRAMES] - 10) + 10,
+        track[2 * FRAMES : 4 * FRAMES],
+    )  # (the second pair: exchanged from frame 30 on)
+    frame3 = np.tile(frame, 3)
+    xy3 = np.concatenate([xy, far.reshape(-1, 2), cars.reshape(-1, 2)])
+    cat3 = np.concatenate([cat, cat, np.full(2 * FRAMES, category_index("car"))])
+    obj3 = np.concatenate([obj, obj + 2, obj + 4])
+    variance = np.full(len(CATEGORIES), np.nan)
+    variance[PED] = SIGMA**2
+    results = []
+    for t0 in (0.0, 1.5e9):
+        times = t0 + np.arange(FRAMES) * DT
+        fixed = exchange_tails(
+            track, frame3, times, xy3, cat3, np.arange(len(track)), variance, 3.0
+        )
+        results.append(fixed)
+        for k in range(4):  # both pedestrian pairs given back
+            assert np.unique(fixed[obj3 == k], return_counts=True)[1].max() >= FRAMES - 3, (t0, k)
+        assert np.array_equal(fixed[cat3 != PED], track[cat3 != PED])  # no car estimate
+    assert np.array_equal(*results)
+
+
+def test_the_config_refuses_a_negative_or_infinite_span() -> None:
+    from tracker.errors import InputError
+
+    for bad in (-1.0, float("inf"), float("nan")):
+        with pytest.raises(InputError, match=r"offline\.exchange_seconds"):
+            load_config("kitti_offline", overrides={"offline": {"exchange_seconds": bad}})
+
+
 def test_off_or_without_a_noise_estimate_nothing_changes() -> None:
     noisy, _ = _pair((0.0, 0.6), (1.4, 0.0), 0)
     track, frame, xy, cat, _ = _rows(noisy, exchanged_from=40)

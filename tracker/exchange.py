@@ -73,12 +73,16 @@ def window_gains(
     Vectorised over the starts: each window is a run of rows, so its sums come from prefix sums,
     and a line's residual is Σd² − (Σd)²/n − (Σ(t − t̄)d)² / Σ(t − t̄)² per axis; the exchanged
     tails negate the sums after the start."""
+    # times from the pair's first row: epoch seconds (nuScenes, Waymo) squared would leave
+    # nothing of a 6 s window's spread in float64
+    ref = float(t[0]) if len(t) else 0.0
+    t = t - ref
     zero = np.zeros((1, 2))
     c_t = np.concatenate([[0.0], np.cumsum(t)])
     c_tt = np.concatenate([[0.0], np.cumsum(t * t)])
     c_d = np.concatenate([zero, np.cumsum(d, axis=0)])
     c_td = np.concatenate([zero, np.cumsum(t[:, None] * d, axis=0)])
-    t0 = times[starts]
+    t0 = times[starts] - ref
     slack = 1e-6  # (frame times are sums of floats)
     lo = np.searchsorted(t, t0 - window_secs - slack, side="left")
     hi = np.searchsorted(t, t0 + window_secs - slack, side="left")
@@ -98,7 +102,7 @@ def window_gains(
     pre_td, post_td = c_td[mid] - c_td[lo], c_td[hi] - c_td[mid]
     # SSE_kept − SSE_exchanged: Σd² is the same for both and cancels
     gain = sse_terms(pre_d - post_d, pre_td - post_td) - sse_terms(pre_d + post_d, pre_td + post_td)
-    return np.where(ok, gain, -np.inf)
+    return np.where(ok & np.isfinite(gain), gain, -np.inf)
 
 
 def exchange_tails(
@@ -156,10 +160,12 @@ def _exchanges(
     tracks whose best exchange gains more than ``threshold``, the most likely first (ties by
     the ids)."""
     n_frames = len(times)
-    ids = np.unique(track_id[rows])
-    position = np.full((len(ids), n_frames, 2), np.nan)  # [track, frame] detected centre
-    k = np.searchsorted(ids, track_id[rows])
-    position[k, frame_index[rows]] = xy[rows]
+    ids, k = np.unique(track_id[rows], return_inverse=True)
+    # each track's rows in frame order: track i owns by_track[first[i]:first[i + 1]]
+    by_track = rows[np.lexsort((frame_index[rows], k))]
+    first = np.searchsorted(np.sort(k), np.arange(len(ids) + 1))
+    track_of = np.zeros(len(track_id), dtype=np.int64)
+    track_of[rows] = k
     # neighbours: pairs of rows of one frame whose centres are within NEAR_M
     near: dict[tuple[int, int], set[int]] = {}
     order = rows[np.argsort(frame_index[rows], kind="stable")]
@@ -169,18 +175,21 @@ def _exchanges(
             continue
         gap = np.linalg.norm(xy[group, None] - xy[None, group], axis=-1)
         for i, j in zip(*np.nonzero(np.triu(gap < NEAR_M, 1)), strict=True):
-            a, b = sorted((int(np.searchsorted(ids, track_id[group[i]])),
-                           int(np.searchsorted(ids, track_id[group[j]]))))  # fmt: skip
+            a, b = sorted((int(track_of[group[i]]), int(track_of[group[j]])))
             if a != b:
                 near.setdefault((a, b), set()).add(int(frame_index[group[i]]))
     found = []
     for (a, b), frames in sorted(near.items()):
-        both = np.flatnonzero(np.isfinite(position[a, :, 0]) & np.isfinite(position[b, :, 0]))
+        rows_a, rows_b = by_track[first[a] : first[a + 1]], by_track[first[b] : first[b + 1]]
+        both, in_a, in_b = np.intersect1d(
+            frame_index[rows_a], frame_index[rows_b], assume_unique=True, return_indices=True
+        )
         tried = np.unique(np.add.outer(sorted(frames), np.arange(-REACH_FRAMES, REACH_FRAMES + 1)))
         tried = tried[(tried > 0) & (tried < n_frames)]
-        gains = window_gains(
-            times[both], position[a, both] - position[b, both], both, tried, times, window_secs
-        )
+        if not len(tried):
+            continue
+        d = xy[rows_a[in_a]] - xy[rows_b[in_b]]
+        gains = window_gains(times[both], d, both, tried, times, window_secs)
         best = int(np.argmax(gains))  # (the earliest of equal gains)
         if gains[best] > threshold:
             found.append((float(gains[best]), int(ids[a]), int(ids[b]), int(tried[best])))
