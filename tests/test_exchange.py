@@ -10,7 +10,14 @@ from tracker.boxes import Boxes
 from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
 from tracker.events import TrackOutput, TrackStatus
-from tracker.exchange import MIN_SIDE, exchange_gain, exchange_tails, window_gains
+from tracker.exchange import (
+    MIN_SIDE,
+    NEAR_M,
+    _neighbour_frames,
+    exchange_gain,
+    exchange_tails,
+    window_gains,
+)
 from tracker.frame import Frame
 from tracker.pipeline import offline_postprocess
 
@@ -165,6 +172,23 @@ def test_window_gains_equal_the_line_fits_they_replace() -> None:
             want = exchange_gain(times[frame[inside]], d[inside], after[inside])
             assert got[k] == pytest.approx(want, rel=1e-9, abs=1e-9)
     assert np.isfinite(got).sum() > 200 and got.max() > 0
+
+
+def test_neighbour_frames_equal_comparing_every_pair_of_a_frames_rows() -> None:
+    rng = np.random.default_rng(5)
+    track = rng.integers(0, 12, 400)
+    frame = rng.integers(0, 40, 400)
+    xy = rng.uniform(0.0, 6.0, (400, 2))
+    want: dict[tuple[int, int], set[int]] = {}
+    for p in range(400):
+        for q in range(p + 1, 400):
+            a, b = sorted((int(track[p]), int(track[q])))
+            if frame[p] == frame[q] and a != b and np.linalg.norm(xy[p] - xy[q]) < NEAR_M:
+                want.setdefault((a, b), set()).add(int(frame[p]))
+    got = _neighbour_frames(track, frame, xy)
+    assert [pair for pair, _ in got] == sorted(want)
+    assert all(list(frames) == sorted(want[pair]) for pair, frames in got)
+    assert _neighbour_frames(track[:1], frame[:1], xy[:1]) == []
 
 
 def test_offline_mode_gives_the_tails_back() -> None:

@@ -147,6 +147,30 @@ def exchange_tails(
     return track_id
 
 
+def _neighbour_frames(
+    track: IntArray, frame: IntArray, xy: FloatArray
+) -> list[tuple[tuple[int, int], IntArray]]:
+    """``((a, b), frames)`` of every pair of tracks ``a < b`` (indices into the rows' ``track``)
+    whose rows of one frame lie within :data:`NEAR_M` of each other, sorted by pair, each with
+    the frames where they do (sorted). Every pair of rows of a frame is compared once: the
+    rows in frame order, each paired with the rows after it in its frame."""
+    order = np.argsort(frame, kind="stable")
+    f = frame[order]
+    end = np.searchsorted(f, f, side="right")  # past each row's frame's last row (in order)
+    later = end - np.arange(len(f)) - 1  # rows after it in its frame
+    i = np.repeat(np.arange(len(f)), later)
+    j = i + 1 + np.arange(len(i)) - np.repeat(np.cumsum(later) - later, later)
+    i, j = order[i], order[j]
+    close = np.linalg.norm(xy[i] - xy[j], axis=-1) < NEAR_M
+    a, b = np.minimum(track[i], track[j])[close], np.maximum(track[i], track[j])[close]
+    pair_frames = np.unique(np.column_stack([a, b, frame[i][close]])[a != b], axis=0)
+    if not len(pair_frames):
+        return []
+    pairs, starts = np.unique(pair_frames[:, :2], axis=0, return_index=True)
+    groups = np.split(pair_frames[:, 2], starts[1:])
+    return [((int(p[0]), int(p[1])), g) for p, g in zip(pairs, groups, strict=True)]
+
+
 def _exchanges(
     track_id: IntArray,
     frame_index: IntArray,
@@ -164,27 +188,14 @@ def _exchanges(
     # each track's rows in frame order: track i owns by_track[first[i]:first[i + 1]]
     by_track = rows[np.lexsort((frame_index[rows], k))]
     first = np.searchsorted(np.sort(k), np.arange(len(ids) + 1))
-    track_of = np.zeros(len(track_id), dtype=np.int64)
-    track_of[rows] = k
-    # neighbours: pairs of rows of one frame whose centres are within NEAR_M
-    near: dict[tuple[int, int], set[int]] = {}
-    order = rows[np.argsort(frame_index[rows], kind="stable")]
-    starts = np.flatnonzero(np.diff(frame_index[order], prepend=-1))
-    for group in np.split(order, starts[1:]):
-        if len(group) < 2:
-            continue
-        gap = np.linalg.norm(xy[group, None] - xy[None, group], axis=-1)
-        for i, j in zip(*np.nonzero(np.triu(gap < NEAR_M, 1)), strict=True):
-            a, b = sorted((int(track_of[group[i]]), int(track_of[group[j]])))
-            if a != b:
-                near.setdefault((a, b), set()).add(int(frame_index[group[i]]))
+    near = _neighbour_frames(k, frame_index[rows], xy[rows])
     found = []
-    for (a, b), frames in sorted(near.items()):
+    for (a, b), frames in near:
         rows_a, rows_b = by_track[first[a] : first[a + 1]], by_track[first[b] : first[b + 1]]
         both, in_a, in_b = np.intersect1d(
             frame_index[rows_a], frame_index[rows_b], assume_unique=True, return_indices=True
         )
-        tried = np.unique(np.add.outer(sorted(frames), np.arange(-REACH_FRAMES, REACH_FRAMES + 1)))
+        tried = np.unique(np.add.outer(frames, np.arange(-REACH_FRAMES, REACH_FRAMES + 1)))
         tried = tried[(tried > 0) & (tried < n_frames)]
         if not len(tried):
             continue

@@ -130,12 +130,13 @@ def offline_postprocess(
     det_row = np.concatenate([o.det_row for o in outputs])
     stage = np.concatenate([o.stage for o in outputs])
     real = det_row >= 0
+    times = np.array([o.time_secs for o in outputs])
     if config.offline.exchange_seconds > 0 and frames is not None and noise_variance is not None:
         # neighbours that traded objects get their tails back, before the tracks are judged
         xy = np.full((len(boxes), 2), np.nan)
         xy[real] = _detection_xy(frames, frame_index[real], det_row[real])
         track_id = exchange_tails(
-            boxes.track_id, frame_index, np.array([o.time_secs for o in outputs]), xy,
+            boxes.track_id, frame_index, times, xy,
             boxes.category, np.flatnonzero(real), noise_variance, config.offline.exchange_seconds,
         )  # fmt: skip
         boxes = boxes.replace(track_id=track_id)
@@ -156,7 +157,6 @@ def offline_postprocess(
                 reason = "track_score" if score <= score_min else "min_hits"
                 removed.append(RemovedTrack(int(tid), name, len(rows), score, reason))
     if config.offline.stitch_max_gap > 0:
-        times = np.array([o.time_secs for o in outputs])
         track_id = stitch_tracks(
             boxes, frame_index, times, keep,
             max_gap=config.offline.stitch_max_gap, distance_m=config.offline.stitch_distance_m,
@@ -180,7 +180,6 @@ def offline_postprocess(
         # forwards and then backwards (tracker.smoothing)
         measured = np.flatnonzero(keep & (det_row >= 0))
         det_at = _detection_index(frames, frame_index[measured], det_row[measured])
-        times = np.array([o.time_secs for o in outputs])
         at = (frame_index[measured], boxes.track_id[measured])
         category = boxes.category[measured]
         if config.offline.rts:
@@ -190,7 +189,7 @@ def offline_postprocess(
                     " pose.r_scale would set it from the detections (pass the tracker's)"
                 )
             # position, velocity and acceleration (x, y); z keeps the fit above
-            det_xy = np.concatenate([f.boxes.xyz[:, :2] for f in frames])[det_at]
+            det_xy = _detection_xy(frames, frame_index[measured], det_row[measured])
             r_table = motion_noise_tables(config)[2] if motion_r is None else motion_r
             r_table = r_table * config.offline.rts_r_multiple
             state = rts_smooth(times, *at, det_xy, category, config, motion_r=r_table)
