@@ -37,8 +37,12 @@ from scipy.optimize import linear_sum_assignment
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from fp_anatomy import sequence_length  # noqa: E402
+
 from app.inputs import default_kitti_root  # noqa: E402
+from tracker.errors import InputError  # noqa: E402
 from tracker.eval.kitti import evaluate_kitti  # noqa: E402
+from tracker.io.convert.kitti import read_kitti_labels  # noqa: E402
 
 #: a row takes the id of a ground-truth object whose BEV centre is this near (metres)
 MATCH_M = 1.0
@@ -49,63 +53,44 @@ KITTI_TYPE = {"car": "Car", "pedestrian": "Pedestrian", "cyclist": "Cyclist"}
 KEPT = ("HOTA", "DetA", "AssA", "IDSW")
 
 
-def _columns(text: str, name: str) -> list[list[str]]:
-    """The non-blank lines of a KITTI label or result file, split; ``ValueError`` naming the file
-    and line where one is not a row (17 columns or more, integer frame and id, numeric x and z)."""
-    rows = []
-    for number, line in enumerate(text.splitlines(), 1):
-        cols = line.split()
-        if not cols:
-            continue
-        try:
-            if len(cols) < 17:
-                raise ValueError(f"{len(cols)} columns, expected 17 or 18")
-            int(cols[0]), int(cols[1]), float(cols[13]), float(cols[15])
-        except ValueError as err:
-            raise ValueError(f"{name}:{number}: not a KITTI tracking row ({err})") from None
-        rows.append(cols)
-    return rows
-
-
-def _bev_rows(text: str, kitti_type: str, name: str) -> dict[int, list[tuple[int, float, float]]]:
-    """``{frame: [(id, x, z)]}`` of one file's rows of ``kitti_type`` (camera x and z, metres)."""
-    rows: dict[int, list[tuple[int, float, float]]] = {}
-    for cols in _columns(text, name):
-        if cols[2] == kitti_type:
-            row = (int(cols[1]), float(cols[13]), float(cols[15]))
-            rows.setdefault(int(cols[0]), []).append(row)
-    return rows
+def _bev_rows(path: Path, kitti_type: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(frame, id, camera x and z (K, 2)) of one label or result file's rows of ``kitti_type``,
+    read by the project's KITTI reader (``InputError`` naming the file, line and field)."""
+    objects = read_kitti_labels(path)
+    mine = objects.type_name == kitti_type
+    return objects.frame[mine], objects.track_id[mine], objects.xyz_bottom_rect[mine][:, [0, 2]]
 
 
 def bev_ids(
-    result_text: str, label_text: str, cls: str, match_m: float = MATCH_M
+    result: Path, label: Path, cls: str, match_m: float = MATCH_M
 ) -> dict[tuple[int, int], int]:
     """``{(frame, result id): ground-truth id}`` of the result rows of ``cls`` within ``match_m``
     of an object of their frame (Hungarian on the BEV centre distance)."""
     kitti_type = KITTI_TYPE[cls]
-    labels = _bev_rows(label_text, kitti_type, "labels")
-    results = _bev_rows(result_text, kitti_type, "results")
+    r_frame, r_id, r_xz = _bev_rows(result, kitti_type)
+    g_frame, g_id, g_xz = _bev_rows(label, kitti_type)
     pairs: dict[tuple[int, int], int] = {}
-    for frame, rows in results.items():
-        objects = labels.get(frame)
-        if not objects:
+    for frame in np.unique(r_frame):
+        rows, objects = np.flatnonzero(r_frame == frame), np.flatnonzero(g_frame == frame)
+        if not len(objects):
             continue
-        r = np.array([(x, z) for _, x, z in rows])
-        g = np.array([(x, z) for _, x, z in objects])
-        d = np.linalg.norm(r[:, None] - g[None], axis=-1)
+        d = np.linalg.norm(r_xz[rows, None] - g_xz[None, objects], axis=-1)
         ri, gi = linear_sum_assignment(np.where(d < match_m, d, 1e9))
         for a, b in zip(ri, gi, strict=True):
             if d[a, b] < match_m:
-                pairs[frame, rows[a][0]] = objects[b][0]
+                pairs[int(frame), int(r_id[rows[a]])] = int(g_id[objects[b]])
     return pairs
 
 
-def relabel(result_text: str, label_text: str, cls: str, match_m: float = MATCH_M) -> str:
-    """``result_text`` with each row of ``cls`` under the id :func:`bev_ids` gives it, or
-    :data:`UNMATCHED_ID0` + its own id; other classes' rows unchanged."""
-    ids = bev_ids(result_text, label_text, cls, match_m)
+def relabel(result: Path, label: Path, cls: str, match_m: float = MATCH_M) -> str:
+    """The result file's text with each row of ``cls`` under the id :func:`bev_ids` gives it,
+    or :data:`UNMATCHED_ID0` + its own id; other classes' rows unchanged."""
+    ids = bev_ids(result, label, cls, match_m)
     out = []
-    for cols in _columns(result_text, "results"):
+    for line in result.read_text().splitlines():
+        cols = line.split()
+        if not cols:
+            continue
         if cols[2] == KITTI_TYPE[cls]:
             key = (int(cols[0]), int(cols[1]))
             cols[1] = str(ids.get(key, UNMATCHED_ID0 + key[1]))
@@ -127,14 +112,11 @@ def score(
             label = label_dir / f.name
             if not label.is_file():
                 raise SystemExit(f"{label}: missing (no labels for {f})")
-            text, label_text = f.read_text(), label.read_text()
             try:
-                frames = [int(c[0]) for c in _columns(text, str(f))]
-                frames += [int(c[0]) for c in _columns(label_text, str(label))]
-                relabelled = relabel(text, label_text, cls, match_m)
-            except ValueError as err:
+                relabelled = relabel(f, label, cls, match_m)
+            except InputError as err:
                 raise SystemExit(str(err)) from None
-            lengths[f.stem] = max(frames, default=-1) + 1
+            lengths[f.stem] = sequence_length(label, f)
             (Path(tmp) / f.name).write_text(relabelled)
         written, perfect = (
             evaluate_kitti(label_dir=label_dir, result_dir=d, seq_lengths=lengths, classes=[cls])

@@ -42,16 +42,17 @@ def _scene(tmp_path: Path) -> tuple[Path, Path]:
 
 def test_rows_take_the_id_of_the_object_they_are_on(tmp_path: Path) -> None:
     labels, run = _scene(tmp_path)
-    text, label = (run / "0000.txt").read_text(), (labels / "0000.txt").read_text()
-    ids = bev_ids(text, label, "pedestrian")
+    result, label = run / "0000.txt", labels / "0000.txt"
+    ids = bev_ids(result, label, "pedestrian")
     assert ids[0, 1] == 4 and ids[0, 2] == 9 and ids[5, 1] == 9 and ids[5, 2] == 4
     assert (0, 3) not in ids  # 3 m or more from either object
-    rows = [line.split() for line in relabel(text, label, "pedestrian").splitlines()]
+    rows = [line.split() for line in relabel(result, label, "pedestrian").splitlines()]
     assert {r[1] for r in rows if r[0] == "7"} == {"4", "9"}
     assert [r[1] for r in rows if r[0] == "0"][-1] == str(UNMATCHED_ID0 + 3)
     # other classes' rows are left as written
     car = _row(0, 8, 0.0, 30.0, kind="Car")
-    assert relabel(car, label, "pedestrian") == car
+    (tmp_path / "car.txt").write_text(car)
+    assert relabel(tmp_path / "car.txt", label, "pedestrian") == car
 
 
 def test_bev_ids_recover_the_swap(tmp_path: Path) -> None:
@@ -65,7 +66,7 @@ def test_bev_ids_recover_the_swap(tmp_path: Path) -> None:
 def test_robustness_rows_average_the_seeds_in_the_reports_order(tmp_path: Path) -> None:
     labels, run = _scene(tmp_path)
     swapped = (run / "0000.txt").read_text()
-    kept = relabel(swapped, (labels / "0000.txt").read_text(), "pedestrian")  # no swap
+    kept = relabel(run / "0000.txt", labels / "0000.txt", "pedestrian")  # no swap
     out = tmp_path / "rob"
     for level, seed, text in (
         ("noise", "seed0", swapped), ("noise", "seed1", kept), ("clean", "clean", kept),
@@ -93,7 +94,7 @@ def test_bad_input_is_one_line_naming_the_file(tmp_path: Path) -> None:
         score(run, labels, "pedestrian")
     (run / "0001.txt").unlink()
     (run / "0000.txt").write_text(_row(0, 1, 0.0, 10.0) + "0 2 Pedestrian 0 0\n")
-    with pytest.raises(SystemExit, match=r"run/0000\.txt:2: not a KITTI tracking row"):
+    with pytest.raises(SystemExit, match=r"run/0000\.txt:2: field 'columns'"):
         score(run, labels, "pedestrian")
     with pytest.raises(SystemExit, match="no runs/"):
         robustness_rows(tmp_path / "nothing", labels, "pedestrian")
