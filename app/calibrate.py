@@ -9,7 +9,9 @@ from pathlib import Path
 from app.inputs import (
     add_kitti_root_argument,
     check_kitti_root,
+    class_list,
     default_kitti_root,
+    sequence_list,
 )
 from tracker.calibration import profile_toml
 from tracker.errors import InputError
@@ -26,11 +28,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--seqs",
+        type=sequence_list,
         default=",".join(VALIDATION_SEQS),
         help="labelled sequences to fit on (default: the 11 validation sequences)",
     )
     parser.add_argument(
         "--classes",
+        type=class_list,
         default="car,pedestrian,cyclist",
         help="classes to calibrate; a class without detections keeps the fallback "
         "(default: %(default)s)",
@@ -42,8 +46,7 @@ def run(args: argparse.Namespace) -> int:
     from tracker.eval.calibrate import fit_profile
     from tracker.io.convert.kitti import convert_kitti
 
-    classes = [c.strip() for c in args.classes.split(",") if c.strip()]
-    seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
+    classes, seqs = args.classes, args.seqs
     root = args.kitti_root or default_kitti_root()
     check_kitti_root(root, seqs=seqs, detector=args.detector)
     detections, gt = convert_kitti(

@@ -17,7 +17,9 @@ from app.inputs import (
     add_kitti_root_argument,
     check_image_detector,
     check_kitti_root,
+    class_list,
     default_kitti_root,
+    sequence_list,
 )
 from tracker.errors import InputError
 from tracker.frame import Frame
@@ -43,7 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=["training", "testing"],
         help="which half of the kit (testing has no labels)",
     )
-    kitti.add_argument("--seqs", type=_csv, default=None, help="e.g. 0001,0006 (default: all)")
+    kitti.add_argument(
+        "--seqs", type=sequence_list, default=None, help="e.g. 0001,0006 (default: all)"
+    )
     kitti.add_argument("--detector", default="pointrcnn", help="folder under detections/")
     kitti.add_argument(
         "--detections", type=Path, default=None, help="detections folder (overrides --detector)"
@@ -73,7 +77,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="pose files in a folder: camera-2 poses (ORB-SLAM3) or velodyne→world (oxts)",
     )
     kitti.add_argument(
-        "--classes", type=_csv, default=["car", "pedestrian", "cyclist"], help="detection classes"
+        "--classes",
+        type=class_list,
+        default=["car", "pedestrian", "cyclist"],
+        help="detection classes",
     )
     kitti.add_argument("--no-gt", action="store_true", help="skip label_02 ground truth")
     kitti.add_argument("--gzip", action="store_true", help="write .json.gz (about 5x smaller)")

@@ -126,6 +126,40 @@ def add_mode_argument(parser: argparse.ArgumentParser, note: str = "") -> None:
     )
 
 
+def sequence_list(text: str) -> list[str]:
+    """argparse type of ``--seqs``: comma-separated sequence names, digits zero-padded to four
+    ("1" -> "0001"). An empty list or a sequence named twice is a usage error (one line, exit 2)
+    rather than a run that tracks nothing or a sequence twice."""
+    names = [s.zfill(4) if s.isdigit() else s for s in (p.strip() for p in text.split(",")) if s]
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated sequences, got {text!r}")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"{', '.join(twice)} given more than once in {text!r}")
+    return names
+
+
+def class_list(text: str) -> list[str]:
+    """argparse type of ``--classes``: comma-separated class names (case and known spellings
+    as :func:`tracker.categories.category_index` reads them), each once, as the canonical
+    names; an unknown name is a usage error listing the known ones."""
+    from tracker.categories import CATEGORIES, category_index
+
+    known = [c for c in CATEGORIES if c != "dontcare"]  # (an ignore region, not a class)
+    names = [p.strip() for p in text.split(",") if p.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated classes, got {text!r}")
+    unknown = [n for n in names if CATEGORIES[category_index(n)] not in known]
+    if unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown class {unknown[0]!r} (known: {', '.join(known)})"
+        )
+    canonical = list(dict.fromkeys(CATEGORIES[category_index(n)] for n in names))
+    if len(canonical) < len(names):
+        raise argparse.ArgumentTypeError(f"a class is given more than once in {text!r}")
+    return canonical
+
+
 def positive_int(text: str) -> int:
     """argparse type: an integer >= 1 (argparse prints the message as a usage error, exit 2)."""
     try:

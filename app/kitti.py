@@ -21,7 +21,9 @@ from app.inputs import (
     add_mode_argument,
     check_image_detector,
     check_kitti_root,
+    class_list,
     default_kitti_root,
+    sequence_list,
 )
 from app.scenes import SceneRecord
 from tracker.calibration import ScoreProfile, calibrate_frames, profile_toml, resolve_profile
@@ -68,6 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--seqs",
+        type=sequence_list,
         default=",".join(VALIDATION_SEQS),
         help="comma-separated sequences (default: the 11 validation sequences)",
     )
@@ -79,6 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--classes",
+        type=class_list,
         default="car,pedestrian,cyclist",
         help="comma-separated classes to track and evaluate",
     )
@@ -120,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)  # before any work: a bad --out fails in a second, not at the end
     (Path(args.out) / "summary.json").unlink(missing_ok=True)  # written last: marks completion
     root = args.kitti_root or default_kitti_root()
-    seqs = [s.strip() for s in args.seqs.split(",") if s.strip()]
+    seqs = args.seqs
     poses = None if args.poses == "none" else args.poses
     check_kitti_root(root, seqs=seqs, poses=poses, detector=args.detector)
     check_image_detector(root, args.image_detector)
@@ -130,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     summary = run_kitti(
         kitti_root=root,
         seqs=seqs,
-        classes=[c.strip() for c in args.classes.split(",") if c.strip()],
+        classes=args.classes,
         config_name=args.config,
         mode=args.mode,
         detector=args.detector,

@@ -27,7 +27,9 @@ from app.inputs import (
     add_detector_argument,
     add_kitti_root_argument,
     check_kitti_root,
+    class_list,
     default_kitti_root,
+    sequence_list,
 )
 from tracker.calibration import calibrate_frames, resolve_profile
 from tracker.config import ScoreSource, load_config
@@ -56,10 +58,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_detector_argument(parser)
     parser.add_argument(
         "--seqs",
+        type=sequence_list,
         default=",".join(VALIDATION_SEQS),
         help="comma-separated sequences (default: the 11 validation sequences)",
     )
-    parser.add_argument("--classes", default="car,pedestrian,cyclist")
+    parser.add_argument(
+        "--classes",
+        type=class_list,
+        default="car,pedestrian,cyclist",
+        help="comma-separated classes to track and score (default: %(default)s)",
+    )
     parser.add_argument("--config", default="kitti", help="kitti or a TOML path")
     parser.add_argument(
         "--levels",
@@ -101,11 +109,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     root = args.kitti_root or default_kitti_root()
-    check_kitti_root(root, seqs=_names(args.seqs), detector=args.detector)
+    check_kitti_root(root, seqs=args.seqs, detector=args.detector)
     report = run_robustness(
         kitti_root=root,
-        seqs=_names(args.seqs),
-        classes=_names(args.classes),
+        seqs=args.seqs,
+        classes=args.classes,
         config_name=args.config,
         detector=args.detector,
         levels=_names(args.levels),

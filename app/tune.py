@@ -42,6 +42,7 @@ from app.inputs import (
     check_kitti_root,
     default_kitti_root,
     positive_int,
+    sequence_list,
 )
 from tracker.config import BUILTIN, load_config, toml_value
 from tracker.errors import InputError
@@ -133,6 +134,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--seqs",
+        type=sequence_list,
         default=",".join(VALIDATION_SEQS),
         help="labelled sequences the folds are made of (default: the 11 validation sequences)",
     )
@@ -463,7 +465,7 @@ def _run(args: argparse.Namespace) -> int:
     space = with_searched(space, args.search or [], base_config, cls, args.mode)
     root = args.kitti_root or default_kitti_root()
     detectors = [d.strip() for d in args.detectors.split(",") if d.strip()]
-    seqs = [s.strip().zfill(4) for s in args.seqs.split(",") if s.strip()]
+    seqs = args.seqs
     if len(seqs) < args.folds:
         raise InputError(f"--folds {args.folds} needs at least as many --seqs (got {len(seqs)})")
     for detector in detectors:

@@ -162,6 +162,55 @@ def test_unknown_flag_is_a_usage_error(name: str, capsys: pytest.CaptureFixture[
     assert last.startswith("mctrack") and "error:" in last  # the flag, or a missing argument
 
 
+#: Every command that takes a list of KITTI sequences and of classes.
+LIST_COMMANDS = [
+    c
+    for c in COMMANDS
+    if {"--seqs", "--classes"} <= {o for a in c[1]._actions for o in a.option_strings}
+]
+
+
+@pytest.mark.parametrize(("words", "parser"), LIST_COMMANDS, ids=_ids(LIST_COMMANDS))
+@pytest.mark.parametrize(
+    ("flag", "value", "fragment"),
+    [
+        ("--seqs", ",", "expected comma-separated sequences"),
+        ("--seqs", "6,0006", "0006 given more than once"),
+        ("--classes", "car,carr", "unknown class 'carr' (known: car, pedestrian, cyclist"),
+        ("--classes", "Car,car", "more than once"),
+        ("--classes", "dontcare", "unknown class 'dontcare'"),
+    ],
+)
+def test_a_bad_sequence_or_class_list_is_a_usage_error(
+    words: tuple[str, ...],
+    parser: argparse.ArgumentParser,
+    flag: str,
+    value: str,
+    fragment: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Before any work: never a run that tracks nothing, a sequence twice, or a traceback."""
+    required = [
+        (a.option_strings[0], "x")
+        for a in parser._actions
+        if a.required and a.option_strings and a.option_strings[0] not in {flag, "--out"}
+    ]
+    argv = [*words, *(w for pair in required for w in pair), "--out", str(tmp_path / "o")]
+    if "tune" in words:
+        argv += ["--class", "car"]
+    code, _, err = _run([*argv, flag, value], capsys)
+    _assert_one_line_error(code, err, " ".join(words), f"argument {flag}:", fragment)
+    assert not (tmp_path / "o").exists()
+
+
+def test_sequence_and_class_lists_are_normalised() -> None:
+    from app.inputs import class_list, sequence_list
+
+    assert sequence_list(" 1, 0006 ,0019,") == ["0001", "0006", "0019"]
+    assert class_list("Car, Pedestrian,person (sitting)") == ["car", "pedestrian", "person_sitting"]
+
+
 # ---------------------------------------------------------------------------------------------
 # errors: malformed files and wrong values, command by command
 
