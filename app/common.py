@@ -10,9 +10,11 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from tracker.calibration import ScoreProfile
+    from tracker.config import TrackerConfig
 
 LOG = logging.getLogger("mctrack")
 SELF_PROFILE = "self"  # --profile self: fitted without labels on the run's detections
+NO_PROFILE = "none"  # --profile none: the uncalibrated fallback
 
 
 def peak_rss_mb() -> float:
@@ -44,3 +46,25 @@ def log_self_profile(profile: ScoreProfile, classes: Sequence[str]) -> None:
         profile.detector,
         "; ".join(parts),
     )
+
+
+def score_source(
+    config: TrackerConfig, detector: str, profile: Path | str | None
+) -> tuple[bool, ScoreProfile | None, str]:
+    """Whether to recalibrate the scores, with which profile (None: the fallback, or the
+    self-calibration the caller fits, as ``mctrack kitti`` and ``mctrack robustness`` do), and
+    a note of what was used. Resolved once by the driver; each scene task applies it to its own
+    frames."""
+    from tracker.calibration import resolve_profile
+    from tracker.config import ScoreSource
+
+    if config.scores is ScoreSource.AS_GIVEN:
+        return False, None, "none (scores as converted; the config asks for scores = 'as_given')"
+    if profile == NO_PROFILE:
+        return True, None, "none (--profile none): sigmoid(raw) or raw probability"
+    if profile == SELF_PROFILE:
+        return True, None, "--profile self"
+    found = resolve_profile(detector, profile)
+    if found is None:
+        return True, None, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
+    return True, found, f"profile {profile or detector + ' (shipped)'}"

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.common import SELF_PROFILE, log_self_profile, peak_rss_mb
+from app.common import NO_PROFILE, SELF_PROFILE, log_self_profile, peak_rss_mb, score_source
 from app.inputs import (
     IMAGE_DETECTOR_HELP,
     NO_POSES_NOTE,
@@ -26,11 +26,10 @@ from app.inputs import (
     sequence_list,
 )
 from app.scenes import SceneRecord
-from tracker.calibration import ScoreProfile, calibrate_frames, profile_toml, resolve_profile
+from tracker.calibration import ScoreProfile, calibrate_frames, profile_toml
 from tracker.config import (
     BUILTIN,
     ImageBoxes,
-    ScoreSource,
     TrackerConfig,
     config_to_dict,
     load_config,
@@ -55,7 +54,6 @@ from tracker.pipeline import run_scene
 PER_SEQUENCE_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "TP", "FN")
 
 LOG = logging.getLogger(__name__)
-NO_PROFILE = "none"  # --profile none: the uncalibrated fallback
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -435,24 +433,6 @@ def self_calibrate(
     profile = fit_self_profile(detector, frames, classes)
     log_self_profile(profile, classes)
     return profile
-
-
-def score_source(
-    config: TrackerConfig, detector: str, profile: Path | str | None
-) -> tuple[bool, ScoreProfile | None, str]:
-    """Whether to recalibrate the scores, with which profile (None: the fallback, or the
-    self-calibration :func:`run_kitti` fits), and a note of what was used. Resolved once by the
-    driver; each scene task applies it to its own frames."""
-    if config.scores is ScoreSource.AS_GIVEN:
-        return False, None, "none (scores as converted; the config asks for scores = 'as_given')"
-    if profile == NO_PROFILE:
-        return True, None, "none (--profile none): sigmoid(raw) or raw probability"
-    if profile == SELF_PROFILE:
-        return True, None, "--profile self"
-    found = resolve_profile(detector, profile)
-    if found is None:
-        return True, None, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
-    return True, found, f"profile {profile or detector + ' (shipped)'}"
 
 
 def _motion(

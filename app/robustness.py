@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
+from app.common import NO_PROFILE, SELF_PROFILE, log_self_profile, score_source
 from app.inputs import (
     add_detector_argument,
     add_kitti_root_argument,
@@ -31,7 +32,7 @@ from app.inputs import (
     default_kitti_root,
     sequence_list,
 )
-from tracker.calibration import calibrate_frames, resolve_profile
+from tracker.calibration import calibrate_frames
 from tracker.config import ScoreSource, load_config
 from tracker.errors import InputError
 from tracker.eval.perturb import (
@@ -101,7 +102,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--profile",
         default=None,
-        help="score calibration profile (default: the one shipped for --detector)",
+        help="score calibration profile, as `mctrack kitti --profile` takes it (default: the one "
+        "shipped for --detector, else 'self': fitted without labels on the run's detections)",
     )
     parser.add_argument("--out", default="robustness", help="output folder")
 
@@ -121,7 +123,9 @@ def run(args: argparse.Namespace) -> int:
         seeds=_seeds(args.seeds),
         score_sigma=args.score_sigma,
         image_boxes=args.image_boxes,
-        profile=Path(args.profile) if args.profile else None,
+        profile=args.profile
+        if args.profile in (SELF_PROFILE, NO_PROFILE) or not args.profile
+        else Path(args.profile),
         out=Path(args.out),
     )
     print("\n".join(table_lines(report, markdown=False)))
@@ -142,16 +146,18 @@ def run_robustness(
     score_sigma: float = 0.0,
     image_boxes: JitteredBoxes = "follow",
     rescore: Rescore | None = None,
-    profile: Path | None = None,
+    profile: Path | str | None = None,
     out: Path,
     quiet: bool = False,
 ) -> dict[str, Any]:
     """The benchmark; returns (and writes) ``out/robustness.json``.
 
     ``custom_levels`` are levels of the caller's own (name -> noise), run after ``levels``.
-    ``rescore`` maps (category, raw score) to the tracker's score after score noise (default:
-    the detector's calibration profile, ``profile`` or the shipped one, when the config asks for
-    calibrated scores; else the converter's sigmoid).
+    ``profile``: a profile file or shipped name, ``"self"`` or ``"none"`` as ``mctrack kitti
+    --profile`` takes them; by default the detector's shipped profile, else one fitted without
+    labels on the run's detections (as ``mctrack kitti`` does). ``rescore`` maps (category, raw
+    score) to the tracker's score after score noise (default: that profile's map, when the
+    config asks for calibrated scores; else the converter's sigmoid).
     """
     from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
     from tracker.io.convert.kitti import convert_kitti
@@ -187,8 +193,18 @@ def run_robustness(
         )
     except FileNotFoundError as exc:
         raise InputError(str(exc)) from None
+    calibration_note = "none (scores as converted; the config asks for scores = 'as_given')"
     if config.scores is ScoreSource.PROFILE:  # thresholds in calibrated units
-        calibration = resolve_profile(detector, profile)
+        _, calibration, calibration_note = score_source(config, detector, profile)
+        if calibration is None and profile != NO_PROFILE:  # as `mctrack kitti` does
+            from tracker.eval.calibrate import fit_self_profile
+
+            calibration = fit_self_profile(detector, detections, classes)
+            log_self_profile(calibration, classes)
+            calibration_note = (
+                f"{'--profile self' if profile == SELF_PROFILE else f'none for {detector!r}'}: "
+                f"self-calibrated without labels (classes {', '.join(calibration.maps) or 'none'})"
+            )
         detections = {s: calibrate_frames(f, calibration) for s, f in detections.items()}
         if calibration is not None and rescore is None:
             rescore = calibration.scores
@@ -234,6 +250,7 @@ def run_robustness(
         "mode": config.mode.value,
         "seeds": list(seeds),
         "image_boxes": image_boxes,
+        "score_calibration": calibration_note,
         "custom_levels": list(custom_levels),
         "evaluator": EVALUATOR,
         "spread": "standard deviation over seeds (ddof=1; 0 for one run)",

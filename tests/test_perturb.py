@@ -326,6 +326,33 @@ def test_robustness_command_on_the_sample(
     assert clean["summary"]["car"]["HOTA_mean"] == round(plain["metrics"]["car"]["HOTA"], 3)
 
 
+def test_robustness_calibrates_a_detector_without_a_profile_as_kitti_does(
+    sample_kit: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """No shipped profile: fitted without labels on the run's detections, so the clean level
+    scores what `mctrack kitti` scores; --profile none keeps the uncalibrated fallback."""
+    from app.kitti import run_kitti
+    from app.robustness import run_robustness
+
+    kit = tmp_path / "kit"
+    (kit / "detections").mkdir(parents=True)
+    (kit / "training").symlink_to(sample_kit / "training")
+    (kit / "detections" / "mydet").symlink_to(sample_kit / "detections" / "pointrcnn")
+    common = {"kitti_root": kit, "seqs": ["0001"], "classes": ["car"], "detector": "mydet"}
+    with caplog.at_level("WARNING"):
+        report = run_robustness(**common, levels=["clean"], out=tmp_path / "r", quiet=True)
+    assert "self-calibration of 'mydet'" in caplog.text
+    assert report["score_calibration"].startswith("none for 'mydet': self-calibrated")
+    plain = run_kitti(**common, out=tmp_path / "k", quiet=True)
+    clean = report["levels"]["clean"]["runs"][0]["metrics"]["car"]["HOTA"]
+    assert clean == plain["metrics"]["car"]["HOTA"]
+    uncalibrated = run_robustness(
+        **common, levels=["clean"], profile="none", out=tmp_path / "n", quiet=True
+    )
+    assert uncalibrated["score_calibration"].startswith("none (--profile none)")
+    assert uncalibrated["levels"]["clean"]["runs"][0]["metrics"]["car"]["HOTA"] != clean
+
+
 def test_a_level_of_your_own(
     sample_kit: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

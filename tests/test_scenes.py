@@ -15,7 +15,8 @@ import pytest
 
 from app import scenes
 from app.cli import main
-from app.kitti import KittiSceneJob, run_kitti, score_source
+from app.common import score_source
+from app.kitti import KittiSceneJob, run_kitti
 from tracker.config import load_config
 from tracker.io.baseversion import write_baseversion
 from tracker.io.nuscenes_writer import (

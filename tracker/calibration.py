@@ -218,9 +218,10 @@ def resolve_profile(detector: str, path: str | Path | None = None) -> ScoreProfi
     profile = find_profile(detector)
     if profile is None:
         LOG.warning(
-            "NO SCORE CALIBRATION for detector %r: `mctrack kitti` calibrates its scores from the "
-            "detections themselves (no labels; elsewhere they are used as sigmoid(raw), or raw "
-            "where already in [0, 1]), so the tracker's thresholds may fit it less well. Fit a "
+            "NO SCORE CALIBRATION for detector %r: `mctrack kitti` and `mctrack robustness` "
+            "calibrate its scores from the detections themselves (no labels; elsewhere they are "
+            "used as sigmoid(raw), or raw where already in [0, 1]), so the tracker's thresholds "
+            "may fit it less well. Fit a "
             "profile on labelled sequences with `mctrack calibrate --detector %s --out "
             "PROFILE.toml` and pass --profile PROFILE.toml (shipped profiles: %s).",
             detector,
