@@ -6,7 +6,8 @@ For each fold, Optuna's TPE sampler searches the settings on the other folds' se
 detections, :mod:`tracker.eval.perturb`) with score profiles fitted on those sequences only;
 the best settings then track the held-out fold. The held-out result files of all folds are
 evaluated together: that is the cross-validated figure. A last search on all sequences (with
-the shipped profiles) gives the settings to ship and their in-sample figure.
+the shipped profiles; for a detector without one, a profile fitted on all the sequences) gives
+the settings to ship and their in-sample figure.
 
 Only that last search starts from the config's current values (its first trial). A fold's
 search does not: the current values came from earlier searches on all the labelled sequences,
@@ -495,12 +496,18 @@ def _run(args: argparse.Namespace) -> int:
     # calibrated frames per (detector, fold): profiles fitted on the fold's training sequences;
     # each noise level perturbs the calibrated frames (seeded per scene, so every trial and fold
     # sees the same noise)
+    profile_notes: dict[str, str] = {}
     for det in detectors:
         profiles = {}
         for k, test in enumerate(folds):
             train = [s for s in lengths if s not in test]
             profiles[f"fold{k}"] = fit_profile(det, {s: raw[det][s] for s in train}, gt[det], [cls])
-        profiles["all"] = find_profile(det)
+        # the in-sample search: the shipped profile (fitted on the 11 validation sequences), else
+        # one fitted on every tuning sequence, as each fold's is on its own
+        profiles["all"] = find_profile(det) or fit_profile(det, raw[det], gt[det], [cls])
+        profile_notes[det] = (
+            "shipped" if find_profile(det) else f"fitted on --seqs ({', '.join(lengths)})"
+        )
         specs = {level: NOISE_LEVELS[level] for level in levels}
         for key, profile in profiles.items():
             for level, frames in level_frames(raw[det], profile, specs, args.noise_seed).items():
@@ -519,6 +526,7 @@ def _run(args: argparse.Namespace) -> int:
         "sampler": f"optuna TPESampler, {n_startup} random startup trials", "space": space,
         "noise": {lv: dataclasses.asdict(NOISE_LEVELS[lv]) for lv in levels if lv != CLEAN},
         "noise_seed": noise_seed_value(args.noise_seed),
+        "profiles": {"folds": "fitted on each fold's own sequences", "in_sample": profile_notes},
     }  # fmt: skip
     start = time.perf_counter()
     try:

@@ -225,6 +225,35 @@ def test_fold_searches_do_not_start_from_the_shipped_settings(
         assert all(t["params"] != pytest.approx(shipped) for t in fold["trials"])
 
 
+def test_a_detector_without_a_profile_is_tuned_on_a_profile_fitted_on_the_sequences(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    """The in-sample search calibrates a new detector as `mctrack calibrate` would on the same
+    sequences (the folds fit their own), not on the uncalibrated fallback: its figure is the
+    one `mctrack kitti --profile` gives with that profile."""
+    import json
+
+    from app.kitti import run_kitti
+
+    kit = tmp_path / "kit"
+    (kit / "detections").mkdir(parents=True)
+    (kit / "training").symlink_to(kitti_root / "training")
+    (kit / "detections" / "mydet").symlink_to(kitti_root / "detections" / "virconv")
+    seqs = ["--seqs", "0006,0010"]
+    code = main(["tune", "--kitti-root", str(kit), "--class", "car", "--detectors", "mydet",
+                 *seqs, "--folds", "2", "--trials", "1", "--noise", "none", "--workers", "1",
+                 "--out", str(tmp_path / "t")])  # fmt: skip
+    assert code == 0
+    record = json.loads((tmp_path / "t" / "tune.json").read_text())
+    assert record["profiles"]["in_sample"] == {"mydet": "fitted on --seqs (0006, 0010)"}
+    profile = tmp_path / "mydet.toml"
+    calibrate = ["calibrate", "--kitti-root", str(kit), "--detector", "mydet", "--classes", "car"]
+    assert main([*calibrate, *seqs, "--out", str(profile)]) == 0
+    plain = run_kitti(kitti_root=kit, seqs=["0006", "0010"], classes=["car"], detector="mydet",
+                      profile=profile, out=tmp_path / "k", quiet=True)  # fmt: skip
+    assert record["final"]["in_sample"]["mydet"]["HOTA"] == plain["metrics"]["car"]["HOTA"]
+
+
 def test_a_base_with_a_fixed_r_searches_r_itself() -> None:
     """Without ``pose.r_scale`` in the base config the search covers the fixed r (the first
     trial is then the base itself); with it, the multiple."""
