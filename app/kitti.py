@@ -7,6 +7,7 @@ import json
 import logging
 import sys
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -173,9 +174,10 @@ class KittiSceneJob:
     eval_classes: tuple[str, ...] = ()
 
     def process(self, index: int, scene: str, frames: list[Frame] | None) -> SceneRecord:
-        from tracker.io.convert.kitti import convert_kitti
+        from tracker.io.convert.kitti import SkippedRows, convert_kitti
 
         t0 = time.perf_counter()
+        skipped = SkippedRows()
         detections, gt = convert_kitti(
             self.kitti_root,
             seqs=[scene],
@@ -184,6 +186,7 @@ class KittiSceneJob:
             classes=self.classes,
             with_gt=self.with_gt,
             image_detector=self.image_detector,
+            skipped=skipped,
         )
         convert_secs = time.perf_counter() - t0
         ((seq, frames),) = detections.items()  # the sequence's normalised name ("14" -> "0014")
@@ -208,7 +211,10 @@ class KittiSceneJob:
             write_secs += time.perf_counter() - t1
 
         label_file = path_in(self.label_dir, seq, ".txt")
-        info: dict[str, Any] = {"convert_seconds": convert_secs}
+        info: dict[str, Any] = {
+            "convert_seconds": convert_secs,
+            "skipped": {"unknown": dict(skipped.unknown), "not_tracked": dict(skipped.not_tracked)},
+        }
         evaluation: SequenceEvaluation | None = None
         if self.record is not None:
             # tracked once, with the recording's observers; the recording's evaluation of the
@@ -336,6 +342,23 @@ def run_kitti(
     )
     scenes.remove_parts(out)
 
+    skipped: dict[str, Counter[str]] = {"unknown": Counter(), "not_tracked": Counter()}
+    for r in ok:
+        for kind, counts in r.info["skipped"].items():
+            skipped[kind].update(counts)
+    fed = Counter()  # detections the tracker was given, per class
+    for r in ok:
+        for per_class in r.info["fates"]["per_fate_and_class"].values():
+            fed.update(per_class)
+    empty = [c for c in classes if not fed[c]]
+    if ok and empty:
+        LOG.warning(
+            "detector %r has no %s detections in these sequences: %s will score 0 (--classes "
+            "names the classes to track)",
+            detector,
+            " or ".join(empty),
+            " and ".join(empty),
+        )
     total_frames = sum(r.frames for r in ok)
     tracker_secs = sum(r.tracker_seconds for r in ok)
     summary: dict[str, Any] = {
@@ -361,7 +384,11 @@ def run_kitti(
         "evaluate_seconds": round(sum(r.info.get("evaluate_seconds", 0.0) for r in ok), 3),
         "peak_rss_mb": peak_rss_mb(),
         **scenes.summary_fields(records, parallel, wall_secs),
-        "detection_fates": combine_fates([r.info["fates"] for r in ok]),
+        "detection_fates": combine_fates([r.info["fates"] for r in ok], skipped["unknown"]),
+        "skipped_at_load": {
+            "unknown_classes": dict(sorted(skipped["unknown"].items())),
+            "classes_not_tracked": dict(sorted(skipped["not_tracked"].items())),
+        },
         "offline_removed_tracks": sum(r.info["offline_removed_tracks"] for r in ok),
         "config": config_to_dict(config),
     }
@@ -421,15 +448,21 @@ def self_calibrate(
     from tracker.io.convert.kitti import convert_kitti
 
     frames: dict[str, list[Frame]] = {}
-    for seq in seqs:
-        try:
-            detections, _ = convert_kitti(
-                kitti_root, seqs=[seq], detector=detector, poses=poses, classes=classes,
-                with_gt=False,
-            )  # fmt: skip
-        except InputError:
-            continue
-        frames.update(detections)
+    converter = logging.getLogger("tracker.io.convert.kitti")
+    level = converter.level
+    converter.setLevel(logging.ERROR)  # each scene's task reports the same files' skips
+    try:
+        for seq in seqs:
+            try:
+                detections, _ = convert_kitti(
+                    kitti_root, seqs=[seq], detector=detector, poses=poses, classes=classes,
+                    with_gt=False,
+                )  # fmt: skip
+            except InputError:
+                continue
+            frames.update(detections)
+    finally:
+        converter.setLevel(level)
     profile = fit_self_profile(detector, frames, classes)
     log_self_profile(profile, classes)
     return profile
@@ -466,6 +499,9 @@ def _print_summary(summary: dict[str, Any]) -> None:
         f"frames {summary['frames']}  tracker {summary['tracker_seconds']:.2f} s  "
         f"{summary['tracker_fps']} frames/s  peak RSS {summary['peak_rss_mb']} MB"
     )
+    for kind, counts in summary.get("skipped_at_load", {}).items():
+        if counts:
+            print(f"detection rows skipped at load, {kind.replace('_', ' ')}: {counts}")
     metrics = summary.get("metrics")
     if isinstance(metrics, dict):
         cols = ["HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "FP", "FN", "Frag"]

@@ -87,6 +87,48 @@ def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
     assert "Boat" in caplog.text  # an unknown class is counted and logged, never kept
 
 
+def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Unknown classes and known ones outside --classes are counted (summary.json and the
+    printout); a sequence or a class without a single detection is a warning, not a silent 0."""
+    from app.cli import main
+    from tracker.io.convert.kitti import SkippedRows
+
+    text = (
+        ROW.format(f=0, cls="Car", alpha=0.0, ry=0.0, score=7.0)
+        + ROW.format(f=1, cls="Tram", alpha=0.0, ry=0.0, score=3.0)
+        + ROW.format(f=2, cls="Boat", alpha=0.0, ry=0.0, score=3.0)
+        + ROW.format(f=3, cls="Boat", alpha=0.0, ry=0.0, score=3.0)
+    )
+    root = _kit(kitti_root, tmp_path, text)
+    skipped = SkippedRows()
+    common = {"seqs": ["0001"], "detector": "mydet", "poses": None, "with_gt": False}
+    dets, _ = convert_kitti(root, **common, classes=["car"], skipped=skipped)
+    assert skipped.unknown == {"Boat": 2} and skipped.not_tracked == {"tram": 1}
+    # without poses the labels give the length (447), not the last detection (frame 0)
+    assert len(dets["0001"]) == 447
+
+    with caplog.at_level(logging.WARNING):
+        dets, _ = convert_kitti(root, **common, classes=["cyclist"])
+    assert sum(len(f.boxes) for f in dets["0001"]) == 0
+    assert "0001: no cyclist detections in" in caplog.text
+
+    caplog.clear()
+    out = tmp_path / "run"
+    argv = ["kitti", "--kitti-root", str(root), "--detector", "mydet", "--poses", "none"]
+    with caplog.at_level(logging.WARNING):
+        assert main([*argv, "--seqs", "0001", "--classes", "car,cyclist", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["skipped_at_load"] == {
+        "unknown_classes": {"Boat": 2},
+        "classes_not_tracked": {"tram": 1},
+    }
+    fates = summary["detection_fates"]
+    assert fates["skipped_unknown_category_at_load"] == 2 and fates["input_boxes"] == 3
+    assert "detector 'mydet' has no cyclist detections" in caplog.text
+
+
 def test_tracking_format_malformed_line_names_file_and_line(
     kitti_root: Path, tmp_path: Path
 ) -> None:

@@ -44,7 +44,7 @@ import logging
 import struct
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Literal
 
@@ -122,6 +122,16 @@ OBJECT_COLUMNS = LABEL_COLUMNS[2:]  # KITTI object label + score, one file per f
 #: KITTI tracking result format as detections are distributed (CasTrack/PC3T, VirConvTrack,
 #: RobMOT, DeepFusionMOT): label_02 without the track id, plus a score; one file per sequence.
 TRACKING_DET_COLUMNS = ("frame", *OBJECT_COLUMNS)
+
+
+@dataclass
+class SkippedRows:
+    """Detection rows a conversion leaves out, by class name: classes no category knows (each
+    file's also logged as a warning) and known classes outside the ``classes`` tracked."""
+
+    unknown: Counter[str] = field(default_factory=Counter)
+    not_tracked: Counter[str] = field(default_factory=Counter)
+
 
 PoseFormat = Literal["camera", "lidar"]
 DetectionsLayout = Literal["auto", "ab3dmot", "kitti_tracking", "kitti_object"]
@@ -822,6 +832,7 @@ def convert_kitti(
     with_gt: bool = True,
     num_frames: int | Mapping[str, int] | None = None,
     image_detector: str | None = None,
+    skipped: SkippedRows | None = None,
 ) -> tuple[dict[str, list[Frame]], dict[str, list[Frame]] | None]:
     """Convert KITTI tracking detections (and labels) to world-frame Frames.
 
@@ -854,6 +865,9 @@ def convert_kitti(
         ``<split>/<Class>/<seq>.txt`` (:func:`read_image_detections`): detections take the boxes
         of their class that overlap their own 2D boxes (IoU >= 0.5, one-to-one, Hungarian:
         :func:`fuse_image_boxes`). A class without a file keeps its own boxes (logged).
+    skipped : when given, counts the detection rows left out (:class:`SkippedRows`). A sequence
+        without a single detection of ``classes`` is logged as a warning (an empty file, or a
+        detector without those classes).
 
     Returns
     -------
@@ -900,6 +914,7 @@ def convert_kitti(
             classes=class_names,
             with_gt=with_gt,
             num_frames=explicit,
+            skipped=skipped,
         )
         if image_detector is not None:
             det_frames = _with_image_boxes(
@@ -940,6 +955,7 @@ def _convert_sequence(
     classes: Sequence[str],
     with_gt: bool,
     num_frames: int | None,
+    skipped: SkippedRows | None = None,
 ) -> tuple[list[Frame], list[Frame] | None]:
     """Detections and (when labelled) ground truth of one sequence."""
     calib = read_kitti_calib(split_dir / "calib" / f"{seq}.txt")
@@ -957,15 +973,30 @@ def _convert_sequence(
     else:
         dets, det_frames = read_ab3dmot_detections(source), 0
         det_where = ", ".join(map(str, source))
-    dets = dets.select(np.isin(dets.category, [category_index(c) for c in classes]))
+    tracked = np.isin(dets.category, [category_index(c) for c in classes])
+    if skipped is not None and not tracked.all():
+        cats, counts = np.unique(dets.category[~tracked], return_counts=True)
+        for cat, count in zip(cats.tolist(), counts.tolist(), strict=True):
+            if cat >= 0:
+                skipped.not_tracked[CATEGORIES[cat]] += count
+        names, counts = np.unique(dets.type_name[dets.category < 0], return_counts=True)
+        skipped.unknown.update(dict(zip(map(str, names), counts.tolist(), strict=True)))
+    dets = dets.select(tracked)
+    if not len(dets):
+        LOG.warning("%s: no %s detections in %s", seq, " or ".join(classes), det_where)
     label_path = split_dir / "label_02" / f"{seq}.txt"
     labels = read_kitti_labels(label_path) if with_gt and label_path.is_file() else None
+    # without poses, the labels (read for their length alone if need be) say how long a
+    # sequence is whose last frames hold no detection: its evaluation needs every frame
+    length_labels = labels
+    if length_labels is None and pose_path is None and label_path.is_file():
+        length_labels = read_kitti_labels(label_path)
 
     # Length: explicit > pose lines > largest frame index seen + 1.
     seen = max(
         det_frames,
         int(dets.frame.max(initial=-1)) + 1,
-        int(labels.frame.max(initial=-1)) + 1 if labels is not None else 0,
+        int(length_labels.frame.max(initial=-1)) + 1 if length_labels is not None else 0,
     )
     if num_frames is not None:
         n = int(num_frames)
