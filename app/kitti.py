@@ -124,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
     (Path(args.out) / "summary.json").unlink(missing_ok=True)  # written last: marks completion
     root = args.kitti_root or default_kitti_root()
     seqs = args.seqs
+    if args.labels and not args.no_eval and not Path(args.labels).is_dir():
+        raise InputError(f"{args.labels}: --labels folder not found (or pass --no-eval)")
     poses = None if args.poses == "none" else args.poses
     check_kitti_root(root, seqs=seqs, poses=poses, detector=args.detector)
     check_image_detector(root, args.image_detector)
@@ -393,17 +395,25 @@ def run_kitti(
         "config": config_to_dict(config),
     }
     if evaluate:
-        missing = [r.scene for r in ok if not path_in(label_dir, r.scene, ".txt").is_file()]
+        scored = [r for r in ok if "evaluation" in r.info]
+        missing = [r.scene for r in ok if "evaluation" not in r.info]
         if summary["failed"]:
             summary["evaluation"] = f"skipped: sequences failed: {list(summary['failed'])}"
-        elif missing:
+        elif not scored:
             summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
+            LOG.warning("not evaluated: no labels for %s in %s", missing, label_dir)
         else:
+            if missing:  # the labelled ones are scored; the run says which are not
+                summary["evaluation"] = (
+                    f"scored on {[r.scene for r in scored]}; no labels for {missing} in {label_dir}"
+                )
+                LOG.warning("scored without %s: no labels for them in %s", missing, label_dir)
+            summary["evaluated_sequences"] = [r.scene for r in scored]
             # each task evaluated its own sequence (TrackEval, once); combined here as
             # TrackEval's Evaluator combines them
             per_seq: dict[str, dict[str, dict[str, float]]] = {}
             metrics = combine_sequences(
-                [r.info["evaluation"] for r in ok], job.eval_classes, per_sequence=per_seq
+                [r.info["evaluation"] for r in scored], job.eval_classes, per_sequence=per_seq
             )
             absent = absent_classes(metrics)
             summary["metrics"] = {c: m for c, m in metrics.items() if c not in absent}
@@ -497,7 +507,7 @@ def _motion(
 def _print_summary(summary: dict[str, Any]) -> None:
     print(
         f"frames {summary['frames']}  tracker {summary['tracker_seconds']:.2f} s  "
-        f"{summary['tracker_fps']} frames/s  peak RSS {summary['peak_rss_mb']} MB"
+        f"{summary['tracker_fps'] or '-'} frames/s  peak RSS {summary['peak_rss_mb']} MB"
     )
     for kind, counts in summary.get("skipped_at_load", {}).items():
         if counts:
@@ -510,7 +520,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
             print(f"{cls:<12}" + "".join(f"{m[c]:>9}" for c in cols))
         for cls, why in summary.get("metrics_absent", {}).items():
             print(f"{cls:<12}  absent: {why}")
-    elif "evaluation" in summary:
+    if "evaluation" in summary:
         print(summary["evaluation"])
     per_seq = summary.get("per_sequence")
     if per_seq:
