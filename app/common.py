@@ -55,7 +55,7 @@ def score_source(
     self-calibration the caller fits, as ``mctrack kitti`` and ``mctrack robustness`` do), and
     a note of what was used. Resolved once by the driver; each scene task applies it to its own
     frames."""
-    from tracker.calibration import resolve_profile
+    from tracker.calibration import resolve_profile, warn_other_detector
     from tracker.config import ScoreSource
 
     if config.scores is ScoreSource.AS_GIVEN:
@@ -65,6 +65,8 @@ def score_source(
     if profile == SELF_PROFILE:
         return True, None, "--profile self"
     found = resolve_profile(detector, profile)
+    if found is not None and profile is not None:  # a profile the user chose
+        warn_other_detector(found, detector)
     if found is None:
         return True, None, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
     return True, found, f"profile {profile or detector + ' (shipped)'}"

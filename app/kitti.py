@@ -27,7 +27,13 @@ from app.inputs import (
     sequence_list,
 )
 from app.scenes import SceneRecord
-from tracker.calibration import ScoreProfile, calibrate_frames, profile_toml
+from tracker.calibration import (
+    ScoreProfile,
+    calibrate_frames,
+    profile_toml,
+    raw_outside_profile,
+    warn_scores_outside,
+)
 from tracker.config import (
     BUILTIN,
     ImageBoxes,
@@ -192,8 +198,11 @@ class KittiSceneJob:
         )
         convert_secs = time.perf_counter() - t0
         ((seq, frames),) = detections.items()  # the sequence's normalised name ("14" -> "0014")
+        outside = None
         if self.calibrate:
             frames = calibrate_frames(frames, self.profile)
+            if self.profile is not None:
+                outside = raw_outside_profile(self.profile, frames)
         gt_frames = (gt or {}).get(seq)
         result_file = path_in(self.out / "data", seq, ".txt")
         write_secs = 0.0
@@ -216,6 +225,7 @@ class KittiSceneJob:
         info: dict[str, Any] = {
             "convert_seconds": convert_secs,
             "skipped": {"unknown": dict(skipped.unknown), "not_tracked": dict(skipped.not_tracked)},
+            "outside_profile": outside,
         }
         evaluation: SequenceEvaluation | None = None
         if self.record is not None:
@@ -348,6 +358,13 @@ def run_kitti(
     for r in ok:
         for kind, counts in r.info["skipped"].items():
             skipped[kind].update(counts)
+    if found is not None:  # scores beyond the profile's knots, over the whole run
+        outside: dict[str, list[int]] = {}
+        for r in ok:
+            for name, (n_out, n) in (r.info["outside_profile"] or {}).items():
+                total = outside.setdefault(name, [0, 0])
+                total[0], total[1] = total[0] + n_out, total[1] + n
+        warn_scores_outside(found, detector, outside)
     fed = Counter()  # detections the tracker was given, per class
     for r in ok:
         for per_class in r.info["fates"]["per_fate_and_class"].values():

@@ -32,7 +32,7 @@ from app.inputs import (
     default_kitti_root,
     sequence_list,
 )
-from tracker.calibration import calibrate_frames
+from tracker.calibration import calibrate_frames, raw_outside_profile, warn_scores_outside
 from tracker.config import ScoreSource, load_config
 from tracker.errors import InputError
 from tracker.eval.perturb import (
@@ -206,6 +206,9 @@ def run_robustness(
                 f"self-calibrated without labels (classes {', '.join(calibration.maps) or 'none'})"
             )
         detections = {s: calibrate_frames(f, calibration) for s, f in detections.items()}
+        if calibration is not None:
+            every = [frame for frames in detections.values() for frame in frames]
+            warn_scores_outside(calibration, detector, raw_outside_profile(calibration, every))
         if calibration is not None and rescore is None:
             rescore = calibration.scores
     lengths = {seq: len(frames) for seq, frames in detections.items()}

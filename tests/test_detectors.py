@@ -129,6 +129,37 @@ def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
     assert "detector 'mydet' has no cyclist detections" in caplog.text
 
 
+def test_another_detectors_profile_is_a_warning(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A profile fitted for another detector: its name, and scores beyond its knots (where the
+    map is flat) say so; the detector's own profile says nothing."""
+    from app.kitti import run_kitti
+
+    common = {"kitti_root": kitti_root, "seqs": ["0006"], "classes": ["car"], "quiet": True}
+    with caplog.at_level(logging.WARNING):
+        run_kitti(**common, detector="pointrcnn", profile="second_iou", out=tmp_path / "a")
+    assert "fitted for detector 'second_iou', used for 'pointrcnn'" in caplog.text
+    assert "of the car scores of detector 'pointrcnn' lie outside" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        run_kitti(**common, detector="pointrcnn", profile="pointrcnn", out=tmp_path / "b")
+    assert "profile" not in caplog.text
+
+
+def test_raw_scores_outside_a_profiles_knots_are_counted() -> None:
+    from tracker.calibration import raw_outside_profile
+
+    profile = _profile()  # car knots -1 .. 2.5
+    boxes = Boxes.create(
+        xyz=np.zeros((4, 3)), lwh=np.ones((4, 3)), yaw=np.zeros(4),
+        category=np.array([CAR, CAR, CAR, category_index("pedestrian")]),
+        score_raw=np.array([-3.0, 0.0, np.nan, 9.0]),
+    )  # fmt: skip
+    frame = Frame("s", 0, 0.0, boxes)
+    assert raw_outside_profile(profile, [frame]) == {"car": [1, 2]}
+
+
 def test_tracking_format_malformed_line_names_file_and_line(
     kitti_root: Path, tmp_path: Path
 ) -> None:
