@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 from pathlib import Path
 
 from app.inputs import (
@@ -17,6 +18,8 @@ from tracker.calibration import profile_toml
 from tracker.errors import InputError
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
+
+LOG = logging.getLogger("mctrack")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -59,6 +62,17 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(Path(args.out), [profile_toml(profile)])
     for name, q in profile.quality.items():
         print(f"{args.detector} {name}: {json.dumps(q)}")
+        held, plain = q["held_out_by_sequence"]["log_loss"], q["uncalibrated"]["log_loss"]
+        if held > plain:  # the fit does not carry over from sequence to sequence
+            LOG.warning(
+                "%s %s: fitted on some sequences and scored on the others, the profile predicts "
+                "worse than the uncalibrated scores (log loss %.4f against %.4f): fit it on more "
+                "labelled sequences (--seqs), or run without it",
+                args.detector,
+                name,
+                held,
+                plain,
+            )
     missing = [c for c in classes if c not in profile.maps]
     if missing:
         print(f"no fit for {missing} (too few detections or labels): they keep the fallback")

@@ -147,6 +147,21 @@ def test_another_detectors_profile_is_a_warning(
     assert "profile" not in caplog.text
 
 
+def test_calibrate_warns_when_its_fit_does_not_carry_over_between_sequences(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Two sequences are too few for VirConv: fitted on one and scored on the other, the map
+    predicts worse than sigmoid(raw); the profile is written and the run says so."""
+    from app.cli import main
+
+    out = tmp_path / "p.toml"
+    argv = ["calibrate", "--kitti-root", str(kitti_root), "--detector", "virconv", "--classes"]
+    with caplog.at_level(logging.WARNING):
+        assert main([*argv, "car", "--seqs", "0001,0006", "--out", str(out)]) == 0
+    assert out.is_file()
+    assert "virconv car: fitted on some sequences and scored on the others" in caplog.text
+
+
 def test_raw_scores_outside_a_profiles_knots_are_counted() -> None:
     from tracker.calibration import raw_outside_profile
 

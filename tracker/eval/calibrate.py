@@ -242,10 +242,14 @@ def fit_profile(
             "held_out_by_sequence": _quality(held_out, label),
             "uncalibrated": _quality(fallback_scores(raw), label),
             "range_term": (
-                f"kept: held-out log loss {gain:+.4f} nats lower than without"
+                f"kept: it lowers the held-out log loss by {gain:.4f} nats"
                 if use_range
                 else "not kept: "
-                + ("not fitted" if term is None else f"held-out log loss gain {gain:+.4f} nats")
+                + (
+                    "not fitted"
+                    if term is None
+                    else f"it changes the held-out log loss by {-gain:+.4f} nats"
+                )
             ),
         }
         maps[name] = score_map
