@@ -90,7 +90,12 @@ def check_kitti_root(
         )
     for seq in seqs:
         if not (calib / f"{seq}.txt").is_file():
-            raise InputError(f"{calib / f'{seq}.txt'}: no calibration for sequence {seq}")
+            here = sorted(p.stem for p in calib.glob("*.txt"))
+            span = f"{here[0]}..{here[-1]}" if len(here) > 3 else ", ".join(here) or "none"
+            raise InputError(
+                f"{calib / f'{seq}.txt'}: no calibration for sequence {seq} (--seqs; this "
+                f"{split} split has {len(here)}: {span})"
+            )
     if detector is not None:
         det_dir = root / "detections" / detector / split
         if not det_dir.is_dir():

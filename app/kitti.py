@@ -107,7 +107,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="score calibration profile (TOML from `mctrack calibrate`, or a shipped profile's "
         "name); default: the one shipped "
         "for --detector, else 'self'. 'self': fitted without labels on the run's own detections "
-        "(self_profile.toml in --out); 'none': sigmoid(raw) (configs with scores = 'as_given' "
+        "(self_profile.toml in --out); 'none': sigmoid(raw), or the raw score where every score is "
+        "already in [0, 1] (configs with scores = 'as_given' "
         "use the scores as converted)",
     )
     parser.add_argument("--no-eval", action="store_true", help="skip the evaluation")
@@ -318,6 +319,13 @@ def run_kitti(
         # the image detector's boxes are what the run is for: written where a track has one
         config = load_config(config_name, overrides={**overrides, "image_boxes": "auto"})
     label_dir = labels or kitti_root / "training" / "label_02"
+    unscored = [c for c in classes if c not in SUPPORTED_CLASSES]
+    if evaluate and unscored:
+        LOG.warning(
+            "%s: tracked, not scored (the KITTI protocol scores %s)",
+            ", ".join(unscored),
+            ", ".join(SUPPORTED_CLASSES),
+        )
     calibrate, found, calibration = score_source(config, detector, profile)
     self_profile = None
     if calibrate and found is None and profile != NO_PROFILE:
@@ -372,11 +380,10 @@ def run_kitti(
     empty = [c for c in classes if not fed[c]]
     if ok and empty:
         LOG.warning(
-            "detector %r has no %s detections in these sequences: %s will score 0 (--classes "
-            "names the classes to track)",
+            "detector %r has no %s detections in these sequences: nothing of that class is "
+            "tracked (--classes names the classes to track)",
             detector,
             " or ".join(empty),
-            " and ".join(empty),
         )
     total_frames = sum(r.frames for r in ok)
     tracker_secs = sum(r.tracker_seconds for r in ok)

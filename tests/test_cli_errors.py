@@ -204,6 +204,14 @@ def test_a_bad_sequence_or_class_list_is_a_usage_error(
     assert not (tmp_path / "o").exists()
 
 
+def test_a_sequence_the_kit_lacks_names_the_ones_it_has(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "01O", "--out", str(tmp_path)]
+    code, _, err = _run(argv, capsys)
+    _assert_one_line_error(code, err, "kitti", "01O.txt: no calibration", "has 1: 0001)")
+
+
 def test_sequence_and_class_lists_are_normalised() -> None:
     from app.inputs import class_list, sequence_list
 

@@ -118,7 +118,9 @@ def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
     out = tmp_path / "run"
     argv = ["kitti", "--kitti-root", str(root), "--detector", "mydet", "--poses", "none"]
     with caplog.at_level(logging.WARNING):
-        assert main([*argv, "--seqs", "0001", "--classes", "car,cyclist", "--out", str(out)]) == 0
+        assert (
+            main([*argv, "--seqs", "0001", "--classes", "car,cyclist,van", "--out", str(out)]) == 0
+        )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["skipped_at_load"] == {
         "unknown_classes": {"Boat": 2},
@@ -126,7 +128,8 @@ def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
     }
     fates = summary["detection_fates"]
     assert fates["skipped_unknown_category_at_load"] == 2 and fates["input_boxes"] == 3
-    assert "detector 'mydet' has no cyclist detections" in caplog.text
+    assert "detector 'mydet' has no cyclist or van detections" in caplog.text
+    assert "van: tracked, not scored" in caplog.text
 
 
 def test_another_detectors_profile_is_a_warning(
