@@ -63,7 +63,7 @@ def run(args: argparse.Namespace) -> int:
     for name, q in profile.quality.items():
         print(f"{args.detector} {name}: {json.dumps(q)}")
         held, plain = q["held_out_by_sequence"]["log_loss"], q["uncalibrated"]["log_loss"]
-        if held > plain:  # the fit does not carry over from sequence to sequence
+        if len(detections) > 1 and held > plain:  # the fit does not carry over between sequences
             LOG.warning(
                 "%s %s: fitted on some sequences and scored on the others, the profile predicts "
                 "worse than the uncalibrated scores (log loss %.4f against %.4f): fit it on more "

@@ -91,7 +91,7 @@ def check_kitti_root(
     for seq in seqs:
         if not (calib / f"{seq}.txt").is_file():
             here = sorted(p.stem for p in calib.glob("*.txt"))
-            span = f"{here[0]}..{here[-1]}" if len(here) > 3 else ", ".join(here) or "none"
+            span = f"{here[0]}, ..., {here[-1]}" if len(here) > 12 else ", ".join(here) or "none"
             raise InputError(
                 f"{calib / f'{seq}.txt'}: no calibration for sequence {seq} (--seqs; this "
                 f"{split} split has {len(here)}: {span})"
@@ -154,7 +154,9 @@ def class_list(text: str) -> list[str]:
     names = [p.strip() for p in text.split(",") if p.strip()]
     if not names:
         raise argparse.ArgumentTypeError(f"expected comma-separated classes, got {text!r}")
-    unknown = [n for n in names if CATEGORIES[category_index(n)] not in known]
+    unknown = [
+        n for n in names if category_index(n) < 0 or CATEGORIES[category_index(n)] not in known
+    ]
     if unknown:
         raise argparse.ArgumentTypeError(
             f"unknown class {unknown[0]!r} (known: {', '.join(known)})"

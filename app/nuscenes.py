@@ -272,7 +272,7 @@ def _motion(
 def _print_summary(summary: dict[str, Any]) -> None:
     print(
         f"{len(summary['scenes'])} scenes, {summary['frames']} frames, tracker "
-        f"{summary['tracker_seconds']:.2f} s ({summary['tracker_fps']} frames/s), "
+        f"{summary['tracker_seconds']:.2f} s ({summary['tracker_fps'] or '-'} frames/s), "
         f"{summary['boxes_written']} boxes -> {summary['results']}"
     )
     metrics = summary.get("metrics")

@@ -107,7 +107,8 @@ def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
     classes = [c for c in summary["classes"] if c in ("car", "pedestrian", "cyclist")]
     events: list[Event] = []
     recordings: dict[str, Path] = {}
-    for seq in summary["sequences"]:
+    # a run over labelled and unlabelled sequences scored the labelled ones (app.kitti)
+    for seq in summary.get("evaluated_sequences", summary["sequences"]):
         if seq in (summary.get("failed") or {}):
             continue
         result = path_in(folder / "data", seq, ".txt")

@@ -67,7 +67,8 @@ def run(args: argparse.Namespace) -> int:
     )
     print(
         f"{len(summary['segments'])} segments, {summary['frames']} frames, "
-        f"{summary['tracker_fps']} frames/s -> {summary['results']} {summary['boxes_written']}"
+        f"{summary['tracker_fps'] or '-'} frames/s -> {summary['results']} "
+        f"{summary['boxes_written']}"
     )
     return scenes.print_failures("waymo", summary["failed"])
 

@@ -100,6 +100,7 @@ def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
         + ROW.format(f=1, cls="Tram", alpha=0.0, ry=0.0, score=3.0)
         + ROW.format(f=2, cls="Boat", alpha=0.0, ry=0.0, score=3.0)
         + ROW.format(f=3, cls="Boat", alpha=0.0, ry=0.0, score=3.0)
+        + ROW.format(f=3, cls="DontCare", alpha=0.0, ry=0.0, score=3.0)  # an ignore region
     )
     root = _kit(kitti_root, tmp_path, text)
     skipped = SkippedRows()
@@ -163,6 +164,10 @@ def test_calibrate_warns_when_its_fit_does_not_carry_over_between_sequences(
         assert main([*argv, "car", "--seqs", "0001,0006", "--out", str(out)]) == 0
     assert out.is_file()
     assert "virconv car: fitted on some sequences and scored on the others" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # one sequence: nothing was held out
+        assert main([*argv, "car", "--seqs", "0006", "--out", str(out)]) == 0
+    assert "scored on the others" not in caplog.text
 
 
 def test_raw_scores_outside_a_profiles_knots_are_counted() -> None:

@@ -286,16 +286,25 @@ def test_unlabelled_sequences_are_named_and_left_out_of_the_score(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: Any
 ) -> None:
     """A run over labelled and unlabelled sequences scores the labelled ones (as a run of those
-    alone does) and says which were left out; a --labels folder that is not there is an error."""
-    common = {"kitti_root": kitti_root, "classes": ["car"], "detector": "virconv", "quiet": True}
+    alone does), says which were left out, and compares as such; a --labels folder that is not
+    there is an error."""
+    kit = tmp_path / "kit"  # the kit with the labels of 0006 only
+    (kit / "training" / "label_02").mkdir(parents=True)
+    for sub in ("calib", "pose_orbslam3"):
+        (kit / "training" / sub).symlink_to(kitti_root / "training" / sub)
+    shutil.copy(kitti_root / "training" / "label_02" / "0006.txt", kit / "training" / "label_02")
+    (kit / "detections").symlink_to(kitti_root / "detections")
+    common = {"kitti_root": kit, "classes": ["car"], "detector": "virconv", "quiet": True}
     with caplog.at_level("WARNING"):
-        both = run_kitti(**common, seqs=["0006", "0002"], out=tmp_path / "both")
+        both = run_kitti(**common, seqs=["0006", "0010"], out=tmp_path / "both")
     alone = run_kitti(**common, seqs=["0006"], out=tmp_path / "alone")
     assert both["metrics"] == alone["metrics"] and both["evaluated_sequences"] == ["0006"]
-    assert "no labels for ['0002']" in both["evaluation"] and "['0002']" in caplog.text
+    assert "no labels for ['0010']" in both["evaluation"] and "['0010']" in caplog.text
     assert alone["evaluated_sequences"] == ["0006"] and "evaluation" not in alone
+    compare = ["compare", str(tmp_path / "alone"), str(tmp_path / "both")]
+    assert main([*compare, "--out", str(tmp_path / "cmp")]) == 0
 
-    argv = ["kitti", "--kitti-root", str(kitti_root), "--seqs", "0006", "--classes", "car"]
+    argv = ["kitti", "--kitti-root", str(kit), "--seqs", "0006", "--classes", "car"]
     code = main([*argv, "--labels", str(tmp_path / "nope"), "--out", str(tmp_path / "x")])
     err = capsys.readouterr().err
     assert code == 2 and f"{tmp_path / 'nope'}: --labels folder not found" in err

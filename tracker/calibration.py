@@ -253,7 +253,8 @@ def warn_scores_outside(
             knots = profile.maps[name].raw
             LOG.warning(
                 "%.0f%% of the %s scores of detector %r lie outside the profile's fitted range "
-                "[%.3g, %.3g] (flat there): is it this detector's profile?",
+                "[%.3g, %.3g], where its map is flat: a profile fitted on few sequences, or "
+                "another detector's? (`mctrack calibrate` on more labelled sequences)",
                 100.0 * n_out / n,
                 name,
                 detector,

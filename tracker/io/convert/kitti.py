@@ -979,7 +979,8 @@ def _convert_sequence(
         for cat, count in zip(cats.tolist(), counts.tolist(), strict=True):
             if cat >= 0:
                 skipped.not_tracked[CATEGORIES[cat]] += count
-        names, counts = np.unique(dets.type_name[dets.category < 0], return_counts=True)
+        unknown = (dets.category < 0) & (dets.type_name != DONTCARE)
+        names, counts = np.unique(dets.type_name[unknown], return_counts=True)
         skipped.unknown.update(dict(zip(map(str, names), counts.tolist(), strict=True)))
     dets = dets.select(tracked)
     if not len(dets):
@@ -990,7 +991,10 @@ def _convert_sequence(
     # sequence is whose last frames hold no detection: its evaluation needs every frame
     length_labels = labels
     if length_labels is None and pose_path is None and label_path.is_file():
-        length_labels = read_kitti_labels(label_path)
+        try:
+            length_labels = read_kitti_labels(label_path)
+        except InputError as err:  # (not evaluated in this run: the length is a courtesy)
+            LOG.warning("%s: length from the detections alone (%s)", seq, err)
 
     # Length: explicit > pose lines > largest frame index seen + 1.
     seen = max(
