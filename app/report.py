@@ -399,11 +399,17 @@ def _metrics_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] | 
         why = run_a.summary.get("evaluation", "the run was not evaluated")
         return f'<p class="note">No metrics: {h.esc(why)}.</p>'
     keys = [k for k in CLASS_METRICS if any(k in m for m in ma.values())]
+    # a run over labelled and unlabelled sequences is scored on the labelled ones (app.kitti)
+    partial = "".join(
+        f'<p class="note">{h.esc(name)}: {h.esc(run.summary["evaluation"])}.</p>'
+        for name, run in (("A", run_a), ("B", run_b))
+        if run is not None and "evaluated_sequences" in run.summary and "evaluation" in run.summary
+    )
     rows = []
     if result is None:
         for cls, m in ma.items():
             rows.append([h.td(cls), *[h.td(m.get(k), num=True) for k in keys]])
-        return h.table(["class", *keys], rows, numeric=[False] + [True] * len(keys))
+        return partial + h.table(["class", *keys], rows, numeric=[False] + [True] * len(keys))
     # one row per (class, metric): narrow at any number of metrics, sortable by the change
     for cls, m in result["metrics"].items():
         for k in keys:
@@ -422,8 +428,12 @@ def _metrics_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] | 
         'Δ = B − A, <span class="better">green</span> is better, '
         '<span class="worse">red</span> worse.</p>'
     )
-    return note + h.table(
-        ["class", "metric", "A", "B", "Δ"], rows, numeric=[False, False, True, True, True]
+    return (
+        note
+        + partial
+        + h.table(
+            ["class", "metric", "A", "B", "Δ"], rows, numeric=[False, False, True, True, True]
+        )
     )
 
 

@@ -292,7 +292,8 @@ def test_unlabelled_sequences_are_named_and_left_out_of_the_score(
     (kit / "training" / "label_02").mkdir(parents=True)
     for sub in ("calib", "pose_orbslam3"):
         (kit / "training" / sub).symlink_to(kitti_root / "training" / sub)
-    shutil.copy(kitti_root / "training" / "label_02" / "0006.txt", kit / "training" / "label_02")
+    label = kitti_root / "training" / "label_02" / "0006.txt"  # a linked file is read as any
+    (kit / "training" / "label_02" / "0006.txt").symlink_to(label)
     (kit / "detections").symlink_to(kitti_root / "detections")
     common = {"kitti_root": kit, "classes": ["car"], "detector": "virconv", "quiet": True}
     with caplog.at_level("WARNING"):
@@ -303,6 +304,9 @@ def test_unlabelled_sequences_are_named_and_left_out_of_the_score(
     assert alone["evaluated_sequences"] == ["0006"] and "evaluation" not in alone
     compare = ["compare", str(tmp_path / "alone"), str(tmp_path / "both")]
     assert main([*compare, "--out", str(tmp_path / "cmp")]) == 0
+    assert main(["report", str(tmp_path / "both"), "--out", str(tmp_path / "rep")]) == 0
+    page = (tmp_path / "rep" / "index.html").read_text()
+    assert "A: scored on [&#x27;0006&#x27;]; no labels for [&#x27;0010&#x27;]" in page
 
     argv = ["kitti", "--kitti-root", str(kit), "--seqs", "0006", "--classes", "car"]
     code = main([*argv, "--labels", str(tmp_path / "nope"), "--out", str(tmp_path / "x")])

@@ -482,3 +482,14 @@ def test_view_save_renames_a_complete_recording(tmp_path: Path) -> None:
     assert main(args) == 0
     assert [p.name for p in path.parent.iterdir()] == ["x.rrd"]  # no temporary file left
     assert path.stat().st_size > 10_000
+
+
+def test_path_in_takes_a_linked_file_and_refuses_a_name_that_leaves(tmp_path: Path) -> None:
+    from tracker.io.fileio import path_in
+
+    (tmp_path / "elsewhere.txt").write_text("x")
+    (tmp_path / "labels").mkdir()
+    (tmp_path / "labels" / "0006.txt").symlink_to(tmp_path / "elsewhere.txt")
+    assert path_in(tmp_path / "labels", "0006", ".txt").read_text() == "x"
+    for name in ("../0006", "..", "a/b"):
+        assert path_in(tmp_path / "labels", name, ".txt").parent == tmp_path / "labels"

@@ -299,11 +299,14 @@ def name_is_escaped(name: str) -> bool:
 
 
 def path_in(folder: str | Path, name: str, suffix: str = "") -> Path:
-    """``folder / (safe_filename(name) + suffix)``, checked to stay inside ``folder``."""
+    """``folder / (safe_filename(name) + suffix)``, checked to stay inside ``folder``. The
+    file itself may be a symbolic link (a kit of linked label files): the name is checked, not
+    where a link points."""
     folder = Path(folder)
     path = folder / (safe_filename(name) + suffix)
-    if path.resolve().parent != folder.resolve():  # cannot happen after escaping: a guard
-        raise InputError(f"name {name!r}: would leave the output folder {folder}")
+    inside = folder.resolve() / path.name
+    if path.name in ("", ".", "..") or inside.parent != folder.resolve():  # a guard
+        raise InputError(f"name {name!r}: would leave the folder {folder}")
     return path
 
 
