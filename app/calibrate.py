@@ -62,8 +62,10 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(Path(args.out), [profile_toml(profile)])
     for name, q in profile.quality.items():
         print(f"{args.detector} {name}: {json.dumps(q)}")
-        held, plain = q["held_out_by_sequence"]["log_loss"], q["uncalibrated"]["log_loss"]
-        if len(detections) > 1 and held > plain:  # the fit does not carry over between sequences
+        held_out = q["held_out_by_sequence"]
+        held = held_out["log_loss"] if isinstance(held_out, dict) else None
+        plain = q["uncalibrated"]["log_loss"]
+        if held is not None and held > plain:  # the fit does not carry over between sequences
             LOG.warning(
                 "%s %s: fitted on some sequences and scored on the others, the profile predicts "
                 "worse than the uncalibrated scores (log loss %.4f against %.4f): fit it on more "

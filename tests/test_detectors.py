@@ -168,6 +168,8 @@ def test_calibrate_warns_when_its_fit_does_not_carry_over_between_sequences(
     with caplog.at_level(logging.WARNING):  # one sequence: nothing was held out
         assert main([*argv, "car", "--seqs", "0006", "--out", str(out)]) == 0
     assert "scored on the others" not in caplog.text
+    held_out = load_profile(out).quality["car"]["held_out_by_sequence"]
+    assert isinstance(held_out, str) and held_out.startswith("not measured")
 
 
 def test_raw_scores_outside_a_profiles_knots_are_counted() -> None:

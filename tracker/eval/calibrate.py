@@ -219,10 +219,12 @@ def fit_profile(
         term = fit_range_term(score_map(raw), range_m, label)
         # held out by sequence: each sequence scored by maps fitted on the others
         held_iso, held_range = score_map(raw), np.full(len(raw), np.nan)
+        held = np.zeros(len(raw), dtype=bool)  # the rows a map fitted without them scored
         for scene in np.unique(part.scene):
             test = part.scene == scene
             train = ~test
             if train.sum() >= 20 and label[train].min() != label[train].max():
+                held[test] = True
                 iso = fit_map(raw[train], label[train])
                 held_iso[test] = iso(raw[test])
                 if term is not None:
@@ -239,7 +241,12 @@ def fit_profile(
             "detections": len(raw),
             "true_positives": int(label.sum()),
             "in_sample": _quality(score_map(raw, range_m), label),
-            "held_out_by_sequence": _quality(held_out, label),
+            "held_out_by_sequence": (
+                _quality(held_out[held], label[held])
+                if held.any()
+                else "not measured: no sequence could be held out (one sequence, or too few "
+                "boxes in the others)"
+            ),
             "uncalibrated": _quality(fallback_scores(raw), label),
             "range_term": (
                 f"kept: it lowers the held-out log loss by {gain:.4f} nats"
