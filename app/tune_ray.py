@@ -270,6 +270,18 @@ def _trial_dirname(trial: Any) -> str:
     return f"trial_{trial.trial_id}"  # not Ray's default, which lists every setting
 
 
+def fitted_profile_option(detectors: str) -> dict[str, list[str]]:
+    """The detectors whose in-sample search calibrates with a profile fitted on the tuning
+    sequences (no shipped profile; before December 2026 it used their uncalibrated scores), as
+    a run.json option: a search begun the old way is then not resumed the new way. Empty when
+    every detector has a shipped profile, so the folders of such runs still resume."""
+    from tracker.calibration import find_profile
+
+    names = [d.strip() for d in detectors.split(",") if d.strip()]
+    fitted = [d for d in names if find_profile(d) is None]
+    return {"in_sample_profile_fitted": fitted} if fitted else {}
+
+
 class RaySearch:
     """Runs each search of a tune as a Ray Tune experiment under ``OUT/ray_tune``."""
 
@@ -317,6 +329,7 @@ class RaySearch:
             "max_concurrent": args.max_concurrent,
             "kitti_root": str(root.resolve()),
         }
+        options |= fitted_profile_option(args.detectors)
         if args.search:  # (only when given: folders of runs without it still resume)
             options["search"] = sorted(
                 f"{key}={kind}:{low:g}:{high:g}"

@@ -422,3 +422,13 @@ def test_a_resume_with_other_search_settings_is_refused(tmp_path: Path) -> None:
     tune_ray.check_options(run_json, {"class": "car"})
     with pytest.raises(tune_ray.InputError, match="search None -> "):
         tune_ray.check_options(run_json, {"class": "car", "search": ["bev.buffer=float:0.1:0.6"]})
+
+
+def test_a_detector_without_a_shipped_profile_is_recorded_in_run_json() -> None:
+    """A search of such a detector begun before its in-sample profile was fitted is not resumed
+    after; the shipped detectors' run.json stays as it was (their folders still resume)."""
+    tune_ray = pytest.importorskip("app.tune_ray")
+    assert tune_ray.fitted_profile_option("pointrcnn,virconv, second_iou") == {}
+    assert tune_ray.fitted_profile_option("pointrcnn,mydet") == {
+        "in_sample_profile_fitted": ["mydet"]
+    }
