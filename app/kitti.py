@@ -196,6 +196,7 @@ class KittiSceneJob:
             with_gt=self.with_gt,
             image_detector=self.image_detector,
             skipped=skipped,
+            label_dir=self.label_dir,
         )
         convert_secs = time.perf_counter() - t0
         ((seq, frames),) = detections.items()  # the sequence's normalised name ("14" -> "0014")

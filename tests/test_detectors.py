@@ -133,6 +133,24 @@ def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
     assert "van: tracked, not scored" in caplog.text
 
 
+def test_labels_of_your_own_give_a_poseless_sequence_its_length(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    """--poses none and --labels DIR: the labels there say how long a sequence whose last
+    frames hold no detection is (else TrackEval refuses the labels' later frames)."""
+    from app.cli import main
+
+    root = _kit(kitti_root, tmp_path, ROW.format(f=0, cls="Car", alpha=0.0, ry=0.0, score=7.0))
+    labels = tmp_path / "my_labels"
+    (root / "training" / "label_02").rename(labels)
+    argv = ["kitti", "--kitti-root", str(root), "--detector", "mydet", "--poses", "none"]
+    out = tmp_path / "run"
+    assert main([*argv, "--seqs", "0001", "--classes", "car", "--labels", str(labels),
+                 "--out", str(out)]) == 0  # fmt: skip
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 447 and summary["evaluated_sequences"] == ["0001"]
+
+
 def test_another_detectors_profile_is_a_warning(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -833,6 +833,7 @@ def convert_kitti(
     num_frames: int | Mapping[str, int] | None = None,
     image_detector: str | None = None,
     skipped: SkippedRows | None = None,
+    label_dir: str | Path | None = None,
 ) -> tuple[dict[str, list[Frame]], dict[str, list[Frame]] | None]:
     """Convert KITTI tracking detections (and labels) to world-frame Frames.
 
@@ -857,7 +858,7 @@ def convert_kitti(
     classes : detection categories to keep. Ground truth keeps every known class (van,
         person_sitting, tram, misc, truck are evaluation distractors); DontCare rows become
         ``Frame.ignore_xyxy_image``.
-    with_gt : also convert ``<split>/label_02/<seq>.txt`` where it exists.
+    with_gt : also convert ``<split>/label_02/<seq>.txt`` (or ``label_dir``'s) where it exists.
     num_frames : sequence length override (one int for all, or per sequence). Default: the
         number of pose lines, else the largest frame index in labels/detections + 1. Rows beyond
         an explicit length are dropped (logged).
@@ -868,6 +869,8 @@ def convert_kitti(
     skipped : when given, counts the detection rows left out (:class:`SkippedRows`). A sequence
         without a single detection of ``classes`` is logged as a warning (an empty file, or a
         detector without those classes).
+    label_dir : the folder of the ``<seq>.txt`` labels (default ``<split>/label_02``): the ground
+        truth, and without poses the sequences' lengths.
 
     Returns
     -------
@@ -892,6 +895,7 @@ def convert_kitti(
             raise FileNotFoundError(f"no calib files in {split_dir / 'calib'}")
     else:
         seq_list = [_normalise_seq(s) for s in seqs]
+    labels_root = Path(label_dir) if label_dir is not None else split_dir / "label_02"
     det_root = Path(detections_dir) if detections_dir is not None else None
     det_root = det_root or kitti_root / "detections" / detector / split
     pose_dir: Path | None = None
@@ -915,6 +919,7 @@ def convert_kitti(
             with_gt=with_gt,
             num_frames=explicit,
             skipped=skipped,
+            label_path=labels_root / f"{seq}.txt",
         )
         if image_detector is not None:
             det_frames = _with_image_boxes(
@@ -924,7 +929,7 @@ def convert_kitti(
         if gt_frames is not None:
             gt[seq] = gt_frames
         elif with_gt:
-            LOG.info("%s: no labels at %s", seq, split_dir / "label_02" / f"{seq}.txt")
+            LOG.info("%s: no labels at %s", seq, labels_root / f"{seq}.txt")
     return detections, (gt if with_gt and gt else None)
 
 
@@ -956,6 +961,7 @@ def _convert_sequence(
     with_gt: bool,
     num_frames: int | None,
     skipped: SkippedRows | None = None,
+    label_path: Path | None = None,
 ) -> tuple[list[Frame], list[Frame] | None]:
     """Detections and (when labelled) ground truth of one sequence."""
     calib = read_kitti_calib(split_dir / "calib" / f"{seq}.txt")
@@ -985,7 +991,7 @@ def _convert_sequence(
     dets = dets.select(tracked)
     if not len(dets):
         LOG.warning("%s: no %s detections in %s", seq, " or ".join(classes), det_where)
-    label_path = split_dir / "label_02" / f"{seq}.txt"
+    label_path = label_path or split_dir / "label_02" / f"{seq}.txt"
     labels = read_kitti_labels(label_path) if with_gt and label_path.is_file() else None
     # without poses, the labels (read for their length alone if need be) say how long a
     # sequence is whose last frames hold no detection: its evaluation needs every frame
