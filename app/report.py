@@ -315,8 +315,11 @@ def build_report(
 
     title = f"MCTrack report: {run_a.name}" + (f" vs {run_b.name}" if run_b else "")
     s = run_a.summary
+    scored = s.get("evaluated_sequences", s["sequences"])
     subtitle = (
-        f"{len(s['sequences'])} sequence(s), classes {', '.join(s['classes'])}, detector "
+        f"{len(s['sequences'])} sequence(s)"
+        + (f" ({len(scored)} scored)" if len(scored) != len(s["sequences"]) else "")
+        + f", classes {', '.join(s['classes'])}, detector "
         f"{s.get('detector')}, mode {s.get('mode')}, config {s.get('config_name', 'n/a')}"
         + (f"; B: config {run_b.summary.get('config_name', 'n/a')}" if run_b else "")
     )

@@ -307,6 +307,7 @@ def test_unlabelled_sequences_are_named_and_left_out_of_the_score(
     assert main(["report", str(tmp_path / "both"), "--out", str(tmp_path / "rep")]) == 0
     page = (tmp_path / "rep" / "index.html").read_text()
     assert "A: scored on [&#x27;0006&#x27;]; no labels for [&#x27;0010&#x27;]" in page
+    assert "2 sequence(s) (1 scored)" in page
 
     argv = ["kitti", "--kitti-root", str(kit), "--seqs", "0006", "--classes", "car"]
     code = main([*argv, "--labels", str(tmp_path / "nope"), "--out", str(tmp_path / "x")])
