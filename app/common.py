@@ -70,3 +70,19 @@ def score_source(
     if found is None:
         return True, None, f"none found for {detector!r}: fallback sigmoid(raw) or raw probability"
     return True, found, f"profile {profile or detector + ' (shipped)'}"
+
+
+def self_calibrated_note(profile: object, detector: str, fitted: ScoreProfile) -> str:
+    """The summary's note of a label-free profile fitted on a run's own detections."""
+    why = "--profile self" if profile == SELF_PROFILE else f"none for {detector!r}"
+    kept = ", ".join(fitted.maps) or "none"
+    return (
+        f"{why}: self-calibrated without labels (classes {kept}; others sigmoid(raw) or raw "
+        "probability)"
+    )
+
+
+def profile_argument(value: str | None) -> Path | str | None:
+    """``--profile`` as given: ``self``, ``none`` or absent as they are, else a path (a file,
+    or a shipped profile's name, resolved later)."""
+    return value if value in (SELF_PROFILE, NO_PROFILE) or not value else Path(value)

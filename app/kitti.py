@@ -13,7 +13,14 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.common import NO_PROFILE, SELF_PROFILE, log_self_profile, peak_rss_mb, score_source
+from app.common import (
+    NO_PROFILE,
+    log_self_profile,
+    peak_rss_mb,
+    profile_argument,
+    score_source,
+    self_calibrated_note,
+)
 from app.inputs import (
     IMAGE_DETECTOR_HELP,
     NO_POSES_NOTE,
@@ -147,9 +154,7 @@ def run(args: argparse.Namespace) -> int:
         mode=args.mode,
         detector=args.detector,
         image_detector=args.image_detector,
-        profile=args.profile
-        if args.profile in (SELF_PROFILE, NO_PROFILE) or not args.profile
-        else Path(args.profile),
+        profile=profile_argument(args.profile),
         labels=Path(args.labels) if args.labels else None,
         poses=poses,
         evaluate=not args.no_eval,
@@ -331,11 +336,8 @@ def run_kitti(
     self_profile = None
     if calibrate and found is None and profile != NO_PROFILE:
         found = self_profile = self_calibrate(kitti_root, seqs, detector, poses, classes)
-        kept = ", ".join(self_profile.maps) or "none"
-        why = "--profile self" if profile == SELF_PROFILE else f"none found for {detector!r}"
         calibration = (
-            f"{why}: self-calibrated without labels (classes {kept}; others sigmoid(raw) or "
-            "raw probability), see self_profile.toml"
+            self_calibrated_note(profile, detector, self_profile) + ", see self_profile.toml"
         )
     job = KittiSceneJob(
         kitti_root=kitti_root,

@@ -23,7 +23,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from app.common import NO_PROFILE, SELF_PROFILE, log_self_profile, score_source
+from app.common import (
+    NO_PROFILE,
+    log_self_profile,
+    profile_argument,
+    score_source,
+    self_calibrated_note,
+)
 from app.inputs import (
     add_detector_argument,
     add_kitti_root_argument,
@@ -33,7 +39,7 @@ from app.inputs import (
     sequence_list,
 )
 from tracker.calibration import calibrate_frames, raw_outside_profile, warn_scores_outside
-from tracker.config import ScoreSource, load_config
+from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.eval.perturb import (
     CLEAN,
@@ -123,9 +129,7 @@ def run(args: argparse.Namespace) -> int:
         seeds=_seeds(args.seeds),
         score_sigma=args.score_sigma,
         image_boxes=args.image_boxes,
-        profile=args.profile
-        if args.profile in (SELF_PROFILE, NO_PROFILE) or not args.profile
-        else Path(args.profile),
+        profile=profile_argument(args.profile),
         out=Path(args.out),
     )
     print("\n".join(table_lines(report, markdown=False)))
@@ -193,18 +197,14 @@ def run_robustness(
         )
     except FileNotFoundError as exc:
         raise InputError(str(exc)) from None
-    calibration_note = "none (scores as converted; the config asks for scores = 'as_given')"
-    if config.scores is ScoreSource.PROFILE:  # thresholds in calibrated units
-        _, calibration, calibration_note = score_source(config, detector, profile)
+    calibrate, calibration, calibration_note = score_source(config, detector, profile)
+    if calibrate:  # thresholds in calibrated units
         if calibration is None and profile != NO_PROFILE:  # as `mctrack kitti` does
             from tracker.eval.calibrate import fit_self_profile
 
             calibration = fit_self_profile(detector, detections, classes)
             log_self_profile(calibration, classes)
-            calibration_note = (
-                f"{'--profile self' if profile == SELF_PROFILE else f'none for {detector!r}'}: "
-                f"self-calibrated without labels (classes {', '.join(calibration.maps) or 'none'})"
-            )
+            calibration_note = self_calibrated_note(profile, detector, calibration)
         detections = {s: calibrate_frames(f, calibration) for s, f in detections.items()}
         if calibration is not None:
             every = [frame for frames in detections.values() for frame in frames]
