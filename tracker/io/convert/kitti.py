@@ -960,8 +960,8 @@ def _convert_sequence(
     classes: Sequence[str],
     with_gt: bool,
     num_frames: int | None,
+    label_path: Path,
     skipped: SkippedRows | None = None,
-    label_path: Path | None = None,
 ) -> tuple[list[Frame], list[Frame] | None]:
     """Detections and (when labelled) ground truth of one sequence."""
     calib = read_kitti_calib(split_dir / "calib" / f"{seq}.txt")
@@ -991,7 +991,6 @@ def _convert_sequence(
     dets = dets.select(tracked)
     if not len(dets):
         LOG.warning("%s: no %s detections in %s", seq, " or ".join(classes), det_where)
-    label_path = label_path or split_dir / "label_02" / f"{seq}.txt"
     labels = read_kitti_labels(label_path) if with_gt and label_path.is_file() else None
     # without poses, the labels (read for their length alone if need be) say how long a
     # sequence is whose last frames hold no detection: its evaluation needs every frame
