@@ -23,7 +23,7 @@ import pytest
 from app.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
-SEQS = "0012,0014"  # 78 + 106 frames: a trial takes about a second
+SEQS = "0012,0014"  # 78 + 106 frames: a trial takes 0.1 to 1 s
 TRIALS = 6  # 4 random start-up trials (app.tune.startup_trials), then 2 proposed by TPE
 
 
@@ -209,8 +209,12 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     trials = 4
     args = _tune_args(kitti_root, tmp_path, trials, "--ray", "--max-concurrent", "1")
 
+    # Each trial waits 1 s before it reports, so the Ctrl-C and the kill land inside a search,
+    # not after its last trial: unslowed, a trial can take 0.1 s (seen in CI).
+    slow = _hook_env(tmp_path / "hook", SLOW_REPORT="1")
+
     # 1. Ctrl-C once a trial of the first search is done: Ray Tune saves, the run stops
-    proc = _start(args)
+    proc = _start(args, slow)
     _wait_until(proc, lambda: len(_finished(tmp_path, "fold0")) >= 1)
     proc.send_signal(signal.SIGINT)
     status, output = _finish(proc)
@@ -227,7 +231,7 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     before_ctrl_c = {k: v for k, v in before_ctrl_c.items() if k in saved_at_ctrl_c}
 
     # 2. resumed, then killed outright (the whole process group) during the second search
-    proc = _start(args)
+    proc = _start(args, slow)
     # (a trial both saved and with its result file copied to the experiment folder: Ray Tune
     # copies that file in the background, and under load it can land after the save)
     _wait_until(proc, lambda: bool(_saved(tmp_path, "fold1") & set(_finished(tmp_path, "fold1"))))
@@ -243,7 +247,7 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     assert {k: fold0[k] for k in before_ctrl_c} == before_ctrl_c  # not run again
     before_kill = {k: v for k, v in _finished(tmp_path, "fold1").items()
                    if k in _saved(tmp_path, "fold1")}  # fmt: skip
-    assert before_kill  # (trials take about a second: the kill lands inside the search)
+    assert before_kill
     assert len(before_ctrl_c) < trials or len(before_kill) < trials
 
     # 3. resumed to the end, with the trial process killed once during the last search: Ray
@@ -284,7 +288,8 @@ def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
     A resume runs such a trial again, and so does the command itself; the search is the
     uninterrupted one."""
     marker, out = tmp_path / "resetting", tmp_path / "out"
-    env = _hook_env(tmp_path / "hook", SLOW_FIRST_RESET=str(marker))
+    # (each trial waits 1 s before it reports, so the kills land in the first search)
+    env = _hook_env(tmp_path / "hook", SLOW_FIRST_RESET=str(marker), SLOW_REPORT="1")
     args = _tune_args(kitti_root, out, 4, "--ray", "--max-concurrent", "1")
 
     def kill_the_resetting_process(proc: subprocess.Popen) -> None:
