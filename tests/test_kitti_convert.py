@@ -288,11 +288,17 @@ def test_sequence_length_rules(kitti_root: Path, tmp_path: Path) -> None:
     # an explicit length wins (rows beyond it are dropped)
     detections, gt = convert_kitti(root, seqs=["1"], num_frames=50)
     assert gt is not None and len(detections["0001"]) == 50 == len(gt["0001"])
-    # fewer pose lines than frames is an error naming the file and the field
+    # fewer pose lines than frames is an error naming the file, the line and the field
     pose = root / "training" / "pose_orbslam3" / "0001.txt"
     pose.write_text("\n".join(pose.read_text().splitlines()[:100]) + "\n")
-    with pytest.raises(InputError, match="frame"):
+    with pytest.raises(InputError, match="frame") as excinfo:
         convert_kitti(root, seqs=["0001"])
+    error = excinfo.value
+    assert error.path is not None and error.line is not None and error.field == "frame"
+    assert f"{error.path}:{error.line}: field 'frame'" in str(error)
+    row = Path(error.path).read_text().splitlines()[error.line - 1]
+    frame = int(row.replace(",", " ").split()[0])
+    assert frame >= 100 and f"frame {frame} is beyond the 100 poses" in str(error)
 
 
 def test_kitti_object_layout(kitti_root: Path, tmp_path: Path) -> None:

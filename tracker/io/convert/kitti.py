@@ -425,6 +425,8 @@ class KittiObjects:
     xyz_bottom_rect : (N, 3) bottom-centre in the rect camera frame, metres.
     rotation_y : (N,) KITTI ``rotation_y`` about the camera y axis, radians.
     score_raw : (N,) the file's score (NaN for labels without one).
+    paths, source, line : where each row was read (``paths[source[i]]``, 1-based ``line[i]``),
+        for error messages; empty for objects built in code.
     """
 
     frame: IntArray
@@ -438,12 +440,23 @@ class KittiObjects:
     xyz_bottom_rect: FloatArray
     rotation_y: FloatArray
     score_raw: FloatArray
+    paths: tuple[Path, ...] = ()
+    source: IntArray | None = None
+    line: IntArray | None = None
 
     def __len__(self) -> int:
         return len(self.frame)
 
     def select(self, mask: NDArray[np.bool_]) -> KittiObjects:
-        return KittiObjects(**{f.name: getattr(self, f.name)[mask] for f in fields(self)})
+        rows = {f.name: getattr(self, f.name) for f in fields(self) if f.name != "paths"}
+        masked = {k: None if v is None else v[mask] for k, v in rows.items()}
+        return KittiObjects(**masked, paths=self.paths)
+
+    def where(self, row: int) -> tuple[Path | None, int | None]:
+        """The file and 1-based line row ``row`` was read from (None, None if built in code)."""
+        if self.source is None or self.line is None:
+            return None, None
+        return self.paths[self.source[row]], int(self.line[row])
 
 
 def _kitti_type_categories(type_names: NDArray[np.str_], where: str) -> IntArray:
@@ -492,7 +505,12 @@ def _objects_from_label_columns(
         xyz_bottom_rect=numbers[:, 10:13],
         rotation_y=numbers[:, 13],
         score_raw=score_raw,
+        **_provenance(table),
     )
+
+
+def _provenance(table: _Table) -> dict[str, object]:
+    return {"paths": tuple(table.paths), "source": table.source, "line": table.line}
 
 
 def _check_positive(
@@ -566,6 +584,7 @@ def read_ab3dmot_detections(paths: Sequence[str | Path]) -> KittiObjects:
         xyz_bottom_rect=numbers[:, 8:11],
         rotation_y=numbers[:, 11],
         score_raw=numbers[:, 4],
+        **_provenance(table),
     )
 
 
@@ -1017,9 +1036,12 @@ def _convert_sequence(
         n = len(poses)
         for objects, where in ((dets, det_where), (labels, str(label_path))):
             if objects is not None and objects.frame.max(initial=-1) >= n:
+                row = int(np.argmax(objects.frame))
+                path, line = objects.where(row)
                 raise InputError(
-                    f"frame {objects.frame.max()} is beyond the {n} poses of {pose_path}",
-                    path=where,
+                    f"frame {objects.frame[row]} is beyond the {n} poses of {pose_path}",
+                    path=where if path is None else path,
+                    line=line,
                     field="frame",
                 )
     else:
