@@ -67,6 +67,21 @@ def test_tracking_format_reader(tmp_path: Path) -> None:
     assert objects.category.tolist() == [CAR, category_index("pedestrian")]
 
 
+def test_a_label_file_given_as_detections_is_named_as_such(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    """label_02 rows (frame, track id, type, ..., no score) also have 17 columns: the error
+    says what the file is, not that 'Car' is not a number."""
+    label = kitti_root / "training" / "label_02" / "0001.txt"
+    path = tmp_path / "0001.txt"
+    path.write_text(label.read_text())
+    with pytest.raises(InputError) as excinfo:
+        read_kitti_tracking_detections(path)
+    message = str(excinfo.value)
+    assert message.startswith(f"{path}:1: field 'type':") and "label file" in message
+    assert "\n" not in message
+
+
 def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

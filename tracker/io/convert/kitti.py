@@ -588,6 +588,21 @@ def read_ab3dmot_detections(paths: Sequence[str | Path]) -> KittiObjects:
     )
 
 
+def _refuse_labels_without_score(table: _Table) -> None:
+    """A label_02 file (frame, track id, type, ..., no score) has the 17 columns of a detection
+    file too; its class name one column late would read as a bad ``truncated``. Say what it is."""
+    if not len(table.line) or table.tokens[1][0] in KITTI_TYPES or table.tokens[1][0] == DONTCARE:
+        return
+    name = table.tokens[2][0]
+    if name in KITTI_TYPES or name == DONTCARE:
+        path, line = table.where(0)
+        raise InputError(
+            f"a class name ({name!r}) in the third column: this is a label file (frame, track "
+            "id, type, ...) without the score a detection file ends with",
+            path=path, line=line, field="type",
+        )  # fmt: skip
+
+
 def read_kitti_tracking_detections(path: str | Path) -> KittiObjects:
     """Parse detections in the KITTI tracking result format: one file per sequence, lines
     ``frame type truncated occluded alpha x1 y1 x2 y2 h w l x y z rotation_y score`` (17
@@ -607,6 +622,7 @@ def read_kitti_tracking_detections(path: str | Path) -> KittiObjects:
         track_id, offset = table.ints(1), 2
     else:
         track_id, offset = np.full(len(table.line), -1, dtype=np.int64), 1
+        _refuse_labels_without_score(table)
     objects = _objects_from_label_columns(
         table, offset=offset, frame=_frames(table, 0), track_id=track_id, where=str(path)
     )
