@@ -98,8 +98,13 @@ def check_kitti_root(
             )
     if detector is not None:
         det_dir = root / "detections" / detector / split
+        if not det_dir.is_dir() and det_dir.parent.is_dir():
+            raise InputError(
+                f"{det_dir}: not found; a detector's files go in detections/{detector}/{split}/ "
+                f"(one <seq>.txt per sequence, or the other layouts of docs/detectors.md)"
+            )
         if not det_dir.is_dir():
-            found = sorted(p.name for p in (root / "detections").glob("*") if p.is_dir())
+            found = sorted(p.parent.name for p in (root / "detections").glob(f"*/{split}"))
             raise InputError(
                 f"{det_dir}: detections not found; pass --detector NAME "
                 f"(found: {', '.join(found) or 'none'})"

@@ -82,6 +82,26 @@ def test_a_label_file_given_as_detections_is_named_as_such(
     assert "\n" not in message
 
 
+def test_a_detector_folder_without_its_split_says_where_the_files_go(
+    kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from app.cli import main
+
+    root = _kit(kitti_root, tmp_path, ROW.format(f=0, cls="Car", alpha=0, ry=0, score=1))
+    det = root / "detections" / "mydet"
+    (det / "training" / "0001.txt").rename(det / "0001.txt")  # the files beside training/
+    (det / "training").rmdir()
+    (root / "detections" / "other" / "training").mkdir(parents=True)
+    argv = ["kitti", "--kitti-root", str(root), "--seqs", "0001", "--poses", "none", "--out"]
+    assert main([*argv, str(tmp_path / "a"), "--detector", "mydet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "files go in detections/mydet/training/" in err[0], err
+    # a name with no folder at all: the detectors the kit has (those with the split)
+    assert main([*argv, str(tmp_path / "b"), "--detector", "nope"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].endswith("pass --detector NAME (found: other)"), err
+
+
 def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
