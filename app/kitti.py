@@ -231,7 +231,11 @@ class KittiSceneJob:
         label_file = path_in(self.label_dir, seq, ".txt")
         info: dict[str, Any] = {
             "convert_seconds": convert_secs,
-            "skipped": {"unknown": dict(skipped.unknown), "not_tracked": dict(skipped.not_tracked)},
+            "skipped": {
+                "unknown": dict(skipped.unknown),
+                "not_tracked": dict(skipped.not_tracked),
+                "duplicates": dict(skipped.duplicates),
+            },
             "outside_profile": outside,
         }
         evaluation: SequenceEvaluation | None = None
@@ -365,7 +369,9 @@ def run_kitti(
     )
     scenes.remove_parts(out)
 
-    skipped: dict[str, Counter[str]] = {"unknown": Counter(), "not_tracked": Counter()}
+    skipped: dict[str, Counter[str]] = {
+        "unknown": Counter(), "not_tracked": Counter(), "duplicates": Counter()
+    }  # fmt: skip
     for r in ok:
         for kind, counts in r.info["skipped"].items():
             skipped[kind].update(counts)
@@ -417,6 +423,7 @@ def run_kitti(
         "skipped_at_load": {
             "unknown_classes": dict(sorted(skipped["unknown"].items())),
             "classes_not_tracked": dict(sorted(skipped["not_tracked"].items())),
+            "duplicate_rows": dict(sorted(skipped["duplicates"].items())),
         },
         "offline_removed_tracks": sum(r.info["offline_removed_tracks"] for r in ok),
         "config": config_to_dict(config),

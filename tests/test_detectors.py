@@ -125,8 +125,9 @@ def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
 def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
-    """Unknown classes and known ones outside --classes are counted (summary.json and the
-    printout); a sequence or a class without a single detection is a warning, not a silent 0."""
+    """Unknown classes, known ones outside --classes and exact repeats of a row are counted
+    (summary.json and the printout); a sequence or a class without a single detection is a
+    warning, not a silent 0."""
     from app.cli import main
     from tracker.io.convert.kitti import SkippedRows
 
@@ -136,12 +137,19 @@ def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
         + ROW.format(f=2, cls="Boat", alpha=0.0, ry=0.0, score=3.0)
         + ROW.format(f=3, cls="Boat", alpha=0.0, ry=0.0, score=3.0)
         + ROW.format(f=3, cls="DontCare", alpha=0.0, ry=0.0, score=3.0)  # an ignore region
+        + ROW.format(f=0, cls="Car", alpha=0.0, ry=0.0, score=7.0)  # line 1 again
+        + ROW.format(f=0, cls="Car", alpha=0.0, ry=0.0, score=6.0)  # another box: kept
     )
     root = _kit(kitti_root, tmp_path, text)
     skipped = SkippedRows()
     common = {"seqs": ["0001"], "detector": "mydet", "poses": None, "with_gt": False}
-    dets, _ = convert_kitti(root, **common, classes=["car"], skipped=skipped)
+    with caplog.at_level(logging.WARNING):
+        dets, _ = convert_kitti(root, **common, classes=["car"], skipped=skipped)
     assert skipped.unknown == {"Boat": 2} and skipped.not_tracked == {"tram": 1}
+    assert skipped.duplicates == {"car": 1}
+    assert len(dets["0001"][0].boxes) == 2
+    assert "0001: 1 detection rows repeat another row exactly (the first at " in caplog.text
+    assert "mydet/training/0001.txt:6)" in caplog.text
     # without poses the labels give the length (447), not the last detection (frame 0)
     assert len(dets["0001"]) == 447
 
@@ -161,9 +169,10 @@ def test_rows_left_out_are_counted_and_a_run_says_what_it_lacks(
     assert summary["skipped_at_load"] == {
         "unknown_classes": {"Boat": 2},
         "classes_not_tracked": {"tram": 1},
+        "duplicate_rows": {"car": 1},
     }
     fates = summary["detection_fates"]
-    assert fates["skipped_unknown_category_at_load"] == 2 and fates["input_boxes"] == 3
+    assert fates["skipped_unknown_category_at_load"] == 2 and fates["input_boxes"] == 4
     assert "detector 'mydet' has no cyclist or van detections" in caplog.text
     assert "van: tracked, not scored" in caplog.text
 

@@ -127,10 +127,12 @@ TRACKING_DET_COLUMNS = ("frame", *OBJECT_COLUMNS)
 @dataclass
 class SkippedRows:
     """Detection rows a conversion leaves out, by class name: classes no category knows (each
-    file's also logged as a warning) and known classes outside the ``classes`` tracked."""
+    file's also logged as a warning), known classes outside the ``classes`` tracked, and rows
+    that repeat another exactly (logged; the first is kept)."""
 
     unknown: Counter[str] = field(default_factory=Counter)
     not_tracked: Counter[str] = field(default_factory=Counter)
+    duplicates: Counter[str] = field(default_factory=Counter)
 
 
 PoseFormat = Literal["camera", "lidar"]
@@ -968,6 +970,32 @@ def convert_kitti(
     return detections, (gt if with_gt and gt else None)
 
 
+def _without_duplicates(dets: KittiObjects, seq: str, skipped: SkippedRows | None) -> KittiObjects:
+    """The rows with every exact repeat left out (the same frame, class, boxes and score): a
+    file listed twice, or every class written into each class's AB3DMOT file. Kept, a repeat
+    would be a second track on the same object, as no NMS runs by default."""
+    if len(dets) < 2:
+        return dets
+    key = np.column_stack([
+        dets.frame, dets.category, dets.xyxy_image, dets.hwl, dets.xyz_bottom_rect,
+        dets.rotation_y, dets.score_raw,
+    ])  # fmt: skip
+    _, first = np.unique(key, axis=0, return_index=True)
+    if len(first) == len(dets):
+        return dets
+    keep = np.zeros(len(dets), dtype=bool)
+    keep[first] = True
+    repeats = Counter(CATEGORIES[c] for c in dets.category[~keep].tolist())
+    if skipped is not None:
+        skipped.duplicates.update(repeats)
+    path, line = dets.where(int(np.argmin(keep)))
+    LOG.warning(
+        "%s: %d detection rows repeat another row exactly (the first at %s:%s); each is read once",
+        seq, int((~keep).sum()), path, line,
+    )  # fmt: skip
+    return dets.select(keep)
+
+
 def _with_image_boxes(
     frames: list[Frame], image_dir: Path, seq: str, classes: Sequence[str]
 ) -> list[Frame]:
@@ -1023,7 +1051,7 @@ def _convert_sequence(
         unknown = (dets.category < 0) & (dets.type_name != DONTCARE)
         names, counts = np.unique(dets.type_name[unknown], return_counts=True)
         skipped.unknown.update(dict(zip(map(str, names), counts.tolist(), strict=True)))
-    dets = dets.select(tracked)
+    dets = _without_duplicates(dets.select(tracked), seq, skipped)
     if not len(dets):
         LOG.warning("%s: no %s detections in %s", seq, " or ".join(classes), det_where)
     labels = read_kitti_labels(label_path) if with_gt and label_path.is_file() else None
