@@ -133,9 +133,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     scenes.add_arguments(parser)
 
 
+#: What a run writes in --out. A run into the folder of an earlier one removes these first, so a
+#: folder never mixes two runs (a sequence the new run leaves out would keep its old results);
+#: files of other names are left alone. summary.json is written last: it marks completion.
+RUN_OUTPUTS = (
+    "summary.json", "tracks.json", "self_profile.toml", "motion.md", "motion_velocity.png",
+    "data/*.txt", "recordings/*.rrd", "recordings/causes.md",
+)  # fmt: skip
+
+
+def _clear_earlier_run(out: Path) -> None:
+    earlier = sorted(p for pattern in RUN_OUTPUTS for p in out.glob(pattern) if p.is_file())
+    for path in earlier:
+        path.unlink()
+    if earlier:
+        LOG.info("%s: removed %d files of an earlier run", out, len(earlier))
+
+
 def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)  # before any work: a bad --out fails in a second, not at the end
-    (Path(args.out) / "summary.json").unlink(missing_ok=True)  # written last: marks completion
     root = args.kitti_root or default_kitti_root()
     seqs = args.seqs
     if args.labels and not args.no_eval and not Path(args.labels).is_dir():
@@ -146,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     out = Path(args.out)
+    _clear_earlier_run(out)  # (once the inputs are checked: a typo keeps the earlier run)
     summary = run_kitti(
         kitti_root=root,
         seqs=seqs,

@@ -465,6 +465,33 @@ def test_kitti_without_poses_says_so_and_shows_classes_without_ground_truth_as_a
     assert "-200" not in printed
 
 
+def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A sequence the new run leaves out does not keep its old results beside the new ones;
+    files the runs do not write stay, and a run refused on its inputs changes nothing."""
+    from app.kitti import RUN_OUTPUTS
+    from tracker.eval.motion_eval import MOTION_PLOT
+
+    assert MOTION_PLOT in RUN_OUTPUTS
+    out = tmp_path / "out"
+    (out / "data").mkdir(parents=True)
+    (out / "recordings").mkdir()
+    for earlier in ("data/0099.txt", "recordings/0099.rrd", "motion.md", "summary.json"):
+        (out / earlier).write_text("an earlier run's\n")
+    (out / "notes.txt").write_text("mine\n")
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--out", str(out)]
+    code, _, err = _run([*argv, "--detector", "nope"], capsys)
+    assert code == 2 and (out / "data" / "0099.txt").is_file(), err
+    assert (out / "summary.json").read_text() == "an earlier run's\n"
+    code, _, err = _run(argv, capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in (out / "data").iterdir()) == ["0001.txt"]
+    assert not (out / "recordings" / "0099.rrd").exists() and not (out / "motion.md").exists()
+    assert (out / "notes.txt").read_text() == "mine\n"
+    assert json.loads((out / "summary.json").read_text())["sequences"] == ["0001"]
+
+
 def test_kitti_root_defaults_to_the_environment_variable(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
