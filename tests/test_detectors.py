@@ -102,6 +102,17 @@ def test_a_detector_folder_without_its_split_says_where_the_files_go(
     assert len(err) == 1 and err[0].endswith("pass --detector NAME (found: other)"), err
 
 
+def test_a_sequence_without_a_detection_file_names_the_places_looked(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    root = _kit(kitti_root, tmp_path, "")
+    (root / "detections" / "mydet" / "training" / "0001.txt").unlink()
+    with pytest.raises(FileNotFoundError) as excinfo:
+        convert_kitti(root, seqs=["0001"], detector="mydet", poses=None)
+    message = str(excinfo.value)
+    assert message.startswith("no detections for sequence 0001 in ") and "0001.txt" in message
+
+
 def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

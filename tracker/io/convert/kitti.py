@@ -850,7 +850,8 @@ def _detection_sources(
     if layout in ("auto", "ab3dmot") and per_class:
         return "ab3dmot", per_class
     raise FileNotFoundError(
-        f"no {layout} detections for sequence {seq} in {detections_dir} "
+        f"no {'' if layout == 'auto' else layout + ' '}detections for sequence {seq} in "
+        f"{detections_dir} "
         f"(looked for {per_frame_dir}/, {single}, and <Class>/{seq}.txt)"
     )
 
