@@ -113,6 +113,29 @@ def test_a_sequence_without_a_detection_file_names_the_places_looked(
     assert message.startswith("no detections for sequence 0001 in ") and "0001.txt" in message
 
 
+@pytest.mark.parametrize(
+    ("line", "says"),
+    [
+        # AB3DMOT's layout with a class name for the type code
+        ("0,Car,10,20,110,80,7.0,1.5,1.6,3.9,2.9,1.6,6.4,0.1,0.2", "field 'type': a class name"),
+        # the tracking format, comma-separated
+        (ROW.format(f=0, cls="Car", alpha=0, ry=0, score=1).strip().replace(" ", ","),
+         "got 17 (the KITTI tracking format's count: its columns are separated by spaces)"),
+        # the tracking format with one column too many at the end
+        (ROW.format(f=0, cls="Car", alpha=0, ry=0, score=1).strip() + " 0.5",
+         "18 columns with the class second"),
+    ],
+)  # fmt: skip
+def test_a_near_miss_of_a_layout_says_what_it_resembles(
+    kitti_root: Path, tmp_path: Path, line: str, says: str
+) -> None:
+    root = _kit(kitti_root, tmp_path, line + "\n")
+    with pytest.raises(InputError) as excinfo:
+        convert_kitti(root, seqs=["0001"], detector="mydet", poses=None, classes=["car"])
+    message = str(excinfo.value)
+    assert "mydet/training/0001.txt:1: field '" in message and says in message, message
+
+
 def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

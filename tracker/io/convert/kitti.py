@@ -369,9 +369,11 @@ def _read_table(
     columns: tuple[str, ...],
     sep: str | None = None,
     counts: Sequence[int] | None = None,
+    hints: Mapping[int, str] | None = None,
 ) -> _Table:
     """Split text files into tokens; every non-empty line must have one of ``counts`` columns
-    (default ``len(columns)``) and all lines of one call the same count."""
+    (default ``len(columns)``) and all lines of one call the same count. ``hints``: what a
+    line of a wrong count most likely is, added to the error."""
     counts = tuple(counts or (len(columns),))
     rows: list[list[str]] = []
     source: list[int] = []
@@ -387,8 +389,9 @@ def _read_table(
                 want = (
                     len(rows[0]) if rows and len(row) in counts else " or ".join(map(str, counts))
                 )
+                hint = (hints or {}).get(len(row))
                 raise InputError(
-                    f"expected {want} columns, got {len(row)}",
+                    f"expected {want} columns, got {len(row)}" + (f" ({hint})" if hint else ""),
                     path=path,
                     line=line_no,
                     field="columns",
@@ -556,9 +559,21 @@ def read_ab3dmot_detections(paths: Sequence[str | Path]) -> KittiObjects:
     2 car, 3 cyclist; any other code raises :class:`InputError`.
     """
     path_list = [Path(p) for p in paths]
-    table = _read_table(path_list, columns=AB3DMOT_COLUMNS, sep=",")
+    tracking = "the KITTI tracking format's count: its columns are separated by spaces"
+    table = _read_table(
+        path_list, columns=AB3DMOT_COLUMNS, sep=",", hints={17: tracking, 18: tracking}
+    )
     n = len(table.line)
     frame = _frames(table, 0)
+    types = np.char.strip(table.strings(1))
+    names = np.flatnonzero(np.isin(types, list(KITTI_TYPES)))
+    if len(names):
+        path, line = table.where(int(names[0]))
+        raise InputError(
+            f"a class name ({types[names[0]]!r}) where AB3DMOT's type code "
+            "goes (1=Pedestrian, 2=Car, 3=Cyclist)",
+            path=path, line=line, field="type",
+        )  # fmt: skip
     codes = table.ints(1)
     known = np.isin(codes, list(AB3DMOT_TYPE_CODES))
     if not known.all():
@@ -616,6 +631,13 @@ def read_kitti_tracking_detections(path: str | Path) -> KittiObjects:
     """
     path = Path(path)
     table = _read_table([path], columns=TRACKING_DET_COLUMNS, counts=(17, 18))
+    if len(table.tokens) == 18 and table.tokens[1][0] in (*KITTI_TYPES, DONTCARE):
+        path, line = table.where(0)
+        raise InputError(
+            "18 columns with the class second: a detection file has 17 (frame type ... score), "
+            "a tracker's result 18 (a track id after the frame); this line has one more",
+            path=path, line=line, field="columns",
+        )  # fmt: skip
     if len(table.tokens) == 18:
         table = _Table(
             columns=LABEL_COLUMNS, tokens=table.tokens, paths=table.paths,
