@@ -136,6 +136,20 @@ def test_a_near_miss_of_a_layout_says_what_it_resembles(
     assert "mydet/training/0001.txt:1: field '" in message and says in message, message
 
 
+def test_detections_in_two_layouts_say_which_is_read(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    root = _kit(kitti_root, tmp_path, ROW.format(f=0, cls="Car", alpha=0, ry=0, score=1))
+    per_class = root / "detections" / "mydet" / "training" / "Car"
+    per_class.mkdir()
+    (per_class / "0001.txt").write_text("0,2,10,20,110,80,7.0,1.5,1.6,3.9,2.9,1.6,6.4,0.1,0.2\n")
+    with caplog.at_level(logging.WARNING):
+        dets, _ = convert_kitti(root, seqs=["0001"], detector="mydet", poses=None)
+    assert "0001: detections in more than one layout" in caplog.text
+    assert "reading 0001.txt, not Car/0001.txt" in caplog.text
+    assert dets["0001"][0].boxes.score.tolist() == [pytest.approx(1 / (1 + math.exp(-1)))]
+
+
 def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

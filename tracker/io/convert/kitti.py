@@ -862,6 +862,14 @@ def _detection_sources(
         detections_dir / CLASS_FOLDERS[c] / f"{seq}.txt" for c in classes if c in CLASS_FOLDERS
     ]
     per_class = [p for p in per_class if p.is_file()]
+    # one entry per layout found, in the order read below: the first is read
+    layouts = [f"{p.name}" for p in (per_frame_dir, single) if p.exists()]
+    layouts += [" + ".join(f"{p.parent.name}/{p.name}" for p in per_class)] if per_class else []
+    if layout == "auto" and len(layouts) > 1:  # the others may be what the user meant
+        LOG.warning(
+            "%s: detections in more than one layout in %s; reading %s, not %s",
+            seq, detections_dir, layouts[0], ", ".join(layouts[1:]),
+        )  # fmt: skip
     if layout in ("auto", "kitti_object") and per_frame_dir.is_dir():
         return "kitti_object", per_frame_dir
     if single.is_file() and layout in ("auto", "ab3dmot", "kitti_tracking"):
