@@ -411,6 +411,17 @@ def run_kitti(
             detector,
             " or ".join(empty),
         )
+    born = Counter()
+    for r in ok:
+        born.update(r.info["fates"]["per_fate_and_class"].get("born", {}))
+    for name in (c for c in classes if fed[c] and not born[c]):
+        LOG.warning(
+            "not one of the %d %s detections scored enough to start a track (%s): check the "
+            "scores' calibration (--profile)",
+            fed[name],
+            name,
+            calibration,
+        )
     total_frames = sum(r.frames for r in ok)
     tracker_secs = sum(r.tracker_seconds for r in ok)
     summary: dict[str, Any] = {

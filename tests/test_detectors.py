@@ -150,6 +150,22 @@ def test_detections_in_two_layouts_say_which_is_read(
     assert dets["0001"][0].boxes.score.tolist() == [pytest.approx(1 / (1 + math.exp(-1)))]
 
 
+def test_a_class_whose_every_detection_is_discarded_is_a_warning(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Logits far below zero read as probabilities (--profile none): HOTA 0, and a reason."""
+    from app.cli import main
+
+    text = "".join(ROW.format(f=f, cls="Car", alpha=0, ry=0, score=-30) for f in range(5))
+    root = _kit(kitti_root, tmp_path, text)
+    argv = ["kitti", "--kitti-root", str(root), "--detector", "mydet", "--poses", "none"]
+    with caplog.at_level(logging.WARNING):
+        code = main([*argv, "--seqs", "0001", "--classes", "car", "--profile", "none",
+                     "--out", str(tmp_path / "run")])  # fmt: skip
+    assert code == 0
+    assert "not one of the 5 car detections scored enough to start a track (none" in caplog.text
+
+
 def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
