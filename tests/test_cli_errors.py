@@ -158,8 +158,18 @@ def test_missing_input_is_one_line_naming_the_path(
 def test_unknown_flag_is_a_usage_error(name: str, capsys: pytest.CaptureFixture[str]) -> None:
     code, _, err = _run([name, "--no-such-flag"], capsys)
     assert code == 2 and "Traceback" not in err
-    last = err.strip().splitlines()[-1]
-    assert last.startswith("mctrack") and "error:" in last  # the flag, or a missing argument
+    # one line (no usage block), named by the command: the flag, or a missing argument
+    (line,) = err.strip().splitlines()
+    assert line.startswith(f"mctrack {name}") and ": error: " in line, err
+    assert line.endswith(f"(see mctrack {name} --help)"), err
+
+
+def test_an_unknown_flag_is_named_by_its_command(capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = _run(["kitti", "--detectr", "x", "--out", "o"], capsys)
+    assert code == 2
+    assert err == (
+        "mctrack kitti: error: unrecognized arguments: --detectr x (see mctrack kitti --help)\n"
+    )
 
 
 #: Every command that takes a list of KITTI sequences and of classes.
