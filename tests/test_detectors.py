@@ -477,6 +477,46 @@ def test_kitti_with_a_malformed_profile_exits_2_naming_file_and_field(
         assert err[0].startswith(f"mctrack kitti: error: {path}: field '{field}': expected")
 
 
+def test_a_class_the_profile_has_no_map_for_is_a_loud_warning(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A pedestrian-only profile on a car run: the car scores fall back to sigmoid(raw), and
+    the run says so, as a detector without a profile does."""
+    from app.kitti import run_kitti
+
+    doc = _shipped()
+    doc["class"] = {"pedestrian": doc["class"]["car"]}
+    path = _write_profile(doc, tmp_path / "pedestrian_only.toml")
+    common = {"kitti_root": kitti_root, "seqs": ["0006"], "detector": "virconv", "quiet": True}
+    with caplog.at_level(logging.WARNING):
+        run_kitti(**common, classes=["car"], profile=path, out=tmp_path / "a")
+    assert (
+        f"NO SCORE CALIBRATION for the car boxes of detector 'virconv': profile {path} has no "
+        "[class.car] map (its classes: pedestrian), so the scores of these 727 boxes are used "
+        "as sigmoid(raw)"
+    ) in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # a class with a map, or without boxes: silent
+        run_kitti(**common, classes=["car", "pedestrian"], profile="virconv", out=tmp_path / "b")
+    assert "NO SCORE CALIBRATION" not in caplog.text
+
+
+def test_track_warns_for_a_tracked_class_the_profile_has_no_map_for(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from app.cli import main
+
+    doc = _shipped("pointrcnn")
+    del doc["class"]["pedestrian"]
+    path = _write_profile(doc, tmp_path / "no_pedestrian.toml")
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+    argv = ["track", str(sample / "detections.json.gz"), "--profile", str(path), "--out"]
+    with caplog.at_level(logging.WARNING):
+        assert main([*argv, str(tmp_path / "t")]) == 0
+    assert "NO SCORE CALIBRATION for the pedestrian boxes of detector 'detections'" in caplog.text
+    assert "NO SCORE CALIBRATION for the car" not in caplog.text
+
+
 def test_calibrate_frames_decides_the_fallback_once_per_detector() -> None:
     """A logit detector whose frame happens to hold only scores in [0, 1] is still a logit."""
 

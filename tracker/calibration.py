@@ -242,6 +242,42 @@ def warn_other_detector(profile: ScoreProfile, detector: str) -> None:
         )
 
 
+def raw_scored_per_class(frames: Sequence[Frame]) -> dict[str, int]:
+    """Boxes with a raw score (the ones a profile recalibrates), per class name."""
+    counts = np.zeros(len(CATEGORIES), np.int64)
+    for frame in frames:
+        cat = frame.boxes.category
+        known = np.isfinite(frame.boxes.score_raw) & (cat >= 0) & (cat < len(CATEGORIES))
+        counts += np.bincount(cat[known], minlength=len(CATEGORIES))
+    return {name: int(n) for name, n in zip(CATEGORIES, counts, strict=True) if n}
+
+
+def warn_classes_without_map(
+    profile: ScoreProfile, detector: str, boxes: Mapping[str, int], source: str
+) -> None:
+    """Warn, as loudly as a detector without a profile, for each class with boxes (``boxes``:
+    count per class name, over a run) that ``profile`` (named ``source``) has no map for:
+    their scores are the uncalibrated fallback, silently otherwise."""
+    for name, n in boxes.items():
+        if n and name not in profile.maps:
+            LOG.warning(
+                "NO SCORE CALIBRATION for the %s boxes of detector %r: profile %s has no "
+                "[class.%s] map (its classes: %s), so the scores of these %d boxes are used as "
+                "sigmoid(raw), or raw where already in [0, 1], and the tracker's thresholds may "
+                "fit them less well. Fit a profile of that class on labelled sequences with "
+                "`mctrack calibrate --detector %s --classes %s --out PROFILE.toml` and pass "
+                "--profile PROFILE.toml.",
+                name,
+                detector,
+                source,
+                name,
+                ", ".join(profile.maps) or "none",
+                n,
+                detector,
+                name,
+            )
+
+
 def warn_scores_outside(
     profile: ScoreProfile, detector: str, outside: Mapping[str, Sequence[int]]
 ) -> None:
