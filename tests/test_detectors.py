@@ -517,6 +517,30 @@ def test_track_warns_for_a_tracked_class_the_profile_has_no_map_for(
     assert "NO SCORE CALIBRATION for the car" not in caplog.text
 
 
+def test_calibrate_writes_a_profile_only_with_a_fitted_class(
+    kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No class fitted: one error, nothing written (before: a profile `mctrack kitti` refuses);
+    some fitted: those written, the others named; --out a folder: the error names it."""
+    from app.cli import main
+
+    argv = ["calibrate", "--kitti-root", str(kitti_root), "--detector", "virconv", "--seqs", "0006"]
+    out = tmp_path / "p.toml"
+    assert main([*argv, "--classes", "van", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no class could be fitted: van 0 boxes in 0006" in err[0]
+    assert str(kitti_root / "detections" / "virconv" / "training") in err[0]
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    assert main([*argv, "--classes", "car,pedestrian", "--out", str(out)]) == 0
+    assert "no fit for pedestrian 0 boxes in 0006" in capsys.readouterr().out
+    assert list(load_profile(out).maps) == ["car"]
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    assert main([*argv, "--classes", "car", "--out", str(folder)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"mctrack calibrate: error: --out {folder}: is a folder, expected a file name"]
+
+
 def test_calibrate_frames_decides_the_fallback_once_per_detector() -> None:
     """A logit detector whose frame happens to hold only scores in [0, 1] is still a logit."""
 
