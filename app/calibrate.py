@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-from pathlib import Path
 
 from app.inputs import (
     add_kitti_root_argument,
@@ -14,10 +13,10 @@ from app.inputs import (
     default_kitti_root,
     sequence_list,
 )
-from tracker.calibration import profile_toml
+from tracker.calibration import profile_toml, raw_scored_per_class
 from tracker.errors import InputError
 from tracker.io.convert.kitti import VALIDATION_SEQS
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import check_output_file, write_text_atomic
 
 LOG = logging.getLogger("mctrack")
 
@@ -46,10 +45,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tracker.eval.calibrate import fit_profile
+    from tracker.eval.calibrate import MIN_FIT_BOXES, fit_profile
     from tracker.io.convert.kitti import convert_kitti
 
     classes, seqs = args.classes, args.seqs
+    out = check_output_file(args.out)  # before the fit: a folder, or not writable
     root = args.kitti_root or default_kitti_root()
     check_kitti_root(root, seqs=seqs, detector=args.detector)
     detections, gt = convert_kitti(
@@ -59,7 +59,21 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{root / 'training' / 'label_02'}: no labels for {seqs}")
     detections = {s: f for s, f in detections.items() if s in gt}
     profile = fit_profile(args.detector, detections, gt, classes)
-    write_text_atomic(Path(args.out), [profile_toml(profile)])
+    missing = [c for c in classes if c not in profile.maps]
+    if missing:
+        boxes = raw_scored_per_class([f for frames in detections.values() for f in frames])
+        counts = ", ".join(f"{c} {boxes.get(c, 0)} boxes" for c in missing)
+        why = (
+            f"{counts} in {','.join(detections)} "
+            f"(a map needs at least {MIN_FIT_BOXES} boxes of the class, some matching a label "
+            "and some not)"
+        )
+        if not profile.maps:  # a profile without a class is no profile: write nothing
+            raise InputError(
+                f"no class could be fitted: {why}; nothing written to {out}",
+                path=root / "detections" / args.detector / "training",
+            )
+    write_text_atomic(out, [profile_toml(profile)])
     for name, q in profile.quality.items():
         print(f"{args.detector} {name}: {json.dumps(q)}")
         held_out = q["held_out_by_sequence"]
@@ -75,8 +89,7 @@ def run(args: argparse.Namespace) -> int:
                 held,
                 plain,
             )
-    missing = [c for c in classes if c not in profile.maps]
     if missing:
-        print(f"no fit for {missing} (too few detections or labels): they keep the fallback")
-    print(f"wrote {args.out}")
+        print(f"no fit for {why}: they keep the fallback (sigmoid(raw), or raw where in [0, 1])")
+    print(f"wrote {out}")
     return 0

@@ -39,6 +39,7 @@ from tracker.calibration import (
     calibrate_frames,
     profile_toml,
     raw_outside_profile,
+    warn_classes_without_map,
     warn_scores_outside,
 )
 from tracker.config import (
@@ -403,6 +404,8 @@ def run_kitti(
     for r in ok:
         for per_class in r.info["fates"]["per_fate_and_class"].values():
             fed.update(per_class)
+    if found is not None and self_profile is None:  # (the self-calibration logs its classes)
+        warn_classes_without_map(found, detector, fed, str(profile or f"{detector} (shipped)"))
     empty = [c for c in classes if not fed[c]]
     if ok and empty:
         LOG.warning(

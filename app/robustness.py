@@ -38,7 +38,13 @@ from app.inputs import (
     default_kitti_root,
     sequence_list,
 )
-from tracker.calibration import calibrate_frames, raw_outside_profile, warn_scores_outside
+from tracker.calibration import (
+    calibrate_frames,
+    raw_outside_profile,
+    raw_scored_per_class,
+    warn_classes_without_map,
+    warn_scores_outside,
+)
 from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.eval.perturb import (
@@ -199,7 +205,11 @@ def run_robustness(
         raise InputError(str(exc)) from None
     calibrate, calibration, calibration_note = score_source(config, detector, profile)
     if calibrate:  # thresholds in calibrated units
-        if calibration is None and profile != NO_PROFILE:  # as `mctrack kitti` does
+        if calibration is not None:  # a profile's classes without a map keep the fallback
+            every = [frame for frames in detections.values() for frame in frames]
+            source = str(profile or f"{detector} (shipped)")
+            warn_classes_without_map(calibration, detector, raw_scored_per_class(every), source)
+        elif profile != NO_PROFILE:  # as `mctrack kitti` does
             from tracker.eval.calibrate import fit_self_profile
 
             calibration = fit_self_profile(detector, detections, classes)

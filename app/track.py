@@ -22,6 +22,8 @@ from tracker.calibration import (
     looks_like_probability,
     profile_by_path_or_name,
     profile_toml,
+    raw_scored_per_class,
+    warn_classes_without_map,
 )
 from tracker.categories import CATEGORIES
 from tracker.config import ScoreSource, TrackerConfig, load_config
@@ -163,15 +165,18 @@ def _calibrated(
     is_probability = looks_like_probability(
         np.concatenate([f.boxes.score_raw for fr in scenes.values() for f in fr])
     )
+    name = Path(source).name.removesuffix(".gz").removesuffix(".json") or "detections"
     if profile != SELF_PROFILE:
         loaded = profile_by_path_or_name(profile)
         fitted = None
+        counts = raw_scored_per_class([f for fr in scenes.values() for f in fr])
+        tracked = {c: n for c, n in counts.items() if c in config.categories}
+        warn_classes_without_map(loaded, name, tracked, str(profile))
     else:
         from tracker.eval.calibrate import fit_self_profile
 
         boxes = [f.boxes.category for fr in scenes.values() for f in fr]
         classes = [CATEGORIES[int(c)] for c in np.unique(np.concatenate(boxes))]
-        name = Path(source).name.removesuffix(".gz").removesuffix(".json") or "detections"
         loaded = fitted = fit_self_profile(name, scenes, classes)
         log_self_profile(fitted, classes)
     calibrated = {

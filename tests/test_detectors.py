@@ -6,13 +6,17 @@ import json
 import logging
 import math
 import shutil
+import tomllib
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from tracker.boxes import Boxes
 from tracker.calibration import (
+    PROFILE_DIR,
     RangeTerm,
     ScoreMap,
     ScoreProfile,
@@ -25,6 +29,7 @@ from tracker.calibration import (
     resolve_profile,
 )
 from tracker.categories import category_index
+from tracker.config import toml_value
 from tracker.errors import InputError
 from tracker.eval.calibrate import (
     chain_ids,
@@ -409,6 +414,204 @@ def test_missing_profile_warns_and_falls_back(caplog: pytest.LogCaptureFixture) 
     assert "NO SCORE CALIBRATION" in caplog.text and "mctrack calibrate" in caplog.text
     np.testing.assert_allclose(fallback_scores(np.array([0.2, 0.9])), [0.2, 0.9])
     np.testing.assert_allclose(fallback_scores(np.array([0.0, 3.0])), [0.5, 1 / (1 + np.exp(-3))])
+
+
+def _shipped(name: str = "virconv") -> dict[str, Any]:
+    with (PROFILE_DIR / f"{name}.toml").open("rb") as fh:
+        return tomllib.load(fh)
+
+
+def _write_profile(doc: dict[str, Any], path: Path) -> Path:
+    """A profile document as TOML, every top-level value written inline."""
+    path.write_text("".join(f"{k} = {toml_value(v, decimals=None)}\n" for k, v in doc.items()))
+    return path
+
+
+def _car(doc: dict[str, Any]) -> dict[str, Any]:
+    return doc["class"]["car"]
+
+
+def _set(get: Callable[[dict[str, Any]], dict[str, Any]], key: str, value: object) -> Callable:
+    def edit(doc: dict[str, Any]) -> None:
+        get(doc)[key] = value
+
+    return edit
+
+
+def _drop(get: Callable[[dict[str, Any]], dict[str, Any]], key: str) -> Callable:
+    def edit(doc: dict[str, Any]) -> None:
+        del get(doc)[key]
+
+    return edit
+
+
+def _rename(get: Callable[[dict[str, Any]], dict[str, Any]], old: str, new: str) -> Callable:
+    def edit(doc: dict[str, Any]) -> None:
+        get(doc)[new] = get(doc).pop(old)
+
+    return edit
+
+
+def _top(doc: dict[str, Any]) -> dict[str, Any]:
+    return doc
+
+
+def _range(doc: dict[str, Any]) -> dict[str, Any]:
+    return doc["class"]["car"]["range"]
+
+
+def _strings(doc: dict[str, Any]) -> None:
+    _car(doc)["prob"] = [str(p) for p in _car(doc)["prob"]]
+
+
+def _short_prob(doc: dict[str, Any]) -> None:
+    _car(doc)["prob"] = _car(doc)["prob"][:-1]
+
+
+def _decreasing_raw(doc: dict[str, Any]) -> None:
+    _car(doc)["raw"] = _car(doc)["raw"][::-1]
+
+
+#: every field of the format, mistyped (or misspelt, missing, out of range): (edit, field)
+MALFORMED = {
+    "quality a string": (_set(_car, "quality", "good"), "class.car.quality"),
+    "quality a list": (_set(_car, "quality", [1, 2]), "class.car.quality"),
+    "fitted_on a number": (_set(_top, "fitted_on", 3), "fitted_on"),
+    "version a string": (_set(_top, "version", "2"), "version"),
+    "version a bool": (_set(_top, "version", True), "version"),
+    "version unknown": (_set(_top, "version", 3), "version"),
+    "version missing": (_drop(_top, "version"), "version"),
+    "detector a number": (_set(_top, "detector", 3), "detector"),
+    "detector empty": (_set(_top, "detector", ""), "detector"),
+    "detector missing": (_drop(_top, "detector"), "detector"),
+    "class missing": (_drop(_top, "class"), "class"),
+    "class a list": (_set(_top, "class", ["car"]), "class"),
+    "class empty": (_set(_top, "class", {}), "class"),
+    "class unknown": (_rename(lambda d: d["class"], "car", "Car"), "class.Car"),
+    "class a number": (_set(lambda d: d["class"], "car", 1), "class.car"),
+    "top-level typo": (_rename(_top, "detector", "detecter"), "detecter"),
+    "class typo": (_rename(_car, "range", "rnage"), "class.car.rnage"),
+    "raw missing": (_drop(_car, "raw"), "class.car.raw"),
+    "raw a string": (_set(_car, "raw", "1, 2"), "class.car.raw"),
+    "raw empty": (_set(_car, "raw", []), "class.car.raw"),
+    "raw a number too large": (_set(_car, "raw", [0, 10**400]), "class.car.raw"),
+    "raw decreasing": (_decreasing_raw, "class.car.raw"),
+    "prob missing": (_drop(_car, "prob"), "class.car.prob"),
+    "prob of strings": (_strings, "class.car.prob"),
+    "prob with a bool": (_set(_car, "prob", [True] * 48), "class.car.prob"),
+    "prob nested": (_set(_car, "prob", [[0.5]] * 48), "class.car.prob"),
+    "prob shorter than raw": (_short_prob, "class.car.prob"),
+    "prob above 1": (_set(_car, "prob", [0.5] * 47 + [1.5]), "class.car.prob"),
+    "prob nan": (_set(_car, "prob", [math.nan] * 48), "class.car.prob"),
+    "range a number": (_set(_car, "range", 1.0), "class.car.range"),
+    "range typo": (_rename(_range, "scale_m", "scale"), "class.car.range.scale"),
+    "range value missing": (_drop(_range, "min_m"), "class.car.range.min_m"),
+    "range value a string": (_set(_range, "scale_m", "50"), "class.car.range.scale_m"),
+    "range value a bool": (_set(_range, "r_coef", False), "class.car.range.r_coef"),
+    "range value infinite": (_set(_range, "intercept", math.inf), "class.car.range"),
+    "range not monotone": (_set(_range, "logit_coef", -1.0), "class.car.range"),
+}
+
+
+def test_the_shipped_profile_round_trips_through_the_test_writer(tmp_path: Path) -> None:
+    """(So that each malformed variant below differs from a good profile by its edit alone.)"""
+    again = load_profile(_write_profile(_shipped(), tmp_path / "ok.toml"))
+    assert profile_toml(again) == profile_toml(resolve_profile("virconv"))
+
+
+@pytest.mark.parametrize("edit, field", MALFORMED.values(), ids=MALFORMED.keys())
+def test_a_malformed_profile_is_one_error_naming_file_and_field(
+    tmp_path: Path, edit: Callable[[dict[str, Any]], None], field: str
+) -> None:
+    doc = _shipped()
+    edit(doc)
+    path = _write_profile(doc, tmp_path / "bad.toml")
+    with pytest.raises(InputError) as err:
+        load_profile(path)
+    message = str(err.value)
+    assert message.startswith(f"{path}: field '{field}': ") and "\n" not in message
+
+
+def test_kitti_with_a_malformed_profile_exits_2_naming_file_and_field(
+    kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The reviewer's hand edits: before, an "unexpected error" (exit 1)."""
+    from app.cli import main
+
+    for edit, field in (MALFORMED["quality a string"], MALFORMED["fitted_on a number"]):
+        doc = _shipped()
+        edit(doc)
+        path = _write_profile(doc, tmp_path / "bad.toml")
+        argv = ["kitti", "--kitti-root", str(kitti_root), "--profile", str(path),
+                "--detector", "virconv", "--seqs", "0006", "--classes", "car"]  # fmt: skip
+        assert main([*argv, "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1
+        assert err[0].startswith(f"mctrack kitti: error: {path}: field '{field}': expected")
+
+
+def test_a_class_the_profile_has_no_map_for_is_a_loud_warning(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A pedestrian-only profile on a car run: the car scores fall back to sigmoid(raw), and
+    the run says so, as a detector without a profile does."""
+    from app.kitti import run_kitti
+
+    doc = _shipped()
+    doc["class"] = {"pedestrian": doc["class"]["car"]}
+    path = _write_profile(doc, tmp_path / "pedestrian_only.toml")
+    common = {"kitti_root": kitti_root, "seqs": ["0006"], "detector": "virconv", "quiet": True}
+    with caplog.at_level(logging.WARNING):
+        run_kitti(**common, classes=["car"], profile=path, out=tmp_path / "a")
+    assert (
+        f"NO SCORE CALIBRATION for the car boxes of detector 'virconv': profile {path} has no "
+        "[class.car] map (its classes: pedestrian), so the scores of these 727 boxes are used "
+        "as sigmoid(raw)"
+    ) in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # a class with a map, or without boxes: silent
+        run_kitti(**common, classes=["car", "pedestrian"], profile="virconv", out=tmp_path / "b")
+    assert "NO SCORE CALIBRATION" not in caplog.text
+
+
+def test_track_warns_for_a_tracked_class_the_profile_has_no_map_for(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    from app.cli import main
+
+    doc = _shipped("pointrcnn")
+    del doc["class"]["pedestrian"]
+    path = _write_profile(doc, tmp_path / "no_pedestrian.toml")
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+    argv = ["track", str(sample / "detections.json.gz"), "--profile", str(path), "--out"]
+    with caplog.at_level(logging.WARNING):
+        assert main([*argv, str(tmp_path / "t")]) == 0
+    assert "NO SCORE CALIBRATION for the pedestrian boxes of detector 'detections'" in caplog.text
+    assert "NO SCORE CALIBRATION for the car" not in caplog.text
+
+
+def test_calibrate_writes_a_profile_only_with_a_fitted_class(
+    kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No class fitted: one error, nothing written (before: a profile `mctrack kitti` refuses);
+    some fitted: those written, the others named; --out a folder: the error names it."""
+    from app.cli import main
+
+    argv = ["calibrate", "--kitti-root", str(kitti_root), "--detector", "virconv", "--seqs", "0006"]
+    out = tmp_path / "p.toml"
+    assert main([*argv, "--classes", "van", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no class could be fitted: van 0 boxes in 0006" in err[0]
+    assert str(kitti_root / "detections" / "virconv" / "training") in err[0]
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    assert main([*argv, "--classes", "car,pedestrian", "--out", str(out)]) == 0
+    assert "no fit for pedestrian 0 boxes in 0006" in capsys.readouterr().out
+    assert list(load_profile(out).maps) == ["car"]
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    assert main([*argv, "--classes", "car", "--out", str(folder)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"mctrack calibrate: error: --out {folder}: is a folder, expected a file name"]
 
 
 def test_calibrate_frames_decides_the_fallback_once_per_detector() -> None:

@@ -353,6 +353,27 @@ def test_robustness_calibrates_a_detector_without_a_profile_as_kitti_does(
     assert uncalibrated["levels"]["clean"]["runs"][0]["metrics"]["car"]["HOTA"] != clean
 
 
+def test_robustness_warns_for_a_class_its_profile_has_no_map_for(
+    sample_kit: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The car scores of a pedestrian-only profile fall back to sigmoid(raw): said loudly."""
+    from app.robustness import run_robustness
+    from tracker.calibration import find_profile, load_profile, profile_toml
+
+    shipped = find_profile("pointrcnn")
+    assert shipped is not None
+    profile = tmp_path / "pedestrian_only.toml"
+    pedestrian = {"pedestrian": shipped.maps["pedestrian"]}
+    profile.write_text(profile_toml(dataclasses.replace(shipped, maps=pedestrian)))
+    assert list(load_profile(profile).maps) == ["pedestrian"]
+    with caplog.at_level("WARNING"):
+        run_robustness(
+            kitti_root=sample_kit, seqs=["0001"], classes=["car"], detector="pointrcnn",
+            profile=profile, levels=["clean"], out=tmp_path / "r", quiet=True,
+        )  # fmt: skip
+    assert "NO SCORE CALIBRATION for the car boxes of detector 'pointrcnn'" in caplog.text
+
+
 def test_a_level_of_your_own(
     sample_kit: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -242,6 +242,42 @@ def warn_other_detector(profile: ScoreProfile, detector: str) -> None:
         )
 
 
+def raw_scored_per_class(frames: Sequence[Frame]) -> dict[str, int]:
+    """Boxes with a raw score (the ones a profile recalibrates), per class name."""
+    counts = np.zeros(len(CATEGORIES), np.int64)
+    for frame in frames:
+        cat = frame.boxes.category
+        known = np.isfinite(frame.boxes.score_raw) & (cat >= 0) & (cat < len(CATEGORIES))
+        counts += np.bincount(cat[known], minlength=len(CATEGORIES))
+    return {name: int(n) for name, n in zip(CATEGORIES, counts, strict=True) if n}
+
+
+def warn_classes_without_map(
+    profile: ScoreProfile, detector: str, boxes: Mapping[str, int], source: str
+) -> None:
+    """Warn, as loudly as a detector without a profile, for each class with boxes (``boxes``:
+    count per class name, over a run) that ``profile`` (named ``source``) has no map for:
+    their scores are the uncalibrated fallback, silently otherwise."""
+    for name, n in boxes.items():
+        if n and name not in profile.maps:
+            LOG.warning(
+                "NO SCORE CALIBRATION for the %s boxes of detector %r: profile %s has no "
+                "[class.%s] map (its classes: %s), so the scores of these %d boxes are used as "
+                "sigmoid(raw), or raw where already in [0, 1], and the tracker's thresholds may "
+                "fit them less well. Fit a profile of that class on labelled sequences with "
+                "`mctrack calibrate --detector %s --classes %s --out PROFILE.toml` and pass "
+                "--profile PROFILE.toml.",
+                name,
+                detector,
+                source,
+                name,
+                ", ".join(profile.maps) or "none",
+                n,
+                detector,
+                name,
+            )
+
+
 def warn_scores_outside(
     profile: ScoreProfile, detector: str, outside: Mapping[str, Sequence[int]]
 ) -> None:
@@ -309,8 +345,109 @@ def profile_by_path_or_name(value: str | Path) -> ScoreProfile:
     return profile
 
 
+#: the keys of a profile file, at the top and in each ``[class.<name>]`` table
+PROFILE_KEYS = ("version", "detector", "fitted_on", "class")
+CLASS_KEYS = ("raw", "prob", "range", "quality")
+
+
+def _short(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _is_number(value: object) -> bool:
+    """A TOML integer or float (a bool is an int to Python; TOML integers have no size limit
+    in tomllib, and one beyond a float's range is no number here)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        float(value)
+    except OverflowError:
+        return False
+    return True
+
+
+def _check_keys(table: Mapping[str, Any], allowed: Sequence[str], path: Path, where: str) -> None:
+    """As the config loader: a key the format does not have (a typo) is an error, not a term
+    silently left out."""
+    for key in table:
+        if key not in allowed:
+            raise InputError(
+                f"unknown key (expected {', '.join(allowed)})",
+                path=path,
+                field=f"{where}.{key}" if where else key,
+            )
+
+
+def _table(value: object, path: Path, field: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise InputError(f"expected a table, got {_short(value)}", path=path, field=field)
+    return value
+
+
+def _numbers(table: Mapping[str, Any], key: str, path: Path, where: str) -> FloatArray:
+    """The array ``table[key]`` of numbers (TOML strings or booleans are not numbers)."""
+    field = f"{where}.{key}"
+    if key not in table:
+        raise InputError("missing: expected an array of numbers", path=path, field=field)
+    value = table[key]
+    if not isinstance(value, list) or not value:
+        raise InputError(
+            f"expected a non-empty array of numbers, got {_short(value)}", path=path, field=field
+        )
+    for i, v in enumerate(value):
+        if not _is_number(v):
+            raise InputError(
+                f"expected an array of numbers; element {i} is {_short(v)}", path=path, field=field
+            )
+    return np.array(value, dtype=np.float64)
+
+
+def _range_term(value: object, path: Path, where: str) -> RangeTerm:
+    term = _table(value, path, where)
+    names = [f.name for f in dataclasses.fields(RangeTerm)]
+    _check_keys(term, names, path, where)
+    for name in names:
+        if name not in term:
+            raise InputError("missing: expected a number", path=path, field=f"{where}.{name}")
+        if not _is_number(term[name]):
+            raise InputError(
+                f"expected a number, got {_short(term[name])}", path=path, field=f"{where}.{name}"
+            )
+    try:
+        return RangeTerm(**{name: float(term[name]) for name in names})
+    except ValueError:
+        raise InputError(
+            "expected finite numbers with logit_coef > 0, scale_m > 0, 0 <= min_m <= max_m",
+            path=path,
+            field=where,
+        ) from None
+
+
+def _score_map(table: Mapping[str, Any], path: Path, where: str) -> ScoreMap:
+    raw = _numbers(table, "raw", path, where)
+    prob = _numbers(table, "prob", path, where)
+    if len(prob) != len(raw):
+        raise InputError(
+            f"{len(prob)} values, raw has {len(raw)}: one probability per knot",
+            path=path,
+            field=f"{where}.prob",
+        )
+    if not (np.all(np.isfinite(raw)) and np.all(np.diff(raw) > 0)):
+        raise InputError(
+            "expected finite, strictly increasing knots", path=path, field=f"{where}.raw"
+        )
+    if not (np.all((prob >= 0) & (prob <= 1)) and np.all(np.diff(prob) >= 0)):
+        raise InputError(
+            "expected non-decreasing probabilities in [0, 1]", path=path, field=f"{where}.prob"
+        )
+    term = _range_term(table["range"], path, f"{where}.range") if "range" in table else None
+    return ScoreMap(raw, prob, term)
+
+
 def load_profile(path: str | Path) -> ScoreProfile:
-    """Read a profile file; errors name the file and the field."""
+    """Read a profile file, as strictly as a config: an unknown key, a missing or mistyped
+    value is one error naming the file and the dotted field."""
     path = Path(path)
     try:
         doc = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -318,12 +455,23 @@ def load_profile(path: str | Path) -> ScoreProfile:
         raise InputError(f"cannot read profile: {exc}", path=path) from None
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"not valid TOML: {exc}", path=path) from None
-    if doc.get("version") not in READABLE_VERSIONS:
+    _check_keys(doc, PROFILE_KEYS, path, "")
+    version = doc.get("version")
+    if (
+        not isinstance(version, int)
+        or isinstance(version, bool)
+        or version not in READABLE_VERSIONS
+    ):
         expected = " or ".join(str(v) for v in READABLE_VERSIONS)
-        raise InputError(f"expected version = {expected}", path=path, field="version")
+        raise InputError(
+            f"expected version = {expected}, got {_short(version)}", path=path, field="version"
+        )
     detector = doc.get("detector")
     if not isinstance(detector, str) or not detector:
-        raise InputError("expected a detector name", path=path, field="detector")
+        raise InputError(
+            f"expected a detector name, got {_short(detector)}", path=path, field="detector"
+        )
+    fitted_on = _table(doc.get("fitted_on", {}), path, "fitted_on")
     classes = doc.get("class")
     if not isinstance(classes, dict) or not classes:
         raise InputError("expected [class.<name>] tables", path=path, field="class")
@@ -333,38 +481,10 @@ def load_profile(path: str | Path) -> ScoreProfile:
         where = f"class.{name}"
         if name not in CATEGORIES:
             raise InputError(f"unknown class {name!r}", path=path, field=where)
-        if not isinstance(table, dict):
-            raise InputError("expected a table", path=path, field=where)
-        range_term = None
-        if "range" in table:
-            term = table["range"]
-            names = [f.name for f in dataclasses.fields(RangeTerm)]
-            try:
-                if not isinstance(term, dict) or set(term) != set(names):
-                    raise ValueError
-                range_term = RangeTerm(**{k: float(term[k]) for k in names})
-            except (TypeError, ValueError):
-                raise InputError(
-                    f"expected the numbers {', '.join(names)} (logit_coef > 0, scale_m > 0, "
-                    "0 <= min_m <= max_m)",
-                    path=path,
-                    field=f"{where}.range",
-                ) from None
-        try:
-            maps[name] = ScoreMap(
-                np.array(table.get("raw"), dtype=np.float64),
-                np.array(table.get("prob"), dtype=np.float64),
-                range_term,
-            )
-        except (TypeError, ValueError):
-            raise InputError(
-                "raw/prob must be equal-length number arrays, raw increasing, prob "
-                "non-decreasing in [0, 1]",
-                path=path,
-                field=f"{where}.raw",
-            ) from None
-        quality[name] = dict(table.get("quality", {}))
-    fitted_on = doc.get("fitted_on", {})
+        table = _table(table, path, where)
+        _check_keys(table, CLASS_KEYS, path, where)
+        maps[name] = _score_map(table, path, where)
+        quality[name] = dict(_table(table.get("quality", {}), path, f"{where}.quality"))
     return ScoreProfile(detector, maps, dict(fitted_on), quality)
 
 

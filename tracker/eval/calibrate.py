@@ -41,6 +41,7 @@ DISTRACTORS: Mapping[str, tuple[str, ...]] = {
 }
 DONTCARE_OVERLAP = 0.5  # fraction of a detection's 2D box inside DontCare regions to ignore it
 MAX_KNOTS = 48  # knots stored per class (the map is read back with linear interpolation)
+MIN_FIT_BOXES = 20  # boxes of a class (some true, some false) a labelled map needs
 RANGE_SCALE_M = 50.0  # r = range / this in the range term (keeps its coefficients near 1)
 #: held-out log-loss gain (nats per detection) a range term must bring to be kept
 RANGE_MIN_GAIN = 0.002
@@ -212,7 +213,7 @@ def fit_profile(
     quality: dict[str, dict[str, object]] = {}
     for name in classes:
         part = data.of_class(name)
-        if len(part.raw) < 20 or part.label.min(initial=1) == part.label.max(initial=0):
+        if len(part.raw) < MIN_FIT_BOXES or part.label.min(initial=1) == part.label.max(initial=0):
             continue  # too little (or one-sided) evidence to fit: the class keeps the fallback
         raw, label, range_m = part.raw, part.label, part.range_m
         score_map = fit_map(raw, label)
@@ -223,7 +224,7 @@ def fit_profile(
         for scene in np.unique(part.scene):
             test = part.scene == scene
             train = ~test
-            if train.sum() >= 20 and label[train].min() != label[train].max():
+            if train.sum() >= MIN_FIT_BOXES and label[train].min() != label[train].max():
                 held[test] = True
                 iso = fit_map(raw[train], label[train])
                 held_iso[test] = iso(raw[test])
