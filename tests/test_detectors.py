@@ -513,6 +513,13 @@ MALFORMED = {
 }
 
 
+@pytest.mark.parametrize("name", ["pointrcnn", "second_iou", "virconv"])
+def test_a_shipped_profile_is_what_the_writer_writes(name: str) -> None:
+    """So a refit with `mctrack calibrate` on the same data gives the same file, byte for byte."""
+    path = Path(__file__).resolve().parents[1] / "tracker" / "profiles" / f"{name}.toml"
+    assert profile_toml(resolve_profile(name)) == path.read_text()
+
+
 def test_the_shipped_profile_round_trips_through_the_test_writer(tmp_path: Path) -> None:
     """(So that each malformed variant below differs from a good profile by its edit alone.)"""
     again = load_profile(_write_profile(_shipped(), tmp_path / "ok.toml"))

@@ -494,8 +494,8 @@ def profile_toml(profile: ScoreProfile) -> str:
         f"# Score calibration of the {profile.detector!r} detector: raw score -> probability",
         "# that the box is a real object (monotone, piecewise linear through the knots; where a",
         "# class has a range term, corrected for the box's distance from the ego).",
-        "# Made by `mctrack calibrate` (or, without labels, by `mctrack kitti`'s"
-        " self-calibration); see tracker/calibration.py.",
+        "# Made by `mctrack calibrate` (or, without labels, by `mctrack kitti`'s",
+        "# self-calibration); see tracker/calibration.py.",
         f"version = {PROFILE_VERSION}",
         f"detector = {toml_value(profile.detector)}",
         "",
