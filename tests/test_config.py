@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import tomllib
 from pathlib import Path
 
@@ -122,3 +123,41 @@ def test_image_width_scale_is_a_fraction_per_class() -> None:
     cfg = load_config("kitti", overrides={"category": {"car": {"image_width_scale": 0.5}}})
     scales = cfg.image_width_scales()
     assert scales[category_index("car")] == 0.5 and scales[category_index("cyclist")] == 1.0
+
+
+# ---------------------------------------------------------------------------------------------
+# category names: as --classes reads them (case, aliases), each once
+
+
+@pytest.mark.parametrize("written", ["Car", "CAR", "vehicle"])
+def test_a_category_section_is_read_under_its_canonical_name(tmp_path: Path, written: str) -> None:
+    """[category.Car] is car's section, merged over the base's [category.car] (it was accepted
+    and then ignored)."""
+    path = tmp_path / "c.toml"
+    path.write_text(f'base = "kitti"\ncategories = ["{written}"]\n[category.{written}]\n'
+                    "score_min = 0.9\n")  # fmt: skip
+    cfg = load_config(path)
+    kitti_car = load_config("kitti").per_category["car"]
+    assert cfg.categories == ("car",) and list(cfg.per_category) == ["car"]
+    assert cfg.per_category["car"] == dataclasses.replace(kitti_car, score_min=0.9)
+    over = load_config("kitti", overrides={"category": {written: {"score_min": 0.8}}})
+    assert over.per_category["car"].score_min == 0.8
+
+
+@pytest.mark.parametrize(
+    ("toml", "message"),
+    [
+        ("[category.car]\nscore_min = 0.1\n[category.Car]\nscore_min = 0.9\n",
+         "category.Car: the same category as category.car"),
+        ("[category.vehicle]\nscore_min = 0.1\n[category.car]\nscore_min = 0.9\n",
+         "category.car: the same category as category.vehicle"),
+        ('categories = ["car", "Car"]\n', "categories: 'Car' names 'car' a second time"),
+        ("[category]\ncar = 3\n", "category.car: expected a table, got 3"),
+    ],
+    ids=lambda v: v.split("\n")[0],
+)  # fmt: skip
+def test_a_category_named_twice_is_refused(tmp_path: Path, toml: str, message: str) -> None:
+    path = tmp_path / "twice.toml"
+    path.write_text('base = "kitti"\n' + toml)
+    with pytest.raises(InputError, match=f"^{re.escape(f'{path}: {message}')}"):
+        load_config(path)

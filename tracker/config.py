@@ -298,7 +298,7 @@ def load_config(
     """
     raw, source = _load_raw(name_or_path, seen=())
     if overrides:
-        raw = _merge(raw, overrides)
+        raw = _merge(raw, _canonical_categories(overrides, source))
     return config_from_dict(raw, source=source)
 
 
@@ -308,7 +308,7 @@ def _load_raw(name_or_path: str | Path, *, seen: tuple[str, ...]) -> tuple[dict[
     if source in seen:
         raise InputError(f"{source}: 'base' chain loops: {' -> '.join((*seen, source))}")
     try:
-        raw = tomllib.loads(text)
+        raw = _canonical_categories(tomllib.loads(text), source)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{source}: malformed TOML ({exc})") from None
     base = raw.pop("base", None)
@@ -342,20 +342,56 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _canonical_categories(raw: dict[str, Any], source: str) -> dict[str, Any]:
+    """``raw`` with ``categories`` and the ``[category.<name>]`` sections under their canonical
+    names (case and known spellings as :func:`category_index` reads them, as ``--classes``
+    does): ``[category.Car]`` is car's section, merged over a base's ``[category.car]``. A
+    category named twice in one table is refused (which section would win is not obvious)."""
+    out = dict(raw)
+    categories = raw.get("categories")
+    if isinstance(categories, list):
+        names: list[str] = []
+        for name in categories:
+            index = category_index(name) if isinstance(name, str) else -1
+            if index < 0:
+                raise InputError(f"{source}: categories: unknown category {name!r}")
+            if CATEGORIES[index] in names:
+                raise InputError(
+                    f"{source}: categories: {name!r} names {CATEGORIES[index]!r} a second time"
+                )
+            names.append(CATEGORIES[index])
+        out["categories"] = names
+    sections = raw.get("category")
+    if isinstance(sections, dict):
+        canonical: dict[str, Any] = {}
+        written: dict[str, str] = {}
+        for name, table in sections.items():
+            index = category_index(name)
+            if index < 0:
+                raise InputError(f"{source}: category.{name}: unknown category")
+            key = CATEGORIES[index]
+            if key in canonical:
+                raise InputError(
+                    f"{source}: category.{name}: the same category as category.{written[key]} "
+                    "(one section per category)"
+                )
+            if not isinstance(table, dict):
+                raise InputError(f"{source}: category.{name}: expected a table, got {table!r}")
+            canonical[key], written[key] = table, name
+        out["category"] = canonical
+    return out
+
+
 def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerConfig:
-    raw = dict(raw)
+    raw = _canonical_categories(raw, source)
     defaults = raw.pop("defaults", {})
     per_cat_raw = raw.pop("category", {})
     categories = raw.get("categories")
     if not isinstance(categories, list) or not categories:
         raise InputError(f"{source}: 'categories' must be a non-empty list of names")
-    for name in categories:
-        if category_index(str(name)) < 0:
-            raise InputError(f"{source}: categories: unknown category {name!r}")
+    if not isinstance(per_cat_raw, dict):
+        raise InputError(f"{source}: category: expected a table, got {per_cat_raw!r}")
     _build(CategoryConfig, defaults, "defaults", source)  # validated even where overridden
-    for name in per_cat_raw:
-        if category_index(str(name)) < 0:
-            raise InputError(f"{source}: category.{name}: unknown category")
     # every section is validated (typos fail even when that category is not tracked in this
     # run); the tracked categories are kept
     sections = {
