@@ -22,6 +22,7 @@ from tracker.config import (
 from tracker.errors import InputError
 
 CONFIGS = Path(__file__).resolve().parents[1] / "tracker" / "configs"
+SAMPLE = CONFIGS.parents[1] / "sample_data" / "kitti-0001"
 
 
 @pytest.mark.parametrize("name", ["kitti"])
@@ -161,3 +162,74 @@ def test_a_category_named_twice_is_refused(tmp_path: Path, toml: str, message: s
     path.write_text('base = "kitti"\n' + toml)
     with pytest.raises(InputError, match=f"^{re.escape(f'{path}: {message}')}"):
         load_config(path)
+
+
+# ---------------------------------------------------------------------------------------------
+# value ranges
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN))
+@pytest.mark.parametrize("mode", ["online", "offline"])
+def test_every_shipped_config_loads(name: str, mode: str) -> None:
+    """The ranges refuse no shipped value, in either mode (and any config file shipped beside
+    the built-ins loads by path)."""
+    assert load_config(name, overrides={"mode": mode}).mode.value == mode
+    root = CONFIGS.parents[1]
+    for path in [*CONFIGS.glob("*.toml"), *(root / "docs" / "tune").glob("**/*.toml")]:
+        load_config(path, overrides={"mode": mode})
+
+
+@pytest.mark.parametrize(
+    ("table", "dotted"),
+    [
+        ("[category.car]\nscore_min = 2", "category.car.score_min"),
+        ("[category.car]\nscore_min = nan", "category.car.score_min"),
+        ("[category.car]\nscore_min = -0.1", "category.car.score_min"),
+        ("[category.car]\nbirth_score_min = 1.5", "category.car.birth_score_min"),
+        ("[category.car]\nnms_iou_max = 2", "category.car.nms_iou_max"),
+        ("[category.car.lifecycle]\nmax_misses = -1", "category.car.lifecycle.max_misses"),
+        ("[category.car.lifecycle]\nmin_hits = -2", "category.car.lifecycle.min_hits"),
+        ("[category.car.lifecycle]\nconfirm_prob = 1.5", "category.car.lifecycle.confirm_prob"),
+        ("[category.car.lifecycle]\nconfirm_score = -1", "category.car.lifecycle.confirm_score"),
+        ("[category.car.lifecycle]\ntrack_score_min = inf",
+         "category.car.lifecycle.track_score_min"),
+        ("[category.car.bev]\nalpha = 1.5", "category.car.bev.alpha"),
+        ("[category.car.bev]\ngate_distance_m = 0", "category.car.bev.gate_distance_m"),
+        ("[category.car.pose.ca]\nr = [0.0, 0.1]", "category.car.pose.ca.r"),
+        ("[category.car.size]\nq = [0.01, -1, 0.001, 0.001]", "category.car.size.q"),
+        ("[category.car.heading]\nmin_speed_mps = -1", "category.car.heading.min_speed_mps"),
+        ("[defaults]\nscore_min = 2", "defaults.score_min"),
+        ("[defaults.lifecycle]\nmax_misses_output = -1", "defaults.lifecycle.max_misses_output"),
+        ("[offline]\ninterpolate_max_gap = -1", "offline.interpolate_max_gap"),
+        ("[offline]\nsmooth_seconds = inf", "offline.smooth_seconds"),
+        ("[offline]\ntrack_score_min = nan", "offline.track_score_min"),
+        ("frame_rate_hz = nan", "frame_rate_hz"),
+    ],
+    ids=lambda v: v.split("\n")[0],
+)  # fmt: skip
+def test_an_impossible_value_is_refused_naming_file_and_key(
+    tmp_path: Path, table: str, dotted: str
+) -> None:
+    """Scores are probabilities in every score mode (a detection's score is in [0, 1]), counts
+    are >= 0, variances finite and >= 0 (r > 0), NaN never: each was accepted and ran (a
+    score_min of 2 to HOTA 0, exit 0)."""
+    path = tmp_path / "bad.toml"
+    path.write_text(f'base = "kitti"\n{table}\n')
+    with pytest.raises(InputError, match=f"^{re.escape(f'{path}: {dotted}')}[ :]") as err:
+        load_config(path)
+    assert "\n" not in str(err.value)
+
+
+def test_the_cli_refuses_an_impossible_value_with_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from app.cli import main
+
+    path = tmp_path / "bad.toml"
+    path.write_text('base = "kitti"\n[category.car]\nscore_min = 2\n')
+    code = main(["track", str(SAMPLE / "detections.json.gz"), "--config", str(path),
+                 "--out", str(tmp_path / "out")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert f"{path}: category.car.score_min must be in [0, 1]" in err[0]
+    assert not (tmp_path / "out" / "tracks.json").exists()

@@ -23,7 +23,7 @@ import enum
 import math
 import tomllib
 import typing
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path
@@ -391,7 +391,7 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
         raise InputError(f"{source}: 'categories' must be a non-empty list of names")
     if not isinstance(per_cat_raw, dict):
         raise InputError(f"{source}: category: expected a table, got {per_cat_raw!r}")
-    _build(CategoryConfig, defaults, "defaults", source)  # validated even where overridden
+    _check_ranges(_build(CategoryConfig, defaults, "defaults", source), "defaults", source)
     # every section is validated (typos fail even when that category is not tracked in this
     # run); the tracked categories are kept
     sections = {
@@ -408,26 +408,86 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
         source,
         skip={"per_category", "source"},
     )
-    if top.frame_rate_hz <= 0:
-        raise InputError(f"{source}: frame_rate_hz must be > 0")
-    if not 0.0 <= top.offline.exchange_seconds < math.inf:
-        raise InputError(f"{source}: offline.exchange_seconds must be finite and >= 0")
-    if not 0.0 < top.offline.rts_r_multiple < math.inf:
-        raise InputError(f"{source}: offline.rts_r_multiple must be finite and > 0")
-    if not 0.0 <= top.coast_min_in_view <= 1.0:
-        raise InputError(f"{source}: coast_min_in_view must be in [0, 1]")
+    _check_ranges(top, "", source)
     for name, cfg in sections.items():
-        if not 0.0 < cfg.image_width_scale <= 1.0:
-            raise InputError(f"{source}: category.{name}.image_width_scale must be in (0, 1]")
-        if not 0.0 <= cfg.bev.buffer <= 2.0:
-            raise InputError(f"{source}: category.{name}.bev.buffer must be in [0, 2]")
-        if not 0.0 < cfg.vertical_gain <= 1.0:
-            raise InputError(f"{source}: category.{name}.vertical_gain must be in (0, 1]")
-        if not cfg.bev.gate_motion_m > 0.0:
-            raise InputError(f"{source}: category.{name}.bev.gate_motion_m must be > 0 (inf: off)")
-        if not 0.0 <= cfg.pose.r_scale < math.inf:
-            raise InputError(f"{source}: category.{name}.pose.r_scale must be finite and >= 0")
+        _check_ranges(cfg, f"category.{name}", source)
     return top
+
+
+# a Kalman noise's variances: finite and >= 0, the measurement's > 0 (tracker.kalman.DiagonalNoise)
+_NOISE_CHECKS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ("p", lambda v: all(0.0 <= x < math.inf for x in v), "must be finite variances >= 0"),
+    ("q", lambda v: all(0.0 <= x < math.inf for x in v), "must be finite variances >= 0"),
+    ("r", lambda v: all(0.0 < x < math.inf for x in v), "must be finite variances > 0"),
+)
+_COUNT = (lambda v: v >= 0, "must be >= 0")
+_PROBABILITY = (lambda v: 0.0 <= v <= 1.0, "must be in [0, 1] (a probability)")
+_LOG_ODDS = (lambda v: v < math.inf, "must be a log-odds < inf (-inf: off)")
+#: Each numeric setting's range, by dotted key, checked once the config is built (NaN fails
+#: every check, and _coerce refuses it first). Scores are probabilities whatever ``scores`` says
+#: (a detection's score is in [0, 1]: calibrated, sigmoid(raw), or a BaseVersion
+#: detection_score); confirm_score 2 is documented as "never", so it is not capped at 1.
+_RANGES: dict[type, tuple[tuple[str, Callable[[Any], bool], str], ...]] = {
+    TrackerConfig: (
+        ("frame_rate_hz", lambda v: 0.0 < v < math.inf, "must be finite and > 0"),
+        ("coast_min_in_view", lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]"),
+    ),
+    OfflineConfig: (
+        ("track_score_min", *_LOG_ODDS),
+        ("interpolate_max_gap", *_COUNT),
+        ("smooth_seconds", lambda v: 0.0 <= v < math.inf, "must be finite and >= 0"),
+        ("rts_r_multiple", lambda v: 0.0 < v < math.inf, "must be finite and > 0"),
+        ("stitch_max_gap", *_COUNT),
+        ("stitch_distance_m", lambda v: 0.0 <= v < math.inf, "must be finite and >= 0"),
+        ("exchange_seconds", lambda v: 0.0 <= v < math.inf, "must be finite and >= 0"),
+    ),
+    CategoryConfig: (
+        ("score_min", *_PROBABILITY),
+        ("birth_score_min", *_PROBABILITY),
+        ("nms_iou_max", lambda v: 0.0 <= v <= 1.0, "must be in [0, 1] (an IoU)"),
+        ("image_width_scale", lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"),
+        ("vertical_gain", lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"),
+    ),
+    BevConfig: (
+        ("w1", lambda v: abs(v) < math.inf, "must be finite"),
+        ("w2", lambda v: abs(v) < math.inf, "must be finite"),
+        ("alpha", lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]"),
+        ("gate_distance_m", lambda v: v > 0.0, "must be > 0 (inf: off)"),
+        ("gate_motion_m", lambda v: v > 0.0, "must be > 0 (inf: off)"),
+        ("buffer", lambda v: 0.0 <= v <= 2.0, "must be in [0, 2]"),
+    ),
+    RvConfig: (
+        ("yaw_gate_deg", lambda v: v >= 0.0, "must be >= 0"),
+        ("distance_gate_m", lambda v: v >= 0.0, "must be >= 0"),
+    ),
+    LifecycleConfig: (
+        ("min_hits", *_COUNT),
+        ("confirm_score", lambda v: v >= 0.0, "must be >= 0 (above 1: never)"),
+        ("confirm_prob", lambda v: 0.0 <= v <= 1.0, "must be in [0, 1] (1: never)"),
+        ("max_misses_tentative", *_COUNT),
+        ("max_misses_output", *_COUNT),
+        ("coast_min_hits", *_COUNT),
+        ("max_misses", *_COUNT),
+        ("track_score_min", *_LOG_ODDS),
+        ("offline_track_score_min", *_LOG_ODDS),
+    ),
+    PoseFilterConfig: (("r_scale", lambda v: 0.0 <= v < math.inf, "must be finite and >= 0"),),
+    HeadingFilterConfig: (("min_speed_mps", lambda v: v >= 0.0, "must be >= 0"),),
+    KalmanNoise: _NOISE_CHECKS,
+}
+
+
+def _check_ranges(obj: Any, path: str, source: str) -> None:
+    """Every setting of ``obj`` (and of its nested tables) inside its range, else the one-line
+    error naming the file and the dotted key."""
+    for key, ok, what in _RANGES.get(type(obj), ()):
+        if not ok(getattr(obj, key)):
+            dotted = f"{path}.{key}" if path else key
+            raise InputError(f"{source}: {dotted} {what}, got {toml_value(getattr(obj, key))}")
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if is_dataclass(value) and f.name != "per_category":
+            _check_ranges(value, f"{path}.{f.name}" if path else f.name, source)
 
 
 def _build(
@@ -493,6 +553,8 @@ def _coerce(tp: Any, value: Any, dotted: str, source: str, base: Any = None) -> 
         allowed_types, what = checks[tp]
         if (tp is not bool and isinstance(value, bool)) or not isinstance(value, allowed_types):
             raise InputError(f"{source}: {dotted}: expected {what}, got {value!r}")
+        if tp is float and math.isnan(value):
+            raise InputError(f"{source}: {dotted}: expected a number, got nan")
         return float(value) if tp is float else value
     return value
 
