@@ -233,3 +233,99 @@ def test_the_cli_refuses_an_impossible_value_with_one_line(
     assert code == 2 and len(err) == 1
     assert f"{path}: category.car.score_min must be in [0, 1]" in err[0]
     assert not (tmp_path / "out" / "tracks.json").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# offline mode: one rule, every command
+
+
+def _best_toml(tmp_path: Path, extra: str = "") -> Path:
+    """A `mctrack tune` output of an online search: kitti with a car value of its own."""
+    path = tmp_path / "best.toml"
+    path.write_text(f'base = "kitti"\nmode = "online"\n[category.car]\nscore_min = 0.3\n{extra}')
+    return path
+
+
+def test_offline_mode_of_a_config_is_its_offline_variant(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """kitti in offline mode is kitti_offline (as `mctrack kitti` always had it, now `track`,
+    `view`, `tune` too); a file on kitti gets kitti_offline's offline values where it sets none
+    of its own; a file without a built-in offline variant under it keeps its own, and says so."""
+    offline = load_config("kitti_offline")
+    assert load_config("kitti", overrides={"mode": "offline"}) == offline
+    assert load_config("kitti_offline", overrides={"mode": "offline"}) == offline
+    caplog.set_level("INFO", logger="tracker.config")
+    best = load_config(_best_toml(tmp_path), overrides={"mode": "offline"})
+    car = offline.per_category["car"]
+    assert best.mode.value == "offline" and best.offline == offline.offline
+    assert best.per_category["car"] == dataclasses.replace(car, score_min=0.3)
+    assert best.per_category["pedestrian"] == offline.per_category["pedestrian"]
+    assert "on kitti_offline (the offline variant of its base kitti)" in caplog.text
+    # its own offline values win; the file's own mode = "offline" asks the same as --mode
+    own = _best_toml(tmp_path, "[offline]\nrts_r_multiple = 2.0\n").read_text()
+    (tmp_path / "own.toml").write_text(own.replace('mode = "online"', 'mode = "offline"'))
+    mine = load_config(tmp_path / "own.toml")
+    assert mine.offline == dataclasses.replace(offline.offline, rts_r_multiple=2.0)
+    assert mine.per_category["car"].lifecycle.offline_track_score_min == 0.5
+    assert load_config(tmp_path / "own.toml", overrides={"mode": "online"}).offline.rts is False
+    # no built-in offline variant under it: its own [offline] table
+    alone = tmp_path / "alone.toml"
+    alone.write_text((CONFIGS / "kitti.toml").read_text())
+    assert load_config(alone, overrides={"mode": "offline"}).offline == load_config("kitti").offline
+    assert f"{alone}, offline mode: no built-in offline variant under it" in caplog.text
+    assert load_config("nuscenes", overrides={"mode": "offline"}).offline.track_score_min == 1.4
+
+
+def test_track_offline_writes_what_the_offline_variant_writes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack track --mode offline --config kitti` wrote kitti's settings in offline mode
+    (track gate -inf, smoother r 1.0), not kitti_offline's, which `mctrack kitti` used."""
+    from app.cli import main
+
+    written = []
+    for config in ("kitti", "kitti_offline"):
+        out = tmp_path / config
+        argv = ["track", str(SAMPLE / "detections.json.gz"), "--frames", "0:80", "--mode",
+                "offline", "--config", config, "--out", str(out)]  # fmt: skip
+        assert main(argv) == 0, capsys.readouterr().err
+        written.append((out / "tracks.json").read_bytes())
+    assert written[0] == written[1]
+
+
+def test_kitti_offline_with_a_tune_output_keeps_the_offline_values(tmp_path: Path) -> None:
+    """`mctrack kitti --mode offline --config best.toml` (base kitti) ran best.toml with kitti's
+    [offline] table, the offline values dropped silently."""
+    from app.cli import main
+
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE / "raw"), "--seqs", "0001", "--classes", "car",
+            "--mode", "offline", "--config", str(_best_toml(tmp_path)), "--no-eval",
+            "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    ran = json.loads((out / "summary.json").read_text())["config"]
+    want = load_config("kitti_offline", overrides={"category": {"car": {"score_min": 0.3}}})
+    assert ran["offline"] == config_to_dict(want.offline)
+    assert ran["category"]["car"] == config_to_dict(want.per_category["car"])
+
+
+@pytest.mark.parametrize("config", ["kitti", "kitti_reference", "best.toml"])
+def test_tune_offline_takes_any_config(
+    tmp_path: Path, config: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack tune --mode offline --config X` loaded "X_offline": a file or a built-in without
+    a variant was "not found". Now the config loads (the run stops at the next check, --folds)
+    and its record names the built-in variant where there is one."""
+    from app.cli import main
+    from tracker.config import config_for_mode
+
+    name = str(_best_toml(tmp_path)) if config == "best.toml" else config
+    argv = ["tune", "--mode", "offline", "--config", name, "--kitti-root", str(SAMPLE / "raw"),
+            "--seqs", "0001", "--folds", "2", "--out", str(tmp_path / "out")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--folds 2 needs at least as many --seqs" in err and "not found" not in err
+    want = {"kitti": "kitti_offline", "kitti_reference": "kitti_reference"}.get(config, name)
+    assert str(config_for_mode(name, "offline")) == want
+    assert str(config_for_mode(name, "online")) == name

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import copy
 import enum
+import logging
 import math
 import tomllib
 import typing
@@ -34,6 +35,8 @@ import numpy as np
 from tracker.boxes import FloatArray
 from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
+
+LOG = logging.getLogger(__name__)
 
 
 class CostKind(enum.Enum):
@@ -295,15 +298,75 @@ def load_config(
     """Load a built-in config by name (see ``BUILTIN``) or a TOML file by path.
 
     ``overrides`` is a nested dict merged over the file (used by tuning scripts and tests).
+
+    A config whose mode is offline (its own ``mode``, or ``overrides["mode"]``, which is how
+    every command's ``--mode`` reaches it) is its offline variant: each built-in in its ``base``
+    chain that has one (``kitti`` -> ``kitti_offline``) is replaced by it, unless the chain
+    holds it already. So ``kitti`` in offline mode is ``kitti_offline``, and a file on ``kitti``
+    gets ``kitti_offline``'s offline settings wherever it sets none of its own. A file with no
+    such built-in under it keeps its own ``[offline]`` table (both logged once per file).
     """
-    raw, source = _load_raw(name_or_path, seen=())
-    if overrides:
-        raw = _merge(raw, _canonical_categories(overrides, source))
+    raw, source, chain = _load_raw(name_or_path, seen=())
+    over = _canonical_categories(overrides or {}, source)
+    raw = _merge(raw, over)
+    if raw.get("mode") == TrackingMode.OFFLINE.value:
+        offline_raw, source, offline_chain = _load_raw(name_or_path, seen=(), offline=True)
+        if offline_chain != chain:
+            raw = _merge(offline_raw, over)
+        if str(name_or_path) not in BUILTIN:
+            _note_offline(source, chain, offline_chain)
     return config_from_dict(raw, source=source)
 
 
-def _load_raw(name_or_path: str | Path, *, seen: tuple[str, ...]) -> tuple[dict[str, Any], str]:
-    """The TOML table, with ``base = "<name or path>"`` resolved (the file overrides its base)."""
+def offline_variant(name: str | Path) -> str | None:
+    """The built-in offline variant of a built-in config name (``kitti`` -> ``kitti_offline``),
+    or None."""
+    variant = f"{name}_offline"
+    return variant if str(name) in BUILTIN and variant in BUILTIN else None
+
+
+def config_for_mode(name_or_path: str | Path, mode: str | None) -> str | Path:
+    """The config a run in ``mode`` loads, as commands name it (summaries, tune records): a
+    built-in's offline variant where it has one, else the config itself (a file's offline
+    variant is resolved by :func:`load_config`, under its own name)."""
+    if mode == TrackingMode.OFFLINE.value:
+        return offline_variant(name_or_path) or name_or_path
+    return name_or_path
+
+
+_NOTED: set[str] = set()
+
+
+def _note_offline(source: str, chain: tuple[str, ...], offline_chain: tuple[str, ...]) -> None:
+    """Say once per file which offline settings a custom config runs with."""
+    if source in _NOTED:
+        return
+    _NOTED.add(source)
+    swapped = [(a, b) for a, b in zip(chain, offline_chain, strict=False) if a != b]
+    if swapped:
+        (base, variant), *_ = swapped
+        LOG.info(
+            "%s, offline mode: on %s (the offline variant of its base %s) where it sets no value "
+            "of its own",
+            source, variant, base,
+        )  # fmt: skip
+    elif not any(name.endswith("_offline") and name in BUILTIN for name in chain):
+        LOG.info(
+            "%s, offline mode: no built-in offline variant under it (%s); its own [offline] "
+            "settings, defaults where unset",
+            source, " -> ".join(chain),
+        )  # fmt: skip
+
+
+def _load_raw(
+    name_or_path: str | Path, *, seen: tuple[str, ...], offline: bool = False
+) -> tuple[dict[str, Any], str, tuple[str, ...]]:
+    """The TOML table, with ``base = "<name or path>"`` resolved (the file overrides its base),
+    its source and the chain of configs it was built from (outermost first). ``offline``:
+    each built-in with an offline variant not already in the chain is replaced by it."""
+    variant = offline_variant(name_or_path) if offline else None
+    if variant is not None and f"<builtin {variant}>" not in seen:
+        name_or_path = variant
     text, source = _read_source(name_or_path)
     if source in seen:
         raise InputError(f"{source}: 'base' chain loops: {' -> '.join((*seen, source))}")
@@ -313,13 +376,13 @@ def _load_raw(name_or_path: str | Path, *, seen: tuple[str, ...]) -> tuple[dict[
         raise InputError(f"{source}: malformed TOML ({exc})") from None
     base = raw.pop("base", None)
     if base is None:
-        return raw, source
+        return raw, source, (str(name_or_path),)
     if not isinstance(base, str):
         raise InputError(f"{source}: 'base' must be a config name or path")
     if base not in BUILTIN and not Path(base).is_absolute() and str(name_or_path) not in BUILTIN:
         base = str(Path(name_or_path).parent / base)  # relative to the file
-    base_raw, _ = _load_raw(base, seen=(*seen, source))
-    return _merge(base_raw, raw), source
+    base_raw, _, chain = _load_raw(base, seen=(*seen, source), offline=offline)
+    return _merge(base_raw, raw), source, (str(name_or_path), *chain)
 
 
 def _read_source(name_or_path: str | Path) -> tuple[str, str]:
