@@ -132,7 +132,8 @@ def add_mode_argument(parser: argparse.ArgumentParser, note: str = "") -> None:
         "--mode",
         choices=["online", "offline"],
         default=None,
-        help="tracking mode (default: the config's)" + note,
+        help="tracking mode (default: the config's); offline: the config's offline variant, "
+        "each built-in in its base chain with one replaced by it (kitti -> kitti_offline)" + note,
     )
 
 

@@ -43,9 +43,9 @@ from tracker.calibration import (
     warn_scores_outside,
 )
 from tracker.config import (
-    BUILTIN,
     ImageBoxes,
     TrackerConfig,
+    config_for_mode,
     config_to_dict,
     load_config,
 )
@@ -102,7 +102,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config", default="kitti", help="built-in config name (kitti, ...) or a TOML file"
     )
-    add_mode_argument(parser, "; offline with a built-in config uses <config>_offline")
+    add_mode_argument(parser)
     parser.add_argument(
         "--poses",
         default="orbslam3",
@@ -338,8 +338,7 @@ def run_kitti(
     """
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
-    if mode == "offline" and f"{config_name}_offline" in BUILTIN:
-        config_name = f"{config_name}_offline"  # the built-in offline settings
+    config_name = config_for_mode(config_name, mode)  # (load_config applies the same rule)
     if mode:
         overrides["mode"] = mode
     config = load_config(config_name, overrides=overrides)

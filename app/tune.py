@@ -45,7 +45,7 @@ from app.inputs import (
     positive_int,
     sequence_list,
 )
-from tracker.config import BUILTIN, load_config, toml_value
+from tracker.config import BUILTIN, config_for_mode, load_config, toml_value
 from tracker.errors import InputError
 from tracker.eval.perturb import CLEAN, NOISE_LEVELS, perturb_frames
 from tracker.frame import Frame
@@ -108,7 +108,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--mode",
         choices=["online", "offline"],
         default="online",
-        help="tune the online config or <config>_offline (default: %(default)s)",
+        help="tune the config in this mode (offline: its offline variant, as --mode offline "
+        "gives in every command; default: %(default)s)",
     )
     parser.add_argument("--trials", type=positive_int, default=20, help="trials per search")
     parser.add_argument("--folds", type=positive_int, default=3, help="sequence folds")
@@ -459,7 +460,7 @@ def _run(args: argparse.Namespace) -> int:
     elif args.max_concurrent is not None:
         raise InputError("--max-concurrent needs --ray (local trials run one at a time)")
     cls = args.cls
-    config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
+    config_name = str(config_for_mode(args.config, args.mode))
     base = {"categories": [cls], "mode": args.mode}
     base_config = load_config(config_name, overrides=base)  # fail early on a bad config
     space = search_space(cls, args.mode, r_scale=base_config.per_category[cls].pose.r_scale > 0)

@@ -58,7 +58,7 @@ from app.tune import (
     parse_search,
     suggest,
 )
-from tracker.config import config_to_dict, load_config
+from tracker.config import config_for_mode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
 from tracker.io.fileio import write_bytes_atomic, write_text_atomic
@@ -310,7 +310,7 @@ class RaySearch:
     ) -> RaySearch:
         """Checks ``OUT/ray_tune/run.json`` against this command line (a different one is
         refused) and writes it for a new run."""
-        config_name = f"{args.config}_offline" if args.mode == "offline" else args.config
+        config_name = str(config_for_mode(args.config, args.mode))
         config = config_to_dict(load_config(config_name, overrides={"mode": args.mode}))
         options = {
             "class": args.cls,

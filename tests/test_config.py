@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import tomllib
 from pathlib import Path
 
@@ -21,6 +22,7 @@ from tracker.config import (
 from tracker.errors import InputError
 
 CONFIGS = Path(__file__).resolve().parents[1] / "tracker" / "configs"
+SAMPLE = CONFIGS.parents[1] / "sample_data" / "kitti-0001"
 
 
 @pytest.mark.parametrize("name", ["kitti"])
@@ -122,3 +124,208 @@ def test_image_width_scale_is_a_fraction_per_class() -> None:
     cfg = load_config("kitti", overrides={"category": {"car": {"image_width_scale": 0.5}}})
     scales = cfg.image_width_scales()
     assert scales[category_index("car")] == 0.5 and scales[category_index("cyclist")] == 1.0
+
+
+# ---------------------------------------------------------------------------------------------
+# category names: as --classes reads them (case, aliases), each once
+
+
+@pytest.mark.parametrize("written", ["Car", "CAR", "vehicle"])
+def test_a_category_section_is_read_under_its_canonical_name(tmp_path: Path, written: str) -> None:
+    """[category.Car] is car's section, merged over the base's [category.car] (it was accepted
+    and then ignored)."""
+    path = tmp_path / "c.toml"
+    path.write_text(f'base = "kitti"\ncategories = ["{written}"]\n[category.{written}]\n'
+                    "score_min = 0.9\n")  # fmt: skip
+    cfg = load_config(path)
+    kitti_car = load_config("kitti").per_category["car"]
+    assert cfg.categories == ("car",) and list(cfg.per_category) == ["car"]
+    assert cfg.per_category["car"] == dataclasses.replace(kitti_car, score_min=0.9)
+    over = load_config("kitti", overrides={"category": {written: {"score_min": 0.8}}})
+    assert over.per_category["car"].score_min == 0.8
+
+
+@pytest.mark.parametrize(
+    ("toml", "message"),
+    [
+        ("[category.car]\nscore_min = 0.1\n[category.Car]\nscore_min = 0.9\n",
+         "category.Car: the same category as category.car"),
+        ("[category.vehicle]\nscore_min = 0.1\n[category.car]\nscore_min = 0.9\n",
+         "category.car: the same category as category.vehicle"),
+        ('categories = ["car", "Car"]\n', "categories: 'Car' names 'car' a second time"),
+        ("[category]\ncar = 3\n", "category.car: expected a table, got 3"),
+    ],
+    ids=lambda v: v.split("\n")[0],
+)  # fmt: skip
+def test_a_category_named_twice_is_refused(tmp_path: Path, toml: str, message: str) -> None:
+    path = tmp_path / "twice.toml"
+    path.write_text('base = "kitti"\n' + toml)
+    with pytest.raises(InputError, match=f"^{re.escape(f'{path}: {message}')}"):
+        load_config(path)
+
+
+# ---------------------------------------------------------------------------------------------
+# value ranges
+
+
+@pytest.mark.parametrize("name", sorted(BUILTIN))
+@pytest.mark.parametrize("mode", ["online", "offline"])
+def test_every_shipped_config_loads(name: str, mode: str) -> None:
+    """The ranges refuse no shipped value, in either mode (and any config file shipped beside
+    the built-ins loads by path)."""
+    assert load_config(name, overrides={"mode": mode}).mode.value == mode
+    root = CONFIGS.parents[1]
+    for path in [*CONFIGS.glob("*.toml"), *(root / "docs" / "tune").glob("**/*.toml")]:
+        load_config(path, overrides={"mode": mode})
+
+
+@pytest.mark.parametrize(
+    ("table", "dotted"),
+    [
+        ("[category.car]\nscore_min = 2", "category.car.score_min"),
+        ("[category.car]\nscore_min = nan", "category.car.score_min"),
+        ("[category.car]\nscore_min = -0.1", "category.car.score_min"),
+        ("[category.car]\nbirth_score_min = 1.5", "category.car.birth_score_min"),
+        ("[category.car]\nnms_iou_max = 2", "category.car.nms_iou_max"),
+        ("[category.car.lifecycle]\nmax_misses = -1", "category.car.lifecycle.max_misses"),
+        ("[category.car.lifecycle]\nmin_hits = -2", "category.car.lifecycle.min_hits"),
+        ("[category.car.lifecycle]\nconfirm_prob = 1.5", "category.car.lifecycle.confirm_prob"),
+        ("[category.car.lifecycle]\nconfirm_score = -1", "category.car.lifecycle.confirm_score"),
+        ("[category.car.lifecycle]\ntrack_score_min = inf",
+         "category.car.lifecycle.track_score_min"),
+        ("[category.car.bev]\nalpha = 1.5", "category.car.bev.alpha"),
+        ("[category.car.bev]\ngate_distance_m = 0", "category.car.bev.gate_distance_m"),
+        ("[category.car.pose.ca]\nr = [0.0, 0.1]", "category.car.pose.ca.r"),
+        ("[category.car.size]\nq = [0.01, -1, 0.001, 0.001]", "category.car.size.q"),
+        ("[category.car.heading]\nmin_speed_mps = -1", "category.car.heading.min_speed_mps"),
+        ("[defaults]\nscore_min = 2", "defaults.score_min"),
+        ("[defaults.lifecycle]\nmax_misses_output = -1", "defaults.lifecycle.max_misses_output"),
+        ("[offline]\ninterpolate_max_gap = -1", "offline.interpolate_max_gap"),
+        ("[offline]\nsmooth_seconds = inf", "offline.smooth_seconds"),
+        ("[offline]\ntrack_score_min = nan", "offline.track_score_min"),
+        ("frame_rate_hz = nan", "frame_rate_hz"),
+    ],
+    ids=lambda v: v.split("\n")[0],
+)  # fmt: skip
+def test_an_impossible_value_is_refused_naming_file_and_key(
+    tmp_path: Path, table: str, dotted: str
+) -> None:
+    """Scores are probabilities in every score mode (a detection's score is in [0, 1]), counts
+    are >= 0, variances finite and >= 0 (r > 0), NaN never: each was accepted and ran (a
+    score_min of 2 to HOTA 0, exit 0)."""
+    path = tmp_path / "bad.toml"
+    path.write_text(f'base = "kitti"\n{table}\n')
+    with pytest.raises(InputError, match=f"^{re.escape(f'{path}: {dotted}')}[ :]") as err:
+        load_config(path)
+    assert "\n" not in str(err.value)
+
+
+def test_the_cli_refuses_an_impossible_value_with_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from app.cli import main
+
+    path = tmp_path / "bad.toml"
+    path.write_text('base = "kitti"\n[category.car]\nscore_min = 2\n')
+    code = main(["track", str(SAMPLE / "detections.json.gz"), "--config", str(path),
+                 "--out", str(tmp_path / "out")])  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert f"{path}: category.car.score_min must be in [0, 1]" in err[0]
+    assert not (tmp_path / "out" / "tracks.json").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# offline mode: one rule, every command
+
+
+def _best_toml(tmp_path: Path, extra: str = "") -> Path:
+    """A `mctrack tune` output of an online search: kitti with a car value of its own."""
+    path = tmp_path / "best.toml"
+    path.write_text(f'base = "kitti"\nmode = "online"\n[category.car]\nscore_min = 0.3\n{extra}')
+    return path
+
+
+def test_offline_mode_of_a_config_is_its_offline_variant(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """kitti in offline mode is kitti_offline (as `mctrack kitti` always had it, now `track`,
+    `view`, `tune` too); a file on kitti gets kitti_offline's offline values where it sets none
+    of its own; a file without a built-in offline variant under it keeps its own, and says so."""
+    offline = load_config("kitti_offline")
+    assert load_config("kitti", overrides={"mode": "offline"}) == offline
+    assert load_config("kitti_offline", overrides={"mode": "offline"}) == offline
+    caplog.set_level("INFO", logger="tracker.config")
+    best = load_config(_best_toml(tmp_path), overrides={"mode": "offline"})
+    car = offline.per_category["car"]
+    assert best.mode.value == "offline" and best.offline == offline.offline
+    assert best.per_category["car"] == dataclasses.replace(car, score_min=0.3)
+    assert best.per_category["pedestrian"] == offline.per_category["pedestrian"]
+    assert "on kitti_offline (the offline variant of its base kitti)" in caplog.text
+    # its own offline values win; the file's own mode = "offline" asks the same as --mode
+    own = _best_toml(tmp_path, "[offline]\nrts_r_multiple = 2.0\n").read_text()
+    (tmp_path / "own.toml").write_text(own.replace('mode = "online"', 'mode = "offline"'))
+    mine = load_config(tmp_path / "own.toml")
+    assert mine.offline == dataclasses.replace(offline.offline, rts_r_multiple=2.0)
+    assert mine.per_category["car"].lifecycle.offline_track_score_min == 0.5
+    assert load_config(tmp_path / "own.toml", overrides={"mode": "online"}).offline.rts is False
+    # no built-in offline variant under it: its own [offline] table
+    alone = tmp_path / "alone.toml"
+    alone.write_text((CONFIGS / "kitti.toml").read_text())
+    assert load_config(alone, overrides={"mode": "offline"}).offline == load_config("kitti").offline
+    assert f"{alone}, offline mode: no built-in offline variant under it" in caplog.text
+    assert load_config("nuscenes", overrides={"mode": "offline"}).offline.track_score_min == 1.4
+
+
+def test_track_offline_writes_what_the_offline_variant_writes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack track --mode offline --config kitti` wrote kitti's settings in offline mode
+    (track gate -inf, smoother r 1.0), not kitti_offline's, which `mctrack kitti` used."""
+    from app.cli import main
+
+    written = []
+    for config in ("kitti", "kitti_offline"):
+        out = tmp_path / config
+        argv = ["track", str(SAMPLE / "detections.json.gz"), "--frames", "0:80", "--mode",
+                "offline", "--config", config, "--out", str(out)]  # fmt: skip
+        assert main(argv) == 0, capsys.readouterr().err
+        written.append((out / "tracks.json").read_bytes())
+    assert written[0] == written[1]
+
+
+def test_kitti_offline_with_a_tune_output_keeps_the_offline_values(tmp_path: Path) -> None:
+    """`mctrack kitti --mode offline --config best.toml` (base kitti) ran best.toml with kitti's
+    [offline] table, the offline values dropped silently."""
+    from app.cli import main
+
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE / "raw"), "--seqs", "0001", "--classes", "car",
+            "--mode", "offline", "--config", str(_best_toml(tmp_path)), "--no-eval",
+            "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    ran = json.loads((out / "summary.json").read_text())["config"]
+    want = load_config("kitti_offline", overrides={"category": {"car": {"score_min": 0.3}}})
+    assert ran["offline"] == config_to_dict(want.offline)
+    assert ran["category"]["car"] == config_to_dict(want.per_category["car"])
+
+
+@pytest.mark.parametrize("config", ["kitti", "kitti_reference", "best.toml"])
+def test_tune_offline_takes_any_config(
+    tmp_path: Path, config: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack tune --mode offline --config X` loaded "X_offline": a file or a built-in without
+    a variant was "not found". Now the config loads (the run stops at the next check, --folds)
+    and its record names the built-in variant where there is one."""
+    from app.cli import main
+    from tracker.config import config_for_mode
+
+    name = str(_best_toml(tmp_path)) if config == "best.toml" else config
+    argv = ["tune", "--mode", "offline", "--config", name, "--kitti-root", str(SAMPLE / "raw"),
+            "--seqs", "0001", "--folds", "2", "--out", str(tmp_path / "out")]  # fmt: skip
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "--folds 2 needs at least as many --seqs" in err and "not found" not in err
+    want = {"kitti": "kitti_offline", "kitti_reference": "kitti_reference"}.get(config, name)
+    assert str(config_for_mode(name, "offline")) == want
+    assert str(config_for_mode(name, "online")) == name

@@ -20,10 +20,11 @@ from __future__ import annotations
 
 import copy
 import enum
+import logging
 import math
 import tomllib
 import typing
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import MISSING, dataclass, field, fields, is_dataclass
 from importlib import resources
 from pathlib import Path
@@ -34,6 +35,8 @@ import numpy as np
 from tracker.boxes import FloatArray
 from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
+
+LOG = logging.getLogger(__name__)
 
 
 class CostKind(enum.Enum):
@@ -295,31 +298,91 @@ def load_config(
     """Load a built-in config by name (see ``BUILTIN``) or a TOML file by path.
 
     ``overrides`` is a nested dict merged over the file (used by tuning scripts and tests).
+
+    A config whose mode is offline (its own ``mode``, or ``overrides["mode"]``, which is how
+    every command's ``--mode`` reaches it) is its offline variant: each built-in in its ``base``
+    chain that has one (``kitti`` -> ``kitti_offline``) is replaced by it, unless the chain
+    holds it already. So ``kitti`` in offline mode is ``kitti_offline``, and a file on ``kitti``
+    gets ``kitti_offline``'s offline settings wherever it sets none of its own. A file with no
+    such built-in under it keeps its own ``[offline]`` table (both logged once per file).
     """
-    raw, source = _load_raw(name_or_path, seen=())
-    if overrides:
-        raw = _merge(raw, overrides)
+    raw, source, chain = _load_raw(name_or_path, seen=())
+    over = _canonical_categories(overrides or {}, source)
+    raw = _merge(raw, over)
+    if raw.get("mode") == TrackingMode.OFFLINE.value:
+        offline_raw, source, offline_chain = _load_raw(name_or_path, seen=(), offline=True)
+        if offline_chain != chain:
+            raw = _merge(offline_raw, over)
+        if str(name_or_path) not in BUILTIN:
+            _note_offline(source, chain, offline_chain)
     return config_from_dict(raw, source=source)
 
 
-def _load_raw(name_or_path: str | Path, *, seen: tuple[str, ...]) -> tuple[dict[str, Any], str]:
-    """The TOML table, with ``base = "<name or path>"`` resolved (the file overrides its base)."""
+def offline_variant(name: str | Path) -> str | None:
+    """The built-in offline variant of a built-in config name (``kitti`` -> ``kitti_offline``),
+    or None."""
+    variant = f"{name}_offline"
+    return variant if str(name) in BUILTIN and variant in BUILTIN else None
+
+
+def config_for_mode(name_or_path: str | Path, mode: str | None) -> str | Path:
+    """The config a run in ``mode`` loads, as commands name it (summaries, tune records): a
+    built-in's offline variant where it has one, else the config itself (a file's offline
+    variant is resolved by :func:`load_config`, under its own name)."""
+    if mode == TrackingMode.OFFLINE.value:
+        return offline_variant(name_or_path) or name_or_path
+    return name_or_path
+
+
+_NOTED: set[str] = set()
+
+
+def _note_offline(source: str, chain: tuple[str, ...], offline_chain: tuple[str, ...]) -> None:
+    """Say once per file which offline settings a custom config runs with."""
+    if source in _NOTED:
+        return
+    _NOTED.add(source)
+    swapped = [(a, b) for a, b in zip(chain, offline_chain, strict=False) if a != b]
+    if swapped:
+        (base, variant), *_ = swapped
+        LOG.info(
+            "%s, offline mode: on %s (the offline variant of its base %s) where it sets no value "
+            "of its own",
+            source, variant, base,
+        )  # fmt: skip
+    elif not any(name.endswith("_offline") and name in BUILTIN for name in chain):
+        LOG.info(
+            "%s, offline mode: no built-in offline variant under it (%s); its own [offline] "
+            "settings, defaults where unset",
+            source, " -> ".join(chain),
+        )  # fmt: skip
+
+
+def _load_raw(
+    name_or_path: str | Path, *, seen: tuple[str, ...], offline: bool = False
+) -> tuple[dict[str, Any], str, tuple[str, ...]]:
+    """The TOML table, with ``base = "<name or path>"`` resolved (the file overrides its base),
+    its source and the chain of configs it was built from (outermost first). ``offline``:
+    each built-in with an offline variant not already in the chain is replaced by it."""
+    variant = offline_variant(name_or_path) if offline else None
+    if variant is not None and f"<builtin {variant}>" not in seen:
+        name_or_path = variant
     text, source = _read_source(name_or_path)
     if source in seen:
         raise InputError(f"{source}: 'base' chain loops: {' -> '.join((*seen, source))}")
     try:
-        raw = tomllib.loads(text)
+        raw = _canonical_categories(tomllib.loads(text), source)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{source}: malformed TOML ({exc})") from None
     base = raw.pop("base", None)
     if base is None:
-        return raw, source
+        return raw, source, (str(name_or_path),)
     if not isinstance(base, str):
         raise InputError(f"{source}: 'base' must be a config name or path")
     if base not in BUILTIN and not Path(base).is_absolute() and str(name_or_path) not in BUILTIN:
         base = str(Path(name_or_path).parent / base)  # relative to the file
-    base_raw, _ = _load_raw(base, seen=(*seen, source))
-    return _merge(base_raw, raw), source
+    base_raw, _, chain = _load_raw(base, seen=(*seen, source), offline=offline)
+    return _merge(base_raw, raw), source, (str(name_or_path), *chain)
 
 
 def _read_source(name_or_path: str | Path) -> tuple[str, str]:
@@ -342,20 +405,56 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _canonical_categories(raw: dict[str, Any], source: str) -> dict[str, Any]:
+    """``raw`` with ``categories`` and the ``[category.<name>]`` sections under their canonical
+    names (case and known spellings as :func:`category_index` reads them, as ``--classes``
+    does): ``[category.Car]`` is car's section, merged over a base's ``[category.car]``. A
+    category named twice in one table is refused (which section would win is not obvious)."""
+    out = dict(raw)
+    categories = raw.get("categories")
+    if isinstance(categories, list):
+        names: list[str] = []
+        for name in categories:
+            index = category_index(name) if isinstance(name, str) else -1
+            if index < 0:
+                raise InputError(f"{source}: categories: unknown category {name!r}")
+            if CATEGORIES[index] in names:
+                raise InputError(
+                    f"{source}: categories: {name!r} names {CATEGORIES[index]!r} a second time"
+                )
+            names.append(CATEGORIES[index])
+        out["categories"] = names
+    sections = raw.get("category")
+    if isinstance(sections, dict):
+        canonical: dict[str, Any] = {}
+        written: dict[str, str] = {}
+        for name, table in sections.items():
+            index = category_index(name)
+            if index < 0:
+                raise InputError(f"{source}: category.{name}: unknown category")
+            key = CATEGORIES[index]
+            if key in canonical:
+                raise InputError(
+                    f"{source}: category.{name}: the same category as category.{written[key]} "
+                    "(one section per category)"
+                )
+            if not isinstance(table, dict):
+                raise InputError(f"{source}: category.{name}: expected a table, got {table!r}")
+            canonical[key], written[key] = table, name
+        out["category"] = canonical
+    return out
+
+
 def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerConfig:
-    raw = dict(raw)
+    raw = _canonical_categories(raw, source)
     defaults = raw.pop("defaults", {})
     per_cat_raw = raw.pop("category", {})
     categories = raw.get("categories")
     if not isinstance(categories, list) or not categories:
         raise InputError(f"{source}: 'categories' must be a non-empty list of names")
-    for name in categories:
-        if category_index(str(name)) < 0:
-            raise InputError(f"{source}: categories: unknown category {name!r}")
-    _build(CategoryConfig, defaults, "defaults", source)  # validated even where overridden
-    for name in per_cat_raw:
-        if category_index(str(name)) < 0:
-            raise InputError(f"{source}: category.{name}: unknown category")
+    if not isinstance(per_cat_raw, dict):
+        raise InputError(f"{source}: category: expected a table, got {per_cat_raw!r}")
+    _check_ranges(_build(CategoryConfig, defaults, "defaults", source), "defaults", source)
     # every section is validated (typos fail even when that category is not tracked in this
     # run); the tracked categories are kept
     sections = {
@@ -372,26 +471,86 @@ def config_from_dict(raw: dict[str, Any], *, source: str = "<dict>") -> TrackerC
         source,
         skip={"per_category", "source"},
     )
-    if top.frame_rate_hz <= 0:
-        raise InputError(f"{source}: frame_rate_hz must be > 0")
-    if not 0.0 <= top.offline.exchange_seconds < math.inf:
-        raise InputError(f"{source}: offline.exchange_seconds must be finite and >= 0")
-    if not 0.0 < top.offline.rts_r_multiple < math.inf:
-        raise InputError(f"{source}: offline.rts_r_multiple must be finite and > 0")
-    if not 0.0 <= top.coast_min_in_view <= 1.0:
-        raise InputError(f"{source}: coast_min_in_view must be in [0, 1]")
+    _check_ranges(top, "", source)
     for name, cfg in sections.items():
-        if not 0.0 < cfg.image_width_scale <= 1.0:
-            raise InputError(f"{source}: category.{name}.image_width_scale must be in (0, 1]")
-        if not 0.0 <= cfg.bev.buffer <= 2.0:
-            raise InputError(f"{source}: category.{name}.bev.buffer must be in [0, 2]")
-        if not 0.0 < cfg.vertical_gain <= 1.0:
-            raise InputError(f"{source}: category.{name}.vertical_gain must be in (0, 1]")
-        if not cfg.bev.gate_motion_m > 0.0:
-            raise InputError(f"{source}: category.{name}.bev.gate_motion_m must be > 0 (inf: off)")
-        if not 0.0 <= cfg.pose.r_scale < math.inf:
-            raise InputError(f"{source}: category.{name}.pose.r_scale must be finite and >= 0")
+        _check_ranges(cfg, f"category.{name}", source)
     return top
+
+
+# a Kalman noise's variances: finite and >= 0, the measurement's > 0 (tracker.kalman.DiagonalNoise)
+_NOISE_CHECKS: tuple[tuple[str, Callable[[Any], bool], str], ...] = (
+    ("p", lambda v: all(0.0 <= x < math.inf for x in v), "must be finite variances >= 0"),
+    ("q", lambda v: all(0.0 <= x < math.inf for x in v), "must be finite variances >= 0"),
+    ("r", lambda v: all(0.0 < x < math.inf for x in v), "must be finite variances > 0"),
+)
+_COUNT = (lambda v: v >= 0, "must be >= 0")
+_PROBABILITY = (lambda v: 0.0 <= v <= 1.0, "must be in [0, 1] (a probability)")
+_LOG_ODDS = (lambda v: v < math.inf, "must be a log-odds < inf (-inf: off)")
+#: Each numeric setting's range, by dotted key, checked once the config is built (NaN fails
+#: every check, and _coerce refuses it first). Scores are probabilities whatever ``scores`` says
+#: (a detection's score is in [0, 1]: calibrated, sigmoid(raw), or a BaseVersion
+#: detection_score); confirm_score 2 is documented as "never", so it is not capped at 1.
+_RANGES: dict[type, tuple[tuple[str, Callable[[Any], bool], str], ...]] = {
+    TrackerConfig: (
+        ("frame_rate_hz", lambda v: 0.0 < v < math.inf, "must be finite and > 0"),
+        ("coast_min_in_view", lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]"),
+    ),
+    OfflineConfig: (
+        ("track_score_min", *_LOG_ODDS),
+        ("interpolate_max_gap", *_COUNT),
+        ("smooth_seconds", lambda v: 0.0 <= v < math.inf, "must be finite and >= 0"),
+        ("rts_r_multiple", lambda v: 0.0 < v < math.inf, "must be finite and > 0"),
+        ("stitch_max_gap", *_COUNT),
+        ("stitch_distance_m", lambda v: 0.0 <= v < math.inf, "must be finite and >= 0"),
+        ("exchange_seconds", lambda v: 0.0 <= v < math.inf, "must be finite and >= 0"),
+    ),
+    CategoryConfig: (
+        ("score_min", *_PROBABILITY),
+        ("birth_score_min", *_PROBABILITY),
+        ("nms_iou_max", lambda v: 0.0 <= v <= 1.0, "must be in [0, 1] (an IoU)"),
+        ("image_width_scale", lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"),
+        ("vertical_gain", lambda v: 0.0 < v <= 1.0, "must be in (0, 1]"),
+    ),
+    BevConfig: (
+        ("w1", lambda v: abs(v) < math.inf, "must be finite"),
+        ("w2", lambda v: abs(v) < math.inf, "must be finite"),
+        ("alpha", lambda v: 0.0 <= v <= 1.0, "must be in [0, 1]"),
+        ("gate_distance_m", lambda v: v > 0.0, "must be > 0 (inf: off)"),
+        ("gate_motion_m", lambda v: v > 0.0, "must be > 0 (inf: off)"),
+        ("buffer", lambda v: 0.0 <= v <= 2.0, "must be in [0, 2]"),
+    ),
+    RvConfig: (
+        ("yaw_gate_deg", lambda v: v >= 0.0, "must be >= 0"),
+        ("distance_gate_m", lambda v: v >= 0.0, "must be >= 0"),
+    ),
+    LifecycleConfig: (
+        ("min_hits", *_COUNT),
+        ("confirm_score", lambda v: v >= 0.0, "must be >= 0 (above 1: never)"),
+        ("confirm_prob", lambda v: 0.0 <= v <= 1.0, "must be in [0, 1] (1: never)"),
+        ("max_misses_tentative", *_COUNT),
+        ("max_misses_output", *_COUNT),
+        ("coast_min_hits", *_COUNT),
+        ("max_misses", *_COUNT),
+        ("track_score_min", *_LOG_ODDS),
+        ("offline_track_score_min", *_LOG_ODDS),
+    ),
+    PoseFilterConfig: (("r_scale", lambda v: 0.0 <= v < math.inf, "must be finite and >= 0"),),
+    HeadingFilterConfig: (("min_speed_mps", lambda v: v >= 0.0, "must be >= 0"),),
+    KalmanNoise: _NOISE_CHECKS,
+}
+
+
+def _check_ranges(obj: Any, path: str, source: str) -> None:
+    """Every setting of ``obj`` (and of its nested tables) inside its range, else the one-line
+    error naming the file and the dotted key."""
+    for key, ok, what in _RANGES.get(type(obj), ()):
+        if not ok(getattr(obj, key)):
+            dotted = f"{path}.{key}" if path else key
+            raise InputError(f"{source}: {dotted} {what}, got {toml_value(getattr(obj, key))}")
+    for f in fields(obj):
+        value = getattr(obj, f.name)
+        if is_dataclass(value) and f.name != "per_category":
+            _check_ranges(value, f"{path}.{f.name}" if path else f.name, source)
 
 
 def _build(
@@ -457,6 +616,8 @@ def _coerce(tp: Any, value: Any, dotted: str, source: str, base: Any = None) -> 
         allowed_types, what = checks[tp]
         if (tp is not bool and isinstance(value, bool)) or not isinstance(value, allowed_types):
             raise InputError(f"{source}: {dotted}: expected {what}, got {value!r}")
+        if tp is float and math.isnan(value):
+            raise InputError(f"{source}: {dotted}: expected a number, got nan")
         return float(value) if tp is float else value
     return value
 
