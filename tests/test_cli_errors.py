@@ -268,6 +268,24 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
         lambda f: ["track", str(f["detections"]), "--frames", "x", "--out", str(f["out"])],
         ("--frames",),
     ),
+    (  # (was "--profile maps detection_score_raw, but no box has one")
+        "track frames past the input",
+        lambda f: [
+            *("track", str(f["detections"]), "--profile", "virconv", "--frames=1000:2000"),
+            *("--out", str(f["out"])),
+        ],
+        ("detections.json.gz", "--frames 1000:2000", "scene '0001'", "447 frames (indices 0:447)"),
+    ),
+    (
+        "track negative frames",
+        lambda f: ["track", str(f["detections"]), "--frames=-5:10", "--out", str(f["out"])],
+        ("--frames -5:10", "start at 0"),
+    ),
+    (  # (was "0 frames, 0 tracks", exit 0)
+        "track empty frame range",
+        lambda f: ["track", str(f["detections"]), "--frames", "10:5", "--out", str(f["out"])],
+        ("--frames 10:5", "selects no frame"),
+    ),
     (
         "track unknown scene",
         lambda f: ["track", str(f["detections"]), "--scenes", "9999", "--out", str(f["out"])],
