@@ -219,6 +219,22 @@ def test_sequence_and_class_lists_are_normalised() -> None:
     assert class_list("Car, Pedestrian,person (sitting)") == ["car", "pedestrian", "person_sitting"]
 
 
+def test_eval_reads_and_defaults_its_classes_as_kitti_does(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack eval` of a `mctrack kitti` run scores the same classes by default (it left out
+    cyclist), and reads --classes with the same type."""
+    from app.cli import build_parser
+
+    parser = build_parser()
+    kitti = parser.parse_args(["kitti", "--out", "o"]).classes
+    assert kitti == ["car", "pedestrian", "cyclist"]
+    assert parser.parse_args(["eval", "t.json"]).classes == kitti
+    assert parser.parse_args(["eval", "t.json", "--classes", "Cyclist"]).classes == ["cyclist"]
+    code, _, err = _run(["eval", "t.json", "--classes", "car,carr"], capsys)
+    _assert_one_line_error(code, err, "eval", "argument --classes:", "unknown class 'carr'")
+
+
 # ---------------------------------------------------------------------------------------------
 # errors: malformed files and wrong values, command by command
 
