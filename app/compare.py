@@ -4,7 +4,10 @@ RUN_A and RUN_B are two `mctrack kitti --out` folders (or two tracks.json files 
 ground truth, ``--gt``). The ID switches and fragmentations of the two runs are matched (same
 sequence, kind, class and GT id, frames within ``--tolerance``) into fixed (A only), introduced
 (B only) and kept (both), with their causes where the runs were recorded (``--record``); the
-metrics are compared per class and per sequence. Writes ``DIR/compare.json`` and
+metrics are compared per class and per sequence. Only the sequences both runs tracked and scored
+are compared: any other (in one run only, failed or unlabelled in one) is left out, said in one
+line, and a run whose metrics cover other sequences is scored again on the shared ones from its
+result files (so a delta is never between different sets). Writes ``DIR/compare.json`` and
 ``DIR/compare.md``; with ``--record`` also ``DIR/recordings/<seq>.rrd``, each with both runs
 side by side and the fixed and introduced events at their frames.
 """
@@ -12,15 +15,21 @@ side by side and the fixed and introduced events at their frames.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shlex
 import sys
 from pathlib import Path
 from typing import Any
 
-from app.runs import Run, load_run, run_names
+from app.runs import Run, load_run, run_names, scored_sequences
 from tracker.errors import InputError
-from tracker.eval.compare import DEFAULT_TOLERANCE, compare_markdown, compare_runs
+from tracker.eval.compare import (
+    DEFAULT_TOLERANCE,
+    compare_markdown,
+    compare_runs,
+    left_out_note,
+)
 from tracker.io.fileio import check_output_folder, path_in, write_text_atomic
 
 
@@ -79,8 +88,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def compare_result(run_a: Run, run_b: Run, *, tolerance: int) -> dict[str, Any]:
-    """The A/B comparison of two loaded runs (:func:`tracker.eval.compare.compare_runs`)."""
-    return compare_runs(
+    """The A/B comparison of two loaded runs (:func:`tracker.eval.compare.compare_runs`) on the
+    sequences both tracked and scored (:func:`shared_sequences`)."""
+    shared, left_out = shared_sequences(run_a, run_b)
+    if left_out:
+        run_a, run_b = _restricted(run_a, shared), _restricted(run_b, shared)
+    result = compare_runs(
         run_a.summary,
         run_b.summary,
         run_a.events,
@@ -88,6 +101,101 @@ def compare_result(run_a: Run, run_b: Run, *, tolerance: int) -> dict[str, Any]:
         tolerance=tolerance,
         names=(run_a.name, run_b.name),
     )
+    if left_out:
+        result["sequences_compared"] = shared
+        result["sequences_left_out"] = left_out
+        result["rescored"] = [r.name for r in (run_a, run_b) if r.summary.get("rescored")]
+        tracked = [set(r.summary["sequences"]) - set(r.summary.get("failed") or {}) for r in
+                   (run_a, run_b)]  # fmt: skip
+        if isinstance(result["motion"], dict) and any(t != set(shared) for t in tracked):
+            # (each run's covers all the sequences it tracked; not recomputed here)
+            result["motion"] = "absent: the runs' motion metrics cover different sequences"
+    return result
+
+
+def shared_sequences(run_a: Run, run_b: Run) -> tuple[list[str], dict[str, str]]:
+    """The sequences both runs tracked and scored (in A's order), and why each other sequence
+    of either run is left out; InputError when they share none."""
+    scored = {r.name: scored_sequences(r.summary) for r in (run_a, run_b)}
+    shared = [s for s in scored[run_a.name] if s in scored[run_b.name]]
+    left_out: dict[str, str] = {}
+    for seq in dict.fromkeys([*run_a.summary["sequences"], *run_b.summary["sequences"]]):
+        if seq in shared:
+            continue
+        why = []
+        for r in (run_a, run_b):
+            if seq in (r.summary.get("failed") or {}):
+                why.append(f"failed in {r.name}")
+            elif seq not in r.summary["sequences"]:
+                why.append(f"not in {r.name}")
+            elif seq not in scored[r.name]:
+                why.append(f"not scored in {r.name}")
+        left_out[seq] = ", ".join(why)
+    if not shared:
+        listed = "; ".join(f"{n}: {', '.join(s) or 'none'}" for n, s in scored.items())
+        raise InputError(
+            f"{run_b.path}: no sequence that both runs tracked and scored ({listed}): compare "
+            "runs of the same sequences"
+        )
+    return shared, left_out
+
+
+def _restricted(run: Run, seqs: list[str]) -> Run:
+    """``run`` on ``seqs`` only: their events and per-sequence metrics, and metrics over them
+    (the summary's if they are over exactly these, else scored again: ``summary["rescored"]``)."""
+    summary = dict(run.summary)
+    for key in ("per_sequence", "per_sequence_metrics"):
+        if isinstance(summary.get(key), dict):
+            summary[key] = {s: m for s, m in summary[key].items() if s in seqs}
+    if not (summary.get("metrics") and set(scored_sequences(summary)) == set(seqs)):
+        summary["metrics"] = _metrics_on(run, seqs, summary.get("per_sequence") or {})
+        summary["rescored"] = True
+    events = [e for e in run.events if e["sequence"] in seqs]
+    return dataclasses.replace(run, summary=summary, events=events)
+
+
+def _metrics_on(
+    run: Run, seqs: list[str], per_sequence: dict[str, Any]
+) -> dict[str, dict[str, Any]]:
+    """A run's metrics over ``seqs``: a kitti run's by TrackEval from its result files (as
+    `mctrack kitti` combines its sequences), a tracks run's IDSW and Frag summed."""
+    if run.kind != "kitti" or run.label_dir is None:
+        totals: dict[str, dict[str, Any]] = {}
+        for seq in seqs:
+            for cls, c in (per_sequence.get(seq) or {}).items():
+                t = totals.setdefault(cls, {"IDSW": 0, "Frag": 0})
+                t["IDSW"] += c["IDSW"]
+                t["Frag"] += c["Frag"]
+        return totals
+    from tracker.eval.id_switches import result_file_timesteps
+    from tracker.eval.kitti import (
+        SUPPORTED_CLASSES,
+        absent_classes,
+        combine_sequences,
+        evaluate_kitti_sequence,
+    )
+
+    classes = [c for c in run.summary["classes"] if c in SUPPORTED_CLASSES]
+    evaluations = []
+    for seq in seqs:
+        result = path_in(run.folder / "data", seq, ".txt")
+        label = path_in(run.label_dir, seq, ".txt")
+        try:
+            evaluations.append(
+                evaluate_kitti_sequence(
+                    label_file=label,
+                    result_file=result,
+                    num_timesteps=result_file_timesteps(result, label),
+                    classes=classes,
+                )
+            )
+        except Exception as exc:  # TrackEval's own exception for a malformed result file
+            if type(exc).__name__ != "TrackEvalException":
+                raise
+            raise InputError(f"{result}: {exc}") from None
+    metrics = combine_sequences(evaluations, classes)
+    absent = absent_classes(metrics)  # (no GT of the class: as `mctrack kitti` leaves them out)
+    return {c: m for c, m in metrics.items() if c not in absent}
 
 
 def compare(
@@ -115,7 +223,8 @@ def record(run_a: Run, run_b: Run, result: dict[str, Any], out: Path) -> dict[st
         if not file.is_file():
             raise InputError(f"{file}: missing (--record draws each run's tracks from it)")
         tracks.append(read_baseversion(file))
-    seqs = [s for s in run_a.summary["sequences"] if s in tracks[0] and s in tracks[1]]
+    compared = result.get("sequences_compared") or run_a.summary["sequences"]
+    seqs = [s for s in compared if s in tracks[0] and s in tracks[1]]
     gt = _ground_truth(run_a, seqs)
     written: dict[str, str] = {}
     for seq in seqs:
@@ -173,6 +282,9 @@ def _ground_truth(run: Run, seqs: list[str]) -> dict[str, Any]:
 
 
 def _print(result: dict[str, Any], out: Path) -> None:
+    note = left_out_note(result)
+    if note:
+        print(note[0].upper() + note[1:])
     counts = result["counts"].get("total", {})
     for key, c in counts.items():
         print(

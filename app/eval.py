@@ -17,6 +17,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from app.inputs import class_list
 from tracker.config import ImageBoxes, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
@@ -53,7 +54,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "curve-fit velocity estimators, and for the detections' own 2D boxes that the config's "
         "image_boxes writes)",
     )
-    parser.add_argument("--classes", default="car,pedestrian", help="comma-separated classes")
+    parser.add_argument(
+        "--classes",
+        type=class_list,
+        default="car,pedestrian,cyclist",  # (as `mctrack kitti`'s: the classes KITTI scores)
+        help="comma-separated classes to evaluate",
+    )
     parser.add_argument(
         "--labels",
         default=None,
@@ -79,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--gt is required for --dataset kitti")
     if args.labels is not None and not Path(args.labels).is_dir():
         raise InputError(f"{args.labels}: --labels folder not found (KITTI label_02)")
-    classes = [c.strip() for c in args.classes.split(",") if c.strip()]
+    classes = args.classes
     config = load_config(args.config)
     writer = config.kitti_writer_options()
     if args.detections is None and writer["image_boxes"] is not ImageBoxes.PROJECTION:
@@ -282,7 +288,7 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
 
         if args.gt is None:
             raise InputError("--motion needs --gt (the GT BaseVersion of `mctrack nuscenes`)")
-        classes = [c.strip() for c in args.classes.split(",") if c.strip()]
+        classes = args.classes
         gt = read_baseversion(args.gt)
         dets = read_baseversion(args.detections) if args.detections else None
         result["motion"] = evaluate_motion(

@@ -34,6 +34,7 @@ class Run:
     events: list[Event]
     recordings: dict[str, Path] = field(default_factory=dict)
     kind: str = "kitti"  # "kitti" (a run folder) or "tracks" (a tracks.json with --gt)
+    label_dir: Path | None = None  # a kitti run's label_02 folder (as --labels or its summary)
 
     @property
     def folder(self) -> Path:
@@ -71,8 +72,21 @@ def read_summary(folder: Path) -> dict[str, Any]:
     if not isinstance(summary, dict):
         raise InputError(f"{file}: expected a JSON object")
     seqs = summary.get("sequences")
+    if seqs is None and "input" in summary and "tracks" in summary:
+        raise InputError(
+            f"{folder}: a `mctrack track` output folder; compare and report read `mctrack kitti "
+            f"--out` folders, or tracks files with their ground truth ({folder / 'tracks.json'} "
+            "--gt GT.json)"
+        )
+    if seqs is None:
+        raise InputError(
+            f"{file}: no field 'sequences': not the summary of a `mctrack kitti --out` folder"
+        )
     if not isinstance(seqs, list) or not all(isinstance(s, str) for s in seqs):
         raise InputError(f"{file}: field 'sequences': expected a list of sequence names")
+    scored = summary.get("evaluated_sequences", [])
+    if not isinstance(scored, list) or not all(isinstance(s, str) for s in scored):
+        raise InputError(f"{file}: field 'evaluated_sequences': expected a list of sequence names")
     classes = summary.get("classes")
     if not isinstance(classes, list) or not all(isinstance(c, str) for c in classes):
         raise InputError(f"{file}: field 'classes': expected a list of class names")
@@ -80,6 +94,13 @@ def read_summary(folder: Path) -> dict[str, Any]:
         if key in summary and not isinstance(summary[key], dict | str):
             raise InputError(f"{file}: field {key!r}: expected an object")
     return summary
+
+
+def scored_sequences(summary: dict[str, Any]) -> list[str]:
+    """The sequences a run tracked and scored (whose events it has): the labelled ones of a
+    run over labelled and unlabelled sequences (app.kitti), without the failed ones."""
+    failed = summary.get("failed") or {}
+    return [s for s in summary.get("evaluated_sequences", summary["sequences"]) if s not in failed]
 
 
 def _label_dir(summary: dict[str, Any], labels: Path | None, file: Path) -> Path:
@@ -107,10 +128,7 @@ def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
     classes = [c for c in summary["classes"] if c in ("car", "pedestrian", "cyclist")]
     events: list[Event] = []
     recordings: dict[str, Path] = {}
-    # a run over labelled and unlabelled sequences scored the labelled ones (app.kitti)
-    for seq in summary.get("evaluated_sequences", summary["sequences"]):
-        if seq in (summary.get("failed") or {}):
-            continue
+    for seq in scored_sequences(summary):
         result = path_in(folder / "data", seq, ".txt")
         label = path_in(label_dir, seq, ".txt")
         if not result.is_file():
@@ -136,7 +154,7 @@ def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
                 raise
             raise InputError(f"{result}: {exc}") from None
         events += _with_causes(seq, evaluation.events, index)
-    return Run(name, folder, summary, events, recordings, "kitti")
+    return Run(name, folder, summary, events, recordings, "kitti", label_dir)
 
 
 _KITTI_CLASS = {"car": "car", "pedestrian": "pedestrian", "cyclist": "cyclist"}

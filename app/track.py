@@ -61,7 +61,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "detections (OUT/self_profile.toml); default: detection_score as given",
     )
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
-    parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
+    parser.add_argument(
+        "--frames",
+        default=None,
+        help="frame index range A:B within each scene (0-based, B excluded; A or B may be "
+        "left out; a B past a scene's end stops at its end)",
+    )
     parser.add_argument(
         "--kitti-results",
         action="store_true",
@@ -72,25 +77,46 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_frame_range(text: str | None) -> slice:
+    """``--frames A:B`` as a slice of each scene's frames. Negative indices (Python's "from the
+    end") and an empty range are refused: they selected nothing, and the run then failed on
+    something else or wrote an empty result."""
     if not text:
         return slice(None)
     try:
         start, _, stop = text.partition(":")
-        return slice(int(start) if start else None, int(stop) if stop else None)
+        window = slice(int(start) if start else None, int(stop) if stop else None)
     except ValueError:
         raise InputError(f"--frames: expected A:B, got {text!r}") from None
+    if (window.start or 0) < 0 or (window.stop is not None and window.stop < 0):
+        raise InputError(f"--frames {text}: frame indices start at 0 (A:B, 0 <= A < B)")
+    if window.stop is not None and (window.start or 0) >= window.stop:
+        raise InputError(f"--frames {text}: selects no frame (A:B needs A < B)")
+    return window
 
 
 def select_scenes(
-    scenes: dict[str, list[Frame]], names: str | None, frames: slice
+    scenes: dict[str, list[Frame]],
+    names: str | None,
+    frames: slice,
+    source: str | None = None,
 ) -> dict[str, list[Frame]]:
+    """The ``--scenes`` named (all without), each cut to ``frames``. With ``source`` (the
+    input's path), a scene the range leaves no frame of is an error naming its span."""
     if names:
         wanted = [s.strip() for s in names.split(",") if s.strip()]
         missing = [s for s in wanted if s not in scenes]
         if missing:
             raise InputError(f"--scenes: not in the input: {missing}")
         scenes = {s: scenes[s] for s in wanted}
-    return {s: f[frames] for s, f in scenes.items()}
+    selected = {s: f[frames] for s, f in scenes.items()}
+    empty = [s for s, f in selected.items() if not f]
+    if source is not None and empty and frames != slice(None):
+        scene, n = empty[0], len(scenes[empty[0]])
+        raise InputError(
+            f"{source}: --frames {frames.start or 0}:{'' if frames.stop is None else frames.stop} "
+            f"selects no frame of scene {scene!r}, which has {n} frames (indices 0:{n})"
+        )
+    return selected
 
 
 @dataclass(frozen=True, slots=True)
@@ -191,11 +217,12 @@ def run(args: argparse.Namespace) -> int:
     summary_path.unlink(missing_ok=True)  # written last: its absence marks a run cut short
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
+    window = parse_frame_range(args.frames)
     report = LoadReport()
     scene_frames = read_baseversion(
         args.input, fallback_frame_rate_hz=config.frame_rate_hz, report=report
     )
-    scene_frames = select_scenes(scene_frames, args.scenes, parse_frame_range(args.frames))
+    scene_frames = select_scenes(scene_frames, args.scenes, window, source=args.input)
     scene_frames, self_profile = _calibrated(scene_frames, config, args.profile, args.input)
     if args.kitti_results:
         check_camera_models(args.input, scene_frames, "CAM_FRONT")

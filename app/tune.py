@@ -41,6 +41,7 @@ from typing import Any
 from app.inputs import (
     add_kitti_root_argument,
     check_kitti_root,
+    class_list,
     default_kitti_root,
     positive_int,
     sequence_list,
@@ -93,11 +94,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--class",
         dest="cls",
+        type=scored_class,
         default="car",
-        help="the class whose settings are searched (default: %(default)s)",
+        help="the class whose settings are searched: car, pedestrian or cyclist (default: "
+        "%(default)s)",
     )
     parser.add_argument(
         "--detectors",
+        type=detector_names,
         default="pointrcnn,virconv,second_iou",
         help="detectors the objective averages over (default: %(default)s)",
     )
@@ -112,8 +116,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "gives in every command; default: %(default)s)",
     )
     parser.add_argument("--trials", type=positive_int, default=20, help="trials per search")
-    parser.add_argument("--folds", type=positive_int, default=3, help="sequence folds")
-    parser.add_argument("--seed", type=int, default=0, help="sampler seed (default: 0)")
+    parser.add_argument(
+        "--folds",
+        type=fold_count,
+        default=3,
+        help="sequence folds, 2 to the number of --seqs (default: %(default)s)",
+    )
+    parser.add_argument("--seed", type=sampler_seed, default=0, help="sampler seed (default: 0)")
     parser.add_argument(
         "--noise",
         default="noise",
@@ -164,6 +173,66 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="with --ray: trials at once (default: the cluster's CPUs)",
     )
+
+
+def scored_class(text: str) -> str:
+    """argparse type of ``--class``: one class, spelled as ``--classes`` accepts it elsewhere
+    (:func:`app.inputs.class_list`), that the KITTI protocol scores (the objective is its
+    HOTA)."""
+    from tracker.eval.kitti import SUPPORTED_CLASSES
+
+    names = class_list(text)
+    if len(names) != 1:
+        raise argparse.ArgumentTypeError(f"one class at a time, got {text!r}")
+    if names[0] not in SUPPORTED_CLASSES:
+        raise argparse.ArgumentTypeError(
+            f"{names[0]!r} is not scored by the KITTI protocol, so it cannot be tuned "
+            f"(tunable: {', '.join(SUPPORTED_CLASSES)})"
+        )
+    return names[0]
+
+
+def detector_names(text: str) -> str:
+    """argparse type of ``--detectors``: checked (at least one name, each once) and kept as
+    given (Ray Tune's resume record compares the text)."""
+    names = [d.strip() for d in text.split(",") if d.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated detectors, got {text!r}")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise argparse.ArgumentTypeError(f"{', '.join(twice)} given more than once in {text!r}")
+    return text
+
+
+def fold_count(text: str) -> int:
+    """argparse type of ``--folds``: at least 2 (with one fold nothing is left to search on
+    but the held-out sequences themselves). The upper bound, the number of ``--seqs``, is
+    checked once both are read."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 2:
+        raise argparse.ArgumentTypeError(
+            f"expected an integer >= 2 (each fold is searched on the others), got {text!r}"
+        )
+    return value
+
+
+#: The largest ``--seed``: the searches use seed + fold and seed + 100, and Optuna's sampler
+#: takes seeds below 2**32.
+MAX_SEED = 2**32 - 1 - 100
+
+
+def sampler_seed(text: str) -> int:
+    """argparse type of ``--seed``: an integer from 0 to :data:`MAX_SEED`."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= MAX_SEED:
+        raise argparse.ArgumentTypeError(f"expected an integer 0..{MAX_SEED}, got {text!r}")
+    return value
 
 
 def parse_search(text: str) -> tuple[str, tuple[str, float, float]]:
@@ -470,13 +539,15 @@ def _run(args: argparse.Namespace) -> int:
     seqs = args.seqs
     if len(seqs) < args.folds:
         raise InputError(f"--folds {args.folds} needs at least as many --seqs (got {len(seqs)})")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():  # (else found only when writing, after the search)
+        raise InputError(f"{out}: exists and is not a folder; pass another --out")
     for detector in detectors:
         check_kitti_root(root, seqs=seqs, detector=detector)
     label_dir = root / "training" / "label_02"
     unlabelled = [s for s in seqs if not (label_dir / f"{s}.txt").is_file()]
     if unlabelled:
         raise InputError(f"--seqs: no labels for {', '.join(unlabelled)} in {label_dir}")
-    out = Path(args.out)
     ray_search = None
     if args.ray is not None:
         try:
@@ -491,6 +562,13 @@ def _run(args: argparse.Namespace) -> int:
     for det in detectors:
         raw[det], labels = convert_kitti(root, seqs=seqs, detector=det, classes=[cls])
         gt[det] = labels or {}
+        if not any(len(f.boxes) for frames in raw[det].values() for f in frames):
+            # a HOTA of 0 would be averaged into every trial's objective and the search
+            # would still write a best.toml
+            raise InputError(
+                f"{root / 'detections' / det}: no {cls} detections in --seqs "
+                f"({', '.join(seqs)}); --detectors must name detectors that detect {cls}"
+            )
     lengths = {s: len(f) for s, f in raw[detectors[0]].items()}
     folds = folds_by_frames(lengths, args.folds)
 

@@ -229,6 +229,22 @@ def test_sequence_and_class_lists_are_normalised() -> None:
     assert class_list("Car, Pedestrian,person (sitting)") == ["car", "pedestrian", "person_sitting"]
 
 
+def test_eval_reads_and_defaults_its_classes_as_kitti_does(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack eval` of a `mctrack kitti` run scores the same classes by default (it left out
+    cyclist), and reads --classes with the same type."""
+    from app.cli import build_parser
+
+    parser = build_parser()
+    kitti = parser.parse_args(["kitti", "--out", "o"]).classes
+    assert kitti == ["car", "pedestrian", "cyclist"]
+    assert parser.parse_args(["eval", "t.json"]).classes == kitti
+    assert parser.parse_args(["eval", "t.json", "--classes", "Cyclist"]).classes == ["cyclist"]
+    code, _, err = _run(["eval", "t.json", "--classes", "car,carr"], capsys)
+    _assert_one_line_error(code, err, "eval", "argument --classes:", "unknown class 'carr'")
+
+
 # ---------------------------------------------------------------------------------------------
 # errors: malformed files and wrong values, command by command
 
@@ -277,6 +293,24 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
         "track bad frames",
         lambda f: ["track", str(f["detections"]), "--frames", "x", "--out", str(f["out"])],
         ("--frames",),
+    ),
+    (  # (was "--profile maps detection_score_raw, but no box has one")
+        "track frames past the input",
+        lambda f: [
+            *("track", str(f["detections"]), "--profile", "virconv", "--frames=1000:2000"),
+            *("--out", str(f["out"])),
+        ],
+        ("detections.json.gz", "--frames 1000:2000", "scene '0001'", "447 frames (indices 0:447)"),
+    ),
+    (
+        "track negative frames",
+        lambda f: ["track", str(f["detections"]), "--frames=-5:10", "--out", str(f["out"])],
+        ("--frames -5:10", "start at 0"),
+    ),
+    (  # (was "0 frames, 0 tracks", exit 0)
+        "track empty frame range",
+        lambda f: ["track", str(f["detections"]), "--frames", "10:5", "--out", str(f["out"])],
+        ("--frames 10:5", "selects no frame"),
     ),
     (
         "track unknown scene",

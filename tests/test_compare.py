@@ -117,6 +117,92 @@ def test_compare_bad_input_is_one_line(tmp_path: Path, capsys) -> None:
     assert "missing" in capsys.readouterr().err
 
 
+def _with_second_sequence(run: Path, labels: Path, *, failed: bool = False) -> None:
+    """Run a hand-made run over "0002" too (a copy of "0001": the same two ID switches in A),
+    or, with ``failed``, a run whose "0002" failed (no result file, no metrics)."""
+    shutil.copy(labels / f"{SEQ}.txt", labels / "0002.txt")
+    summary = json.loads((run / "summary.json").read_text())
+    summary["sequences"] = [SEQ, "0002"]
+    if failed:
+        summary["failed"] = {"0002": "ValueError: boom"}
+        del summary["metrics"]  # (app.kitti skips the evaluation of a run with a failure)
+    else:
+        shutil.copy(run / "data" / f"{SEQ}.txt", run / "data" / "0002.txt")
+        summary["per_sequence"]["0002"] = summary["per_sequence"][SEQ]
+    (run / "summary.json").write_text(json.dumps(summary))
+
+
+def test_compare_leaves_out_a_sequence_one_run_did_not_track(tmp_path: Path, capsys) -> None:
+    """A's switches on a sequence B never tracked are not "fixed", and A's HOTA shown is over
+    the shared sequence (scored again from its result file), not over both of A's."""
+    from tracker.eval.kitti import evaluate_kitti
+
+    a, b, labels = make_runs(tmp_path)
+    _with_second_sequence(a, labels)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0] == (
+        f"Compared the 1 sequence(s) both runs tracked and scored ({SEQ}); left out: 0002 "
+        "(not in b); metrics of a scored again on them"
+    )
+    result = json.loads((out / "compare.json").read_text())
+    assert {(p["a"] or p["b"])["sequence"] for p in result["events"]} == {SEQ}
+    assert result["counts"]["total"]["car IDSW"] == {"fixed": 1, "introduced": 1, "kept": 1}
+    assert result["sequences_left_out"] == {"0002": "not in b"}
+    alone = evaluate_kitti(label_dir=labels, result_dir=a / "data", seq_lengths={SEQ: 10},
+                           classes=["car"])["car"]["HOTA"]  # fmt: skip
+    assert result["metrics"]["car"]["HOTA"]["a"] == alone != 90.0  # (90: A's summary, both)
+    assert result["metrics"]["car"]["HOTA"]["b"] == 95.0  # B's summary: over SEQ exactly
+    assert list(result["per_sequence"]) == [SEQ]
+    assert "- Sequences: compared the 1 sequence(s)" in (out / "compare.md").read_text()
+
+
+def test_compare_leaves_out_a_sequence_that_failed_in_one_run(tmp_path: Path, capsys) -> None:
+    a, b, labels = make_runs(tmp_path)
+    _with_second_sequence(a, labels)
+    _with_second_sequence(b, labels, failed=True)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    assert (
+        "left out: 0002 (failed in b); metrics of a and b scored again" in capsys.readouterr().out
+    )
+    result = json.loads((out / "compare.json").read_text())
+    assert result["counts"]["total"]["car IDSW"] == {"fixed": 1, "introduced": 1, "kept": 1}
+    hota = result["metrics"]["car"]["HOTA"]
+    assert hota["a"] is not None and hota["b"] is not None  # (B had no metrics at all)
+
+
+def test_compare_refuses_runs_without_a_shared_sequence(tmp_path: Path, capsys) -> None:
+    a, b, labels = make_runs(tmp_path)
+    shutil.copy(labels / f"{SEQ}.txt", labels / "0002.txt")
+    (b / "data" / f"{SEQ}.txt").rename(b / "data" / "0002.txt")
+    summary = json.loads((b / "summary.json").read_text())
+    summary["sequences"] = ["0002"]
+    (b / "summary.json").write_text(json.dumps(summary))
+    assert main(["compare", str(a), str(b), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack compare: error: {b}: no sequence that both runs tracked and scored (a: {SEQ}; "
+        "b: 0002): compare runs of the same sequences"
+    )
+
+
+def test_compare_says_a_track_folder_is_the_wrong_kind(tmp_path: Path, capsys) -> None:
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+    track = tmp_path / "t"
+    args = ["track", str(sample / "detections.json.gz"), "--frames", "0:20", "--out", str(track)]
+    assert main(args) == 0
+    a, _, _ = make_runs(tmp_path)
+    capsys.readouterr()
+    assert main(["compare", str(a), str(track), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"mctrack compare: error: {track}: a `mctrack track` output folder; compare and report "
+        f"read `mctrack kitti --out` folders, or tracks files with their ground truth "
+        f"({track / 'tracks.json'} --gt GT.json)"
+    )
+
+
 # ---------------------------------------------------------------------------------------------
 # Two real runs of a validation sequence: the tuned config (recorded) and kitti_reference
 

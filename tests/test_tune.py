@@ -99,6 +99,76 @@ def test_a_bad_noise_seed_is_a_one_line_error(
     assert not (tmp_path / "t").exists()
 
 
+@pytest.mark.parametrize(
+    ("flag", "value", "message"),
+    [
+        ("--folds", "1", "expected an integer >= 2"),  # (was an IndexError after a trial)
+        ("--folds", "0", "expected an integer >= 2"),
+        ("--class", "van", "'van' is not scored by the KITTI protocol"),
+        ("--class", "bus", "'bus' is not scored"),
+        ("--class", "car,pedestrian", "one class at a time"),
+        ("--class", "lorry", "unknown class 'lorry'"),
+        ("--trials", "0", "expected an integer >= 1"),
+        ("--seed", "-1", "expected an integer 0.."),  # (was Optuna's ValueError)
+        ("--detectors", ",", "expected comma-separated detectors"),
+        ("--detectors", "virconv,virconv", "virconv given more than once"),
+    ],
+)
+def test_a_bad_tune_argument_is_a_usage_error_before_any_work(
+    flag: str, value: str, message: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as exit_:
+        main(["tune", flag, value, "--out", str(tmp_path / "t")])
+    err = capsys.readouterr().err
+    last = err.strip().splitlines()[-1]
+    assert exit_.value.code == 2 and "Traceback" not in err
+    assert last.startswith(f"mctrack tune: error: argument {flag}: ") and message in last, last
+    assert not (tmp_path / "t").exists()
+
+
+def test_class_is_read_as_classes_is_elsewhere() -> None:
+    from app.cli import build_parser
+
+    args = build_parser().parse_args(["tune", "--class", "Pedestrian", "--out", "x"])
+    assert args.cls == "pedestrian"
+
+
+def test_more_folds_than_sequences_or_an_out_file_is_refused_before_any_work(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    no_kit = ["--kitti-root", str(tmp_path / "no_kit")]  # (its error would come after)
+    code = main(["tune", *no_kit, "--seqs", "0006,0010", "--folds", "3", "--out", str(tmp_path)])
+    assert code == 2
+    assert capsys.readouterr().err.strip() == (
+        "mctrack tune: error: --folds 3 needs at least as many --seqs (got 2)"
+    )
+    a_file = tmp_path / "afile"
+    a_file.write_text("")
+    assert main(["tune", *no_kit, "--seqs", "0006,0010", "--folds", "2", "--out", str(a_file)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack tune: error: {a_file}: exists and is not a folder; pass another --out"
+    )
+
+
+def test_a_detector_without_the_class_is_refused_before_the_search(
+    kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """VirConv's files hold cars only: its pedestrian HOTA would be 0 in every trial (the
+    search then wrote a best.toml, 'HOTA held out virconv 0.00')."""
+    code = main(["tune", "--kitti-root", str(kitti_root), "--class", "pedestrian",
+                 "--detectors", "pointrcnn,virconv", "--seqs", "0012,0014", "--folds", "2",
+                 "--trials", "1", "--noise", "none", "--workers", "1",
+                 "--out", str(tmp_path / "t")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.strip().splitlines()[-1] == (
+        f"mctrack tune: error: {kitti_root / 'detections' / 'virconv'}: no pedestrian "
+        "detections in --seqs (0012, 0014); --detectors must name detectors that detect pedestrian"
+    )
+    assert "trial" not in err  # refused before the search's progress bar
+    assert not (tmp_path / "t").exists()
+
+
 def test_the_chosen_settings_are_written_as_a_config_file(tmp_path: Path) -> None:
     """best.toml: the tuned config as its base, the search's mode and the chosen values over it;
     loaded, it is the base with the record's overrides, to the last bit, every other class as
@@ -208,7 +278,7 @@ def test_fold_searches_do_not_start_from_the_shipped_settings(
     seen the held-out labels)."""
     import json
 
-    code = main(["tune", "--kitti-root", str(kitti_root), "--class", "car", "--detectors",
+    code = main(["tune", "--kitti-root", str(kitti_root), "--class", "Car", "--detectors",
                  "pointrcnn", "--seqs", "0012,0014", "--folds", "2", "--trials", "4",
                  "--noise", "none", "--workers", "2", "--out", str(tmp_path)])  # fmt: skip
     assert code == 0

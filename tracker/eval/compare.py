@@ -230,6 +230,21 @@ def event_text(e: Mapping[str, Any]) -> str:
     )
 
 
+def left_out_note(result: Mapping[str, Any]) -> str | None:
+    """One line: which sequences were compared, which left out and why (None: all were)."""
+    left_out = result.get("sequences_left_out")
+    if not left_out:
+        return None
+    shared = result["sequences_compared"]
+    rescored = result.get("rescored") or []
+    return (
+        f"compared the {len(shared)} sequence(s) both runs tracked and scored "
+        f"({', '.join(shared)}); left out: "
+        + "; ".join(f"{seq} ({why})" for seq, why in left_out.items())
+        + (f"; metrics of {' and '.join(rescored)} scored again on them" if rescored else "")
+    )
+
+
 def compare_markdown(result: Mapping[str, Any], *, command: str | None = None) -> list[str]:
     """``compare.md``: runs, per-class deltas, event counts per sequence, the event lists."""
     ra, rb = result["runs"]["a"], result["runs"]["b"]
@@ -242,6 +257,11 @@ def compare_markdown(result: Mapping[str, Any], *, command: str | None = None) -
         f"- B: `{rb['name']}` ({rb.get('detector')}, {rb.get('mode')}, config "
         f"{rb.get('config_name') or 'n/a'})",
         f"- Events matched by {result['matching']} Tolerance {result['tolerance_frames']} frames.",
+    ]
+    note = left_out_note(result)
+    if note:
+        lines.append(f"- Sequences: {note}.")
+    lines += [
         "",
         "## Metrics per class (B − A)",
         "",

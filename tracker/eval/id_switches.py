@@ -317,7 +317,16 @@ def result_file_id_events(
     result_file: str | Path, label_file: str | Path, *, classes: Sequence[str]
 ) -> IdEvaluation:
     """:func:`kitti_id_events` of a finished run's KITTI result file (no frames at hand): the
-    sequence length is the last frame of the labels or the results, plus one."""
+    sequence length is :func:`result_file_timesteps`."""
+    return kitti_id_events(
+        (), (), label_file, classes=classes, result_file=result_file,
+        num_timesteps=result_file_timesteps(result_file, label_file),
+    )  # fmt: skip
+
+
+def result_file_timesteps(result_file: str | Path, label_file: str | Path) -> int:
+    """A finished run's sequence length for TrackEval: the last frame of the labels or the
+    results, plus one (the frames after both hold nothing to score)."""
     from tracker.errors import InputError
 
     last = -1
@@ -328,9 +337,7 @@ def result_file_id_events(
                 if not head.isdigit():
                     raise InputError(f"{path}: line {n}: frame {head!r} is not a frame number")
                 last = max(last, int(head))
-    return kitti_id_events(
-        (), (), label_file, classes=classes, result_file=result_file, num_timesteps=last + 1
-    )
+    return last + 1
 
 
 def kitti_num_timesteps(label_file: str | Path, frames: Sequence[Frame]) -> int:
