@@ -25,6 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from app.track import parse_frame_range
     from tracker.calibration import calibrate_frames, find_profile
+    from tracker.categories import category_index
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
     from viz.record import record_scene
@@ -73,7 +74,10 @@ def run(args: argparse.Namespace) -> int:
             f"  ID switches (car): {car.get('IDSW', 0)}, fragmentations: {car.get('Frag', 0)}"
             + (f"  at frames {frames_list}{more}" if switches else "")
         )
-    if result.kitti_metrics and "car" in result.kitti_metrics:
+    car_labels = sum(int((f.boxes.category == category_index("car")).sum()) for f in gt)
+    if result.kitti_metrics and "car" in result.kitti_metrics and not car_labels:
+        print("  car (TrackEval, KITTI 2D): no labelled car in these frames, not scored")
+    elif result.kitti_metrics and "car" in result.kitti_metrics:
         m = result.kitti_metrics["car"]
         print(
             f"  car (TrackEval, KITTI 2D): HOTA {m['HOTA']:.2f}  MOTA {m['MOTA']:.2f}  "

@@ -69,3 +69,14 @@ def test_demo_recording_holds_every_debug_view(demo_run: tuple[Path, str]) -> No
     missing = [p for p in expected if paths.entity(p) not in found]
     assert not missing, missing
     assert any(p.startswith("/tracks/") and p.endswith("/gt_speed") for p in found)
+
+
+def test_demo_on_frames_without_labels_says_so(tmp_path: Path) -> None:
+    """Frames 440-446 of 0001 hold no labelled box (a range past the end is cut there): the
+    recording is written and the car row says why there is no score, not HOTA 0."""
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["demo", "--out", str(tmp_path), "--frames", "440:2000"]) == 0
+    assert (tmp_path / "demo.rrd").is_file()
+    assert "7 frames" in printed.getvalue()
+    assert "no labelled car in these frames, not scored" in printed.getvalue()

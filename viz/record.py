@@ -435,7 +435,7 @@ class _GtIndex:
         ids = self.boxes.track_id
         order = np.lexsort((times, ids))
         bounds = np.flatnonzero(np.r_[True, ids[order][1:] != ids[order][:-1], True])
-        for a, b in itertools.pairwise(bounds):
+        for a, b in itertools.pairwise(bounds if len(ids) else ()):  # (no box: no id)
             rows = order[a:b]
             t = times[rows]
             keep = np.r_[True, np.diff(t) > 0]  # a GT id twice in one frame: first one wins
