@@ -33,6 +33,7 @@ from tracker.eval.compare import (
     DEFAULT_TOLERANCE,
     LOWER_IS_BETTER,
     MOTION_KEYS,
+    left_out_note,
 )
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
 
@@ -431,6 +432,9 @@ def _metrics_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] | 
         'Δ = B − A, <span class="better">green</span> is better, '
         '<span class="worse">red</span> worse.</p>'
     )
+    left_out = left_out_note(result)  # runs of different sequences: only the shared compared
+    if left_out:
+        note += f'<p class="note">{h.esc(left_out[0].upper() + left_out[1:])}.</p>'
     return (
         note
         + partial

@@ -156,6 +156,11 @@ def test_compare_leaves_out_a_sequence_one_run_did_not_track(tmp_path: Path, cap
     assert result["metrics"]["car"]["HOTA"]["b"] == 95.0  # B's summary: over SEQ exactly
     assert list(result["per_sequence"]) == [SEQ]
     assert "- Sequences: compared the 1 sequence(s)" in (out / "compare.md").read_text()
+    # the report of the same pair says so above its metrics
+    report = tmp_path / "report"
+    assert main(["report", str(a), "--compare", str(b), "--out", str(report)]) == 0
+    page = (report / "index.html").read_text()
+    assert "Compared the 1 sequence(s) both runs tracked and scored" in page
 
 
 def test_compare_leaves_out_a_sequence_that_failed_in_one_run(tmp_path: Path, capsys) -> None:
