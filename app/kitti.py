@@ -163,7 +163,6 @@ def run(args: argparse.Namespace) -> int:
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     out = Path(args.out)
-    _clear_earlier_run(out)  # (once the inputs are checked: a typo keeps the earlier run)
     summary = run_kitti(
         kitti_root=root,
         seqs=seqs,
@@ -360,6 +359,8 @@ def run_kitti(
         calibration = (
             self_calibrated_note(profile, detector, self_profile) + ", see self_profile.toml"
         )
+    # once the config and the profile are read too: a refused run keeps the earlier one
+    _clear_earlier_run(out)
     job = KittiSceneJob(
         kitti_root=kitti_root,
         detector=detector,
