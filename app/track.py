@@ -26,7 +26,7 @@ from tracker.calibration import (
     warn_classes_without_map,
 )
 from tracker.categories import CATEGORIES
-from tracker.config import ScoreSource, TrackerConfig, load_config
+from tracker.config import ScoreSource, TrackerConfig, config_for_mode, load_config
 from tracker.errors import InputError
 from tracker.eval.fates import FateCounter, combine_fates, format_fates
 from tracker.frame import Frame
@@ -101,7 +101,8 @@ def select_scenes(
     source: str | None = None,
 ) -> dict[str, list[Frame]]:
     """The ``--scenes`` named (all without), each cut to ``frames``. With ``source`` (the
-    input's path), a scene the range leaves no frame of is an error naming its span."""
+    input's path), a range that leaves no frame of any scene is an error naming a span; scenes
+    it leaves empty beside others are a warning."""
     if names:
         wanted = [s.strip() for s in names.split(",") if s.strip()]
         missing = [s for s in wanted if s not in scenes]
@@ -110,12 +111,15 @@ def select_scenes(
         scenes = {s: scenes[s] for s in wanted}
     selected = {s: f[frames] for s, f in scenes.items()}
     empty = [s for s, f in selected.items() if not f]
-    if source is not None and empty and frames != slice(None):
-        scene, n = empty[0], len(scenes[empty[0]])
-        raise InputError(
-            f"{source}: --frames {frames.start or 0}:{'' if frames.stop is None else frames.stop} "
-            f"selects no frame of scene {scene!r}, which has {n} frames (indices 0:{n})"
-        )
+    if source is None or not empty or frames == slice(None):
+        return selected
+    window = f"--frames {frames.start or 0}:{'' if frames.stop is None else frames.stop}"
+    spans = ", ".join(f"{s!r} 0:{len(scenes[s])}" for s in empty[:4]) + (
+        " ..." if len(empty) > 4 else ""
+    )
+    if len(empty) == len(selected):
+        raise InputError(f"{source}: {window} selects no frame of any scene (frames: {spans})")
+    LOG.warning("%s: %s selects no frame of %d scene(s): %s", source, window, len(empty), spans)
     return selected
 
 
@@ -247,7 +251,7 @@ def run(args: argparse.Namespace) -> int:
     failed = {r.scene: r.error for r in records if r.error}
     summary = {
         "input": str(args.input),
-        "config": str(args.config),
+        "config": str(config_for_mode(args.config, config.mode.value)),  # the one that ran
         "mode": config.mode.value,
         "scenes": len(ok),
         "frames": frames,
