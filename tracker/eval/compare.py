@@ -293,7 +293,8 @@ def compare_markdown(result: Mapping[str, Any], *, command: str | None = None) -
             name = f"**{seq}**" if seq == "total" else seq
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
     else:
-        lines.append("Neither run has ID switches or fragmentations.")
+        where = " on the compared sequences" if result.get("sequences_left_out") else ""
+        lines.append(f"Neither run has ID switches or fragmentations{where}.")
     motion = result.get("motion")
     lines += ["", "## Motion metrics (Kalman velocity, B − A)", ""]
     if isinstance(motion, Mapping) and motion:
