@@ -57,8 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--classes",
         type=class_list,
-        default="car,pedestrian,cyclist",  # (as `mctrack kitti`'s: the classes KITTI scores)
-        help="comma-separated classes to evaluate",
+        default=None,
+        help="comma-separated classes to evaluate (default: KITTI's scored classes "
+        "car,pedestrian,cyclist, as `mctrack kitti`; with --dataset nuscenes, the nuscenes "
+        "config's classes)",
     )
     parser.add_argument(
         "--labels",
@@ -85,7 +87,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--gt is required for --dataset kitti")
     if args.labels is not None and not Path(args.labels).is_dir():
         raise InputError(f"{args.labels}: --labels folder not found (KITTI label_02)")
-    classes = args.classes
+    from tracker.eval.kitti import SUPPORTED_CLASSES
+
+    classes = args.classes or list(SUPPORTED_CLASSES)
     config = load_config(args.config)
     writer = config.kitti_writer_options()
     if args.detections is None and writer["image_boxes"] is not ImageBoxes.PROJECTION:
@@ -288,7 +292,7 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
 
         if args.gt is None:
             raise InputError("--motion needs --gt (the GT BaseVersion of `mctrack nuscenes`)")
-        classes = args.classes
+        classes = args.classes or list(load_config("nuscenes").categories)
         gt = read_baseversion(args.gt)
         dets = read_baseversion(args.detections) if args.detections else None
         result["motion"] = evaluate_motion(

@@ -69,7 +69,9 @@ def test_eval_writes_boxes_with_the_given_configs_width(
         args = ["eval", str(tmp_path / "tracks.json"), "--gt", str(SAMPLE / "gt.json.gz")]
         args += ["--labels", str(SAMPLE / "raw" / "training" / "label_02"), "--out", str(out)]
         assert main([*args, "--config", name]) == 0
-        hota[name] = json.loads((out / "eval.json").read_text())["static"]["pedestrian"]["HOTA"]
+        record = json.loads((out / "eval.json").read_text())
+        assert record["classes"] == ["car", "pedestrian", "cyclist"]  # as `mctrack kitti`
+        hota[name] = record["static"]["pedestrian"]["HOTA"]
     assert hota["kitti"] > hota["kitti_reference"] + 1.0
     # the detections' own 2D boxes are not in a tracks file: without --detections kitti's
     # image_boxes (auto) falls back to the projections, which the note says
