@@ -43,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
     window = parse_frame_range(args.frames)
     frames = read_baseversion(detections, fallback_frame_rate_hz=config.frame_rate_hz)["0001"]
     gt = read_baseversion(gt_file, fallback_frame_rate_hz=config.frame_rate_hz)["0001"]
+    if not frames[window]:
+        raise InputError(f"--frames {args.frames}: the sample has frames 0:{len(frames)}")
     frames, gt = frames[window], gt[window]
     frames = calibrate_frames(frames, find_profile("pointrcnn"))  # the sample is PointRCNN's
     out = Path(args.out)

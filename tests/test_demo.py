@@ -80,3 +80,11 @@ def test_demo_on_frames_without_labels_says_so(tmp_path: Path) -> None:
     assert (tmp_path / "demo.rrd").is_file()
     assert "7 frames" in printed.getvalue()
     assert "no labelled car in these frames, not scored" in printed.getvalue()
+
+
+def test_demo_frames_beyond_the_sample_is_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["demo", "--out", str(tmp_path), "--frames", "500:600"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["mctrack demo: error: --frames 500:600: the sample has frames 0:447"]
