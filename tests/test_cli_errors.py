@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import shutil
 import subprocess
 import sys
@@ -16,6 +17,7 @@ import pytest
 
 from app import cli
 from app.cli import SUBCOMMANDS, build_parser, main
+from tracker.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "kitti-0001"
@@ -239,7 +241,7 @@ def test_eval_reads_and_defaults_its_classes_as_kitti_does(
     parser = build_parser()
     kitti = parser.parse_args(["kitti", "--out", "o"]).classes
     assert kitti == ["car", "pedestrian", "cyclist"]
-    assert parser.parse_args(["eval", "t.json"]).classes == kitti
+    assert parser.parse_args(["eval", "t.json"]).classes is None  # per dataset: KITTI's three
     assert parser.parse_args(["eval", "t.json", "--classes", "Cyclist"]).classes == ["cyclist"]
     code, _, err = _run(["eval", "t.json", "--classes", "car,carr"], capsys)
     _assert_one_line_error(code, err, "eval", "argument --classes:", "unknown class 'carr'")
@@ -300,7 +302,7 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
             *("track", str(f["detections"]), "--profile", "virconv", "--frames=1000:2000"),
             *("--out", str(f["out"])),
         ],
-        ("detections.json.gz", "--frames 1000:2000", "scene '0001'", "447 frames (indices 0:447)"),
+        ("detections.json.gz", "--frames 1000:2000", "no frame of any scene", "'0001' 0:447"),
     ),
     (
         "track negative frames",
@@ -509,6 +511,20 @@ def test_kitti_without_poses_says_so_and_shows_classes_without_ground_truth_as_a
     assert "-200" not in printed
 
 
+def test_a_frame_range_that_empties_some_scenes_warns_and_tracks_the_rest(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    from app.track import select_scenes
+
+    scenes = {"long": list(range(10)), "short": list(range(3))}  # (frames: only counted)
+    with caplog.at_level(logging.WARNING):
+        chosen = select_scenes(scenes, None, slice(5, 8), source="in.json")  # type: ignore[arg-type]
+    assert chosen == {"long": [5, 6, 7], "short": []}
+    assert "in.json: --frames 5:8 selects no frame of 1 scene(s): 'short' 0:3" in caplog.text
+    with pytest.raises(InputError, match="no frame of any scene"):
+        select_scenes(scenes, None, slice(20, 30), source="in.json")  # type: ignore[arg-type]
+
+
 def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -525,9 +541,12 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
         (out / earlier).write_text("an earlier run's\n")
     (out / "notes.txt").write_text("mine\n")
     argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--out", str(out)]
-    code, _, err = _run([*argv, "--detector", "nope"], capsys)
-    assert code == 2 and (out / "data" / "0099.txt").is_file(), err
-    assert (out / "summary.json").read_text() == "an earlier run's\n"
+    bad = tmp_path / "bad.toml"  # refused once read, as a bad --profile is
+    bad.write_text('base = "kitti"\n[category.car]\nscore_min = 1.5\n')
+    for refused in (["--detector", "nope"], ["--config", str(bad)]):
+        code, _, err = _run([*argv, *refused], capsys)
+        assert code == 2 and (out / "data" / "0099.txt").is_file(), err
+        assert (out / "summary.json").read_text() == "an earlier run's\n"
     code, _, err = _run(argv, capsys)
     assert code == 0, err
     assert sorted(p.name for p in (out / "data").iterdir()) == ["0001.txt"]
