@@ -122,7 +122,8 @@ def test_a_sequence_without_a_detection_file_names_the_places_looked(
     ("line", "says"),
     [
         # AB3DMOT's layout with a class name for the type code
-        ("0,Car,10,20,110,80,7.0,1.5,1.6,3.9,2.9,1.6,6.4,0.1,0.2", "field 'type': a class name"),
+        ("0,Car,10,20,110,80,7.0,1.5,1.6,3.9,2.9,1.6,6.4,0.1,0.2",
+         "field 'type': a class name ('Car') where"),
         # the tracking format, comma-separated
         (ROW.format(f=0, cls="Car", alpha=0, ry=0, score=1).strip().replace(" ", ","),
          "got 17 (the KITTI tracking format's count: its columns are separated by spaces)"),
@@ -169,6 +170,23 @@ def test_a_class_whose_every_detection_is_discarded_is_a_warning(
                      "--out", str(tmp_path / "run")])  # fmt: skip
     assert code == 0
     assert "not one of the 5 car detections scored enough to start a track (none" in caplog.text
+
+
+def test_a_class_without_a_per_class_file_has_no_detections(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """AB3DMOT's per-class layout holds no truck file: --classes truck tracks nothing and
+    says so (it was "no detections for sequence" for every scene)."""
+    root = _kit(kitti_root, tmp_path, "")
+    det = root / "detections" / "mydet" / "training"
+    (det / "0001.txt").unlink()
+    (det / "Car").mkdir()
+    (det / "Car" / "0001.txt").write_text("0,2,10,20,110,80,7.0,1.5,1.6,3.9,2.9,1.6,6.4,0.1,0.2\n")
+    with caplog.at_level(logging.WARNING):
+        dets, _ = convert_kitti(root, seqs=["0001"], detector="mydet", poses=None,
+                                classes=["truck"])  # fmt: skip
+    assert sum(len(f.boxes) for f in dets["0001"]) == 0 and len(dets["0001"]) == 447
+    assert "0001: no truck detections in" in caplog.text
 
 
 def test_tracking_format_converts_with_wrapped_yaw_and_empty_frames(

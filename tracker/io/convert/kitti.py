@@ -570,7 +570,7 @@ def read_ab3dmot_detections(paths: Sequence[str | Path]) -> KittiObjects:
     if len(names):
         path, line = table.where(int(names[0]))
         raise InputError(
-            f"a class name ({types[names[0]]!r}) where AB3DMOT's type code "
+            f"a class name ({str(types[names[0]])!r}) where AB3DMOT's type code "
             "goes (1=Pedestrian, 2=Car, 3=Cyclist)",
             path=path, line=line, field="type",
         )  # fmt: skip
@@ -879,6 +879,10 @@ def _detection_sources(
         return "ab3dmot", [single]
     if layout in ("auto", "ab3dmot") and per_class:
         return "ab3dmot", per_class
+    if layout in ("auto", "ab3dmot") and any(
+        (detections_dir / folder / f"{seq}.txt").is_file() for folder in CLASS_FOLDERS.values()
+    ):
+        return "ab3dmot", []  # per-class files, none of a class asked for: no detections
     raise FileNotFoundError(
         f"no {'' if layout == 'auto' else layout + ' '}detections for sequence {seq} in "
         f"{detections_dir} "
@@ -1060,7 +1064,7 @@ def _convert_sequence(
     """Detections and (when labelled) ground truth of one sequence."""
     calib = read_kitti_calib(split_dir / "calib" / f"{seq}.txt")
     if pose_path is not None and not pose_path.is_file():
-        raise FileNotFoundError(f"pose file {pose_path} not found (use poses=None for no poses)")
+        raise FileNotFoundError(f"pose file {pose_path} not found (--poses none: no poses)")
     poses = None if pose_path is None else read_kitti_poses(pose_path)
 
     layout, source = _detection_sources(detections_dir, seq, detections_layout, classes)
@@ -1072,7 +1076,9 @@ def _convert_sequence(
         det_where = str(source)
     else:
         dets, det_frames = read_ab3dmot_detections(source), 0
-        det_where = ", ".join(map(str, source))
+        det_where = (
+            ", ".join(map(str, source)) or f"{detections_dir} (no <Class>/{seq}.txt of them)"
+        )
     tracked = np.isin(dets.category, [category_index(c) for c in classes])
     if skipped is not None and not tracked.all():
         cats, counts = np.unique(dets.category[~tracked], return_counts=True)
