@@ -137,9 +137,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: What a run writes in --out. A run into the folder of an earlier one removes these first, so a
 #: folder never mixes two runs (a sequence the new run leaves out would keep its old results);
 #: files of other names are left alone. summary.json is written last: it marks completion.
+#: (.*.tmp: the temporary files of a run stopped by Ctrl-C or a kill; .scenes/: its scene parts)
 RUN_OUTPUTS = (
     "summary.json", "tracks.json", "self_profile.toml", "motion.md", "motion_velocity.png",
     "data/*.txt", "recordings/*.rrd", "recordings/causes.md",
+    ".*.tmp", "data/.*.tmp", "recordings/.*.tmp", ".scenes/*",
 )  # fmt: skip
 
 

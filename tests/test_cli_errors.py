@@ -537,7 +537,8 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     out = tmp_path / "out"
     (out / "data").mkdir(parents=True)
     (out / "recordings").mkdir()
-    for earlier in ("data/0099.txt", "recordings/0099.rrd", "motion.md", "summary.json"):
+    for earlier in ("data/0099.txt", "recordings/0099.rrd", "motion.md", "summary.json",
+                    "recordings/.0099.rrd.123.abc.tmp"):  # (a run stopped by Ctrl-C)  # fmt: skip
         (out / earlier).write_text("an earlier run's\n")
     (out / "notes.txt").write_text("mine\n")
     argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--out", str(out)]
@@ -551,6 +552,7 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     assert code == 0, err
     assert sorted(p.name for p in (out / "data").iterdir()) == ["0001.txt"]
     assert not (out / "recordings" / "0099.rrd").exists() and not (out / "motion.md").exists()
+    assert not list((out / "recordings").iterdir())  # the temporary file too
     assert (out / "notes.txt").read_text() == "mine\n"
     assert json.loads((out / "summary.json").read_text())["sequences"] == ["0001"]
 
