@@ -93,6 +93,22 @@ def compare_result(run_a: Run, run_b: Run, *, tolerance: int) -> dict[str, Any]:
     shared, left_out = shared_sequences(run_a, run_b)
     if left_out:
         run_a, run_b = _restricted(run_a, shared), _restricted(run_b, shared)
+    # a class one run did not track has no events there to compare with: its events in the
+    # other would all count as fixed or introduced
+    classes = {r.name: set(r.summary.get("classes") or ()) for r in (run_a, run_b)}
+    classes_left_out = {
+        c: f"not tracked in {name}"
+        for c in sorted(classes[run_a.name] ^ classes[run_b.name])
+        for name in (run_a.name, run_b.name)
+        if c not in classes[name]
+    }
+    if classes_left_out:
+        run_a, run_b = (
+            dataclasses.replace(
+                r, events=[e for e in r.events if e["class"] not in classes_left_out]
+            )
+            for r in (run_a, run_b)
+        )
     result = compare_runs(
         run_a.summary,
         run_b.summary,
@@ -101,6 +117,8 @@ def compare_result(run_a: Run, run_b: Run, *, tolerance: int) -> dict[str, Any]:
         tolerance=tolerance,
         names=(run_a.name, run_b.name),
     )
+    if classes_left_out:
+        result["classes_left_out"] = classes_left_out
     if left_out:
         result["sequences_compared"] = shared
         result["sequences_left_out"] = left_out

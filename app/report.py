@@ -608,7 +608,7 @@ def _events_section(
             ]
         )
     if not rows:
-        where = " on the compared sequences" if result.get("sequences_left_out") else ""
+        where = " in what was compared" if left_out_note(result) else ""
         return f'<p class="note">Neither run has ID switches or fragmentations{where}.</p>'
     c = result["counts"].get("total", {})
     n = {st: sum(v[st] for v in c.values()) for st in ("fixed", "introduced", "kept")}

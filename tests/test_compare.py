@@ -155,12 +155,30 @@ def test_compare_leaves_out_a_sequence_one_run_did_not_track(tmp_path: Path, cap
     assert result["metrics"]["car"]["HOTA"]["a"] == alone != 90.0  # (90: A's summary, both)
     assert result["metrics"]["car"]["HOTA"]["b"] == 95.0  # B's summary: over SEQ exactly
     assert list(result["per_sequence"]) == [SEQ]
-    assert "- Sequences: compared the 1 sequence(s)" in (out / "compare.md").read_text()
+    assert "- Scope: compared the 1 sequence(s)" in (out / "compare.md").read_text()
     # the report of the same pair says so above its metrics
     report = tmp_path / "report"
     assert main(["report", str(a), "--compare", str(b), "--out", str(report)]) == 0
     page = (report / "index.html").read_text()
     assert "Compared the 1 sequence(s) both runs tracked and scored" in page
+
+
+def test_compare_leaves_out_the_events_of_a_class_one_run_did_not_track(
+    tmp_path: Path, capsys
+) -> None:
+    """B tracked pedestrians only: A's car switches are not "fixed" by B."""
+    a, b, _ = make_runs(tmp_path)
+    for run, classes in ((a, ["car", "pedestrian"]), (b, ["pedestrian"])):
+        summary = json.loads((run / "summary.json").read_text())
+        (run / "summary.json").write_text(json.dumps({**summary, "classes": classes}))
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out.splitlines()
+    assert printed[0] == (
+        "Events of classes one run did not track are not compared: car (not tracked in b)"
+    )
+    result = json.loads((out / "compare.json").read_text())
+    assert result["events"] == [] and result["classes_left_out"] == {"car": "not tracked in b"}
 
 
 def test_compare_leaves_out_a_sequence_that_failed_in_one_run(tmp_path: Path, capsys) -> None:

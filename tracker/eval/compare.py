@@ -233,16 +233,23 @@ def event_text(e: Mapping[str, Any]) -> str:
 def left_out_note(result: Mapping[str, Any]) -> str | None:
     """One line: which sequences were compared, which left out and why (None: all were)."""
     left_out = result.get("sequences_left_out")
-    if not left_out:
-        return None
-    shared = result["sequences_compared"]
-    rescored = result.get("rescored") or []
-    return (
-        f"compared the {len(shared)} sequence(s) both runs tracked and scored "
-        f"({', '.join(shared)}); left out: "
-        + "; ".join(f"{seq} ({why})" for seq, why in left_out.items())
-        + (f"; metrics of {' and '.join(rescored)} scored again on them" if rescored else "")
-    )
+    classes = result.get("classes_left_out")
+    parts = []
+    if left_out:
+        shared = result["sequences_compared"]
+        rescored = result.get("rescored") or []
+        parts.append(
+            f"compared the {len(shared)} sequence(s) both runs tracked and scored "
+            f"({', '.join(shared)}); left out: "
+            + "; ".join(f"{seq} ({why})" for seq, why in left_out.items())
+            + (f"; metrics of {' and '.join(rescored)} scored again on them" if rescored else "")
+        )
+    if classes:
+        parts.append(
+            "events of classes one run did not track are not compared: "
+            + "; ".join(f"{c} ({why})" for c, why in classes.items())
+        )
+    return "; ".join(parts) or None
 
 
 def compare_markdown(result: Mapping[str, Any], *, command: str | None = None) -> list[str]:
@@ -260,7 +267,7 @@ def compare_markdown(result: Mapping[str, Any], *, command: str | None = None) -
     ]
     note = left_out_note(result)
     if note:
-        lines.append(f"- Sequences: {note}.")
+        lines.append(f"- Scope: {note}.")
     lines += [
         "",
         "## Metrics per class (B − A)",
@@ -293,7 +300,7 @@ def compare_markdown(result: Mapping[str, Any], *, command: str | None = None) -
             name = f"**{seq}**" if seq == "total" else seq
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
     else:
-        where = " on the compared sequences" if result.get("sequences_left_out") else ""
+        where = " in what was compared" if left_out_note(result) else ""
         lines.append(f"Neither run has ID switches or fragmentations{where}.")
     motion = result.get("motion")
     lines += ["", "## Motion metrics (Kalman velocity, B − A)", ""]
