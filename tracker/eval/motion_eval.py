@@ -827,7 +827,7 @@ def motion_markdown(result: Mapping[str, Any], *, heading_level: int = 3) -> str
         lines += [f"{h} Motion metrics: {cls}", ""]
         if counts:
             lines += [
-                f"{counts['samples']} samples ({counts['gt_tracks']} GT tracks, "
+                f"{counts['samples']} samples ({counts['gt_tracks']} GT tracks with samples, "
                 f"{counts['output_tracks']} output tracks); {counts['matched']} matched boxes of "
                 f"which {counts['matched_coasting']} coasting (not samples).",
                 "",
