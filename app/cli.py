@@ -179,6 +179,9 @@ def error_message(exc: BaseException) -> tuple[str, int] | None:
         return f"malformed JSON ({exc})", EXIT_INPUT
     if isinstance(exc, UnicodeDecodeError):
         return f"not a text file ({exc.reason})", EXIT_INPUT
+    if type(exc).__name__ == "TrackEvalException":  # (not imported: trackeval is heavy)
+        # TrackEval refuses a file it cannot score; its messages span lines
+        return f"TrackEval: {' '.join(str(exc).split())}", EXIT_INPUT
     if isinstance(exc, OSError) and exc.filename:
         return f"{exc.filename}: {exc.strerror or exc}", EXIT_INPUT
     return None

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import sys
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -24,6 +25,8 @@ from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.baseversion import read_baseversion
 from tracker.io.fileio import path_in, write_text_atomic
+
+LOG = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,7 +68,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--labels",
         default=None,
-        help="KITTI label_02 folder: static metrics (TrackEval, KITTI 2D-box protocol)",
+        help="KITTI label_02 folder: static metrics (TrackEval, KITTI 2D-box protocol) of the "
+        "sequences with a label file, on the frames the tracks file covers (a `mctrack track "
+        "--frames A:B` file: frames A..B-1 alone); eval.json names what was scored",
     )
     parser.add_argument("--motion", action="store_true", help="motion metrics")
     parser.add_argument(
@@ -151,10 +156,12 @@ def evaluate_tracks(
             writer["image_boxes"] = ImageBoxes.PROJECTION
         mode = ImageBoxes(writer.get("image_boxes", ImageBoxes.PROJECTION))
         frames = track_frames if mode is ImageBoxes.PROJECTION else dets
-        result["static"] = _static_metrics(frames, outputs, gt, classes, labels, writer)
+        result["static"] = _static_metrics(frames, outputs, gt, classes, labels, writer, result)
     else:
         result["static"] = "skipped: static metrics need --labels (KITTI label_02 folder)"
     md += _static_markdown(result["static"])
+    if "evaluation" in result:
+        md += [result["evaluation"], ""]
     if motion:
         if any(len(o) for frames in outputs.values() for o in frames) and all(
             (o.det_row < 0).all() for frames in outputs.values() for o in frames
@@ -180,31 +187,62 @@ def _static_metrics(
     classes: Sequence[str],
     labels: Path,
     writer: Mapping[str, Any],
+    notes: dict[str, Any],
 ) -> dict[str, Any] | str:
-    from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
+    """The KITTI metrics of the labelled scenes, on the frames the tracks file covers. What was
+    scored goes into ``notes`` (eval.json): ``evaluated_sequences``, and when some scenes or
+    frames were left out, ``evaluated_frames`` and an ``evaluation`` line (also logged)."""
+    from tracker.eval.kitti import SUPPORTED_CLASSES, check_label_file, evaluate_kitti
     from tracker.io.writers import write_kitti_sequence
 
-    missing = [s for s in outputs if not path_in(labels, s, ".txt").is_file()]
-    if missing:
-        return f"skipped: no labels for {missing} in {labels}"
     static_classes = [c for c in classes if c in SUPPORTED_CLASSES]
     if not static_classes:
         return f"skipped: none of {list(classes)} is a KITTI class {SUPPORTED_CLASSES}"
-    lengths = {
-        s: 1
-        + max(
-            [o.frame_id for o in outputs[s]] + [f.frame_id for f in gt.get(s, ())],
-            default=-1,
+    missing = [s for s in outputs if not path_in(labels, s, ".txt").is_file()]
+    empty = [s for s in outputs if s not in missing and not outputs[s]]
+    scored = [s for s in outputs if s not in missing and s not in empty]
+    if not scored:
+        return f"skipped: no labels for {missing} in {labels}" if missing else "skipped: no frames"
+    lengths: dict[str, int] = {}
+    first_frames: dict[str, int] = {}
+    windows: dict[str, list[int]] = {}
+    for s in scored:  # every label file is read before the first is scored
+        ids = [o.frame_id for o in outputs[s]]
+        gt_ids = [f.frame_id for f in gt.get(s, ())]
+        length = 1 + max(ids + gt_ids)
+        # the ground truth says how long the sequence is: labels beyond it are another's
+        labelled = check_label_file(
+            path_in(labels, s, ".txt"), length if gt_ids else None, "the frames of --gt"
         )
-        for s in outputs
-    }
+        lo, hi = min(ids), max(ids)
+        if lo > 0 or hi + 1 < max(length, labelled):  # (mctrack track --frames): score those
+            first_frames[s], lengths[s], windows[s] = lo, hi - lo + 1, [lo, hi]
+        else:
+            lengths[s] = length
+    notes["evaluated_sequences"] = scored
+    said = []
+    if missing or empty:
+        why = [f"no labels for {missing} in {labels}"] if missing else []
+        why += [f"no frames of {empty} in the tracks file"] if empty else []
+        said.append(f"scored on {scored}; {'; '.join(why)}")
+    if windows:  # scoring every labelled frame would count the frames never tracked as misses
+        notes["evaluated_frames"] = windows
+        spans = ", ".join(f"{s} {lo}-{hi}" for s, (lo, hi) in windows.items())
+        said.append(f"scored on the frames the tracks file covers alone ({spans})")
+    if said:
+        notes["evaluation"] = "; ".join(said)
+        LOG.warning("%s", notes["evaluation"])
     with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
-        for scene, scene_outputs in outputs.items():
+        for scene in scored:
             write_kitti_sequence(
-                path_in(tmp, scene, ".txt"), scene_outputs, frames[scene], **writer
+                path_in(tmp, scene, ".txt"), outputs[scene], frames[scene], **writer
             )
         return evaluate_kitti(
-            label_dir=labels, result_dir=Path(tmp), seq_lengths=lengths, classes=static_classes
+            label_dir=labels,
+            result_dir=Path(tmp),
+            seq_lengths=lengths,
+            classes=static_classes,
+            first_frames=first_frames,
         )
 
 

@@ -55,12 +55,13 @@ from tracker.eval.kitti import (
     SUPPORTED_CLASSES,
     SequenceEvaluation,
     absent_classes,
+    check_kitti_labels,
     combine_sequences,
     evaluate_kitti_sequence,
 )
 from tracker.events import TrackOutput
 from tracker.frame import Frame
-from tracker.io.convert.kitti import VALIDATION_SEQS
+from tracker.io.convert.kitti import VALIDATION_SEQS, _normalise_seq
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
 from tracker.io.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
 from tracker.pipeline import run_scene
@@ -347,6 +348,11 @@ def run_kitti(
         # the image detector's boxes are what the run is for: written where a track has one
         config = load_config(config_name, overrides={**overrides, "image_boxes": "auto"})
     label_dir = labels or kitti_root / "training" / "label_02"
+    if evaluate:  # a bad label file stops the run here, not once every sequence is tracked
+        names = [_normalise_seq(s) for s in seqs]  # as the converter names them
+        lengths = {seq: _pose_count(kitti_root, seq, poses) for seq in names}
+        sources = {seq: f"the pose lines of {_pose_file(kitti_root, seq, poses)}" for seq in names}
+        check_kitti_labels(label_dir, lengths, sources)
     unscored = [c for c in classes if c not in SUPPORTED_CLASSES]
     if evaluate and unscored:
         LOG.warning(
@@ -361,7 +367,7 @@ def run_kitti(
         calibration = (
             self_calibrated_note(profile, detector, self_profile) + ", see self_profile.toml"
         )
-    # once the config and the profile are read too: a refused run keeps the earlier one
+    # once the config, the profile and the labels are read: a refused run keeps the earlier one
     _clear_earlier_run(out)
     job = KittiSceneJob(
         kitti_root=kitti_root,
@@ -513,6 +519,23 @@ def run_kitti(
         write_text_atomic(out / "self_profile.toml", [profile_toml(self_profile)])
     write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
     return summary
+
+
+def _pose_file(kitti_root: Path, seq: str, poses: str | None) -> Path | None:
+    if poses is None:
+        return None
+    folder = kitti_root / "training" / "pose_orbslam3" if poses == "orbslam3" else Path(poses)
+    return path_in(folder, seq, ".txt")
+
+
+def _pose_count(kitti_root: Path, seq: str, poses: str | None) -> int | None:
+    """A sequence's length as the converter takes it with poses: the pose file's non-empty
+    lines (None without poses, or no readable pose file: the sequence's task reports that)."""
+    path = _pose_file(kitti_root, seq, poses)
+    try:
+        return None if path is None else sum(1 for t in path.read_text().splitlines() if t.strip())
+    except (OSError, UnicodeDecodeError):
+        return None
 
 
 def self_calibrate(

@@ -19,9 +19,14 @@ from typing import Any
 
 import numpy as np
 
+from tracker.errors import InputError
 from tracker.io.fileio import path_in
 
 SUPPORTED_CLASSES = ("car", "pedestrian", "cyclist")
+#: The label types TrackEval's KITTI reader knows (lower-cased); any other stops it.
+TRACKEVAL_TYPES = (
+    "car", "van", "truck", "pedestrian", "person", "cyclist", "tram", "misc", "dontcare", "car_2"
+)  # fmt: skip
 
 
 #: The metrics computed per sequence (TrackEval's own classes, default settings).
@@ -57,6 +62,63 @@ class SequenceEvaluation:
         return SequenceEvaluation(self.seq, self.num_timesteps, self.results)
 
 
+def check_label_file(path: Path, num_frames: int | None = None, length_source: str = "") -> int:
+    """Raise :class:`InputError` (file, line, field) unless TrackEval can score ``path``: a
+    KITTI label file (:func:`~tracker.io.convert.kitti.read_kitti_labels`), of types TrackEval
+    knows, with no frame at or beyond ``num_frames`` (when known; ``length_source`` says where
+    that length comes from). TrackEval itself fails on these with a traceback, a ValueError or
+    "invalid timesteps", and only once the tracking is done. Returns the frames the labels span
+    (their last frame + 1)."""
+    from tracker.io.convert.kitti import read_kitti_labels
+
+    labels = read_kitti_labels(path)
+    known = np.isin(np.char.lower(labels.type_name.astype(str)), TRACKEVAL_TYPES)
+    if not known.all():
+        row = int(np.argmin(known))
+        raise InputError(
+            f"type {labels.type_name[row]!r} is not a KITTI tracking label type (Car, Van, Truck,"
+            " Pedestrian, Person, Cyclist, Tram, Misc, DontCare)",
+            path=path, line=labels.where(row)[1], field="type",
+        )  # fmt: skip
+    if num_frames is not None and len(labels) and labels.frame.max() >= num_frames:
+        row = int(np.argmax(labels.frame))
+        source = f" ({length_source})" if length_source else ""
+        raise InputError(
+            f"frame {labels.frame[row]} is beyond the sequence's {num_frames} frames{source}:"
+            " labels of another sequence?",
+            path=path, line=labels.where(row)[1], field="frame",
+        )  # fmt: skip
+    return int(labels.frame.max(initial=-1)) + 1
+
+
+def check_kitti_labels(
+    label_dir: Path,
+    seq_lengths: Mapping[str, int | None],
+    length_sources: Mapping[str, str] | None = None,
+) -> list[str]:
+    """The sequences of ``seq_lengths`` with a label file in ``label_dir``, each checked by
+    :func:`check_label_file` against its length (None: unknown). Run before tracking or
+    evaluating, so that a bad label file stops the run at once with its file and line."""
+    labelled = []
+    for seq, length in sorted(seq_lengths.items()):
+        path = path_in(label_dir, seq, ".txt")
+        if path.is_file():
+            check_label_file(path, length, (length_sources or {}).get(seq, ""))
+            labelled.append(seq)
+    return labelled
+
+
+def _window(source: Path, target: Path, first: int, count: int) -> None:
+    """``target``: the rows of KITTI file ``source`` at frames first .. first+count-1, their
+    frames shifted to start at 0 (TrackEval scores frames 0 .. n-1)."""
+    rows = []
+    for text in source.read_text().splitlines():
+        frame, _, rest = text.strip().partition(" ")
+        if frame and first <= int(float(frame)) < first + count:
+            rows.append(f"{int(float(frame)) - first} {rest}\n")
+    target.write_text("".join(rows))
+
+
 def evaluate_kitti_sequence(
     *,
     label_file: Path,
@@ -64,8 +126,13 @@ def evaluate_kitti_sequence(
     num_timesteps: int,
     classes: Sequence[str] = ("car", "pedestrian"),
     keep_id_inputs: bool = False,
+    first_frame: int | None = None,
 ) -> SequenceEvaluation:
     """Evaluate one sequence's result file (None: no tracks) against its ``label_02`` file.
+
+    ``first_frame``: score only frames first_frame .. first_frame+num_timesteps-1 of both files
+    (a tracks file of part of a sequence); None: the whole files, which must end before
+    ``num_timesteps`` (else :class:`InputError`, as for a malformed label file).
 
     TrackEval loads the sequence once per dataset (car and pedestrian share one; cyclist is its
     own, see :func:`_cyclist_dataset`), preprocesses it once per class and runs HOTA, CLEAR and
@@ -78,6 +145,10 @@ def evaluate_kitti_sequence(
     unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
     if unknown:
         raise ValueError(f"cannot evaluate classes {unknown}; supported: {SUPPORTED_CLASSES}")
+    if first_frame is None:
+        check_label_file(label_file, num_timesteps)
+    else:
+        check_label_file(label_file)
     seq = label_file.stem
     results: dict[str, dict[str, Any]] = {}
     id_inputs: dict[str, IdInputs] = {}
@@ -86,10 +157,17 @@ def evaluate_kitti_sequence(
         (gt_root / "label_02").mkdir(parents=True)
         target = trackers_root / _TRACKER_NAME / "data" / f"{seq}.txt"
         target.parent.mkdir(parents=True)
-        shutil.copyfile(label_file, gt_root / "label_02" / f"{seq}.txt")
-        if result_file is not None and result_file.is_file():
-            shutil.copyfile(result_file, target)
+        gt_file = gt_root / "label_02" / f"{seq}.txt"
+        result = result_file if result_file is not None and result_file.is_file() else None
+        if first_frame is not None:
+            _window(label_file, gt_file, first_frame, num_timesteps)
+            if result is not None:
+                _window(result, target, first_frame, num_timesteps)
         else:
+            shutil.copyfile(label_file, gt_file)
+            if result is not None:
+                shutil.copyfile(result, target)
+        if result is None:
             target.write_text("")
         (gt_root / "evaluate_tracking.seqmap.val").write_text(
             f"{seq} empty 000000 {num_timesteps:06d}\n"
@@ -116,7 +194,7 @@ def evaluate_kitti_sequence(
             if "cyclist" in classes:
                 runs.append((_cyclist_dataset(trackeval, ds_config), [("cyclist", "car")]))
             for dataset, names in runs:
-                raw = dataset.get_raw_seq_data(_TRACKER_NAME, seq)
+                raw = _raw_seq_data(trackeval, dataset, seq, label_file)
                 for name, eval_cls in names:
                     if keep_id_inputs:
                         data, id_inputs[name] = preprocess_keeping_ids(dataset, raw, eval_cls)
@@ -128,6 +206,18 @@ def evaluate_kitti_sequence(
                     }
     ordered = {c: results[c] for c in classes}
     return SequenceEvaluation(seq, num_timesteps, ordered, id_inputs if keep_id_inputs else None)
+
+
+def _raw_seq_data(trackeval: Any, dataset: Any, seq: str, label_file: Path) -> Any:
+    """TrackEval's loading, its own error report on stderr kept quiet (it prints a traceback
+    before raising) and its error an :class:`InputError` naming the label file."""
+    try:
+        with contextlib.redirect_stderr(io.StringIO()):
+            return dataset.get_raw_seq_data(_TRACKER_NAME, seq)
+    except trackeval.utils.TrackEvalException as exc:
+        raise InputError(
+            f"TrackEval cannot score it: {' '.join(str(exc).split())}", path=label_file
+        ) from None
 
 
 def combine_sequences(
@@ -167,22 +257,29 @@ def evaluate_kitti(
     seq_lengths: Mapping[str, int],
     classes: Sequence[str] = ("car", "pedestrian"),
     per_sequence: dict[str, dict[str, dict[str, float]]] | None = None,
+    first_frames: Mapping[str, int] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Evaluate ``result_dir/<seq>.txt`` against ``label_dir/<seq>.txt``.
 
     Returns, per class, HOTA, DetA, AssA, LocA, MOTA, MOTP, IDF1 (percent), IDSW, Frag, FP, FN,
     TP (counts) over the combined sequences. A ``per_sequence`` dict given is filled with the
-    same per sequence (``{seq: {class: metrics}}``; TrackEval computes them anyway).
+    same per sequence (``{seq: {class: metrics}}``; TrackEval computes them anyway). A sequence
+    in ``first_frames`` is scored on its frames first .. first+length-1 alone
+    (:func:`evaluate_kitti_sequence`). Every label file is checked before the first is scored.
     """
     unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
     if unknown:
         raise ValueError(f"cannot evaluate classes {unknown}; supported: {SUPPORTED_CLASSES}")
+    firsts = first_frames or {}
+    for seq, length in sorted(seq_lengths.items()):
+        check_label_file(path_in(label_dir, seq, ".txt"), None if seq in firsts else length)
     evaluations = [
         evaluate_kitti_sequence(
             label_file=path_in(label_dir, seq, ".txt"),
             result_file=path_in(result_dir, seq, ".txt"),
             num_timesteps=length,
             classes=classes,
+            first_frame=firsts.get(seq),
         )
         for seq, length in sorted(seq_lengths.items())
     ]

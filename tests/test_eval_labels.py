@@ -1,0 +1,233 @@
+"""Label files checked before any tracking or scoring (one line naming file, line and field;
+TrackEval's own failures one line too), and `mctrack eval` scoring what the tracks file covers:
+its frames (a `mctrack track --frames` window) and its labelled sequences."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from app.cli import main
+from tracker.errors import InputError
+
+ROOT = Path(__file__).resolve().parents[1]
+SAMPLE = ROOT / "sample_data" / "kitti-0001"
+SAMPLE_KIT = SAMPLE / "raw"  # one sequence, 0001: 447 poses, labels, pointrcnn detections
+LABEL = SAMPLE_KIT / "training" / "label_02" / "0001.txt"
+GOOD_ROW = next(r for r in LABEL.read_text().splitlines() if " Car " in r)
+
+
+def _run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
+    code = main(argv)
+    return code, capsys.readouterr().err
+
+
+def _one_line_error(code: int, err: str, *fragments: str) -> None:
+    assert code == 2, err
+    assert "Traceback" not in err and "unexpected error" not in err, err
+    errors = [line for line in err.splitlines() if ": error:" in line]
+    assert len(errors) == 1 and err.rstrip().endswith(errors[0]), err
+    for fragment in fragments:
+        assert fragment in errors[0], err
+
+
+def _labels(folder: Path, extra: str) -> Path:
+    """The sample's labels with one line appended (line 2 of the file + ...)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "0001.txt").write_text(LABEL.read_text() + extra + "\n")
+    return folder
+
+
+N_LINES = len(LABEL.read_text().splitlines())
+BAD_LABELS = {  # (the line appended, what the error names)
+    "short line": ("3 2 Car 0 0", (f"0001.txt:{N_LINES + 1}", "'columns'", "17 or 18")),
+    "frame beyond the poses": (
+        "447" + GOOD_ROW[GOOD_ROW.index(" ") :],
+        (f"0001.txt:{N_LINES + 1}", "'frame'", "447 frames"),
+    ),
+    "type TrackEval rejects": (
+        GOOD_ROW.replace(" Car ", " Person_sitting "),
+        (f"0001.txt:{N_LINES + 1}", "'type'", "Person_sitting"),
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_LABELS))
+@pytest.mark.parametrize("where", ["--labels", "the kit's label_02"])
+def test_kitti_refuses_bad_labels_before_tracking_and_keeps_the_earlier_run(
+    case: str, where: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    extra, fragments = BAD_LABELS[case]
+    kit = SAMPLE_KIT
+    argv = ["kitti", "--seqs", "0001", "--classes", "car"]
+    if where == "--labels":
+        argv += ["--labels", str(_labels(tmp_path / "labels", extra))]
+    else:
+        kit = tmp_path / "kit"
+        shutil.copytree(SAMPLE_KIT, kit)
+        _labels(kit / "training" / "label_02", extra)
+    out = tmp_path / "out"
+    (out / "data").mkdir(parents=True)
+    (out / "summary.json").write_text("an earlier run's\n")
+    code, err = _run([*argv, "--kitti-root", str(kit), "--out", str(out)], capsys)
+    _one_line_error(code, err, *fragments)
+    assert (out / "summary.json").read_text() == "an earlier run's\n"
+    assert not list((out / "data").iterdir())  # nothing tracked
+
+
+def test_kitti_refuses_detections_given_as_labels(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    detections = SAMPLE_KIT / "detections" / "pointrcnn" / "training" / "Car"  # AB3DMOT CSV
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--labels"]
+    code, err = _run([*argv, str(detections), "--out", str(tmp_path / "o")], capsys)
+    _one_line_error(code, err, str(detections / "0001.txt") + ":1: field 'columns'")
+
+
+def test_trackeval_failures_are_one_line_and_quiet(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A file our reader takes but TrackEval cannot (a tab-separated line after space-separated
+    ones): an InputError naming the label file, without TrackEval's printed traceback; and any
+    TrackEvalException reaching the CLI is one line, exit 2."""
+    import trackeval
+
+    from app import validate
+    from tracker.eval.kitti import evaluate_kitti_sequence
+
+    labels = _labels(tmp_path / "labels", "\t".join(GOOD_ROW.split()))
+    with pytest.raises(
+        InputError,
+        match=r"labels/0001.txt: TrackEval cannot score it: File 0001.txt cannot be read",
+    ):
+        evaluate_kitti_sequence(
+            label_file=labels / "0001.txt", result_file=None, num_timesteps=447, classes=["car"]
+        )
+    assert "Traceback" not in capfd.readouterr().err
+
+    def refused(args: argparse.Namespace) -> int:
+        raise trackeval.utils.TrackEvalException("File x.txt\ncannot be read")
+
+    monkeypatch.setattr(validate, "run", refused)
+    assert main(["validate", "x.json"]) == 2
+    assert (
+        capfd.readouterr().err == "mctrack validate: error: TrackEval: File x.txt cannot be read\n"
+    )
+
+
+@pytest.fixture(scope="module")
+def sample_tracks(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The sample tracked whole and on frames 20:40 (`mctrack track --frames`)."""
+    out = tmp_path_factory.mktemp("tracks")
+    tracks = {}
+    for name, frames in (("all", []), ("window", ["--frames=20:40"])):
+        argv = ["track", str(SAMPLE / "detections.json.gz"), *frames, "--out", str(out / name)]
+        assert main(argv) == 0
+        tracks[name] = out / name / "tracks.json"
+    return tracks
+
+
+def _eval(tracks: Path, labels: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> dict:
+    argv = ["eval", str(tracks), "--gt", str(SAMPLE / "gt.json.gz"), "--labels", str(labels)]
+    code, err = _run([*argv, "--classes", "car,pedestrian", "--out", str(out)], capsys)
+    assert code == 0, err
+    return json.loads((out / "eval.json").read_text())
+
+
+def _cut(source: Path, target: Path, first: int, count: int) -> None:
+    """The KITTI rows of frames first..first+count-1, renumbered from 0 (the test's own)."""
+    rows = [line.split(" ") for line in source.read_text().splitlines()]
+    kept = [[str(int(r[0]) - first), *r[1:]] for r in rows if first <= int(r[0]) < first + count]
+    target.write_text("".join(" ".join(r) + "\n" for r in kept))
+
+
+def test_eval_scores_the_frames_the_tracks_file_covers(
+    sample_tracks: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    from tracker.eval.kitti import combine_sequences, evaluate_kitti_sequence
+    from tracker.io.writers import read_tracks_file, write_kitti_sequence
+
+    labels = LABEL.parent
+    result = _eval(sample_tracks["window"], labels, tmp_path / "e", capsys)
+    assert result["evaluated_frames"] == {"0001": [20, 39]}
+    assert "scored on the frames the tracks file covers alone (0001 20-39)" in caplog.text
+    assert "0001 20-39" in (tmp_path / "e" / "eval.md").read_text()
+    # the same as TrackEval on both files cut to the window by hand
+    frames, outputs = read_tracks_file(sample_tracks["window"])
+    write_kitti_sequence(tmp_path / "all.txt", outputs["0001"], frames["0001"])
+    (tmp_path / "l").mkdir()
+    _cut(LABEL, tmp_path / "l" / "0001.txt", 20, 20)
+    _cut(tmp_path / "all.txt", tmp_path / "r.txt", 20, 20)
+    classes = ["car", "pedestrian"]
+    expected = evaluate_kitti_sequence(
+        label_file=tmp_path / "l" / "0001.txt",
+        result_file=tmp_path / "r.txt",
+        num_timesteps=20,
+        classes=classes,
+    )
+    assert result["static"] == combine_sequences([expected], classes)
+    assert result["static"]["car"]["FN"] < 50  # (every labelled frame: > 1000)
+    # a whole run is scored as before, on every frame, and says nothing
+    whole = _eval(sample_tracks["all"], labels, tmp_path / "w", capsys)
+    assert "evaluated_frames" not in whole and "evaluation" not in whole
+    assert whole["evaluated_sequences"] == ["0001"]
+
+
+def test_eval_scores_the_labelled_sequences_and_names_the_rest(
+    sample_tracks: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A second scene without labels (the sample's, renamed 0002) leaves the static metrics
+    those of 0001 alone, and says so (it skipped them all)."""
+    two = json.loads(sample_tracks["all"].read_text())
+    two["0002"] = two["0001"]
+    (tmp_path / "two.json").write_text(json.dumps(two))
+    one = _eval(sample_tracks["all"], LABEL.parent, tmp_path / "one", capsys)
+    both = _eval(tmp_path / "two.json", LABEL.parent, tmp_path / "both", capsys)
+    assert both["static"] == one["static"]
+    assert both["evaluated_sequences"] == ["0001"]
+    assert both["evaluation"] == f"scored on ['0001']; no labels for ['0002'] in {LABEL.parent}"
+    assert both["evaluation"] in caplog.text
+
+
+@pytest.mark.parametrize("command", ["kitti", "eval"])
+def test_a_longer_sequences_labels_are_refused(
+    command: str, sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    labels = _labels(tmp_path / "labels", "500" + GOOD_ROW[GOOD_ROW.index(" ") :])
+    if command == "kitti":
+        argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--labels"]
+        code, err = _run([*argv, str(labels), "--out", str(tmp_path / "o")], capsys)
+        length = "447 frames (the pose lines of"
+    else:
+        argv = ["eval", str(sample_tracks["all"]), "--gt", str(SAMPLE / "gt.json.gz")]
+        code, err = _run([*argv, "--labels", str(labels), "--out", str(tmp_path / "o")], capsys)
+        length = "447 frames (the frames of --gt)"
+    _one_line_error(code, err, f"0001.txt:{N_LINES + 1}", "'frame'", "frame 500", length)
+
+
+def test_kitti_refuses_the_reviewers_label_file(
+    kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The review's case: 0012's labels and a 5-column line, with the virconv detections."""
+    source = kitti_root / "training" / "label_02" / "0012.txt"
+    (tmp_path / "labels").mkdir()
+    (tmp_path / "labels" / "0012.txt").write_text(source.read_text() + "3 2 Car 0 0\n")
+    argv = ["kitti", "--kitti-root", str(kitti_root), "--detector", "virconv", "--seqs", "0012"]
+    argv += ["--classes", "car", "--labels", str(tmp_path / "labels"), "--out", str(tmp_path / "o")]
+    code, err = _run(argv, capsys)
+    n = len(source.read_text().splitlines()) + 1
+    _one_line_error(code, err, f"0012.txt:{n}: field 'columns': expected 17 or 18 columns, got 5")
+    # the detections given as labels (was TrackEval's traceback, then "unexpected error")
+    detections = kitti_root / "detections" / "virconv" / "training"
+    code, err = _run([*argv[:-4], "--labels", str(detections), *argv[-2:]], capsys)
+    _one_line_error(code, err, f"{detections / '0012.txt'}:1: field 'track_id': not a number")
