@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import resource
+import shlex
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -86,3 +87,28 @@ def profile_argument(value: str | None) -> Path | str | None:
     """``--profile`` as given: ``self``, ``none`` or absent as they are, else a path (a file,
     or a shipped profile's name, resolved later)."""
     return value if value in (SELF_PROFILE, NO_PROFILE) or not value else Path(value)
+
+
+def command_line(words: Sequence[object]) -> str:
+    """``mctrack WORDS...``, each word quoted for a POSIX shell: the line a record keeps so the
+    run can be repeated (paths with spaces included)."""
+    return shlex.join(["mctrack", *map(str, words)])
+
+
+def remove_earlier_outputs(folder: Path, patterns: Sequence[str]) -> int:
+    """Delete the files of an earlier run in ``folder`` that match ``patterns`` (globs relative
+    to it), then the sub-folders that leaves empty; other files stay. A run into the folder of
+    an earlier one calls this once its inputs are accepted, so the folder never mixes two runs
+    (a level or sequence the new run leaves out would keep its old results). Returns how many
+    files went."""
+    earlier = sorted({p for pattern in patterns for p in folder.glob(pattern) if p.is_file()})
+    for path in earlier:
+        path.unlink()
+    root = folder.resolve()
+    for parent in sorted({p.parent for p in earlier}, key=lambda p: -len(p.parts)):
+        while parent.resolve() != root and parent.is_dir() and not any(parent.iterdir()):
+            parent.rmdir()
+            parent = parent.parent
+    if earlier:
+        LOG.info("%s: removed %d files of an earlier run", folder, len(earlier))
+    return len(earlier)

@@ -76,9 +76,14 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--tolerance {args.tolerance}: must be >= 0")
     out = check_output_folder(args.out)
     run_a, run_b = load_pair(args)
-    command = "mctrack compare " + " ".join(
-        shlex.quote(x) for x in [args.run_a, args.run_b, "--out", args.out]
-    )
+    # every option that changes the result, quoted: the line repeats the comparison
+    words = [args.run_a, args.run_b, "--out", args.out, "--tolerance", str(args.tolerance)]
+    words += [
+        *(["--labels", args.labels] if args.labels else []),
+        *(["--gt", args.gt] if args.gt else []),
+        *(["--record"] if args.record else []),
+    ]
+    command = "mctrack compare " + shlex.join(words)
     result = compare(run_a, run_b, out, tolerance=args.tolerance, command=command)
     if args.record:
         result["recordings"] = record(run_a, run_b, result, out)

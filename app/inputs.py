@@ -75,9 +75,11 @@ def check_kitti_root(
     seqs: Sequence[str] | None = None,
     poses: str | None = "orbslam3",
     detector: str | None = "pointrcnn",
+    detector_flag: str = "--detector NAME",
 ) -> None:
     """Raise :class:`InputError` naming the first missing piece of a KITTI layout and the flag
-    that fixes it; the converter's own checks then only see files that exist."""
+    that fixes it (``detector_flag``: how the calling command names detectors); the converter's
+    own checks then only see files that exist."""
     flag = f"--kitti-root (or ${KITTI_ROOT_ENV})"
     seqs = [s.zfill(4) if s.isdigit() else s for s in (str(s).strip() for s in seqs or ())]
     if not root.is_dir():
@@ -106,7 +108,7 @@ def check_kitti_root(
         if not det_dir.is_dir():
             found = sorted(p.parent.name for p in (root / "detections").glob(f"*/{split}"))
             raise InputError(
-                f"{det_dir}: detections not found; pass --detector NAME "
+                f"{det_dir}: detections not found; pass {detector_flag} "
                 f"(found: {', '.join(found) or 'none'})"
             )
     if poses == "orbslam3":

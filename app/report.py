@@ -94,15 +94,20 @@ def run(args: argparse.Namespace) -> int:
         run_b: Run | None = load_run(path_b, labels=labels, name=nb)
     else:
         run_a, run_b = load_run(path_a, labels=labels), None
-    command = "mctrack report " + " ".join(
-        shlex.quote(x)
-        for x in [
-            args.run,
-            *(["--compare", args.compare] if args.compare else []),
-            "--out",
-            args.out,
-        ]
-    )
+    # every option that changes the report, quoted: the line makes it again (--serve and its
+    # address only show it)
+    words = [
+        args.run,
+        *(["--compare", args.compare] if args.compare else []),
+        "--out",
+        args.out,
+        *(["--labels", args.labels] if args.labels else []),
+        "--tolerance",
+        str(args.tolerance),
+        *(["--shots", str(args.shots)] if args.shots else []),
+        *(w for href, text in args.link or [] for w in ("--link", href, text)),
+    ]
+    command = "mctrack report " + shlex.join(words)
     links = [tuple(x) for x in args.link or []]
     for href, _ in links:
         if "://" in href or href.startswith(("/", "\\")) or ".." in Path(href).parts:

@@ -6,6 +6,7 @@ standard evaluator (TrackEval, KITTI 2D box protocol). Prints HOTA per class and
 seeds ± the seeds' standard deviation, and the change from clean) and writes
 ``OUT/robustness.json`` and ``OUT/robustness.md``; the result files stay in
 ``OUT/runs/<level>/seed<k>/``. The clean level is always run, once (it does not depend on the seed).
+A run into the folder of an earlier one replaces its outputs (the files above; others stay).
 """
 
 from __future__ import annotations
@@ -25,8 +26,10 @@ from tqdm import tqdm
 
 from app.common import (
     NO_PROFILE,
+    command_line,
     log_self_profile,
     profile_argument,
+    remove_earlier_outputs,
     score_source,
     self_calibrated_note,
 )
@@ -57,13 +60,16 @@ from tracker.eval.perturb import (
     perturb_frames,
 )
 from tracker.io.convert.kitti import VALIDATION_SEQS
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import check_output_folder, write_text_atomic
 from tracker.io.writers import write_kitti_sequence
 from tracker.pipeline import run_scene
 
 EVALUATOR = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
 #: Metrics kept per run in the json (the table shows HOTA).
 KEPT_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "FN")
+#: What a run writes in --out (globs). A run into the folder of an earlier one removes these once
+#: its inputs are accepted; other files (and a runs/ folder's other contents) are left alone.
+RUN_OUTPUTS = ("robustness.json", "robustness.md", "runs/*/clean/*.txt", "runs/*/seed*/*.txt")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -122,6 +128,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
+    custom_levels, seeds = parse_levels(args.level or []), _seeds(args.seeds)
+    check_output_folder(args.out)  # before any work: a bad --out fails at once, naming --out
     root = args.kitti_root or default_kitti_root()
     check_kitti_root(root, seqs=args.seqs, detector=args.detector)
     report = run_robustness(
@@ -131,8 +139,8 @@ def run(args: argparse.Namespace) -> int:
         config_name=args.config,
         detector=args.detector,
         levels=_names(args.levels),
-        custom_levels=parse_levels(args.level or []),
-        seeds=_seeds(args.seeds),
+        custom_levels=custom_levels,
+        seeds=seeds,
         score_sigma=args.score_sigma,
         image_boxes=args.image_boxes,
         profile=profile_argument(args.profile),
@@ -167,7 +175,8 @@ def run_robustness(
     --profile`` takes them; by default the detector's shipped profile, else one fitted without
     labels on the run's detections (as ``mctrack kitti`` does). ``rescore`` maps (category, raw
     score) to the tracker's score after score noise (default: that profile's map, when the
-    config asks for calibrated scores; else the converter's sigmoid).
+    config asks for calibrated scores; else the converter's sigmoid; not an option of the
+    command line the report records).
     """
     from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
     from tracker.io.convert.kitti import convert_kitti
@@ -222,6 +231,17 @@ def run_robustness(
         if calibration is not None and rescore is None:
             rescore = calibration.scores
     lengths = {seq: len(frames) for seq, frames in detections.items()}
+    options = [
+        ("--kitti-root", kitti_root), ("--detector", detector), ("--seqs", ",".join(seqs)),
+        ("--classes", ",".join(classes)), ("--config", config_name),
+        ("--levels", ",".join(levels)),
+        *(("--level", level_text(n, dataclasses.asdict(sp))) for n, sp in custom_levels.items()),
+        ("--seeds", ",".join(map(str, seeds))), ("--score-sigma", _number(score_sigma)),
+        ("--image-boxes", image_boxes), *([("--profile", profile)] if profile else []),
+        ("--out", out),
+    ]  # fmt: skip
+    # the inputs are accepted: the earlier run's outputs go (a refused run keeps them)
+    remove_earlier_outputs(out, RUN_OUTPUTS)
 
     jobs = [(name, None if name == CLEAN else seed) for name in specs for seed in seeds]
     jobs = list(dict.fromkeys(jobs))  # clean once
@@ -265,6 +285,8 @@ def run_robustness(
         "image_boxes": image_boxes,
         "score_calibration": calibration_note,
         "custom_levels": list(custom_levels),
+        # every option that changes the result, as given: the line repeats the run
+        "command": command_line(["robustness", *(str(w) for pair in options for w in pair)]),
         "evaluator": EVALUATOR,
         "spread": "standard deviation over seeds (ddof=1; 0 for one run)",
         "levels": {
@@ -332,17 +354,7 @@ def table_lines(report: dict[str, Any], *, markdown: bool) -> list[str]:
 
 def markdown_lines(report: dict[str, Any]) -> list[str]:
     seeds = ",".join(map(str, report["seeds"]))
-    custom = report.get("custom_levels", [])  # (reports written before the option)
-    command = (
-        f"mctrack robustness --detector {report['detector']} --classes "
-        f"{','.join(report['classes'])} --config {report['config']} --levels "
-        f"{','.join(n for n in report['levels'] if n not in custom)} --seeds {seeds}"
-    )
-    for name in custom:
-        command += f" --level {level_text(name, report['levels'][name]['spec'])}"
-    image_boxes = report.get("image_boxes", "follow")  # (reports written before the option)
-    if image_boxes != "follow":
-        command += f" --image-boxes {image_boxes}"
+    image_boxes = report["image_boxes"]
     moves = {
         "follow": "the jitter moves each detection's 2D box with its 3D box's projection",
         "keep": "the jitter leaves each detection's 2D box where the detector put it",
@@ -357,7 +369,7 @@ def markdown_lines(report: dict[str, Any]) -> list[str]:
         "",
         *table_lines(report, markdown=True),
         "",
-        f"Command: `{command}` ({report['wall_seconds']} s).",
+        f"Command: `{report['command']}` ({report['wall_seconds']} s).",
         "",
     ]
 
@@ -380,6 +392,8 @@ def parse_levels(texts: Sequence[str]) -> dict[str, PerturbSpec]:
     levels: dict[str, PerturbSpec] = {}
     for text in texts:
         name, spec = parse_level(text)
+        if name.lower() in NOISE_LEVELS:  # (checked here too: before --out is made)
+            raise InputError(f"--level {text!r}: {name!r} already names a built-in level")
         if name.lower() in {n.lower() for n in levels}:
             raise InputError(f"--level {text!r}: a level named {name!r} is given already")
         levels[name] = spec
@@ -397,7 +411,9 @@ def parse_level(text: str) -> tuple[str, PerturbSpec]:
     values: dict[str, float] = {}
     for part in parts:
         key, _, value = part.partition("=")
-        if key not in _LEVEL_PARTS or key in values:
+        if key in values:
+            raise InputError(f"--level {text!r}: {key} is given twice (each part once)")
+        if key not in _LEVEL_PARTS:
             raise InputError(
                 f"--level {text!r}: {part!r} is not one of {', '.join(_LEVEL_PARTS)} "
                 "(each once, as key=value)"

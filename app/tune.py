@@ -30,6 +30,7 @@ import json
 import logging
 import math
 import multiprocessing
+import os
 import shutil
 import tempfile
 import time
@@ -38,6 +39,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from app.common import command_line, remove_earlier_outputs
 from app.inputs import (
     add_kitti_root_argument,
     check_kitti_root,
@@ -543,7 +545,7 @@ def _run(args: argparse.Namespace) -> int:
     if out.exists() and not out.is_dir():  # (else found only when writing, after the search)
         raise InputError(f"{out}: exists and is not a folder; pass another --out")
     for detector in detectors:
-        check_kitti_root(root, seqs=seqs, detector=detector)
+        check_kitti_root(root, seqs=seqs, detector=detector, detector_flag="--detectors A,B")
     label_dir = root / "training" / "label_02"
     unlabelled = [s for s in seqs if not (label_dir / f"{s}.txt").is_file()]
     if unlabelled:
@@ -607,6 +609,11 @@ def _run(args: argparse.Namespace) -> int:
         "noise_seed": noise_seed_value(args.noise_seed),
         "profiles": {"folds": "fitted on each fold's own sequences", "in_sample": profile_notes},
     }  # fmt: skip
+    record["command"] = command_line(tune_command(args, root, detectors, seqs))
+    # the inputs are accepted and the search starts: an earlier search's results go, so the
+    # folder never shows them as this one's (this one writes its own when it ends; a Ray
+    # resume reads its finished searches back and writes them again)
+    remove_earlier_outputs(out, RESULTS)
     start = time.perf_counter()
     try:
         # the pool forks before Ray starts (a forked Ray driver is unsafe)
@@ -677,24 +684,50 @@ def _run(args: argparse.Namespace) -> int:
     record["seconds"] = round(time.perf_counter() - start, 1)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "tune.json", [json.dumps(record, indent=2)])
-    write_text_atomic(out / "best.toml", [best_config_toml(record)])
+    write_text_atomic(out / "best.toml", [best_config_toml(record, out / "best.toml")])
     _print(record)
     print(f"wrote {out / 'tune.json'} and {out / 'best.toml'} (use: --config {out / 'best.toml'})")
     return 0
 
 
-def best_config_toml(record: dict[str, Any]) -> str:
+def tune_command(
+    args: argparse.Namespace, root: Path, detectors: Sequence[str], seqs: Sequence[str]
+) -> list[str]:
+    """The words after ``mctrack`` that repeat this search: every option that changes its
+    result (and --out), as given."""
+    words = [
+        "tune", "--kitti-root", str(root), "--class", args.cls,
+        "--detectors", ",".join(detectors), "--config", str(args.config), "--mode", args.mode,
+        "--trials", str(args.trials), "--folds", str(args.folds), "--seed", str(args.seed),
+        "--noise", args.noise, "--noise-seed", ",".join(map(str, args.noise_seed)),
+        "--seqs", ",".join(seqs), "--workers", str(args.workers),
+        *(w for text in args.search or [] for w in ("--search", text)),
+    ]  # fmt: skip
+    if args.ray is not None:
+        words += ["--ray", args.ray]
+        if args.max_concurrent is not None:
+            words += ["--max-concurrent", str(args.max_concurrent)]
+    return [*words, "--out", str(args.out)]
+
+
+#: What a search writes in --out, at its end; removed when a new search starts (the Ray Tune
+#: state, ray_tune/, is kept: it is what a resume reads).
+RESULTS = ("tune.json", "best.toml")
+
+
+def best_config_toml(record: dict[str, Any], path: Path | None = None) -> str:
     """The settings the search chose on all sequences as a config file (``--config
-    best.toml``): the tuned config as its base, the search's mode and the chosen values (exact)
-    over it, every other class and setting as in the base."""
+    best.toml``) to be written at ``path``: the tuned config as its base, the search's mode and
+    the chosen values (exact) over it, every other class and setting as in the base."""
     base = record["config"]
-    if base not in BUILTIN:  # a file: its absolute path, so best.toml works from anywhere
-        base = str(Path(base).resolve())
+    if base not in BUILTIN:  # a file: relative to best.toml, so the two move together
+        base = written_base(Path(base), path)
     held_out = ", ".join(f"{d} {m['HOTA']:.2f}" for d, m in record["cross_validated"].items())
     in_sample = ", ".join(f"{d} {m['HOTA']:.2f}" for d, m in record["final"]["in_sample"].items())
+    command = record.get("command") or f"mctrack tune --class {record['class']}"
     lines = [
-        f"# `mctrack tune --class {record['class']} --mode {record['mode']}`: the settings chosen"
-        " on all sequences (the record: tune.json beside this file)",
+        f"# `{command}`: the settings chosen on all sequences (the record: tune.json beside this"
+        " file)",
         f"# HOTA held out: {held_out}; in-sample: {in_sample}",
         f"base = {toml_value(base)}",
         f"mode = {toml_value(record['mode'])}",  # (the search's, whatever the base file says)
@@ -707,6 +740,20 @@ def best_config_toml(record: dict[str, Any]) -> str:
         exact = (f"{k} = {toml_value(v, decimals=None)}" for k, v in values.items())
         lines += ["", f"[{name}]", *exact]
     return "\n".join(lines) + "\n"
+
+
+def written_base(base: Path, path: Path | None) -> str:
+    """A base config file as ``path`` (the config that names it) writes it: relative to
+    ``path``'s folder when the two share a folder below the filesystem's root (a copied or
+    moved tree keeps working), else absolute (works from anywhere)."""
+    target = base.resolve()
+    if path is None:
+        return str(target)
+    folder = path.resolve().parent
+    common = Path(os.path.commonpath([target, folder]))
+    if common == Path(common.anchor):
+        return str(target)
+    return Path(os.path.relpath(target, folder)).as_posix()
 
 
 def noise_seed_value(seeds: Sequence[int]) -> int | list[int]:

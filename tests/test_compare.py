@@ -4,6 +4,7 @@ of a KITTI validation sequence with different configs."""
 from __future__ import annotations
 
 import json
+import shlex
 import shutil
 from pathlib import Path
 
@@ -90,6 +91,11 @@ def test_compare_hand_made_runs(tmp_path: Path, capsys) -> None:
     assert main(["compare", str(a), str(b), "--out", str(out), "--tolerance", "0"]) == 0
     result = json.loads((out / "compare.json").read_text())
     assert result["counts"]["total"]["car IDSW"] == {"fixed": 2, "introduced": 2, "kept": 0}
+    # the recorded command repeats the comparison: --tolerance (and the other options) included
+    assert result["command"] == shlex.join(
+        ["mctrack", "compare", str(a), str(b), "--out", str(out), "--tolerance", "0"]
+    )
+    assert f"`{result['command']}`" in (out / "compare.md").read_text()
 
 
 def test_compare_bad_input_is_one_line(tmp_path: Path, capsys) -> None:

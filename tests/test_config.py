@@ -328,3 +328,17 @@ def test_tune_offline_takes_any_config(
     want = {"kitti": "kitti_offline", "kitti_reference": "kitti_reference"}.get(config, name)
     assert str(config_for_mode(name, "offline")) == want
     assert str(config_for_mode(name, "online")) == name
+
+
+def test_a_missing_base_is_named_with_the_file_whose_base_it_is(tmp_path: Path) -> None:
+    """The error names the config the user passed and its base as written (a moved folder)."""
+    child = tmp_path / "child.toml"
+    child.write_text('base = "gone/best.toml"\n')
+    with pytest.raises(InputError) as err:
+        load_config(child)
+    text = str(err.value)
+    assert text.startswith(f"{child}: base 'gone/best.toml' (resolved to ")
+    assert "config not found" in text and "\n" not in text
+    child.write_text(f'base = "{tmp_path / "nope.toml"}"\n')
+    with pytest.raises(InputError, match=rf"^{child}: base '.*nope.toml': config not found"):
+        load_config(child)

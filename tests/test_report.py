@@ -117,8 +117,10 @@ def test_report_hand_made_compare(tmp_path: Path, browser) -> None:
 def test_report_of_one_run_is_self_contained(tmp_path: Path) -> None:
     a, _, _ = make_runs(tmp_path)
     out = tmp_path / "report"
-    assert main(["report", str(a), "--out", str(out)]) == 0
+    assert main(["report", str(a), "--out", str(out), "--tolerance", "0"]) == 0
     html = (out / "index.html").read_text()
+    # the command that made it, every option that changes it included
+    assert f"mctrack report {a} --out {out} --tolerance 0</code>" in html
     assert "http://" not in html and "https://" not in html  # no network
     assert html.count("<tr>") >= 2 + 1  # two events (header rows aside)
     assert "mctrack kitti --record" in html  # says how to get recordings, causes and links

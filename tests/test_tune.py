@@ -186,9 +186,10 @@ def test_the_chosen_settings_are_written_as_a_config_file(tmp_path: Path) -> Non
             "cross_validated": {"pointrcnn": {"HOTA": 53.0}},
             "final": {"overrides": overrides, "in_sample": {"pointrcnn": {"HOTA": 54.0}}},
         }  # fmt: skip
-        where = tmp_path / "out" / "best.toml"  # elsewhere than a user base: its path is absolute
+        where = tmp_path / "out" / "best.toml"  # a user base: named relative to best.toml
         where.parent.mkdir(exist_ok=True)
-        where.write_text(best_config_toml(record))
+        where.write_text(best_config_toml(record, where))
+        assert f'base = "{"kitti" if config == "kitti" else "../mine.toml"}"' in where.read_text()
         got = load_config(str(where))
         want = load_config(config, overrides={**overrides, "mode": "offline"})
         assert got.per_category == want.per_category and got.offline == want.offline
@@ -547,3 +548,73 @@ def test_a_search_given_twice_is_refused(
     )  # fmt: skip
     assert code == 2
     assert "bev.buffer is searched already (float 0.1..0.6)" in capsys.readouterr().err
+
+
+def test_a_detector_not_in_the_kit_names_the_detectors_flag(
+    kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    kit = tmp_path / "kit"
+    (kit / "detections").mkdir(parents=True)
+    (kit / "training").symlink_to(kitti_root / "training")
+    (kit / "detections" / "mydet").symlink_to(kitti_root / "detections" / "virconv")
+    code = main(["tune", "--kitti-root", str(kit), "--detectors", "mydet,nope", "--seqs",
+                 "0006,0010", "--folds", "2", "--out", str(tmp_path / "t")])  # fmt: skip
+    assert code == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack tune: error: {kit / 'detections' / 'nope' / 'training'}: detections not "
+        "found; pass --detectors A,B (found: mydet)"
+    )
+
+
+def test_the_record_repeats_the_search_best_toml_moves_with_its_base_and_a_new_search_clears(
+    kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:  # fmt: skip
+    """tune.json (and best.toml's header) hold the command that repeats the search, quoted;
+    best.toml names a user base relative to itself, so a moved tree still loads; a new search
+    into the folder removes the earlier one's tune.json and best.toml when it starts, so an
+    interrupted search never leaves them looking like its own."""
+    import json
+    import shlex
+
+    import app.tune
+
+    tree = tmp_path / "my tree"
+    (tree / "x").mkdir(parents=True)
+    base = tree / "x" / "base.toml"
+    base.write_text('base = "kitti"\n[category.car]\nscore_min = 0.3\n')
+    out = tree / "y"
+    argv = ["tune", "--kitti-root", str(kitti_root), "--class", "car", "--detectors", "pointrcnn",
+            "--config", str(base), "--mode", "online", "--trials", "1", "--folds", "2",
+            "--seed", "0", "--noise", "none", "--noise-seed", "0", "--seqs", "0006,0010",
+            "--workers", "1", "--out", str(out)]  # fmt: skip
+    assert main(argv) == 0
+    record = json.loads((out / "tune.json").read_text())
+    assert shlex.split(record["command"]) == ["mctrack", *argv]
+    best = (out / "best.toml").read_text()
+    assert f"# `{record['command']}`" in best and 'base = "../x/base.toml"' in best
+    moved = tmp_path / "moved"
+    tree.rename(moved)
+    assert load_config(moved / "y" / "best.toml").per_category["car"].score_min == pytest.approx(
+        record["final"]["best"]["score_min"], abs=1e-6
+    )
+
+    (moved / "y" / "notes.txt").write_text("mine")
+
+    def interrupt(trials: object) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(app.tune, "best_trial", interrupt)  # stopped after the first search
+    again = [*argv[:-1], str(moved / "y")]
+    again[again.index("--config") + 1] = str(moved / "x" / "base.toml")
+    assert main(again) == 130
+    capsys.readouterr()
+    assert sorted(p.name for p in (moved / "y").iterdir()) == ["notes.txt"]
+
+
+def test_best_toml_names_a_base_outside_its_tree_by_its_absolute_path() -> None:
+    from app.tune import written_base
+
+    assert written_base(Path("/tmp/a/base.toml"), Path("/home/u/best.toml")).startswith("/tmp")
+    assert written_base(Path("/tmp/a/base.toml"), None) == str(Path("/tmp/a/base.toml").resolve())
+    assert written_base(Path("/w/a/b.toml"), Path("/w/c/best.toml")) == "../a/b.toml"

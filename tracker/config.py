@@ -379,8 +379,15 @@ def _load_raw(
         return raw, source, (str(name_or_path),)
     if not isinstance(base, str):
         raise InputError(f"{source}: 'base' must be a config name or path")
+    written = base
     if base not in BUILTIN and not Path(base).is_absolute() and str(name_or_path) not in BUILTIN:
         base = str(Path(name_or_path).parent / base)  # relative to the file
+    if base not in BUILTIN and not Path(base).is_file():  # named by the file that asks for it
+        where = "" if base == written else f" (resolved to {base})"
+        raise InputError(
+            f"{source}: base {written!r}{where}: config not found (built-in names: "
+            f"{', '.join(BUILTIN)})"
+        )
     base_raw, _, chain = _load_raw(base, seen=(*seen, source), offline=offline)
     return _merge(base_raw, raw), source, (str(name_or_path), *chain)
 
