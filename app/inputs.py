@@ -144,8 +144,14 @@ def sequence_list(text: str) -> list[str]:
     ("1" -> "0001"). An empty list or a sequence named twice is a usage error (one line, exit 2)
     rather than a run that tracks nothing or a sequence twice."""
     names = [s.zfill(4) if s.isdigit() else s for s in (p.strip() for p in text.split(",")) if s]
+    return unique_names(names, text, "sequences")
+
+
+def unique_names(names: list[str], text: str, what: str) -> list[str]:
+    """``names`` as read from ``text`` by an argparse type: at least one, each once (else a
+    usage error naming ``what`` was expected, or the names given twice)."""
     if not names:
-        raise argparse.ArgumentTypeError(f"expected comma-separated sequences, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected comma-separated {what}, got {text!r}")
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise argparse.ArgumentTypeError(f"{', '.join(twice)} given more than once in {text!r}")

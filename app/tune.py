@@ -47,6 +47,7 @@ from app.inputs import (
     default_kitti_root,
     positive_int,
     sequence_list,
+    unique_names,
 )
 from tracker.config import BUILTIN, config_for_mode, load_config, toml_value
 from tracker.errors import InputError
@@ -197,12 +198,7 @@ def scored_class(text: str) -> str:
 def detector_names(text: str) -> str:
     """argparse type of ``--detectors``: checked (at least one name, each once) and kept as
     given (Ray Tune's resume record compares the text)."""
-    names = [d.strip() for d in text.split(",") if d.strip()]
-    if not names:
-        raise argparse.ArgumentTypeError(f"expected comma-separated detectors, got {text!r}")
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise argparse.ArgumentTypeError(f"{', '.join(twice)} given more than once in {text!r}")
+    unique_names([d.strip() for d in text.split(",") if d.strip()], text, "detectors")
     return text
 
 
