@@ -102,12 +102,23 @@ def test_trackeval_failures_are_one_line_and_quiet(
     labels = _labels(tmp_path / "labels", "\t".join(GOOD_ROW.split()))
     with pytest.raises(
         InputError,
-        match=r"labels/0001.txt: TrackEval cannot score it: File 0001.txt cannot be read",
+        match=r"labels/0001.txt: TrackEval cannot read it: File 0001.txt cannot be read",
     ):
         evaluate_kitti_sequence(
             label_file=labels / "0001.txt", result_file=None, num_timesteps=447, classes=["car"]
         )
     assert "Traceback" not in capfd.readouterr().err
+    # a result file TrackEval cannot read is named, not the (checked) label file
+    bad_result = tmp_path / "run" / "0001.txt"
+    bad_result.parent.mkdir()
+    box = "0 0 -1 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 0.1 0.9"
+    bad_result.write_text(f"0 1 Car {box}\n1 1 Bogus {box}\n")
+    with pytest.raises(InputError) as excinfo:
+        evaluate_kitti_sequence(
+            label_file=LABEL, result_file=bad_result, num_timesteps=447,
+            classes=["car"],
+        )  # fmt: skip
+    assert str(excinfo.value).startswith(f"{bad_result}: TrackEval cannot read it: ")
 
     def refused(args: argparse.Namespace) -> int:
         raise trackeval.utils.TrackEvalException("File x.txt\ncannot be read")

@@ -127,6 +127,7 @@ def evaluate_kitti_sequence(
     classes: Sequence[str] = ("car", "pedestrian"),
     keep_id_inputs: bool = False,
     first_frame: int | None = None,
+    label_checked: bool = False,
 ) -> SequenceEvaluation:
     """Evaluate one sequence's result file (None: no tracks) against its ``label_02`` file.
 
@@ -145,10 +146,8 @@ def evaluate_kitti_sequence(
     unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
     if unknown:
         raise ValueError(f"cannot evaluate classes {unknown}; supported: {SUPPORTED_CLASSES}")
-    if first_frame is None:
-        check_label_file(label_file, num_timesteps)
-    else:
-        check_label_file(label_file)
+    if not label_checked:  # (evaluate_kitti checks every file first)
+        check_label_file(label_file, None if first_frame is not None else num_timesteps)
     seq = label_file.stem
     results: dict[str, dict[str, Any]] = {}
     id_inputs: dict[str, IdInputs] = {}
@@ -194,7 +193,7 @@ def evaluate_kitti_sequence(
             if "cyclist" in classes:
                 runs.append((_cyclist_dataset(trackeval, ds_config), [("cyclist", "car")]))
             for dataset, names in runs:
-                raw = _raw_seq_data(trackeval, dataset, seq, label_file)
+                raw = _raw_seq_data(trackeval, dataset, seq, result or label_file)
                 for name, eval_cls in names:
                     if keep_id_inputs:
                         data, id_inputs[name] = preprocess_keeping_ids(dataset, raw, eval_cls)
@@ -208,16 +207,16 @@ def evaluate_kitti_sequence(
     return SequenceEvaluation(seq, num_timesteps, ordered, id_inputs if keep_id_inputs else None)
 
 
-def _raw_seq_data(trackeval: Any, dataset: Any, seq: str, label_file: Path) -> Any:
+def _raw_seq_data(trackeval: Any, dataset: Any, seq: str, culprit: Path) -> Any:
     """TrackEval's loading, its own error report on stderr kept quiet (it prints a traceback
-    before raising) and its error an :class:`InputError` naming the label file."""
+    before raising) and its error an :class:`InputError` naming ``culprit``: the result file
+    (the label file has passed :func:`check_label_file`), else the label file."""
     try:
         with contextlib.redirect_stderr(io.StringIO()):
             return dataset.get_raw_seq_data(_TRACKER_NAME, seq)
     except trackeval.utils.TrackEvalException as exc:
-        raise InputError(
-            f"TrackEval cannot score it: {' '.join(str(exc).split())}", path=label_file
-        ) from None
+        why = " ".join(f"{exc} {exc.__context__ or ''}".split())  # (the row it could not read)
+        raise InputError(f"TrackEval cannot read it: {why}", path=culprit) from None
 
 
 def combine_sequences(
@@ -280,6 +279,7 @@ def evaluate_kitti(
             num_timesteps=length,
             classes=classes,
             first_frame=firsts.get(seq),
+            label_checked=True,
         )
         for seq, length in sorted(seq_lengths.items())
     ]
