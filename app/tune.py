@@ -540,6 +540,13 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():  # (else found only when writing, after the search)
         raise InputError(f"{out}: exists and is not a folder; pass another --out")
+    if Path(args.config).resolve() in {(out / name).resolve() for name in RESULTS}:
+        # (a new search there replaces the results, its own config among them, and every
+        # trial reads the config again)
+        raise InputError(
+            f"--config {args.config} is this --out's own result: pass another --out to search "
+            "on from it"
+        )
     for detector in detectors:
         check_kitti_root(root, seqs=seqs, detector=detector, detector_flag="--detectors A,B")
     label_dir = root / "training" / "label_02"

@@ -148,6 +148,18 @@ def test_more_folds_than_sequences_or_an_out_file_is_refused_before_any_work(
     assert capsys.readouterr().err.strip() == (
         f"mctrack tune: error: {a_file}: exists and is not a folder; pass another --out"
     )
+    # searching on from a best.toml into its own folder would delete it (a new search there
+    # replaces the results): refused, the file kept
+    earlier = tmp_path / "earlier"
+    earlier.mkdir()
+    (earlier / "best.toml").write_text('base = "kitti"\n')
+    argv = ["tune", *no_kit, "--seqs", "0006,0010", "--folds", "2"]
+    assert main([*argv, "--config", str(earlier / "best.toml"), "--out", str(earlier)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack tune: error: --config {earlier / 'best.toml'} is this --out's own result: "
+        "pass another --out to search on from it"
+    )
+    assert (earlier / "best.toml").is_file()
 
 
 def test_a_detector_without_the_class_is_refused_before_the_search(
