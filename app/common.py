@@ -95,13 +95,24 @@ def command_line(words: Sequence[object]) -> str:
     return shlex.join(["mctrack", *map(str, words)])
 
 
+def _own_file(folder: Path, path: Path) -> bool:
+    """A file (or a link) inside ``folder`` itself: not reached through a linked sub-folder,
+    which may lead anywhere."""
+    return (path.is_file() or path.is_symlink()) and not any(
+        (folder / Path(*path.relative_to(folder).parts[:i])).is_symlink()
+        for i in range(1, len(path.relative_to(folder).parts))
+    )
+
+
 def remove_earlier_outputs(folder: Path, patterns: Sequence[str]) -> int:
     """Delete the files of an earlier run in ``folder`` that match ``patterns`` (globs relative
     to it), then the sub-folders that leaves empty; other files stay. A run into the folder of
     an earlier one calls this once its inputs are accepted, so the folder never mixes two runs
     (a level or sequence the new run leaves out would keep its old results). Returns how many
     files went."""
-    earlier = sorted({p for pattern in patterns for p in folder.glob(pattern) if p.is_file()})
+    earlier = sorted(
+        {p for pattern in patterns for p in folder.glob(pattern) if _own_file(folder, p)}
+    )
     for path in earlier:
         path.unlink()
     root = folder.resolve()

@@ -18,6 +18,7 @@ from app.common import (
     log_self_profile,
     peak_rss_mb,
     profile_argument,
+    remove_earlier_outputs,
     score_source,
     self_calibrated_note,
 )
@@ -138,20 +139,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 #: What a run writes in --out. A run into the folder of an earlier one removes these first, so a
 #: folder never mixes two runs (a sequence the new run leaves out would keep its old results);
 #: files of other names are left alone. summary.json is written last: it marks completion.
-#: (.*.tmp: the temporary files of a run stopped by Ctrl-C or a kill; .scenes/: its scene parts)
+#: (.<name>.*.tmp: the temporary files of a run stopped by Ctrl-C or a kill, named by
+#: tracker.io.fileio.temp_name; .scenes/: its scene parts)
 RUN_OUTPUTS = (
     "summary.json", "tracks.json", "self_profile.toml", "motion.md", "motion_velocity.png",
     "data/*.txt", "recordings/*.rrd", "recordings/causes.md",
-    ".*.tmp", "data/.*.tmp", "recordings/.*.tmp", ".scenes/*",
+    ".summary.json.*.tmp", ".tracks.json.*.tmp", ".self_profile.toml.*.tmp", ".motion.md.*.tmp",
+    ".motion_velocity.png.*.tmp", "data/.*.txt.*.tmp", "recordings/.*.rrd.*.tmp",
+    "recordings/.causes.md.*.tmp", ".scenes/*",
 )  # fmt: skip
-
-
-def _clear_earlier_run(out: Path) -> None:
-    earlier = sorted(p for pattern in RUN_OUTPUTS for p in out.glob(pattern) if p.is_file())
-    for path in earlier:
-        path.unlink()
-    if earlier:
-        LOG.info("%s: removed %d files of an earlier run", out, len(earlier))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -368,7 +364,7 @@ def run_kitti(
             self_calibrated_note(profile, detector, self_profile) + ", see self_profile.toml"
         )
     # once the config, the profile and the labels are read: a refused run keeps the earlier one
-    _clear_earlier_run(out)
+    remove_earlier_outputs(out, RUN_OUTPUTS)
     job = KittiSceneJob(
         kitti_root=kitti_root,
         detector=detector,

@@ -541,6 +541,7 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
                     "recordings/.0099.rrd.123.abc.tmp"):  # (a run stopped by Ctrl-C)  # fmt: skip
         (out / earlier).write_text("an earlier run's\n")
     (out / "notes.txt").write_text("mine\n")
+    (out / ".notes.tmp").write_text("mine\n")
     argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--out", str(out)]
     bad = tmp_path / "bad.toml"  # refused once read, as a bad --profile is
     bad.write_text('base = "kitti"\n[category.car]\nscore_min = 1.5\n')
@@ -552,9 +553,25 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     assert code == 0, err
     assert sorted(p.name for p in (out / "data").iterdir()) == ["0001.txt"]
     assert not (out / "recordings" / "0099.rrd").exists() and not (out / "motion.md").exists()
-    assert not list((out / "recordings").iterdir())  # the temporary file too
+    assert not (out / "recordings").exists()  # the temporary file too, then the empty folder
+    assert (out / ".notes.tmp").read_text() == "mine\n"  # a hidden file of another name stays
     assert (out / "notes.txt").read_text() == "mine\n"
     assert json.loads((out / "summary.json").read_text())["sequences"] == ["0001"]
+
+
+def test_earlier_outputs_are_removed_inside_the_folder_only(tmp_path: Path) -> None:
+    """A linked sub-folder may lead anywhere: its files are not the folder's to remove."""
+    from app.common import remove_earlier_outputs
+
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "keep.txt").write_text("x")
+    out = tmp_path / "out"
+    (out / "runs" / "a").mkdir(parents=True)
+    (out / "runs" / "a" / "old.txt").write_text("x")
+    (out / "runs" / "linked").symlink_to(outside)
+    assert remove_earlier_outputs(out, ["runs/*/*.txt"]) == 1
+    assert (outside / "keep.txt").is_file() and not (out / "runs" / "a").exists()
 
 
 def test_kitti_root_defaults_to_the_environment_variable(
