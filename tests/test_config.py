@@ -194,6 +194,10 @@ def test_every_shipped_config_loads(name: str, mode: str) -> None:
         ("[category.car.bev]\ngate_distance_m = 0", "category.car.bev.gate_distance_m"),
         ("[category.car.pose.ca]\nr = [0.0, 0.1]", "category.car.pose.ca.r"),
         ("[category.car.size]\nq = [0.01, -1, 0.001, 0.001]", "category.car.size.q"),
+        # a variance per axis: the constant-acceleration state has 6, the size 4, heading 2
+        ("[category.car.pose.ca]\np = [1, 1]", "category.car.pose.ca.p"),
+        ("[category.car.size]\np = [1, 1, 10]", "category.car.size.p"),
+        ("[category.car.heading.noise]\nr = [0.2]", "category.car.heading.noise.r"),
         ("[category.car.heading]\nmin_speed_mps = -1", "category.car.heading.min_speed_mps"),
         ("[defaults]\nscore_min = 2", "defaults.score_min"),
         ("[defaults.lifecycle]\nmax_misses_output = -1", "defaults.lifecycle.max_misses_output"),

@@ -547,6 +547,19 @@ _RANGES: dict[type, tuple[tuple[str, Callable[[Any], bool], str], ...]] = {
 }
 
 
+def _noise_lengths(obj: Any) -> dict[str, tuple[int, int, int]]:
+    """The (p, q, r) lengths of ``obj``'s Kalman noises, by field: the state's dimension and
+    the measurement's (a pose filter measures the velocity too where it says so)."""
+    if isinstance(obj, PoseFilterConfig):  # (the model in use; the other's noise is unread)
+        r = 4 if obj.measure_velocity else 2
+        return {"cv": (4, 4, r)} if obj.motion is MotionModel.CV else {"ca": (6, 6, r)}
+    if isinstance(obj, CategoryConfig):
+        return {"size": (4, 4, 2)}
+    if isinstance(obj, HeadingFilterConfig):
+        return {"noise": (2, 2, 2)}
+    return {}
+
+
 def _check_ranges(obj: Any, path: str, source: str) -> None:
     """Every setting of ``obj`` (and of its nested tables) inside its range, else the one-line
     error naming the file and the dotted key."""
@@ -554,6 +567,15 @@ def _check_ranges(obj: Any, path: str, source: str) -> None:
         if not ok(getattr(obj, key)):
             dotted = f"{path}.{key}" if path else key
             raise InputError(f"{source}: {dotted} {what}, got {toml_value(getattr(obj, key))}")
+    for name, lengths in _noise_lengths(obj).items():
+        noise = getattr(obj, name)
+        for key, n in zip(("p", "q", "r"), lengths, strict=True):
+            if len(getattr(noise, key)) != n:
+                dotted = f"{path}.{name}.{key}" if path else f"{name}.{key}"
+                raise InputError(
+                    f"{source}: {dotted} needs {n} values (one per axis), got "
+                    f"{toml_value(getattr(noise, key))}"
+                )
     for f in fields(obj):
         value = getattr(obj, f.name)
         if is_dataclass(value) and f.name != "per_category":
