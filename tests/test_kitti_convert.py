@@ -301,6 +301,37 @@ def test_sequence_length_rules(kitti_root: Path, tmp_path: Path) -> None:
     assert frame >= 100 and f"frame {frame} is beyond the 100 poses" in str(error)
 
 
+def test_a_pose_that_is_not_rigid_is_refused_naming_its_line(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    root = _kit_copy(kitti_root, tmp_path)
+    pose = root / "training" / "pose_orbslam3" / "0001.txt"
+    lines = pose.read_text().splitlines()
+    values = [float(v) for v in lines[9].split()]
+    values[0] *= 2.0  # R[0, 0] scaled: not a rotation
+    pose.write_text("\n".join([*lines[:9], " ".join(map(str, values)), *lines[10:]]) + "\n")
+    with pytest.raises(InputError) as excinfo:
+        convert_kitti(root, seqs=["0001"])
+    assert str(excinfo.value).startswith(f"{pose}:10: field 'pose': not a rigid motion")
+
+
+def test_poses_of_a_longer_sequence_are_a_warning(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    root = _kit_copy(kitti_root, tmp_path)
+    pose = root / "training" / "pose_orbslam3" / "0001.txt"
+    lines = pose.read_text().splitlines()
+    pose.write_text("\n".join(lines + lines[-1:] * 1000) + "\n")  # 1447 poses for 447 frames
+    with caplog.at_level(logging.WARNING):
+        convert_kitti(root, seqs=["0001"], with_gt=False)
+    assert "has 1447 poses, but the last detection is at frame 446" in caplog.text
+    caplog.clear()
+    pose.write_text("\n".join(lines) + "\n")
+    with caplog.at_level(logging.WARNING):
+        convert_kitti(root, seqs=["0001"], with_gt=False, classes=("cyclist",))  # none in 0001
+    assert "another sequence" not in caplog.text
+
+
 def test_kitti_object_layout(kitti_root: Path, tmp_path: Path) -> None:
     """Per-frame files: frames without a file or with an empty file are still emitted."""
     root = _kit_copy(kitti_root, tmp_path)

@@ -252,7 +252,23 @@ def read_kitti_poses(path: str | Path) -> FloatArray:
     table = _read_table([path], columns=tuple(f"pose[{i // 4},{i % 4}]" for i in range(12)))
     poses = np.tile(np.eye(4), (len(table.line), 1, 1))
     poses[:, :3, :] = table.floats(range(12)).reshape(-1, 3, 4)
+    # a pose is a rigid motion: R orthonormal with det +1 (ORB-SLAM3's files hold to 1e-6; a
+    # scaled, reflected or hand-edited matrix would move every box of its frame)
+    rotation = poses[:, :3, :3]
+    off = np.abs(np.einsum("nji,njk->nik", rotation, rotation) - np.eye(3)).max(axis=(1, 2))
+    off = np.maximum(off, np.abs(np.linalg.det(rotation) - 1.0)) if len(poses) else off
+    if (off > POSE_RIGID_TOLERANCE).any():
+        row = int(np.argmax(off > POSE_RIGID_TOLERANCE))
+        bad_path, line = table.where(row)
+        raise InputError(
+            f"not a rigid motion: its rotation is off orthonormal (det +1) by {off[row]:.3g}",
+            path=bad_path, line=line, field="pose",
+        )  # fmt: skip
     return poses
+
+
+#: How far a pose's rotation may be from orthonormal with det +1 (rounding in the file).
+POSE_RIGID_TOLERANCE = 1e-3
 
 
 def image_size_px(calib: KittiCalib, image_dir: Path | None = None) -> tuple[int, int]:
@@ -1079,6 +1095,7 @@ def _convert_sequence(
         det_where = (
             ", ".join(map(str, source)) or f"{detections_dir} (no <Class>/{seq}.txt of them)"
         )
+    read_up_to = max(det_frames, int(dets.frame.max(initial=-1)) + 1)  # (every class's rows)
     tracked = np.isin(dets.category, [category_index(c) for c in classes])
     if skipped is not None and not tracked.all():
         cats, counts = np.unique(dets.category[~tracked], return_counts=True)
@@ -1115,6 +1132,12 @@ def _convert_sequence(
             )
     elif poses is not None:
         n = len(poses)
+        # (a detector may miss a sequence's last frames, not half of it)
+        if 0 < read_up_to and n - read_up_to > max(10, read_up_to):
+            LOG.warning(
+                "%s: %s has %d poses, but the last detection is at frame %d: the poses of "
+                "another sequence?", seq, pose_path, n, read_up_to - 1,
+            )  # fmt: skip
         for objects, where in ((dets, det_where), (labels, str(label_path))):
             if objects is not None and objects.frame.max(initial=-1) >= n:
                 row = int(np.argmax(objects.frame))
