@@ -123,3 +123,15 @@ def remove_earlier_outputs(folder: Path, patterns: Sequence[str]) -> int:
     if earlier:
         LOG.info("%s: removed %d files of an earlier run", folder, len(earlier))
     return len(earlier)
+
+
+def warn_undetected_classes(detector: str, classes: Sequence[str]) -> None:
+    """Say which tracked classes the detector has not a single box of (their HOTA is 0 for
+    that reason, not the tracker's)."""
+    if classes:
+        LOG.warning(
+            "detector %r has no %s detections in these sequences: nothing of that class is "
+            "tracked (--classes names the classes to track)",
+            detector,
+            " or ".join(classes),
+        )

@@ -21,6 +21,7 @@ from app.common import (
     remove_earlier_outputs,
     score_source,
     self_calibrated_note,
+    warn_undetected_classes,
 )
 from app.inputs import (
     IMAGE_DETECTOR_HELP,
@@ -410,14 +411,8 @@ def run_kitti(
             fed.update(per_class)
     if found is not None and self_profile is None:  # (the self-calibration logs its classes)
         warn_classes_without_map(found, detector, fed, str(profile or f"{detector} (shipped)"))
-    empty = [c for c in classes if not fed[c]]
-    if ok and empty:
-        LOG.warning(
-            "detector %r has no %s detections in these sequences: nothing of that class is "
-            "tracked (--classes names the classes to track)",
-            detector,
-            " or ".join(empty),
-        )
+    if ok:
+        warn_undetected_classes(detector, [c for c in classes if not fed[c]])
     born = Counter()
     for r in ok:
         born.update(r.info["fates"]["per_fate_and_class"].get("born", {}))

@@ -32,6 +32,7 @@ from app.common import (
     remove_earlier_outputs,
     score_source,
     self_calibrated_note,
+    warn_undetected_classes,
 )
 from app.inputs import (
     add_detector_argument,
@@ -48,6 +49,7 @@ from tracker.calibration import (
     warn_classes_without_map,
     warn_scores_outside,
 )
+from tracker.categories import category_index
 from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.eval.perturb import (
@@ -212,6 +214,8 @@ def run_robustness(
         )
     except FileNotFoundError as exc:
         raise InputError(str(exc)) from None
+    found = {int(c) for fr in detections.values() for f in fr for c in np.unique(f.boxes.category)}
+    warn_undetected_classes(detector, [c for c in classes if category_index(c) not in found])
     calibrate, calibration, calibration_note = score_source(config, detector, profile)
     if calibrate:  # thresholds in calibrated units
         if calibration is not None:  # a profile's classes without a map keep the fallback

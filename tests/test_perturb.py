@@ -374,6 +374,24 @@ def test_robustness_warns_for_a_class_its_profile_has_no_map_for(
     assert "NO SCORE CALIBRATION for the car boxes of detector 'pointrcnn'" in caplog.text
 
 
+def test_robustness_warns_for_a_class_the_detector_has_no_box_of(
+    sample_kit: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Its HOTA row is 0 because the detector has none, as `mctrack kitti` says too."""
+    import shutil
+
+    from app.robustness import run_robustness
+
+    kit = tmp_path / "kit"  # the sample without its cyclist file: a car and pedestrian detector
+    shutil.copytree(sample_kit, kit, ignore=shutil.ignore_patterns("Cyclist"))
+    with caplog.at_level("WARNING"):
+        run_robustness(
+            kitti_root=kit, seqs=["0001"], classes=["car", "cyclist"], detector="pointrcnn",
+            levels=["clean"], out=tmp_path / "r", quiet=True,
+        )  # fmt: skip
+    assert "detector 'pointrcnn' has no cyclist detections in these sequences" in caplog.text
+
+
 def test_a_level_of_your_own(
     sample_kit: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
