@@ -105,7 +105,8 @@ def test_kitti_run_with_an_image_detector_writes_its_boxes(
         f"{f},{a:.2f},{b:.2f},{c:.2f},{d:.2f},0.9"
         for f, (a, b, c, d) in zip(frame, xyxy, strict=True)
     ]
-    (folder / "0001.txt").write_text("\n".join(rows) + "\n")
+    # (and one row past the sequence's end: a warning, as a file of another sequence has them)
+    (folder / "0001.txt").write_text("\n".join([*rows, "5000,10,20,110,80,0.9"]) + "\n")
     image_boxes = {(int(f), tuple(np.round(x, 2))) for f, x in zip(frame, xyxy, strict=True)}
 
     def written(out: Path) -> float:
@@ -119,6 +120,7 @@ def test_kitti_run_with_an_image_detector_writes_its_boxes(
         fused = run_kitti(out=tmp_path / "fused", image_detector="img", **common)
     assert fused["image_boxes"] == "auto" and fused["image_detector"] == "img"
     assert "no pedestrian image boxes" in caplog.text and "took an image box" in caplog.text
+    assert "0001: 1 image boxes at frames beyond the sequence's 447" in caplog.text
     plain = run_kitti(out=tmp_path / "plain", **common)
     assert plain["image_boxes"] == "auto"  # (the default: the projections of LiDAR boxes)
     assert written(tmp_path / "fused") > 0.5 and written(tmp_path / "plain") == 0.0

@@ -1057,6 +1057,12 @@ def _with_image_boxes(
             LOG.warning("%s: no %s image boxes at %s; its detections keep theirs", seq, name, path)
             continue
         frame, xyxy = read_image_detections(path)
+        beyond = int((frame >= len(frames)).sum())
+        if beyond:
+            LOG.warning(
+                "%s: %d image boxes at frames beyond the sequence's %d (%s): another "
+                "sequence's file?", seq, beyond, len(frames), path,
+            )  # fmt: skip
         total = sum(int((f.boxes.category == category_index(name)).sum()) for f in frames)
         frames, fused = fuse_image_boxes(frames, category_index(name), frame, xyxy)
         LOG.info("%s: %d of %d %s detections took an image box (%s)", seq, fused, total, name, path)
