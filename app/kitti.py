@@ -149,6 +149,8 @@ RUN_OUTPUTS = (
     ".motion_velocity.png.*.tmp", "data/.*.txt.*.tmp", "recordings/.*.rrd.*.tmp",
     "recordings/.causes.md.*.tmp", ".scenes/*",
 )  # fmt: skip
+#: What only a run leaves (its scene parts while it runs; tracks.json and summary.json at the end)
+RUN_MARKS = ("summary.json", "tracks.json", ".scenes")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -364,8 +366,10 @@ def run_kitti(
         calibration = (
             self_calibrated_note(profile, detector, self_profile) + ", see self_profile.toml"
         )
-    # once the config, the profile and the labels are read: a refused run keeps the earlier one
-    remove_earlier_outputs(out, RUN_OUTPUTS)
+    # once the config, the profile and the labels are read: a refused run keeps the earlier one.
+    # Only in a folder a run has written (data/*.txt alone could be anyone's)
+    if any((out / mark).exists() for mark in RUN_MARKS):
+        remove_earlier_outputs(out, RUN_OUTPUTS)
     job = KittiSceneJob(
         kitti_root=kitti_root,
         detector=detector,

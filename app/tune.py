@@ -615,8 +615,10 @@ def _run(args: argparse.Namespace) -> int:
     record["command"] = command_line(tune_command(args, root, detectors, seqs))
     # the inputs are accepted and the search starts: an earlier search's results go, so the
     # folder never shows them as this one's (this one writes its own when it ends; a Ray
-    # resume reads its finished searches back and writes them again)
-    remove_earlier_outputs(out, RESULTS)
+    # resume reads its finished searches back and writes them again). Only where a search
+    # wrote them: tune.json says so (a best.toml alone may be anyone's)
+    if (out / "tune.json").is_file():
+        remove_earlier_outputs(out, RESULTS)
     start = time.perf_counter()
     try:
         # the pool forks before Ray starts (a forked Ray driver is unsafe)

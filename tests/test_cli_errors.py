@@ -559,6 +559,19 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     assert json.loads((out / "summary.json").read_text())["sequences"] == ["0001"]
 
 
+def test_a_folder_no_run_wrote_keeps_its_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--out . in a project of one's own: its data/*.txt are not an earlier run's."""
+    out = tmp_path / "project"
+    (out / "data").mkdir(parents=True)
+    (out / "data" / "notes.txt").write_text("mine\n")
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--out", str(out)]
+    code, _, err = _run(argv, capsys)
+    assert code == 0, err
+    assert (out / "data" / "notes.txt").read_text() == "mine\n"
+
+
 def test_earlier_outputs_are_removed_inside_the_folder_only(tmp_path: Path) -> None:
     """A linked sub-folder may lead anywhere: its files are not the folder's to remove."""
     from app.common import remove_earlier_outputs
