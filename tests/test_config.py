@@ -168,6 +168,15 @@ def test_a_category_named_twice_is_refused(tmp_path: Path, toml: str, message: s
 # value ranges
 
 
+def test_a_pose_r_of_two_or_four_loads_either_way(tmp_path: Path) -> None:
+    """R is [x, y], or [x, y, vx, vy] for a detector's velocity; the filter takes either (a
+    velocity measured with 2 gets a placeholder), so neither is refused: nuScenes' 4 with the
+    velocity not measured ran before the lengths were checked, and still does."""
+    path = tmp_path / "c.toml"
+    path.write_text('base = "nuscenes"\n[category.car.pose]\nmeasure_velocity = false\n')
+    assert len(load_config(path).per_category["car"].pose.cv.r) == 4
+
+
 @pytest.mark.parametrize("name", sorted(BUILTIN))
 @pytest.mark.parametrize("mode", ["online", "offline"])
 def test_every_shipped_config_loads(name: str, mode: str) -> None:
@@ -198,6 +207,7 @@ def test_every_shipped_config_loads(name: str, mode: str) -> None:
         ("[category.car.pose.ca]\np = [1, 1]", "category.car.pose.ca.p"),
         ("[category.car.size]\np = [1, 1, 10]", "category.car.size.p"),
         ("[category.car.heading.noise]\nr = [0.2]", "category.car.heading.noise.r"),
+        ("[category.car.pose.ca]\nr = [0.1, 0.1, 0.1]", "category.car.pose.ca.r"),
         ("[category.car.heading]\nmin_speed_mps = -1", "category.car.heading.min_speed_mps"),
         ("[defaults]\nscore_min = 2", "defaults.score_min"),
         ("[defaults.lifecycle]\nmax_misses_output = -1", "defaults.lifecycle.max_misses_output"),

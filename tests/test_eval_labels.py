@@ -108,6 +108,15 @@ def test_trackeval_failures_are_one_line_and_quiet(
             label_file=labels / "0001.txt", result_file=None, num_timesteps=447, classes=["car"]
         )
     assert "Traceback" not in capfd.readouterr().err
+    # beside a good result file, the file holding the row TrackEval could not read is named
+    good_result = tmp_path / "good" / "0001.txt"
+    good_result.parent.mkdir()
+    good_result.write_text("0 1 Car 0 0 -1 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 0.1 0.9\n")
+    with pytest.raises(InputError, match=r"labels/0001.txt: TrackEval cannot read it"):
+        evaluate_kitti_sequence(
+            label_file=labels / "0001.txt", result_file=good_result, num_timesteps=447,
+            classes=["car"],
+        )  # fmt: skip
     # a result file TrackEval cannot read is named, not the (checked) label file
     bad_result = tmp_path / "run" / "0001.txt"
     bad_result.parent.mkdir()

@@ -319,16 +319,20 @@ def test_poses_of_a_longer_sequence_are_a_warning(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
     root = _kit_copy(kitti_root, tmp_path)
+    single = root / "detections" / "vc" / "training"  # one file holding every class's rows
+    single.mkdir(parents=True)
+    shutil.copy(kitti_root / "detections" / "virconv" / "training" / "0001.txt", single)
     pose = root / "training" / "pose_orbslam3" / "0001.txt"
     lines = pose.read_text().splitlines()
     pose.write_text("\n".join(lines + lines[-1:] * 1000) + "\n")  # 1447 poses for 447 frames
     with caplog.at_level(logging.WARNING):
-        convert_kitti(root, seqs=["0001"], with_gt=False)
-    assert "has 1447 poses, but the last detection is at frame 446" in caplog.text
+        convert_kitti(root, seqs=["0001"], with_gt=False, detector="vc", classes=("car",))
+    assert "has 1447 poses, but the last detection is at frame 427" in caplog.text
     caplog.clear()
-    pose.write_text("\n".join(lines) + "\n")
+    # per-class files: the class asked for may end early (none at all here), the others are
+    # not read; no warning
     with caplog.at_level(logging.WARNING):
-        convert_kitti(root, seqs=["0001"], with_gt=False, classes=("cyclist",))  # none in 0001
+        convert_kitti(root, seqs=["0001"], with_gt=False, classes=("cyclist",))
     assert "another sequence" not in caplog.text
 
 

@@ -547,16 +547,17 @@ _RANGES: dict[type, tuple[tuple[str, Callable[[Any], bool], str], ...]] = {
 }
 
 
-def _noise_lengths(obj: Any) -> dict[str, tuple[int, int, int]]:
-    """The (p, q, r) lengths of ``obj``'s Kalman noises, by field: the state's dimension and
-    the measurement's (a pose filter measures the velocity too where it says so)."""
+def _noise_lengths(obj: Any) -> dict[str, tuple[tuple[int, ...], ...]]:
+    """The allowed (p, q, r) lengths of ``obj``'s Kalman noises, by field: the state's
+    dimension and the measurement's. A pose's r is [x, y], or [x, y, vx, vy] for a detector's
+    velocity (with 2 the velocity, where measured, gets a placeholder: tracker.kalman)."""
     if isinstance(obj, PoseFilterConfig):  # (the model in use; the other's noise is unread)
-        r = 4 if obj.measure_velocity else 2
-        return {"cv": (4, 4, r)} if obj.motion is MotionModel.CV else {"ca": (6, 6, r)}
+        n = 4 if obj.motion is MotionModel.CV else 6
+        return {obj.motion.value: ((n,), (n,), (2, 4))}
     if isinstance(obj, CategoryConfig):
-        return {"size": (4, 4, 2)}
+        return {"size": ((4,), (4,), (2,))}
     if isinstance(obj, HeadingFilterConfig):
-        return {"noise": (2, 2, 2)}
+        return {"noise": ((2,), (2,), (2,))}
     return {}
 
 
@@ -569,12 +570,12 @@ def _check_ranges(obj: Any, path: str, source: str) -> None:
             raise InputError(f"{source}: {dotted} {what}, got {toml_value(getattr(obj, key))}")
     for name, lengths in _noise_lengths(obj).items():
         noise = getattr(obj, name)
-        for key, n in zip(("p", "q", "r"), lengths, strict=True):
-            if len(getattr(noise, key)) != n:
+        for key, allowed in zip(("p", "q", "r"), lengths, strict=True):
+            if len(getattr(noise, key)) not in allowed:
                 dotted = f"{path}.{name}.{key}" if path else f"{name}.{key}"
                 raise InputError(
-                    f"{source}: {dotted} needs {n} values (one per axis), got "
-                    f"{toml_value(getattr(noise, key))}"
+                    f"{source}: {dotted} needs {' or '.join(map(str, allowed))} values (one per "
+                    f"axis), got {toml_value(getattr(noise, key))}"
                 )
     for f in fields(obj):
         value = getattr(obj, f.name)

@@ -193,7 +193,7 @@ def evaluate_kitti_sequence(
             if "cyclist" in classes:
                 runs.append((_cyclist_dataset(trackeval, ds_config), [("cyclist", "car")]))
             for dataset, names in runs:
-                raw = _raw_seq_data(trackeval, dataset, seq, result or label_file)
+                raw = _raw_seq_data(trackeval, dataset, seq, label_file, result)
                 for name, eval_cls in names:
                     if keep_id_inputs:
                         data, id_inputs[name] = preprocess_keeping_ids(dataset, raw, eval_cls)
@@ -207,16 +207,22 @@ def evaluate_kitti_sequence(
     return SequenceEvaluation(seq, num_timesteps, ordered, id_inputs if keep_id_inputs else None)
 
 
-def _raw_seq_data(trackeval: Any, dataset: Any, seq: str, culprit: Path) -> Any:
+def _raw_seq_data(
+    trackeval: Any, dataset: Any, seq: str, label_file: Path, result_file: Path | None
+) -> Any:
     """TrackEval's loading, its own error report on stderr kept quiet (it prints a traceback
-    before raising) and its error an :class:`InputError` naming ``culprit``: the result file
-    (the label file has passed :func:`check_label_file`), else the label file."""
+    before raising) and its error an :class:`InputError` naming the file that holds the row
+    it could not read (else the result file, where there is one: the label file has passed
+    :func:`check_label_file`)."""
     try:
         with contextlib.redirect_stderr(io.StringIO()):
             return dataset.get_raw_seq_data(_TRACKER_NAME, seq)
     except trackeval.utils.TrackEvalException as exc:
-        why = " ".join(f"{exc} {exc.__context__ or ''}".split())  # (the row it could not read)
-        raise InputError(f"TrackEval cannot read it: {why}", path=culprit) from None
+        why = " ".join(f"{exc} {exc.__context__ or ''}".split())
+        row = why.partition("cannot be read correctly: ")[2].strip()
+        holds = [f for f in (result_file, label_file) if f is not None]
+        culprit = next((f for f in holds if row and row in " ".join(f.read_text().split())), None)
+        raise InputError(f"TrackEval cannot read it: {why}", path=culprit or holds[0]) from None
 
 
 def combine_sequences(

@@ -1101,7 +1101,10 @@ def _convert_sequence(
         det_where = (
             ", ".join(map(str, source)) or f"{detections_dir} (no <Class>/{seq}.txt of them)"
         )
-    read_up_to = max(det_frames, int(dets.frame.max(initial=-1)) + 1)  # (every class's rows)
+    # how far the file's rows reach, every class's: only where one file holds them all (a
+    # per-class file of a class seen early would read as a short sequence)
+    every_class = isinstance(source, Path) or source == [detections_dir / f"{seq}.txt"]
+    read_up_to = max(det_frames, int(dets.frame.max(initial=-1)) + 1) if every_class else 0
     tracked = np.isin(dets.category, [category_index(c) for c in classes])
     if skipped is not None and not tracked.all():
         cats, counts = np.unique(dets.category[~tracked], return_counts=True)
