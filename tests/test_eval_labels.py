@@ -117,6 +117,15 @@ def test_trackeval_failures_are_one_line_and_quiet(
             label_file=labels / "0001.txt", result_file=good_result, num_timesteps=447,
             classes=["car"],
         )  # fmt: skip
+    # a result row cut short (TrackEval's numpy fails on it): our reader names file and line
+    short = tmp_path / "short" / "0001.txt"
+    short.parent.mkdir()
+    short.write_text(good_result.read_text() + "1 1 Car 0 0\n")
+    with pytest.raises(InputError) as excinfo:
+        evaluate_kitti_sequence(
+            label_file=LABEL, result_file=short, num_timesteps=447, classes=["car"]
+        )
+    assert str(excinfo.value).startswith(f"{short}:2: field 'columns': expected 17 or 18")
     # a result file TrackEval cannot read is named, not the (checked) label file
     bad_result = tmp_path / "run" / "0001.txt"
     bad_result.parent.mkdir()

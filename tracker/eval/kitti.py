@@ -217,6 +217,12 @@ def _raw_seq_data(
     try:
         with contextlib.redirect_stderr(io.StringIO()):
             return dataset.get_raw_seq_data(_TRACKER_NAME, seq)
+    except (ValueError, IndexError):  # numpy on rows of unequal length: our reader says where
+        from tracker.io.convert.kitti import read_kitti_labels
+
+        for path in (f for f in (result_file, label_file) if f is not None):
+            read_kitti_labels(path)
+        raise
     except trackeval.utils.TrackEvalException as exc:
         why = " ".join(f"{exc} {exc.__context__ or ''}".split())
         row = why.partition("cannot be read correctly: ")[2].strip()
