@@ -291,6 +291,7 @@ class KittiSceneJob:
                     result_file=result_file,
                     num_timesteps=len(frames),
                     classes=self.eval_classes,
+                    label_checked=True,  # (by run_kitti, before any sequence was tracked)
                 )
                 info["evaluate_seconds"] = time.perf_counter() - t1
             info["evaluation"] = evaluation
@@ -517,10 +518,10 @@ def run_kitti(
 
 
 def _pose_file(kitti_root: Path, seq: str, poses: str | None) -> Path | None:
-    if poses is None:
-        return None
-    folder = kitti_root / "training" / "pose_orbslam3" if poses == "orbslam3" else Path(poses)
-    return path_in(folder, seq, ".txt")
+    from tracker.io.convert.kitti import pose_folder
+
+    folder = pose_folder(kitti_root / "training", poses)
+    return None if folder is None else path_in(folder, seq, ".txt")
 
 
 def _pose_count(kitti_root: Path, seq: str, poses: str | None) -> int | None:

@@ -214,21 +214,21 @@ def _raw_seq_data(
     before raising) and its error an :class:`InputError` naming the file that holds the row
     it could not read (else the result file, where there is one: the label file has passed
     :func:`check_label_file`)."""
+    files = [f for f in (result_file, label_file) if f is not None]
     try:
         with contextlib.redirect_stderr(io.StringIO()):
             return dataset.get_raw_seq_data(_TRACKER_NAME, seq)
     except (ValueError, IndexError):  # numpy on rows of unequal length: our reader says where
         from tracker.io.convert.kitti import read_kitti_labels
 
-        for path in (f for f in (result_file, label_file) if f is not None):
+        for path in files:
             read_kitti_labels(path)
         raise
     except trackeval.utils.TrackEvalException as exc:
         why = " ".join(f"{exc} {exc.__context__ or ''}".split())
         row = why.partition("cannot be read correctly: ")[2].strip()
-        holds = [f for f in (result_file, label_file) if f is not None]
-        culprit = next((f for f in holds if row and row in " ".join(f.read_text().split())), None)
-        raise InputError(f"TrackEval cannot read it: {why}", path=culprit or holds[0]) from None
+        culprit = next((f for f in files if row and row in " ".join(f.read_text().split())), None)
+        raise InputError(f"TrackEval cannot read it: {why}", path=culprit or files[0]) from None
 
 
 def combine_sequences(

@@ -906,6 +906,14 @@ def _detection_sources(
     )
 
 
+def pose_folder(split_dir: Path, poses: str | Path | None) -> Path | None:
+    """The folder of a split's ``<seq>.txt`` pose files: ``"orbslam3"`` the kit's own
+    (``<split>/pose_orbslam3``), else the folder given; None without poses."""
+    if poses is None:
+        return None
+    return split_dir / "pose_orbslam3" if str(poses) == "orbslam3" else Path(poses)
+
+
 def convert_kitti(
     kitti_root: str | Path,
     *,
@@ -986,11 +994,9 @@ def convert_kitti(
     labels_root = Path(label_dir) if label_dir is not None else split_dir / "label_02"
     det_root = Path(detections_dir) if detections_dir is not None else None
     det_root = det_root or kitti_root / "detections" / detector / split
-    pose_dir: Path | None = None
+    pose_dir = pose_folder(split_dir, poses)
     if poses is not None and str(poses) == "orbslam3":
-        pose_dir, pose_format = split_dir / "pose_orbslam3", "camera"
-    elif poses is not None:
-        pose_dir = Path(poses)
+        pose_format = "camera"
 
     detections: dict[str, list[Frame]] = {}
     gt: dict[str, list[Frame]] = {}
