@@ -135,7 +135,9 @@ def add_mode_argument(parser: argparse.ArgumentParser, note: str = "") -> None:
         choices=["online", "offline"],
         default=None,
         help="tracking mode (default: the config's); offline: the config's offline variant, "
-        "each built-in in its base chain with one replaced by it (kitti -> kitti_offline)" + note,
+        "each built-in in its base chain with one replaced by it (kitti -> kitti_offline); "
+        "online: each built-in offline variant in it replaced by its base (kitti_offline -> "
+        "kitti)" + note,
     )
 
 

@@ -115,8 +115,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--mode",
         choices=["online", "offline"],
         default="online",
-        help="tune the config in this mode (offline: its offline variant, as --mode offline "
-        "gives in every command; default: %(default)s)",
+        help="tune the config in this mode (offline: its offline variant, online: an offline "
+        "variant's base, as --mode gives in every command; default: %(default)s)",
     )
     parser.add_argument("--trials", type=positive_int, default=20, help="trials per search")
     parser.add_argument(

@@ -344,6 +344,62 @@ def test_tune_offline_takes_any_config(
     assert str(config_for_mode(name, "online")) == name
 
 
+def test_online_mode_of_an_offline_variant_is_its_base(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`--config kitti_offline --mode online` ran kitti_offline's settings online, silently (its
+    pedestrians' tentative misses 1, kitti's 0). Now it is kitti, said once; a file on
+    kitti_offline in online mode is on kitti, said once per file; offline nothing changes."""
+    from tracker import config as config_module
+    from tracker.config import config_for_mode
+
+    monkeypatch.setattr(config_module, "_NOTED", set())  # (said once per process)
+    caplog.set_level("INFO", logger="tracker.config")
+    kitti = load_config("kitti")
+    assert load_config("kitti_offline").per_category["pedestrian"].lifecycle.max_misses_tentative
+    assert load_config("kitti_offline", overrides={"mode": "online"}) == kitti
+    assert str(config_for_mode("kitti_offline", "online")) == "kitti"
+    assert str(config_for_mode("kitti_offline", None)) == "kitti_offline"
+    assert str(config_for_mode("kitti", "online")) == "kitti"
+    said = [r for r in caplog.records if "kitti_offline, online mode: runs its base kitti" in
+            r.getMessage()]  # fmt: skip
+    assert len(said) == 1 and said[0].levelname == "WARNING"
+    # a file on kitti_offline (an offline search's best.toml): on kitti online, its own values kept
+    best = tmp_path / "best.toml"
+    best.write_text('base = "kitti_offline"\nmode = "offline"\n[category.car]\nscore_min = 0.3\n')
+    online = load_config(best, overrides={"mode": "online"})
+    want = load_config("kitti", overrides={"category": {"car": {"score_min": 0.3}}})
+    assert online == dataclasses.replace(want, source=str(best))
+    load_config(best, overrides={"mode": "online"})
+    said = [r.getMessage() for r in caplog.records if r.getMessage().startswith(f"{best}, ")]
+    assert len(said) == 1 and "online mode: on kitti instead of kitti_offline" in said[0]
+    offline = load_config(best)
+    assert offline.mode.value == "offline"
+    assert (
+        offline.per_category["pedestrian"]
+        == load_config("kitti_offline").per_category["pedestrian"]
+    )
+
+
+def test_track_online_with_kitti_offline_writes_what_kitti_writes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack track --mode online --config kitti_offline` wrote other tracks than
+    `--config kitti` (kitti_offline's pedestrian setting); its summary named kitti_offline."""
+    from app.cli import main
+
+    written = []
+    for config in ("kitti", "kitti_offline"):
+        out = tmp_path / config
+        argv = ["track", str(SAMPLE / "detections.json.gz"), "--mode", "online", "--config",
+                config, "--out", str(out)]  # fmt: skip
+        assert main(argv) == 0, capsys.readouterr().err
+        written.append((out / "tracks.json").read_bytes())
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["config"] == "kitti" and summary["mode"] == "online"
+    assert written[0] == written[1]
+
+
 def test_a_missing_base_is_named_with_the_file_whose_base_it_is(tmp_path: Path) -> None:
     """The error names the config the user passed and its base as written (a moved folder)."""
     child = tmp_path / "child.toml"

@@ -305,16 +305,26 @@ def load_config(
     holds it already. So ``kitti`` in offline mode is ``kitti_offline``, and a file on ``kitti``
     gets ``kitti_offline``'s offline settings wherever it sets none of its own. A file with no
     such built-in under it keeps its own ``[offline]`` table (both logged once per file).
+
+    Symmetrically, a config whose mode is online runs each built-in offline variant in its
+    chain as its base (``kitti_offline`` -> ``kitti``): the variant's settings are for offline
+    mode (kitti_offline's pedestrians survive a missed frame unconfirmed), so ``kitti_offline``
+    in online mode is ``kitti`` (a warning, once per config, says so).
     """
     raw, source, chain = _load_raw(name_or_path, seen=())
     over = _canonical_categories(overrides or {}, source)
     raw = _merge(raw, over)
-    if raw.get("mode") == TrackingMode.OFFLINE.value:
-        offline_raw, source, offline_chain = _load_raw(name_or_path, seen=(), offline=True)
+    mode = raw.get("mode", TrackingMode.ONLINE.value)
+    if mode == TrackingMode.OFFLINE.value:
+        offline_raw, source, offline_chain = _load_raw(name_or_path, seen=(), mode=mode)
         if offline_chain != chain:
             raw = _merge(offline_raw, over)
         if str(name_or_path) not in BUILTIN:
             _note_offline(source, chain, offline_chain)
+    elif mode == TrackingMode.ONLINE.value and any(online_base(name) for name in chain):
+        _note_online(source, chain)
+        online_raw, source, _ = _load_raw(name_or_path, seen=(), mode=mode)
+        raw = _merge(online_raw, over)
     return config_from_dict(raw, source=source)
 
 
@@ -325,12 +335,23 @@ def offline_variant(name: str | Path) -> str | None:
     return variant if str(name) in BUILTIN and variant in BUILTIN else None
 
 
+def online_base(name: str | Path) -> str | None:
+    """The built-in whose offline variant a built-in config name is (``kitti_offline`` ->
+    ``kitti``), or None."""
+    return next((base for base in BUILTIN if offline_variant(base) == str(name)), None)
+
+
 def config_for_mode(name_or_path: str | Path, mode: str | None) -> str | Path:
-    """The config a run in ``mode`` loads, as commands name it (summaries, tune records): a
-    built-in's offline variant where it has one, else the config itself (a file's offline
-    variant is resolved by :func:`load_config`, under its own name)."""
+    """The config a run in ``mode`` loads, as commands name it (summaries, tune records): in
+    offline mode a built-in's offline variant where it has one, in online mode a built-in
+    offline variant's base (said once), else the config itself (a file's variant is resolved by
+    :func:`load_config`, under its own name)."""
     if mode == TrackingMode.OFFLINE.value:
         return offline_variant(name_or_path) or name_or_path
+    base = online_base(name_or_path) if mode == TrackingMode.ONLINE.value else None
+    if base is not None:
+        _note_online(f"<builtin {name_or_path}>", (str(name_or_path), base))
+        return base
     return name_or_path
 
 
@@ -358,13 +379,40 @@ def _note_offline(source: str, chain: tuple[str, ...], offline_chain: tuple[str,
         )  # fmt: skip
 
 
+def _note_online(source: str, chain: tuple[str, ...]) -> None:
+    """Say once per config that the offline variant in its chain runs as its online base."""
+    key = f"online {source}"
+    if key in _NOTED:
+        return
+    _NOTED.add(key)
+    variant = next(name for name in chain if online_base(name))
+    base = online_base(variant)
+    if source == f"<builtin {variant}>":
+        LOG.warning(
+            "config %s, online mode: runs its base %s (%s's settings are for offline mode: "
+            "--mode offline runs them)",
+            variant, base, variant,
+        )  # fmt: skip
+    else:
+        LOG.warning(
+            "%s, online mode: on %s instead of %s (its offline variant, in the base chain) where "
+            "it sets no value of its own; %s's settings are for offline mode (--mode offline)",
+            source, base, variant, variant,
+        )  # fmt: skip
+
+
 def _load_raw(
-    name_or_path: str | Path, *, seen: tuple[str, ...], offline: bool = False
+    name_or_path: str | Path, *, seen: tuple[str, ...], mode: str | None = None
 ) -> tuple[dict[str, Any], str, tuple[str, ...]]:
     """The TOML table, with ``base = "<name or path>"`` resolved (the file overrides its base),
-    its source and the chain of configs it was built from (outermost first). ``offline``:
-    each built-in with an offline variant not already in the chain is replaced by it."""
-    variant = offline_variant(name_or_path) if offline else None
+    its source and the chain of configs it was built from (outermost first). ``mode``
+    offline: each built-in with an offline variant not already in the chain is replaced by it;
+    online: each built-in offline variant by its base."""
+    variant = None
+    if mode == TrackingMode.OFFLINE.value:
+        variant = offline_variant(name_or_path)
+    elif mode == TrackingMode.ONLINE.value:
+        variant = online_base(name_or_path)
     if variant is not None and f"<builtin {variant}>" not in seen:
         name_or_path = variant
     text, source = _read_source(name_or_path)
@@ -388,7 +436,7 @@ def _load_raw(
             f"{source}: base {written!r}{where}: config not found (built-in names: "
             f"{', '.join(BUILTIN)})"
         )
-    base_raw, _, chain = _load_raw(base, seen=(*seen, source), offline=offline)
+    base_raw, _, chain = _load_raw(base, seen=(*seen, source), mode=mode)
     return _merge(base_raw, raw), source, (str(name_or_path), *chain)
 
 
