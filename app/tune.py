@@ -49,7 +49,7 @@ from app.inputs import (
     sequence_list,
     unique_names,
 )
-from tracker.config import BUILTIN, config_for_mode, load_config, toml_value
+from tracker.config import BUILTIN, config_for_mode, load_config, range_error, toml_value
 from tracker.errors import InputError
 from tracker.eval.perturb import CLEAN, NOISE_LEVELS, perturb_frames
 from tracker.frame import Frame
@@ -158,7 +158,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         metavar="KEY=KIND:LOW:HIGH",
         help="also search this setting of the class, KIND int, float or log (repeatable; e.g. "
-        "lifecycle.max_misses_tentative=int:0:2)",
+        "lifecycle.max_misses_tentative=int:0:2; LOW and HIGH inside the setting's range)",
     )
     parser.add_argument("--out", required=True, help="output folder (tune.json, best.toml)")
     parser.add_argument(
@@ -290,6 +290,13 @@ def with_searched(
             need = "int" if isinstance(value, int) else "float or log"
             what = "an int" if isinstance(value, int) else "a float"
             raise InputError(f"{where}: {key} is {what} setting: KIND {need}")
+        # every trial's config would be refused (or load): each range is an interval, so its
+        # ends decide, before any work
+        table, name = _setting_table(config, cls, key)
+        for end, bound in (("LOW", spec[1]), ("HIGH", spec[2])):
+            what = range_error(table, name, int(bound) if spec[0] == "int" else bound)
+            if what is not None:
+                raise InputError(f"{where}: {key} {what}; {end} {bound:g} is outside")
         space[key] = spec
     return space
 
@@ -790,12 +797,20 @@ def _current(config_name: str, base: dict[str, Any], cls: str, space: dict) -> d
 
 def _raw_value(config: Any, cls: str, key: str) -> Any:
     """A setting's value in a loaded config: ``offline.<name>`` or a dotted key of the class's."""
+    table, name = _setting_table(config, cls, key)
+    return getattr(table, name)
+
+
+def _setting_table(config: Any, cls: str, key: str) -> tuple[Any, str]:
+    """The table of a loaded config that holds setting ``key`` (as :func:`_raw_value` reads
+    it), and the setting's name in it."""
     if key.startswith("offline."):
-        return getattr(config.offline, key.split(".", 1)[1])
-    value = config.per_category[cls]
-    for part in key.split("."):
-        value = getattr(value, part)
-    return value
+        return config.offline, key.split(".", 1)[1]
+    *parents, name = key.split(".")
+    table = config.per_category[cls]
+    for part in parents:
+        table = getattr(table, part)
+    return table, name
 
 
 def search_space(

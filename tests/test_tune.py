@@ -492,7 +492,11 @@ def test_search_adds_a_setting_the_config_accepts() -> None:
     built_in = search_space("pedestrian", "online")
     space = with_searched(
         built_in,
-        ["lifecycle.max_misses_tentative=int:0:2", "bev.buffer=float:0.1:0.6"],
+        [
+            "lifecycle.max_misses_tentative=int:0:2",
+            "bev.buffer=float:0.1:0.6",
+            "nms_iou_max=float:0:1",
+        ],
         config,
         "pedestrian",
         "online",
@@ -501,10 +505,11 @@ def test_search_adds_a_setting_the_config_accepts() -> None:
         **built_in,
         "lifecycle.max_misses_tentative": ("int", 0.0, 2.0),
         "bev.buffer": ("float", 0.1, 0.6),
+        "nms_iou_max": ("float", 0.0, 1.0),  # (a range's own ends are inside it)
     }
     extra = {k: v for k, v in space.items() if k not in built_in}
     first = _current("kitti", {"categories": ["pedestrian"]}, "pedestrian", extra)
-    assert first == {"lifecycle.max_misses_tentative": 0, "bev.buffer": 0.3}
+    assert first == {"lifecycle.max_misses_tentative": 0, "bev.buffer": 0.3, "nms_iou_max": 1.0}
     overrides = settings_to_overrides("pedestrian", {"lifecycle.max_misses_tentative": 2})
     tuned = load_config("kitti", overrides=overrides).per_category["pedestrian"]
     assert tuned.lifecycle.max_misses_tentative == 2
@@ -530,6 +535,12 @@ def test_search_adds_a_setting_the_config_accepts() -> None:
         ("bev.cost_max=float:1:3", "bev.cost_max is searched already (float 1..2)"),
         ("lifecycle.confirm_prob=float:0.9:0.99", "searched already, as lifecycle.confirm_nines"),
         ("offline.stitch_max_gap=int:0:40", "searched with --mode offline only"),
+        # beyond the config's range (tracker.config._RANGES): every trial drawing there failed
+        # mid-search with "<builtin kitti>: category.pedestrian.bev.buffer must be in [0, 2]"
+        ("bev.buffer=float:0.5:3", "bev.buffer must be in [0, 2]; HIGH 3 is outside"),
+        ("nms_iou_max=float:0.5:1.2", "nms_iou_max must be in [0, 1] (an IoU); HIGH 1.2 is"),
+        ("vertical_gain=float:0:1", "vertical_gain must be in (0, 1]; LOW 0 is outside"),
+        ("lifecycle.max_misses_tentative=int:-1:2", "max_misses_tentative must be >= 0; LOW -1"),
     ],
 )
 def test_a_bad_search_is_a_one_line_error_before_any_work(

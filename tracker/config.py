@@ -595,6 +595,16 @@ _RANGES: dict[type, tuple[tuple[str, Callable[[Any], bool], str], ...]] = {
 }
 
 
+def range_error(table: Any, name: str, value: Any) -> str | None:
+    """What setting ``name`` of the config table ``table`` (a :class:`BevConfig`, say) must be
+    ("must be in [0, 2]", as a config file's error says it) when ``value`` is outside its range;
+    None when it is inside, or the setting has no range."""
+    for key, ok, what in _RANGES.get(type(table), ()):
+        if key == name and not ok(value):
+            return what
+    return None
+
+
 def _noise_lengths(obj: Any) -> dict[str, tuple[tuple[int, ...], ...]]:
     """The allowed (p, q, r) lengths of ``obj``'s Kalman noises, by field: the state's
     dimension and the measurement's. A pose's r is [x, y], or [x, y, vx, vy] for a detector's
