@@ -76,6 +76,14 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(out, [profile_toml(profile)])
     for name, q in profile.quality.items():
         print(f"{args.detector} {name}: {json.dumps(q)}")
+        if "one_score" in q:  # a valid profile, but for this class it decides nothing
+            LOG.warning(
+                "%s %s: %s; the tracker's score thresholds keep all of these boxes or none (its "
+                "scores give nothing to calibrate)",
+                args.detector,
+                name,
+                q["one_score"],
+            )
         held_out = q["held_out_by_sequence"]
         held = held_out["log_loss"] if isinstance(held_out, dict) else None
         plain = q["uncalibrated"]["log_loss"]

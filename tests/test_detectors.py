@@ -639,6 +639,62 @@ def test_calibrate_writes_a_profile_only_with_a_fitted_class(
     assert err == [f"mctrack calibrate: error: --out {folder}: is a folder, expected a file name"]
 
 
+def _constant_score_kit(tmp_path: Path) -> Path:
+    """The sample's kit (PointRCNN, sequence 0001) plus detector 'constdet': the same boxes,
+    every car scoring 1.0 and every pedestrian 0.99991 to 0.99994 (one value to 4 decimals), the
+    score column (7th) of the per-class files rewritten."""
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001" / "raw"
+    kit = tmp_path / "kit"
+    shutil.copytree(sample, kit)
+    detections = kit / "detections"
+    for cls in ("Car", "Pedestrian", "Cyclist"):
+        rows = (detections / "pointrcnn" / "training" / cls / "0001.txt").read_text().splitlines()
+        out = detections / "constdet" / "training" / cls / "0001.txt"
+        out.parent.mkdir(parents=True)
+        lines = []
+        for i, row in enumerate(rows):
+            cols = row.split(",")
+            cols[6] = "1.0" if cls != "Pedestrian" else f"{0.99991 + 0.00001 * (i % 4):.5f}"
+            lines.append(",".join(cols) + "\n")
+        out.write_text("".join(lines))
+    return kit
+
+
+def test_calibrate_warns_of_a_class_whose_boxes_all_score_the_same(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A detector that writes one score for a class was fitted silently: one probability for
+    every box (pedestrians 0.13 here: the tracker then starts no pedestrian track, and only
+    `mctrack kitti` said so). Now the fit names the detector and class; the profile (a map of
+    one knot) is still written, loads and keeps the note."""
+    from app.cli import main
+
+    kit = _constant_score_kit(tmp_path)
+    argv = ["calibrate", "--kitti-root", str(kit), "--seqs", "0001", "--classes", "car,pedestrian"]
+    out = tmp_path / "const.toml"
+    with caplog.at_level(logging.WARNING):
+        assert main([*argv, "--detector", "constdet", "--out", str(out)]) == 0
+    said = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert len(said) == 2, said
+    car, pedestrian = said
+    assert car.startswith("constdet car: all ") and " score 1 (raw): one value cannot rank" in car
+    assert pedestrian.startswith("constdet pedestrian: all ")
+    assert " score 0.9999 (raw, to 4 decimals): one value cannot rank" in pedestrian
+    profile = load_profile(out)
+    for name in ("car", "pedestrian"):
+        assert len(profile.maps[name].raw) == 1
+        assert "one value cannot rank them" in profile.quality[name]["one_score"]
+        p = profile.maps[name].prob[0]
+        assert f"each gets P(true positive) {p:.4f}" in profile.quality[name]["one_score"]
+    # the same boxes with their own scores: no note
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        assert main([*argv, "--detector", "pointrcnn", "--out", str(tmp_path / "p.toml")]) == 0
+    assert not caplog.records
+    assert all("one_score" not in q for q in load_profile(tmp_path / "p.toml").quality.values())
+    capsys.readouterr()
+
+
 def test_calibrate_frames_decides_the_fallback_once_per_detector() -> None:
     """A logit detector whose frame happens to hold only scores in [0, 1] is still a logit."""
 

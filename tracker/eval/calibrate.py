@@ -260,6 +260,8 @@ def fit_profile(
                 )
             ),
         }
+        if len(score_map.raw) == 1:  # (the knots are the raw scores' quantiles, to 4 decimals)
+            quality[name]["one_score"] = _one_score_note(raw, score_map, use_range)
         maps[name] = score_map
     fitted_on = {
         "dataset": dataset,
@@ -272,6 +274,17 @@ def fit_profile(
         f"log loss by >= {RANGE_MIN_GAIN} nats",
     }
     return ScoreProfile(detector, maps, fitted_on, quality)
+
+
+def _one_score_note(raw: FloatArray, score_map: ScoreMap, use_range: bool) -> str:
+    """What a map through one knot means: the class's raw scores are one value (a detector that
+    writes a constant score), so the map gives every box the same probability."""
+    value = f"{score_map.raw[0]:g} (raw" + (")" if np.ptp(raw) == 0 else ", to 4 decimals)")
+    by_range = ", changed by its distance from the ego alone" if use_range else ""
+    return (
+        f"all {len(raw)} boxes it is fitted on score {value}: one value cannot rank them, "
+        f"each gets P(true positive) {score_map.prob[0]:.4f}{by_range}"
+    )
 
 
 # --- Without labels: calibration from the detections' own persistence ----------------------
