@@ -88,7 +88,8 @@ def inspect_target(recording: Path, event: int | None, frame: int | None) -> Ins
     index = _read(recording, read_shot_index)
     n = len(index.event_frames)
     if not 0 <= event < n:
-        raise InputError(f"{recording}: --event {event}: the recording has events #0..#{n - 1}")
+        has = f"events #0..#{n - 1}" if n else "no ID events (ID switches or fragmentations)"
+        raise InputError(f"{recording}: --event {event}: the recording has {has}")
     f = index.event_frames[event]
     kind = "fragmentation" if index.event_kinds[event] else "ID switch"
     cause = index.event_causes[event] if event < len(index.event_causes) else "cause unknown"

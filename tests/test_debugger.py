@@ -198,6 +198,11 @@ def test_inspect_refuses_a_frame_the_recording_does_not_have(
     assert capsys.readouterr().err == (
         f"mctrack inspect: error: {frameless}: the recording has no frames\n"
     )
+    assert main(["inspect", str(frameless), "--event", "0", "--print"]) == 2
+    assert capsys.readouterr().err == (
+        f"mctrack inspect: error: {frameless}: --event 0: the recording has no ID events "
+        "(ID switches or fragmentations)\n"
+    )
     other = tmp_path / "tracks.json"
     other.write_text("{}")
     for what in (["--frame", "3"], ["--event", "0"]):
