@@ -91,8 +91,17 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config, overrides=overrides)
     rate = config.frame_rate_hz
     scenes = read_baseversion(args.input, fallback_frame_rate_hz=rate)
-    scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames))
+    scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
+    if not any(scenes.values()):  # else nothing is recorded and the run "succeeds"
+        which = f"--scenes {args.scenes}" if args.scenes else f"{len(scenes)} scene(s)"
+        raise InputError(
+            f"{args.input}: no frames to record ({which}, all empty)"
+            if scenes
+            else f"{args.input}: no scene to record (the file holds none)"
+        )
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
+    if args.gt and not any(gt_scenes.values()):  # else every scene "is not in" it
+        raise InputError(f"{args.gt}: --gt holds no frames of ground truth")
     many = len(scenes) > 1
     live = args.spawn or args.serve_web
     web_url = None

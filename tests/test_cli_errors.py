@@ -268,6 +268,12 @@ def files(tmp_path: Path) -> dict[str, Path]:
     (bad_calib / "training" / "calib" / "0001.txt").write_text("P2: 1 2 3\n")
     bad_toml = tmp_path / "bad.toml"
     bad_toml.write_text('base = "kitti"\n[defaults]\nno_such_key = 1\n')
+    empty = tmp_path / "empty.json"
+    empty.write_bytes(b"")
+    no_scenes = tmp_path / "no_scenes.json"
+    no_scenes.write_text("{}")
+    no_frames = tmp_path / "no_frames.json"
+    no_frames.write_text('{"0001": [], "0002": []}')
     return {
         "truncated": truncated,
         "not_rrd": not_rrd,
@@ -275,6 +281,9 @@ def files(tmp_path: Path) -> dict[str, Path]:
         "stock": stock,
         "bad_calib": bad_calib,
         "bad_toml": bad_toml,
+        "empty": empty,
+        "no_scenes": no_scenes,
+        "no_frames": no_frames,
         "out": tmp_path / "out",
         "detections": SAMPLE / "detections.json.gz",
         "gt": SAMPLE / "gt.json.gz",
@@ -388,6 +397,38 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
         ("--labels",),
     ),
     ("view truncated", lambda f: ["view", str(f["truncated"])], ("truncated.json",)),
+    ("view empty file", lambda f: ["view", str(f["empty"])], ("empty.json", "JSON")),
+    (  # (was exit 0, nothing written, nothing said)
+        "view no scene",
+        lambda f: ["view", str(f["no_scenes"]), "--save", str(f["out"] / "x.rrd")],
+        ("no_scenes.json", "no scene to record"),
+    ),
+    (  # (was "scene 0001: no frames in range, skipped" per scene, exit 0)
+        "view no frames",
+        lambda f: ["view", str(f["no_frames"]), "--save", str(f["out"] / "x.rrd")],
+        ("no_frames.json", "no frames to record", "2 scene(s)"),
+    ),
+    (
+        "view chosen scene without frames",
+        lambda f: ["view", str(f["no_frames"]), "--scenes", "0002", "--save", "x.rrd"],
+        ("no_frames.json", "--scenes 0002"),
+    ),
+    (  # (was "scene 0001: no frames in range, skipped", exit 0)
+        "view frames past the input",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "1000:2000"),
+            *("--save", str(f["out"] / "x.rrd")),
+        ],
+        ("detections.json.gz", "--frames 1000:2000", "no frame of any scene", "'0001' 0:447"),
+    ),
+    (  # (was "scene 0001: not in ...; recording without ground truth", exit 0)
+        "view ground truth without frames",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:2", "--gt", str(f["no_frames"])),
+            *("--save", str(f["out"] / "x.rrd")),
+        ],
+        ("no_frames.json", "--gt", "no frames"),
+    ),
     (
         "view missing images",
         lambda f: [
