@@ -615,6 +615,50 @@ def test_track_warns_for_a_tracked_class_the_profile_has_no_map_for(
     assert "NO SCORE CALIBRATION for the car" not in caplog.text
 
 
+def test_track_refuses_a_profile_where_some_boxes_have_no_raw_score(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A box of a tracked class without detection_score_raw (absent, or the NaN literal the
+    loader accepts) beside boxes with one: --profile (a file's or 'self') would recalibrate the
+    others and leave it with its given score; one line naming file, scene, frame and field
+    instead. A box of a class not tracked needs none."""
+    import gzip
+
+    from app.cli import main
+
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+    frames = json.loads(gzip.decompress((sample / "detections.json.gz").read_bytes()))["0001"]
+    frames = frames[:20]
+    assert all("detection_score_raw" in b for f in frames for b in f["bboxes"])
+    van = {**frames[2]["bboxes"][0], "category": "van"}
+    del van["detection_score_raw"]
+    frames[2]["bboxes"].append(van)  # not tracked by the kitti config: no raw score needed
+    path = tmp_path / "partly_raw.json"
+    path.write_text(json.dumps({"0001": frames}))
+    assert main(["track", str(path), "--profile", "pointrcnn", "--out", str(tmp_path / "a")]) == 0
+    capsys.readouterr()
+    n = sum(len(f["bboxes"]) for f in frames) - 1  # boxes of tracked classes
+    for value in (None, math.nan):  # absent; NaN
+        box = frames[7]["bboxes"][1]
+        if value is None:
+            del box["detection_score_raw"]
+        else:
+            box["detection_score_raw"] = value
+        path.write_text(json.dumps({"0001": frames}))  # (json writes NaN as the literal)
+        for profile in ("pointrcnn", "self"):
+            argv = ["track", str(path), "--profile", profile, "--out", str(tmp_path / "b")]
+            assert main(argv) == 2
+            err = capsys.readouterr().err
+            assert err.startswith(
+                f"mctrack track: error: {path}: scene '0001', frame_id 7: a {box['category']} "
+                f"box has no detection_score_raw (absent or NaN; 1 of {n} boxes of the tracked "
+                "classes)"
+            ), err
+            assert err.count("\n") == 1 and "without --profile" in err
+            assert not (tmp_path / "b" / "tracks.json").exists()
+    assert main(["track", str(path), "--out", str(tmp_path / "c")]) == 0  # scores as given
+
+
 def test_calibrate_writes_a_profile_only_with_a_fitted_class(
     kitti_root: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
