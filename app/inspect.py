@@ -11,27 +11,36 @@ cursor stays at 0). What works is ``rerun.experimental.ViewerClient.set_time`` o
 this command spawns: :func:`drive_viewer` opens the recording, applies the focused layout, sets
 the cursor and reads the viewer's own cursor back, failing loudly when it is not on the frame.
 ``--print`` only prints the target (the event, its frame, the recording) without starting
-anything.
+anything. ``--frame F`` must lie within the recording's frames (default: its first frame); a
+frame outside them is an error naming the frames it has.
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from tracker.errors import InputError
 
 EXIT_VIEWER_FAILED = 4
+
+_T = TypeVar("_T")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recording", help="an .rrd written by mctrack view / demo / kitti --record")
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--event", type=int, default=None, help="event #K of the summary")
-    what.add_argument("--frame", type=int, default=None, help="a frame, in the default layout")
+    what.add_argument(
+        "--frame",
+        type=int,
+        default=None,
+        help="a frame, in the default layout (default: the first)",
+    )
     parser.add_argument(
         "--print", action="store_true", help="print the URL and the target; start nothing"
     )
@@ -47,18 +56,40 @@ class InspectTarget:
     description: str
 
 
+def _read(recording: Path, reader: Callable[[Path], _T]) -> _T:
+    """``reader(recording)``, with rerun's error on a file it cannot read as one line."""
+    try:
+        return reader(recording)
+    except RuntimeError as exc:  # rerun's reader: not an .rrd, truncated, or another version
+        raise InputError(
+            f"{recording}: not a readable Rerun recording ({exc}); pass an .rrd written by "
+            "mctrack view, demo or kitti --record"
+        ) from None
+
+
 def inspect_target(recording: Path, event: int | None, frame: int | None) -> InspectTarget:
-    """The frame (the event's own), the recording's URI, a description."""
-    from viz.shots import read_shot_index
+    """The frame (the event's own, or ``frame``: by default the recording's first), the
+    recording's URI, a description.
+
+    Raises InputError for a frame or event the recording does not have: the viewer would
+    otherwise open on an empty scene at that frame, without a word."""
+    from viz.shots import read_frame_range, read_shot_index
 
     url = recording.resolve().as_uri()
     if event is None:
-        f = frame if frame is not None else 0
+        frames = _read(recording, read_frame_range)
+        if frames is None:
+            raise InputError(f"{recording}: the recording has no frames")
+        first, last = frames
+        f = first if frame is None else frame
+        if not first <= f <= last:
+            raise InputError(f"{recording}: --frame {f}: the recording has frames {first}..{last}")
         return InspectTarget(url, f, None, f"frame {f}")
-    index = read_shot_index(recording)
+    index = _read(recording, read_shot_index)
     n = len(index.event_frames)
     if not 0 <= event < n:
-        raise InputError(f"{recording}: --event {event}: the recording has events #0..#{n - 1}")
+        has = f"events #0..#{n - 1}" if n else "no ID events (ID switches or fragmentations)"
+        raise InputError(f"{recording}: --event {event}: the recording has {has}")
     f = index.event_frames[event]
     kind = "fragmentation" if index.event_kinds[event] else "ID switch"
     cause = index.event_causes[event] if event < len(index.event_causes) else "cause unknown"

@@ -25,7 +25,7 @@ from tracker.calibration import (
     raw_scored_per_class,
     warn_classes_without_map,
 )
-from tracker.categories import CATEGORIES
+from tracker.categories import CATEGORIES, category_index
 from tracker.config import ScoreSource, TrackerConfig, config_for_mode, load_config
 from tracker.errors import InputError
 from tracker.eval.fates import FateCounter, combine_fates, format_fates
@@ -57,8 +57,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="score calibration profile (a TOML file from `mctrack calibrate`, or a shipped "
         "profile's name: pointrcnn, second_iou, virconv) applied to each box's "
-        "detection_score_raw; 'self': fitted without labels on the file's own "
-        "detections (OUT/self_profile.toml); default: detection_score as given",
+        "detection_score_raw, which every box of a tracked class must have; 'self': fitted "
+        "without labels on the file's own detections (OUT/self_profile.toml); default: "
+        "detection_score as given",
     )
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument(
@@ -174,6 +175,34 @@ def check_camera_models(path: str, scenes: dict[str, list[Frame]], camera: str) 
                 )
 
 
+def check_raw_scores(
+    scenes: dict[str, list[Frame]], categories: list[str] | tuple[str, ...], source: str
+) -> None:
+    """InputError naming the first box of a tracked class without a raw score (absent or NaN)
+    when others have one: a profile recalibrates only the boxes with one, so the rest would
+    keep their score as given, on another scale, mixed silently with the calibrated ones."""
+    tracked = [category_index(c) for c in categories]
+    first: tuple[str, int, str] | None = None
+    lacking = boxes = 0
+    for scene, frames in scenes.items():
+        for frame in frames:
+            cat = frame.boxes.category
+            of_tracked = np.isin(cat, tracked)
+            without = of_tracked & ~np.isfinite(frame.boxes.score_raw)
+            boxes += int(of_tracked.sum())
+            lacking += int(without.sum())
+            if first is None and without.any():
+                first = (scene, frame.frame_id, CATEGORIES[int(cat[np.argmax(without)])])
+    if first is not None:
+        scene, frame_id, name = first
+        raise InputError(
+            f"{source}: scene {scene!r}, frame_id {frame_id}: a {name} box has no "
+            f"detection_score_raw (absent or NaN; {lacking} of {boxes} boxes of the tracked "
+            "classes): --profile calibrates raw scores only, and would mix calibrated scores "
+            "with given ones; give every box its raw score, or run without --profile"
+        )
+
+
 def _calibrated(
     scenes: dict[str, list[Frame]], config: TrackerConfig, profile: str | None, source: str
 ) -> tuple[dict[str, list[Frame]], ScoreProfile | None]:
@@ -191,6 +220,7 @@ def _calibrated(
         return scenes, None
     if not any(np.isfinite(f.boxes.score_raw).any() for fr in scenes.values() for f in fr):
         raise InputError(f"{source}: --profile maps detection_score_raw, but no box has one")
+    check_raw_scores(scenes, config.categories, source)
     # a class the profile has no map for falls back alike in every scene of the file
     is_probability = looks_like_probability(
         np.concatenate([f.boxes.score_raw for fr in scenes.values() for f in fr])

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from app.inputs import add_mode_argument
 from tracker.errors import InputError
-from tracker.io.fileio import safe_filename
+from tracker.io.fileio import path_in, safe_filename
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,6 +57,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _images(specs: list[str], input_path: Path, first_camera: str | None) -> dict[str, Path]:
+    from viz.observer import list_images
+
     images: dict[str, Path] = {}
     for spec in specs:
         name, sep, folder = spec.partition("=")
@@ -64,10 +66,37 @@ def _images(specs: list[str], input_path: Path, first_camera: str | None) -> dic
             name, folder = first_camera or "", spec
         if not Path(folder).is_dir():
             raise InputError(f"--images: {folder} is not a folder")
+        if not list_images(Path(folder)):  # else the camera view stays dark, unexplained
+            raise InputError(
+                f"--images: {folder} holds no images (<frame_id:06d>.png, .jpg or .jpeg)"
+            )
         images[name] = Path(folder)
     if not specs and first_camera and (input_path.parent / "image_02").is_dir():
         images[first_camera] = input_path.parent / "image_02"  # the KITTI layout
     return images
+
+
+def _check_labels(folder: str, scenes: list[str]) -> set[str]:
+    """The ``scenes`` with a label file in ``--labels`` ``folder``, each checked up front (a bad
+    one is its file, line and field, not a TrackEval error after the tracking). A missing
+    folder, one without a label file of any scene, or an empty label file is an error: the
+    recording would otherwise quietly have no KITTI matching."""
+    from tracker.eval.kitti import check_label_file
+
+    if not Path(folder).is_dir():
+        raise InputError(f"{folder}: --labels folder not found (KITTI label_02)")
+    labelled = set()
+    for scene in scenes:
+        path = path_in(folder, scene, ".txt")
+        if path.is_file():
+            if check_label_file(path) == 0:
+                raise InputError(f"{path}: --labels: the label file holds no labels")
+            labelled.add(scene)
+    if not labelled:
+        wanted = ", ".join(path_in(folder, s, ".txt").name for s in scenes[:4])
+        more = " ..." if len(scenes) > 4 else ""
+        raise InputError(f"{folder}: --labels holds no label file of the scenes ({wanted}{more})")
+    return labelled
 
 
 def _save_path(save: str | None, scene: str, many: bool) -> Path:
@@ -91,8 +120,20 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config, overrides=overrides)
     rate = config.frame_rate_hz
     scenes = read_baseversion(args.input, fallback_frame_rate_hz=rate)
-    scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames))
+    scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
+    if not any(scenes.values()):  # else nothing is recorded and the run "succeeds"
+        which = f"--scenes {args.scenes}" if args.scenes else f"{len(scenes)} scene(s)"
+        raise InputError(
+            f"{args.input}: no frames to record ({which}, all empty)"
+            if scenes
+            else f"{args.input}: no scene to record (the file holds none)"
+        )
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
+    if args.gt and not any(gt_scenes.values()):  # else every scene "is not in" it
+        raise InputError(f"{args.gt}: --gt holds no frames of ground truth")
+    labelled = (
+        _check_labels(args.labels, [s for s, f in scenes.items() if f]) if args.labels else set()
+    )
     many = len(scenes) > 1
     live = args.spawn or args.serve_web
     web_url = None
@@ -109,6 +150,10 @@ def run(args: argparse.Namespace) -> int:
             if not gt:
                 print(f"scene {scene}: not in {args.gt}; recording without ground truth")
                 gt = None
+        if args.labels and scene not in labelled:
+            print(f"scene {scene}: no label file in {args.labels}; recording without its labels")
+        elif scene in labelled and not cameras:  # the KITTI protocol matches 2D boxes
+            print(f"scene {scene}: no camera in {args.input}; recording without its labels")
         path = None if live else _save_path(args.save, scene, many)
         partial = None if path is None else partial_path(path)  # renamed when complete
         rec = new_recording(scene, path=partial)
@@ -133,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
             config,
             gt,
             rec=rec,
-            labels_dir=args.labels,
+            labels_dir=args.labels if scene in labelled else None,
             images=images,
             input_description=description,
             motion_metrics=not args.no_motion,

@@ -268,6 +268,20 @@ def files(tmp_path: Path) -> dict[str, Path]:
     (bad_calib / "training" / "calib" / "0001.txt").write_text("P2: 1 2 3\n")
     bad_toml = tmp_path / "bad.toml"
     bad_toml.write_text('base = "kitti"\n[defaults]\nno_such_key = 1\n')
+    empty = tmp_path / "empty.json"
+    empty.write_bytes(b"")
+    no_scenes = tmp_path / "no_scenes.json"
+    no_scenes.write_text("{}")
+    no_frames = tmp_path / "no_frames.json"
+    no_frames.write_text('{"0001": [], "0002": []}')
+    empty_dir = tmp_path / "empty_dir"
+    empty_dir.mkdir()
+    empty_labels = tmp_path / "empty_labels"
+    empty_labels.mkdir()
+    (empty_labels / "0001.txt").write_bytes(b"")
+    bad_labels = tmp_path / "bad_labels"
+    bad_labels.mkdir()
+    (bad_labels / "0001.txt").write_text("frame track Car\n")  # no frame number
     return {
         "truncated": truncated,
         "not_rrd": not_rrd,
@@ -275,6 +289,12 @@ def files(tmp_path: Path) -> dict[str, Path]:
         "stock": stock,
         "bad_calib": bad_calib,
         "bad_toml": bad_toml,
+        "empty": empty,
+        "no_scenes": no_scenes,
+        "no_frames": no_frames,
+        "empty_dir": empty_dir,
+        "empty_labels": empty_labels,
+        "bad_labels": bad_labels,
         "out": tmp_path / "out",
         "detections": SAMPLE / "detections.json.gz",
         "gt": SAMPLE / "gt.json.gz",
@@ -388,6 +408,38 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
         ("--labels",),
     ),
     ("view truncated", lambda f: ["view", str(f["truncated"])], ("truncated.json",)),
+    ("view empty file", lambda f: ["view", str(f["empty"])], ("empty.json", "JSON")),
+    (  # (was exit 0, nothing written, nothing said)
+        "view no scene",
+        lambda f: ["view", str(f["no_scenes"]), "--save", str(f["out"] / "x.rrd")],
+        ("no_scenes.json", "no scene to record"),
+    ),
+    (  # (was "scene 0001: no frames in range, skipped" per scene, exit 0)
+        "view no frames",
+        lambda f: ["view", str(f["no_frames"]), "--save", str(f["out"] / "x.rrd")],
+        ("no_frames.json", "no frames to record", "2 scene(s)"),
+    ),
+    (
+        "view chosen scene without frames",
+        lambda f: ["view", str(f["no_frames"]), "--scenes", "0002", "--save", "x.rrd"],
+        ("no_frames.json", "--scenes 0002"),
+    ),
+    (  # (was "scene 0001: no frames in range, skipped", exit 0)
+        "view frames past the input",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "1000:2000"),
+            *("--save", str(f["out"] / "x.rrd")),
+        ],
+        ("detections.json.gz", "--frames 1000:2000", "no frame of any scene", "'0001' 0:447"),
+    ),
+    (  # (was "scene 0001: not in ...; recording without ground truth", exit 0)
+        "view ground truth without frames",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:2", "--gt", str(f["no_frames"])),
+            *("--save", str(f["out"] / "x.rrd")),
+        ],
+        ("no_frames.json", "--gt", "no frames"),
+    ),
     (
         "view missing images",
         lambda f: [
@@ -395,6 +447,46 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
             *("--images", str(f["out"] / "img"), "--save", str(f["out"] / "x.rrd")),
         ],
         ("--images",),
+    ),
+    (  # (was a recording without labels, exit 0, nothing said)
+        "view missing labels folder",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:2"),
+            *("--labels", str(f["out"] / "labels"), "--save", str(f["out"] / "x.rrd")),
+        ],
+        ("labels", "--labels folder not found"),
+    ),
+    (  # (was the same)
+        "view labels folder without the scene's file",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:2"),
+            *("--labels", str(f["empty_dir"]), "--save", str(f["out"] / "x.rrd")),
+        ],
+        ("empty_dir", "--labels", "0001.txt"),
+    ),
+    (  # (was 0 ID switches by TrackEval on no labels, exit 0)
+        "view empty label file",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:2"),
+            *("--labels", str(f["empty_labels"]), "--save", str(f["out"] / "x.rrd")),
+        ],
+        ("empty_labels/0001.txt", "no labels"),
+    ),
+    (  # (was "unexpected error: ValueError", exit 1, after the tracking)
+        "view malformed label file",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:2"),
+            *("--labels", str(f["bad_labels"]), "--save", str(f["out"] / "x.rrd")),
+        ],
+        ("bad_labels/0001.txt:1", "columns"),
+    ),
+    (  # (was a recording whose camera view stays dark, exit 0)
+        "view images folder without images",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:2"),
+            *("--images", str(f["empty_dir"]), "--save", str(f["out"] / "x.rrd")),
+        ],
+        ("--images", "empty_dir", "no images"),
     ),
     (
         "shots not a recording",
@@ -523,6 +615,29 @@ def test_a_frame_range_that_empties_some_scenes_warns_and_tracks_the_rest(
     assert "in.json: --frames 5:8 selects no frame of 1 scene(s): 'short' 0:3" in caplog.text
     with pytest.raises(InputError, match="no frame of any scene"):
         select_scenes(scenes, None, slice(20, 30), source="in.json")  # type: ignore[arg-type]
+
+
+def test_view_says_which_scenes_it_records_without_labels(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--labels with a label file for some scenes only: the others are recorded without, and
+    say so (they were silently left without KITTI matching)."""
+    import gzip
+
+    frames = json.loads(gzip.decompress((SAMPLE / "detections.json.gz").read_bytes()))["0001"]
+    two = tmp_path / "two.json"
+    two.write_text(json.dumps({"0001": frames[:3], "0002": frames[:3]}))
+    labels = tmp_path / "labels"
+    labels.mkdir()
+    shutil.copy(SAMPLE / "raw" / "training" / "label_02" / "0001.txt", labels)
+    argv = ["view", str(two), "--labels", str(labels), "--no-motion"]
+    code, printed, err = _run([*argv, "--save", str(tmp_path / "x.rrd")], capsys)
+    assert code == 0, err
+    assert f"scene 0002: no label file in {labels}; recording without its labels" in printed
+    assert "scene 0001: no label file" not in printed
+    # (the ID events by TrackEval's KITTI protocol: per class, for the labelled scene alone)
+    assert "scene 0001: 3 frames" in printed and "car: 0 ID switches" in printed
+    assert "scene 0002: 3 frames" in printed and "car:" not in printed.split("scene 0002: 3")[1]
 
 
 def test_kitti_into_an_earlier_runs_folder_replaces_that_run(

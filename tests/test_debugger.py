@@ -170,6 +170,48 @@ def test_inspect_prints_the_url_and_the_event(capsys: pytest.CaptureFixture[str]
     assert main(["inspect", str(path), "--event", "100000", "--print"]) == 2
 
 
+def test_inspect_refuses_a_frame_the_recording_does_not_have(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A --frame outside the recording (or a recording without frames, or not an .rrd at all)
+    is a one-line error naming the frames there are, not a viewer opened on an empty scene."""
+    import rerun as rr
+
+    path, _ = recording()  # frames 0-199
+    assert main(["inspect", str(path), "--frame", "199", "--print"]) == 0
+    assert capsys.readouterr().out.startswith("frame 199\n")
+    assert main(["inspect", str(path), "--print"]) == 0
+    assert capsys.readouterr().out.startswith("frame 0\n")
+    for frame in ("200", "-1"):
+        assert main(["inspect", str(path), "--frame", frame, "--print"]) == 2
+        err = capsys.readouterr().err
+        assert err == (
+            f"mctrack inspect: error: {path}: --frame {frame}: the recording has frames 0..199\n"
+        )
+    frameless = tmp_path / "static.rrd"
+    rec = rr.RecordingStream(paths.APPLICATION_ID, recording_id="static-only")
+    rec.save(frameless)
+    rec.log(paths.SUMMARY, rr.TextDocument("nothing tracked"), static=True)
+    rec.flush()
+    rec.disconnect()
+    assert main(["inspect", str(frameless), "--print"]) == 2
+    assert capsys.readouterr().err == (
+        f"mctrack inspect: error: {frameless}: the recording has no frames\n"
+    )
+    assert main(["inspect", str(frameless), "--event", "0", "--print"]) == 2
+    assert capsys.readouterr().err == (
+        f"mctrack inspect: error: {frameless}: --event 0: the recording has no ID events "
+        "(ID switches or fragmentations)\n"
+    )
+    other = tmp_path / "tracks.json"
+    other.write_text("{}")
+    for what in (["--frame", "3"], ["--event", "0"]):
+        assert main(["inspect", str(other), *what, "--print"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"mctrack inspect: error: {other}: not a readable Rerun recording")
+        assert err.count("\n") == 1
+
+
 def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> None:
     """``mctrack inspect``'s viewer driving on Rerun's headless native viewer: the viewer's own
     time cursor (read back with ViewerClient.get_state) is on the event's frame and the

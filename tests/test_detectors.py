@@ -434,6 +434,17 @@ def test_missing_profile_warns_and_falls_back(caplog: pytest.LogCaptureFixture) 
     np.testing.assert_allclose(fallback_scores(np.array([0.0, 3.0])), [0.5, 1 / (1 + np.exp(-3))])
 
 
+def test_fallback_scores_keep_nan_without_a_warning() -> None:
+    """A box without a raw score (NaN) stays NaN, quietly: numpy's RuntimeWarning (with a
+    source line) reached the terminal of every run with such a box (a class not tracked)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scores = fallback_scores(np.array([math.nan, 3.0]), is_probability=False)
+    np.testing.assert_allclose(scores, [math.nan, 1 / (1 + np.exp(-3))])
+
+
 def _shipped(name: str = "virconv") -> dict[str, Any]:
     with (PROFILE_DIR / f"{name}.toml").open("rb") as fh:
         return tomllib.load(fh)
@@ -613,6 +624,50 @@ def test_track_warns_for_a_tracked_class_the_profile_has_no_map_for(
         assert main([*argv, str(tmp_path / "t")]) == 0
     assert "NO SCORE CALIBRATION for the pedestrian boxes of detector 'detections'" in caplog.text
     assert "NO SCORE CALIBRATION for the car" not in caplog.text
+
+
+def test_track_refuses_a_profile_where_some_boxes_have_no_raw_score(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A box of a tracked class without detection_score_raw (absent, or the NaN literal the
+    loader accepts) beside boxes with one: --profile (a file's or 'self') would recalibrate the
+    others and leave it with its given score; one line naming file, scene, frame and field
+    instead. A box of a class not tracked needs none."""
+    import gzip
+
+    from app.cli import main
+
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+    frames = json.loads(gzip.decompress((sample / "detections.json.gz").read_bytes()))["0001"]
+    frames = frames[:20]
+    assert all("detection_score_raw" in b for f in frames for b in f["bboxes"])
+    van = {**frames[2]["bboxes"][0], "category": "van"}
+    del van["detection_score_raw"]
+    frames[2]["bboxes"].append(van)  # not tracked by the kitti config: no raw score needed
+    path = tmp_path / "partly_raw.json"
+    path.write_text(json.dumps({"0001": frames}))
+    assert main(["track", str(path), "--profile", "pointrcnn", "--out", str(tmp_path / "a")]) == 0
+    capsys.readouterr()
+    n = sum(len(f["bboxes"]) for f in frames) - 1  # boxes of tracked classes
+    for value in (None, math.nan):  # absent; NaN
+        box = frames[7]["bboxes"][1]
+        if value is None:
+            del box["detection_score_raw"]
+        else:
+            box["detection_score_raw"] = value
+        path.write_text(json.dumps({"0001": frames}))  # (json writes NaN as the literal)
+        for profile in ("pointrcnn", "self"):
+            argv = ["track", str(path), "--profile", profile, "--out", str(tmp_path / "b")]
+            assert main(argv) == 2
+            err = capsys.readouterr().err
+            assert err.startswith(
+                f"mctrack track: error: {path}: scene '0001', frame_id 7: a {box['category']} "
+                f"box has no detection_score_raw (absent or NaN; 1 of {n} boxes of the tracked "
+                "classes)"
+            ), err
+            assert err.count("\n") == 1 and "without --profile" in err
+            assert not (tmp_path / "b" / "tracks.json").exists()
+    assert main(["track", str(path), "--out", str(tmp_path / "c")]) == 0  # scores as given
 
 
 def test_calibrate_writes_a_profile_only_with_a_fitted_class(

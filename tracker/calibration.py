@@ -175,7 +175,8 @@ def fallback_scores(raw: FloatArray, *, is_probability: bool | None = None) -> F
         is_probability = looks_like_probability(raw)
     if is_probability:
         return raw.copy()
-    return np.exp(-np.logaddexp(0.0, -raw))
+    with np.errstate(invalid="ignore"):  # a NaN (no raw score) is expected: no RuntimeWarning
+        return np.exp(-np.logaddexp(0.0, -raw))
 
 
 def looks_like_probability(raw: FloatArray) -> bool:

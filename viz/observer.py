@@ -124,7 +124,7 @@ class RerunObserver:
         )
         # frames whose stage 2 is not logged yet (see _log_image_stage)
         self._rv_queue: list[_FrameState] = []
-        self._images = {cam: _list_images(Path(d)) for cam, d in (images or {}).items()}
+        self._images = {cam: list_images(Path(d)) for cam, d in (images or {}).items()}
         #: frame ids that have a camera image (``mctrack shots`` prefers them)
         self.image_frames = sorted({f for imgs in self._images.values() for f in imgs})
         self._pinholes: set[str] = set()
@@ -1032,7 +1032,7 @@ def _find(keys: IntArray, wanted: IntArray) -> IntArray:
     return order[np.searchsorted(keys, wanted, sorter=order)]
 
 
-def _list_images(folder: Path) -> dict[int, Path]:
+def list_images(folder: Path) -> dict[int, Path]:
     """frame id -> image file of a KITTI-style folder (``000010.png``), listed once."""
     out: dict[int, Path] = {}
     if folder.is_dir():

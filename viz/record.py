@@ -51,7 +51,7 @@ from tracker.eval.kitti import SequenceEvaluation
 from tracker.eval.motion_metrics import gt_velocity_central
 from tracker.events import Observer, TrackOutput
 from tracker.frame import Frame
-from tracker.io.fileio import finish_temp, remove_stale_temps, temp_name
+from tracker.io.fileio import finish_temp, path_in, remove_stale_temps, temp_name
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.archetypes import (
@@ -291,7 +291,8 @@ def record_scene(
     rec.log("/", annotation_context(), static=True)
 
     gt_by_frame = {f.frame_id: f for f in gt_frames} if gt_frames else None
-    label_file = Path(labels_dir) / f"{scene}.txt" if labels_dir else None
+    # named as the label checks (tracker.eval.kitti) and mctrack kitti find it: escaped, inside
+    label_file = path_in(labels_dir, scene, ".txt") if labels_dir else None
     if label_file is not None and not (label_file.is_file() and camera_names):
         label_file = None
     observer = RerunObserver(

@@ -139,6 +139,27 @@ def read_shot_index(recording: str | Path) -> ShotIndex:
     )
 
 
+def read_frame_range(recording: str | Path) -> tuple[int, int] | None:
+    """The first and last frame id on the recording's ``frame`` timeline (None: no frames).
+
+    Read from the temporal chunks' time columns (~0.1 s for the whole 447-frame sample)."""
+    from rerun.chunk import RrdReader
+
+    chunks = (
+        RrdReader(str(recording))
+        .stream()
+        .filter(is_static=False, has_timeline=paths.FRAME)
+        .to_chunks()
+    )
+    ids = [
+        v
+        for chunk in chunks
+        for v in chunk.to_record_batch().column(paths.FRAME).to_pylist()
+        if v is not None
+    ]
+    return (int(min(ids)), int(max(ids))) if ids else None
+
+
 #: ``--frame F`` moves to a frame with a camera image at most this many frames away.
 IMAGE_SEARCH_FRAMES = 3
 
