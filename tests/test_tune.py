@@ -377,6 +377,7 @@ def test_shipped_offline_choices_are_the_records() -> None:
         "car_offline_choice.json",
         "car_offline_score_choice.json",
         "car_offline_three_draws_choice.json",  # the same choice, from the car search's rerun
+        "pedestrian_offline_buffer_choice.json",  # held out worse: the plain 0.3 stays
         "pedestrian_offline_choice.json",  # superseded (before the online distance gate)
         "pedestrian_offline_choice_motion_gate.json",  # superseded (before the exchange)
         "pedestrian_offline_choice_motion_gate_short_links.json",  # superseded
