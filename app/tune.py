@@ -116,9 +116,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mode",
         choices=["online", "offline"],
-        default="online",
-        help="tune the config in this mode (offline: its offline variant, online: an offline "
-        "variant's base, as --mode gives in every command; default: %(default)s)",
+        default=None,
+        help="tune the config in this mode, as --mode gives it in every command (offline: its "
+        "offline variant; online: an offline variant's base); default: the config's own mode "
+        "(kitti online, kitti_offline offline), named in tune.json and best.toml",
     )
     parser.add_argument("--trials", type=positive_int, default=20, help="trials per search")
     parser.add_argument(
@@ -536,6 +537,11 @@ def _run(args: argparse.Namespace) -> int:
     elif args.max_concurrent is not None:
         raise InputError("--max-concurrent needs --ray (local trials run one at a time)")
     cls = args.cls
+    if args.mode is None:
+        # the config's own mode, as every command takes it (--config kitti_offline: offline);
+        # from here on it is named, so the record, best.toml, the repeating command and a Ray
+        # resume's options all say which mode ran
+        args = argparse.Namespace(**{**vars(args), "mode": load_config(args.config).mode.value})
     config_name = str(config_for_mode(args.config, args.mode))
     base = {"categories": [cls], "mode": args.mode}
     base_config = load_config(config_name, overrides=base)  # fail early on a bad config

@@ -386,6 +386,44 @@ def test_a_class_whose_boxes_all_score_the_same_is_said_before_the_search_and_re
     capsys.readouterr()
 
 
+@pytest.mark.parametrize(("config", "mode"), [("kitti_offline", "offline"), ("kitti", "online")])
+def test_without_mode_the_config_is_tuned_in_its_own_mode(
+    kitti_root: Path,
+    tmp_path: Path,
+    config: str,
+    mode: str,
+    caplog: pytest.LogCaptureFixture,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`tune --config kitti_offline` without --mode tuned online (argparse's default), so kitti,
+    with a warning, where `mctrack kitti`/`track` run the config's own mode. Now tune does too,
+    and the record, its command and best.toml name the mode, so the run repeats as it ran."""
+    import json
+    import logging
+    import shlex
+
+    from tracker import config as config_module
+
+    monkeypatch.setattr(config_module, "_NOTED", set())  # (its notes are said once per process)
+    out = tmp_path / "t"
+    argv = ["tune", "--kitti-root", str(kitti_root), "--class", "car", "--detectors", "pointrcnn",
+            "--config", config, "--seqs", "0006,0010", "--folds", "2", "--trials", "1",
+            "--noise", "none", "--workers", "1", "--out", str(out)]  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger="tracker.config"):
+        assert main(argv) == 0, capsys.readouterr().err
+    assert "online mode" not in caplog.text  # (kitti_offline's "runs its base kitti")
+    record = json.loads((out / "tune.json").read_text())
+    assert (record["mode"], record["config"]) == (mode, config)
+    assert ("offline.track_score_min" in record["space"]) == (mode == "offline")
+    words = shlex.split(record["command"])
+    assert words[words.index("--mode") + 1] == mode
+    best = (out / "best.toml").read_text()
+    assert f'base = "{config}"\nmode = "{mode}"\n' in best
+    assert load_config(out / "best.toml").mode.value == mode
+    capsys.readouterr()
+
+
 def test_a_base_with_a_fixed_r_searches_r_itself() -> None:
     """Without ``pose.r_scale`` in the base config the search covers the fixed r (the first
     trial is then the base itself); with it, the multiple."""
