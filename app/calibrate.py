@@ -45,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tracker.eval.calibrate import MIN_FIT_BOXES, fit_profile
+    from tracker.eval.calibrate import MIN_FIT_BOXES, fit_profile, one_score_warning
     from tracker.io.convert.kitti import convert_kitti
 
     classes, seqs = args.classes, args.seqs
@@ -76,14 +76,9 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(out, [profile_toml(profile)])
     for name, q in profile.quality.items():
         print(f"{args.detector} {name}: {json.dumps(q)}")
-        if "one_score" in q:  # a valid profile, but for this class it decides nothing
-            LOG.warning(
-                "%s %s: %s; the tracker's score thresholds keep all of these boxes or none (its "
-                "scores give nothing to calibrate)",
-                args.detector,
-                name,
-                q["one_score"],
-            )
+        one_score = one_score_warning(args.detector, name, q)
+        if one_score is not None:  # a valid profile, but for this class it decides nothing
+            LOG.warning("%s", one_score)
         held_out = q["held_out_by_sequence"]
         held = held_out["log_loss"] if isinstance(held_out, dict) else None
         plain = q["uncalibrated"]["log_loss"]

@@ -35,7 +35,10 @@ def peak_rss_mb() -> float:
 
 
 def log_self_profile(profile: ScoreProfile, classes: Sequence[str]) -> None:
-    """Say, loudly, which classes a label-free profile calibrated."""
+    """Say, loudly, which classes a label-free profile calibrated, and each class whose boxes all
+    score the same (as `mctrack calibrate` does)."""
+    from tracker.eval.calibrate import one_score_warning
+
     parts = []
     for name in classes:
         q = profile.quality.get(name, {})
@@ -47,6 +50,10 @@ def log_self_profile(profile: ScoreProfile, classes: Sequence[str]) -> None:
         profile.detector,
         "; ".join(parts),
     )
+    for name in classes:  # (why a class was not kept, or what its map of one knot means)
+        one_score = one_score_warning(profile.detector, name, profile.quality.get(name, {}))
+        if one_score is not None:
+            LOG.warning("%s", one_score)
 
 
 def score_source(

@@ -56,6 +56,8 @@ from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
 from tracker.io.fileio import write_text_atomic
 
+LOG = logging.getLogger(__name__)
+
 # (kind, low, high): the settings searched, per class, in calibrated units. "confirm_nines" n
 # sets confirm_prob = 1 - 10^-n; "pose.r_scale" sets the position measurement variance of the
 # filter, how much it trusts one box, as a multiple of the detections' own centre variance
@@ -114,9 +116,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mode",
         choices=["online", "offline"],
-        default="online",
-        help="tune the config in this mode (offline: its offline variant, online: an offline "
-        "variant's base, as --mode gives in every command; default: %(default)s)",
+        default=None,
+        help="tune the config in this mode, as --mode gives it in every command (offline: its "
+        "offline variant; online: an offline variant's base); default: the config's own mode "
+        "(kitti online, kitti_offline offline), named in tune.json and best.toml",
     )
     parser.add_argument("--trials", type=positive_int, default=20, help="trials per search")
     parser.add_argument(
@@ -522,7 +525,7 @@ def _run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from tracker.calibration import find_profile
-    from tracker.eval.calibrate import fit_profile
+    from tracker.eval.calibrate import fit_profile, one_score_warning
     from tracker.io.convert.kitti import convert_kitti
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -534,6 +537,11 @@ def _run(args: argparse.Namespace) -> int:
     elif args.max_concurrent is not None:
         raise InputError("--max-concurrent needs --ray (local trials run one at a time)")
     cls = args.cls
+    if args.mode is None:
+        # the config's own mode, as every command takes it (--config kitti_offline: offline);
+        # from here on it is named, so the record, best.toml, the repeating command and a Ray
+        # resume's options all say which mode ran
+        args = argparse.Namespace(**{**vars(args), "mode": load_config(args.config).mode.value})
     config_name = str(config_for_mode(args.config, args.mode))
     base = {"categories": [cls], "mode": args.mode}
     base_config = load_config(config_name, overrides=base)  # fail early on a bad config
@@ -588,6 +596,7 @@ def _run(args: argparse.Namespace) -> int:
     # each noise level perturbs the calibrated frames (seeded per scene, so every trial and fold
     # sees the same noise)
     profile_notes: dict[str, str] = {}
+    one_score: dict[str, str] = {}
     for det in detectors:
         profiles = {}
         for k, test in enumerate(folds):
@@ -599,6 +608,17 @@ def _run(args: argparse.Namespace) -> int:
         profile_notes[det] = (
             "shipped" if find_profile(det) else f"fitted on --seqs ({', '.join(lengths)})"
         )
+        # a class whose boxes all score the same: a map gives them all one probability, so each
+        # trial keeps all of them or none. Said once, before the search: the in-sample profile's
+        # note (a fold's where only a fold's sequences score the same)
+        said = (
+            one_score_warning(det, cls, profiles[key].quality.get(cls, {}))
+            for key in ("all", *(k for k in profiles if k != "all"))
+        )
+        warning = next((w for w in said if w is not None), None)
+        if warning is not None:
+            LOG.warning("%s", warning)
+            one_score[det] = warning
         specs = {level: NOISE_LEVELS[level] for level in levels}
         for key, profile in profiles.items():
             for level, frames in level_frames(raw[det], profile, specs, args.noise_seed).items():
@@ -619,6 +639,8 @@ def _run(args: argparse.Namespace) -> int:
         "noise_seed": noise_seed_value(args.noise_seed),
         "profiles": {"folds": "fitted on each fold's own sequences", "in_sample": profile_notes},
     }  # fmt: skip
+    if one_score:  # (the warnings above, per detector)
+        record["profiles"]["one_score"] = one_score
     record["command"] = command_line(tune_command(args, root, detectors, seqs))
     # the inputs are accepted and the search starts: an earlier search's results go, so the
     # folder never shows them as this one's (this one writes its own when it ends; a Ray

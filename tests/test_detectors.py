@@ -750,6 +750,41 @@ def test_calibrate_warns_of_a_class_whose_boxes_all_score_the_same(
     capsys.readouterr()
 
 
+@pytest.mark.parametrize("command", ["kitti", "robustness"])
+def test_self_calibration_warns_of_a_class_whose_boxes_all_score_the_same(
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+    capsys: pytest.CaptureFixture[str],
+    command: str,
+) -> None:
+    """`--profile self` on a detector writing one score per class said only that the
+    pseudo-label does not rise with the score; every box then kept the fallback (1.0, 0.9999)
+    and passed every threshold (the sample's pedestrians: MOTA -1124). Now it says why, as
+    `mctrack calibrate` words it; a detector with real scores gets no such note."""
+    from app.cli import main
+    from tracker.io.convert.kitti import convert_kitti
+
+    kit = _constant_score_kit(tmp_path)
+    argv = [command, "--kitti-root", str(kit), "--detector", "constdet", "--seqs", "0001",
+            "--classes", "car,pedestrian", "--profile", "self", "--out",
+            str(tmp_path / "o")]  # fmt: skip
+    if command == "robustness":
+        argv += ["--levels", "clean", "--seeds", "0"]
+    with caplog.at_level(logging.WARNING):
+        assert main(argv) == 0, capsys.readouterr().err
+    said = [r.getMessage() for r in caplog.records if "one value cannot rank" in r.getMessage()]
+    assert len(said) == 2, said
+    keeps = ": one value cannot rank them, each keeps the fallback score (sigmoid(raw), or raw "
+    assert said[0].startswith("constdet car: all 4418 boxes it is fitted on score 1 (raw)" + keeps)
+    assert said[1].startswith("constdet pedestrian: all 983 boxes it is fitted on score 0.9999 "
+                              "(raw, to 4 decimals)" + keeps)  # fmt: skip
+    assert all(w.endswith("keep all of these boxes or none (its scores give nothing to "
+                          "calibrate)") for w in said)  # fmt: skip
+    frames = convert_kitti(kit, seqs=["0001"], detector="pointrcnn", classes=["car"])[0]
+    assert "one_score" not in fit_self_profile("pointrcnn", frames, ["car"]).quality["car"]
+    capsys.readouterr()
+
+
 def test_calibrate_frames_decides_the_fallback_once_per_detector() -> None:
     """A logit detector whose frame happens to hold only scores in [0, 1] is still a logit."""
 

@@ -337,6 +337,93 @@ def test_a_detector_without_a_profile_is_tuned_on_a_profile_fitted_on_the_sequen
     assert record["final"]["in_sample"]["mydet"]["HOTA"] == plain["metrics"]["car"]["HOTA"]
 
 
+def test_a_class_whose_boxes_all_score_the_same_is_said_before_the_search_and_recorded(
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A detector writing one pedestrian score was tuned silently: every fold's map gave all its
+    boxes one probability, so each trial kept all of them or none. Now tune warns once per
+    detector and class (not once per profile: the folds' and the in-sample one), before the
+    search, as `mctrack calibrate` words it, and tune.json keeps it."""
+    import json
+    import logging
+    import shutil
+
+    import app.tune
+    from tests.test_detectors import _constant_score_kit
+
+    kit = _constant_score_kit(tmp_path)  # sequence 0001; a copy as 0002 makes two folds
+    for path in list(kit.rglob("0001.txt")):
+        shutil.copy(path, path.with_name("0002.txt"))
+    seqs = ["--seqs", "0001,0002"]
+    said_at_start: list[list[str]] = []
+    make_sampler = app.tune.make_sampler
+
+    def first_search(seed: int, n_startup: int) -> object:  # (what was said as a search starts)
+        said_at_start.append([r.getMessage() for r in caplog.records])
+        return make_sampler(seed, n_startup)
+
+    monkeypatch.setattr(app.tune, "make_sampler", first_search)
+    with caplog.at_level(logging.WARNING):
+        code = main(["tune", "--kitti-root", str(kit), "--class", "pedestrian", "--detectors",
+                     "constdet", *seqs, "--folds", "2", "--trials", "1", "--noise",
+                     "none", "--workers", "1", "--out", str(tmp_path / "t")])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    said = [r.getMessage() for r in caplog.records if "one value cannot rank" in r.getMessage()]
+    assert len(said) == 1 and said[0].startswith("constdet pedestrian: all 1666 boxes ")
+    assert said[0] in said_at_start[0]
+    record = json.loads((tmp_path / "t" / "tune.json").read_text())
+    assert record["profiles"]["one_score"] == {"constdet": said[0]}
+    # the in-sample profile is the one `mctrack calibrate` fits on the same sequences: one wording
+    caplog.clear()
+    calibrate = ["calibrate", "--kitti-root", str(kit), "--detector", "constdet", "--classes",
+                 "pedestrian", *seqs, "--out", str(tmp_path / "c.toml")]  # fmt: skip
+    with caplog.at_level(logging.WARNING):
+        assert main(calibrate) == 0
+    assert said[0] in [r.getMessage() for r in caplog.records]
+    capsys.readouterr()
+
+
+@pytest.mark.parametrize(("config", "mode"), [("kitti_offline", "offline"), ("kitti", "online")])
+def test_without_mode_the_config_is_tuned_in_its_own_mode(
+    kitti_root: Path,
+    tmp_path: Path,
+    config: str,
+    mode: str,
+    caplog: pytest.LogCaptureFixture,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """`tune --config kitti_offline` without --mode tuned online (argparse's default), so kitti,
+    with a warning, where `mctrack kitti`/`track` run the config's own mode. Now tune does too,
+    and the record, its command and best.toml name the mode, so the run repeats as it ran."""
+    import json
+    import logging
+    import shlex
+
+    from tracker import config as config_module
+
+    monkeypatch.setattr(config_module, "_NOTED", set())  # (its notes are said once per process)
+    out = tmp_path / "t"
+    argv = ["tune", "--kitti-root", str(kitti_root), "--class", "car", "--detectors", "pointrcnn",
+            "--config", config, "--seqs", "0006,0010", "--folds", "2", "--trials", "1",
+            "--noise", "none", "--workers", "1", "--out", str(out)]  # fmt: skip
+    with caplog.at_level(logging.WARNING, logger="tracker.config"):
+        assert main(argv) == 0, capsys.readouterr().err
+    assert "online mode" not in caplog.text  # (kitti_offline's "runs its base kitti")
+    record = json.loads((out / "tune.json").read_text())
+    assert (record["mode"], record["config"]) == (mode, config)
+    assert ("offline.track_score_min" in record["space"]) == (mode == "offline")
+    words = shlex.split(record["command"])
+    assert words[words.index("--mode") + 1] == mode
+    best = (out / "best.toml").read_text()
+    assert f'base = "{config}"\nmode = "{mode}"\n' in best
+    assert load_config(out / "best.toml").mode.value == mode
+    capsys.readouterr()
+
+
 def test_a_base_with_a_fixed_r_searches_r_itself() -> None:
     """Without ``pose.r_scale`` in the base config the search covers the fixed r (the first
     trial is then the base itself); with it, the multiple."""

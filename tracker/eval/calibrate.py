@@ -261,7 +261,9 @@ def fit_profile(
             ),
         }
         if len(score_map.raw) == 1:  # (the knots are the raw scores' quantiles, to 4 decimals)
-            quality[name]["one_score"] = _one_score_note(raw, score_map, use_range)
+            by_range = ", changed by its distance from the ego alone" if use_range else ""
+            outcome = f"each gets P(true positive) {score_map.prob[0]:.4f}{by_range}"
+            quality[name]["one_score"] = _one_score_note(raw, score_map.raw[0], outcome)
         maps[name] = score_map
     fitted_on = {
         "dataset": dataset,
@@ -276,14 +278,25 @@ def fit_profile(
     return ScoreProfile(detector, maps, fitted_on, quality)
 
 
-def _one_score_note(raw: FloatArray, score_map: ScoreMap, use_range: bool) -> str:
+def _one_score_note(raw: FloatArray, knot: float, outcome: str) -> str:
     """What a map through one knot means: the class's raw scores are one value (a detector that
-    writes a constant score), so the map gives every box the same probability."""
-    value = f"{score_map.raw[0]:g} (raw" + (")" if np.ptp(raw) == 0 else ", to 4 decimals)")
-    by_range = ", changed by its distance from the ego alone" if use_range else ""
+    writes a constant score), so every box gets the same score (``outcome`` says which)."""
+    value = f"{knot:g} (raw" + (")" if np.ptp(raw) == 0 else ", to 4 decimals)")
     return (
-        f"all {len(raw)} boxes it is fitted on score {value}: one value cannot rank them, "
-        f"each gets P(true positive) {score_map.prob[0]:.4f}{by_range}"
+        f"all {len(raw)} boxes it is fitted on score {value}: one value cannot rank them, {outcome}"
+    )
+
+
+def one_score_warning(detector: str, name: str, quality: Mapping[str, object]) -> str | None:
+    """The warning for a class of a fitted profile (``quality``: the class's entry) whose boxes
+    all score the same (its ``one_score`` note), or None: the profile is valid, but for this class
+    it decides nothing. One wording for every command that fits a profile."""
+    note = quality.get("one_score")
+    if note is None:
+        return None
+    return (
+        f"{detector} {name}: {note}; the tracker's score thresholds keep all of these boxes or "
+        "none (its scores give nothing to calibrate)"
     )
 
 
@@ -462,12 +475,20 @@ def fit_self_profile(
         false_rate = min(float(band_rate), chance)
         entry["label_at_band"] = [round(float(band_rate), 4), round(float(true_rate), 4)]
         entry["label_displaced"] = round(float(chance), 4)
+        knots = _knots(raw)
         if true_rate - band_rate < SELF_MIN_CONTRAST:
             quality[name] = {**entry, "kept": "no: the pseudo-label does not rise with the score"}
-            continue
-        knots = _knots(raw)
-        maps[name] = _score_map(knots, (iso.predict(knots) - false_rate) / (true_rate - false_rate))
-        quality[name] = {**entry, "kept": "yes"}
+        else:
+            prob = (iso.predict(knots) - false_rate) / (true_rate - false_rate)
+            maps[name] = _score_map(knots, prob)
+            quality[name] = {**entry, "kept": "yes"}
+        if len(knots) == 1:  # one score (to 4 decimals) for every box: nothing for it to rank
+            outcome = (
+                f"each gets P(true positive) {maps[name].prob[0]:.4f}"
+                if name in maps
+                else "each keeps the fallback score (sigmoid(raw), or raw where in [0, 1])"
+            )
+            quality[name]["one_score"] = _one_score_note(raw, knots[0], outcome)
     chain = (
         ""
         if confident is None
