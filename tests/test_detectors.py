@@ -282,6 +282,19 @@ def test_labels_of_your_own_give_a_poseless_sequence_its_length(
     assert summary["frames"] == 447 and summary["evaluated_sequences"] == ["0001"]
 
 
+def test_scores_outside_a_profile_name_its_knots_as_written(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The warning names the map's first and last knot as the profile writes them (to 4
+    decimals), not rounded further: a 0.9999 knot is not shown as 1."""
+    from tracker.calibration import ScoreMap, ScoreProfile, warn_scores_outside
+
+    profile = ScoreProfile("d", {"car": ScoreMap(np.array([0.9991, 0.9999]), np.array([0.2, 0.8]))})
+    with caplog.at_level(logging.WARNING):
+        warn_scores_outside(profile, "d", {"car": [5, 10]})
+    assert "fitted range [0.9991, 0.9999]" in caplog.text
+
+
 def test_another_detectors_profile_is_a_warning(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

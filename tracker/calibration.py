@@ -287,10 +287,10 @@ def warn_scores_outside(
     where the map is flat: the thresholds then mean something else for those boxes."""
     for name, (n_out, n) in outside.items():
         if n and n_out > OUTSIDE_WARN * n:
-            knots = profile.maps[name].raw
+            knots = profile.maps[name].raw  # (knots are written to 4 decimals: %g keeps them)
             LOG.warning(
                 "%.0f%% of the %s scores of detector %r lie outside the profile's fitted range "
-                "[%.3g, %.3g], where its map is flat: a profile fitted on few sequences, or "
+                "[%g, %g], where its map is flat: a profile fitted on few sequences, or "
                 "another detector's? (`mctrack calibrate` on more labelled sequences)",
                 100.0 * n_out / n,
                 name,
