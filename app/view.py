@@ -109,7 +109,7 @@ def _save_path(save: str | None, scene: str, many: bool) -> Path:
 def run(args: argparse.Namespace) -> int:
     import rerun as rr
 
-    from app.track import parse_frame_range, select_scenes
+    from app.track import parse_frame_range, require_frames, select_scenes
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
     from tracker.io.fileio import finish_temp
@@ -121,13 +121,7 @@ def run(args: argparse.Namespace) -> int:
     rate = config.frame_rate_hz
     scenes = read_baseversion(args.input, fallback_frame_rate_hz=rate)
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
-    if not any(scenes.values()):  # else nothing is recorded and the run "succeeds"
-        which = f"--scenes {args.scenes}" if args.scenes else f"{len(scenes)} scene(s)"
-        raise InputError(
-            f"{args.input}: no frames to record ({which}, all empty)"
-            if scenes
-            else f"{args.input}: no scene to record (the file holds none)"
-        )
+    require_frames(scenes, args.input, "record", args.scenes)  # else nothing is recorded
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
     if args.gt and not any(gt_scenes.values()):  # else every scene "is not in" it
         raise InputError(f"{args.gt}: --gt holds no frames of ground truth")

@@ -306,6 +306,31 @@ F = dict[str, Path]
 CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
     ("validate truncated", lambda f: ["validate", str(f["truncated"])], ("truncated.json",)),
     ("validate folder", lambda f: ["validate", str(f["stock"])], ("stock_kitti",)),
+    (  # (was "OK, scenes: 0, frames: 0", exit 0)
+        "validate no scene",
+        lambda f: ["validate", str(f["no_scenes"])],
+        ("no_scenes.json", "no scene to track", "holds none"),
+    ),
+    (  # (was "OK, scenes: 2, frames: 0", exit 0; with --json too)
+        "validate no frames",
+        lambda f: ["validate", str(f["no_frames"]), "--json"],
+        ("no_frames.json", "no frames to track", "2 scene(s)"),
+    ),
+    (  # (was "0 scenes, 0 frames" and an empty tracks.json, exit 0)
+        "track no scene",
+        lambda f: ["track", str(f["no_scenes"]), "--out", str(f["out"])],
+        ("no_scenes.json", "no scene to track (the file holds none)"),
+    ),
+    (  # (was "2 scenes, 0 frames" and a tracks.json of empty scenes, exit 0)
+        "track no frames",
+        lambda f: ["track", str(f["no_frames"]), "--out", str(f["out"])],
+        ("no_frames.json", "no frames to track (2 scene(s), all empty)"),
+    ),
+    (
+        "track chosen scene without frames",
+        lambda f: ["track", str(f["no_frames"]), "--scenes", "0002", "--out", str(f["out"])],
+        ("no_frames.json", "no frames to track (--scenes 0002, all empty)"),
+    ),
     (
         "track truncated",
         lambda f: ["track", str(f["truncated"]), "--out", str(f["out"])],
@@ -615,6 +640,16 @@ def test_a_frame_range_that_empties_some_scenes_warns_and_tracks_the_rest(
     assert "in.json: --frames 5:8 selects no frame of 1 scene(s): 'short' 0:3" in caplog.text
     with pytest.raises(InputError, match="no frame of any scene"):
         select_scenes(scenes, None, slice(20, 30), source="in.json")  # type: ignore[arg-type]
+
+
+def test_track_writes_nothing_for_an_input_without_frames(
+    files: F, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An input without frames is refused before any output: no tracks.json of nothing."""
+    for name in ("no_scenes", "no_frames"):
+        code, printed, _ = _run(["track", str(files[name]), "--out", str(files["out"])], capsys)
+        assert code == 2 and printed == ""
+        assert list(files["out"].iterdir()) == []
 
 
 def test_view_says_which_scenes_it_records_without_labels(
