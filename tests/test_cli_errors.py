@@ -448,7 +448,21 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
         ("--labels",),
     ),
     ("view truncated", lambda f: ["view", str(f["truncated"])], ("truncated.json",)),
-    ("view empty file", lambda f: ["view", str(f["empty"])], ("empty.json", "JSON")),
+    (  # (each was 'malformed JSON (Expecting value: line 1 column 1 (char 0))')
+        "view empty file",
+        lambda f: ["view", str(f["empty"])],
+        ("empty.json: the file is empty (0 bytes)",),
+    ),
+    (
+        "track empty file",
+        lambda f: ["track", str(f["empty"]), "--out", str(f["out"])],
+        ("empty.json: the file is empty (0 bytes)",),
+    ),
+    (
+        "validate empty file",
+        lambda f: ["validate", str(f["empty"])],
+        ("empty.json: the file is empty (0 bytes)",),
+    ),
     (  # (was exit 0, nothing written, nothing said)
         "view no scene",
         lambda f: ["view", str(f["no_scenes"]), "--save", str(f["out"] / "x.rrd")],
