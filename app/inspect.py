@@ -56,7 +56,7 @@ class InspectTarget:
     description: str
 
 
-def _read(recording: Path, reader: Callable[[Path], _T]) -> _T:
+def read_recording(recording: Path, reader: Callable[[Path], _T]) -> _T:
     """``reader(recording)``, with rerun's error on a file it cannot read as one line."""
     try:
         return reader(recording)
@@ -67,25 +67,34 @@ def _read(recording: Path, reader: Callable[[Path], _T]) -> _T:
         ) from None
 
 
+def checked_frame(recording: Path, frame: int | None) -> int:
+    """``frame`` (None: the recording's first), checked against the recording's ``frame``
+    timeline: InputError naming the frames it has when outside them (inspect, shots)."""
+    from viz.shots import read_frame_range
+
+    frames = read_recording(recording, read_frame_range)
+    if frames is None:
+        raise InputError(f"{recording}: the recording has no frames")
+    first, last = frames
+    f = first if frame is None else frame
+    if not first <= f <= last:
+        raise InputError(f"{recording}: --frame {f}: the recording has frames {first}..{last}")
+    return f
+
+
 def inspect_target(recording: Path, event: int | None, frame: int | None) -> InspectTarget:
     """The frame (the event's own, or ``frame``: by default the recording's first), the
     recording's URI, a description.
 
     Raises InputError for a frame or event the recording does not have: the viewer would
     otherwise open on an empty scene at that frame, without a word."""
-    from viz.shots import read_frame_range, read_shot_index
+    from viz.shots import read_shot_index
 
     url = recording.resolve().as_uri()
     if event is None:
-        frames = _read(recording, read_frame_range)
-        if frames is None:
-            raise InputError(f"{recording}: the recording has no frames")
-        first, last = frames
-        f = first if frame is None else frame
-        if not first <= f <= last:
-            raise InputError(f"{recording}: --frame {f}: the recording has frames {first}..{last}")
+        f = checked_frame(recording, frame)
         return InspectTarget(url, f, None, f"frame {f}")
-    index = _read(recording, read_shot_index)
+    index = read_recording(recording, read_shot_index)
     n = len(index.event_frames)
     if not 0 <= event < n:
         has = f"events #0..#{n - 1}" if n else "no ID events (ID switches or fragmentations)"

@@ -5,7 +5,7 @@ What to capture (as listed in the recording's ``summary/index``):
 * default: the first 3 ID switches (``--max-events``; the first fragmentations when there are
   none), each in its focused layout, and the largest velocity lag;
 * ``--event K`` (repeatable) or ``--events all``: those events (``#K`` in the summary), focused;
-* ``--frame F``: one frame in the default layout.
+* ``--frame F``: one frame in the default layout (F within the recording's frames).
 
 Event and frame shots move to a frame with a camera image when one is at most 3 frames away.
 Needs a Vulkan driver; on a machine without GPU, Mesa's software one: ``apt-get install -y
@@ -42,18 +42,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from app.inspect import checked_frame, read_recording
     from viz.shots import RendererMissing, plan_shots, read_shot_index, take_shots
 
     recording = Path(args.recording)
     if not recording.is_file():
         raise InputError(f"{recording}: file not found")
-    try:
-        index = read_shot_index(recording)
-    except RuntimeError as exc:  # rerun's reader: not an .rrd, truncated, or another version
-        raise InputError(
-            f"{recording}: not a readable Rerun recording ({exc}); pass an .rrd written by "
-            "mctrack view, demo or kitti --record"
-        ) from None
+    index = read_recording(recording, read_shot_index)
+    if args.frame is not None:  # else a shot of an empty scene at that frame, without a word
+        checked_frame(recording, args.frame)
     try:
         plan = plan_shots(
             index,

@@ -124,6 +124,19 @@ def select_scenes(
     return selected
 
 
+def require_frames(
+    scenes: dict[str, list[Frame]], source: str, verb: str, names: str | None = None
+) -> None:
+    """InputError naming ``source`` when no scene (of the ``--scenes`` ``names``) has a frame:
+    the run would otherwise "succeed" on nothing, without a word (``verb``: "track", ...)."""
+    if any(scenes.values()):
+        return
+    if not scenes:
+        raise InputError(f"{source}: no scene to {verb} (the file holds none)")
+    which = f"--scenes {names}" if names else f"{len(scenes)} scene(s)"
+    raise InputError(f"{source}: no frames to {verb} ({which}, all empty)")
+
+
 @dataclass(frozen=True, slots=True)
 class TrackSceneJob:
     """One scene of a BaseVersion file as a task: track it (its frames are given), write its
@@ -257,6 +270,7 @@ def run(args: argparse.Namespace) -> int:
         args.input, fallback_frame_rate_hz=config.frame_rate_hz, report=report
     )
     scene_frames = select_scenes(scene_frames, args.scenes, window, source=args.input)
+    require_frames(scene_frames, args.input, "track", args.scenes)  # else an empty tracks.json
     scene_frames, self_profile = _calibrated(scene_frames, config, args.profile, args.input)
     if args.kitti_results:
         check_camera_models(args.input, scene_frames, "CAM_FRONT")

@@ -8,6 +8,7 @@ import json
 import sys
 
 from app.inputs import positive_int
+from app.track import require_frames
 from tracker.errors import InputError
 from tracker.io.baseversion import summarize, validate_baseversion
 
@@ -39,6 +40,8 @@ def run(args: argparse.Namespace) -> int:
         more = f" ({shown} shown)" if shown < result.error_count else ""
         print(f"mctrack validate: {args.file}: {result.error_count} errors{more}", file=sys.stderr)
         return 2
+    # well-formed but empty: mctrack track and view refuse it, so "OK" would mislead
+    require_frames(result.scenes, args.file, "track")
     summary = summarize(result.scenes, result.report)
     if args.json:
         print(json.dumps(summary, indent=2))

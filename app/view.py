@@ -13,6 +13,7 @@ from pathlib import Path
 
 from app.inputs import add_mode_argument
 from tracker.errors import InputError
+from tracker.frame import Frame
 from tracker.io.fileio import path_in, safe_filename
 
 
@@ -56,22 +57,73 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _images(specs: list[str], input_path: Path, first_camera: str | None) -> dict[str, Path]:
+#: an ``--images`` folder: (its camera, None for each scene's first; the folder; its images)
+ImageFolder = tuple[str | None, Path, dict[int, Path]]
+
+
+def _image_folders(specs: list[str]) -> list[ImageFolder]:
+    """``--images [CAMERA=]DIR`` each, its folder checked: it must hold images."""
     from viz.observer import list_images
 
-    images: dict[str, Path] = {}
+    folders: list[ImageFolder] = []
     for spec in specs:
         name, sep, folder = spec.partition("=")
         if not sep:
-            name, folder = first_camera or "", spec
+            name, folder = "", spec
         if not Path(folder).is_dir():
             raise InputError(f"--images: {folder} is not a folder")
-        if not list_images(Path(folder)):  # else the camera view stays dark, unexplained
+        images = list_images(Path(folder))
+        if not images:  # else the camera view stays dark, unexplained
             raise InputError(
                 f"--images: {folder} holds no images (<frame_id:06d>.png, .jpg or .jpeg)"
             )
-        images[name] = Path(folder)
-    if not specs and first_camera and (input_path.parent / "image_02").is_dir():
+        folders.append((name if sep else None, Path(folder), images))
+    return folders
+
+
+def _check_images(
+    folders: list[ImageFolder], input_path: str, scenes: dict[str, list[Frame]]
+) -> dict[str, list[str]]:
+    """Each ``--images`` folder's camera must be one of the input's, and the folder must hold
+    an image of a recorded frame of it: else the camera view stays dark, without a word.
+    Returns, per scene, the folders without an image of its frames (beside scenes with)."""
+    cameras = sorted({c.name for frames in scenes.values() for f in frames for c in f.cameras})
+    has = f"its cameras: {', '.join(cameras)}" if cameras else "it has none"
+    unmatched: dict[str, list[str]] = {}
+    for name, folder, images in folders:
+        if name is not None and name not in cameras:
+            raise InputError(
+                f"--images {name}={folder}: {input_path} has no camera {name!r} ({has})"
+            )
+        if name is None and not cameras:
+            raise InputError(f"--images {folder}: {input_path} has no camera to show it on")
+        shown: dict[str, bool] = {}  # scene -> an image of one of its frames
+        for scene, frames in scenes.items():
+            first = frames[0].cameras[0].name if frames[0].cameras else None
+            camera = name if name is not None else first  # as _images picks it
+            ids = [f.frame_id for f in frames if camera and f.camera_index(camera) >= 0]
+            if ids:
+                shown[scene] = any(i in images for i in ids)
+        if not any(shown.values()):
+            ids = [f.frame_id for frames in scenes.values() for f in frames]
+            raise InputError(
+                f"--images: {folder} holds no image of a recorded frame (frame_id "
+                f"{min(ids)}..{max(ids)}; its images are of frames {min(images)}..{max(images)})"
+            )
+        for scene, ok in shown.items():
+            if not ok:
+                unmatched.setdefault(scene, []).append(str(folder))
+    return unmatched
+
+
+def _images(
+    folders: list[ImageFolder], input_path: Path, first_camera: str | None
+) -> dict[str, Path]:
+    """Camera -> image folder of a scene whose first camera is ``first_camera``."""
+    images: dict[str, Path] = {}
+    for name, folder, _ in folders:
+        images[name if name is not None else first_camera or ""] = folder
+    if not folders and first_camera and (input_path.parent / "image_02").is_dir():
         images[first_camera] = input_path.parent / "image_02"  # the KITTI layout
     return images
 
@@ -109,7 +161,7 @@ def _save_path(save: str | None, scene: str, many: bool) -> Path:
 def run(args: argparse.Namespace) -> int:
     import rerun as rr
 
-    from app.track import parse_frame_range, select_scenes
+    from app.track import parse_frame_range, require_frames, select_scenes
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
     from tracker.io.fileio import finish_temp
@@ -121,19 +173,15 @@ def run(args: argparse.Namespace) -> int:
     rate = config.frame_rate_hz
     scenes = read_baseversion(args.input, fallback_frame_rate_hz=rate)
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
-    if not any(scenes.values()):  # else nothing is recorded and the run "succeeds"
-        which = f"--scenes {args.scenes}" if args.scenes else f"{len(scenes)} scene(s)"
-        raise InputError(
-            f"{args.input}: no frames to record ({which}, all empty)"
-            if scenes
-            else f"{args.input}: no scene to record (the file holds none)"
-        )
+    require_frames(scenes, args.input, "record", args.scenes)  # else nothing is recorded
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
     if args.gt and not any(gt_scenes.values()):  # else every scene "is not in" it
         raise InputError(f"{args.gt}: --gt holds no frames of ground truth")
     labelled = (
         _check_labels(args.labels, [s for s, f in scenes.items() if f]) if args.labels else set()
     )
+    folders = _image_folders(args.images)
+    unmatched = _check_images(folders, args.input, {s: f for s, f in scenes.items() if f})
     many = len(scenes) > 1
     live = args.spawn or args.serve_web
     web_url = None
@@ -142,7 +190,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"scene {scene}: no frames in range, skipped")
             continue
         cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras]
-        images = _images(args.images, Path(args.input), cameras[0][0] if cameras else None)
+        images = _images(folders, Path(args.input), cameras[0][0] if cameras else None)
+        for folder in unmatched.get(scene, []):
+            print(f"scene {scene}: no image of its frames in {folder}; recording without them")
         gt = None
         if args.gt:
             wanted = {f.frame_id for f in frames}

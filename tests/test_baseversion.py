@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import gzip
 import json
 import math
 from pathlib import Path
@@ -16,7 +17,12 @@ from tracker.boxes import Boxes
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
-from tracker.io.baseversion import LoadReport, read_baseversion, write_baseversion
+from tracker.io.baseversion import (
+    LoadReport,
+    read_baseversion,
+    validate_baseversion,
+    write_baseversion,
+)
 
 # An official-style file as the original MCTrack converters write it (spec §1.5): KITTI frame
 # with null timestamp, unwrapped yaw, camera2image with the [1,1,1,1] bottom-row quirk; and a
@@ -286,6 +292,29 @@ def test_malformed_json_and_cli_exit_code(
     assert main(["validate", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "broken.json" in err  # one line, names the file
+
+
+@pytest.mark.parametrize(
+    ("name", "content", "how"),
+    [
+        ("empty.json", b"", "0 bytes"),
+        ("empty.json.gz", b"", "gunzipped: 0 bytes"),  # a 0-byte file named .gz
+        ("nothing.json.gz", gzip.compress(b"", mtime=0), "gunzipped: 0 bytes"),
+        ("blank.json", b" \n\t\n", "whitespace only"),
+    ],
+    ids=["0-bytes", "0-bytes-gz", "gzip-of-nothing", "whitespace"],
+)
+def test_an_empty_file_is_said_to_be_empty(
+    tmp_path: Path, name: str, content: bytes, how: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Not 'malformed JSON (Expecting value: line 1 column 1 (char 0))', as if it had a typo."""
+    path = tmp_path / name
+    path.write_bytes(content)
+    message = f"{path}: the file is empty ({how}), no JSON in it"
+    with pytest.raises(InputError) as info:
+        read_baseversion(path)
+    assert str(info.value) == message
+    assert validate_baseversion(path).errors == [message]
 
 
 def test_validate_cli_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

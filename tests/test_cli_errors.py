@@ -251,6 +251,13 @@ def test_eval_reads_and_defaults_its_classes_as_kitti_does(
 # errors: malformed files and wrong values, command by command
 
 
+def _sample_frames() -> list[dict]:
+    """Scene 0001 of the sample's detections, as JSON (frames 0-446)."""
+    import gzip
+
+    return json.loads(gzip.decompress((SAMPLE / "detections.json.gz").read_bytes()))["0001"]
+
+
 @pytest.fixture
 def files(tmp_path: Path) -> dict[str, Path]:
     """Bad inputs, and a stock KITTI layout: the sample kit without ORB-SLAM3 poses, as in every
@@ -282,6 +289,13 @@ def files(tmp_path: Path) -> dict[str, Path]:
     bad_labels = tmp_path / "bad_labels"
     bad_labels.mkdir()
     (bad_labels / "0001.txt").write_text("frame track Car\n")  # no frame number
+    no_camera = tmp_path / "no_camera.json"
+    frames = _sample_frames()[:3]
+    for frame in frames:
+        del frame["transform_matrix"]["cameras_transform_matrix"]
+        for box in frame["bboxes"]:
+            box.pop("bbox_image", None)
+    no_camera.write_text(json.dumps({"0001": frames}))
     return {
         "truncated": truncated,
         "not_rrd": not_rrd,
@@ -295,6 +309,7 @@ def files(tmp_path: Path) -> dict[str, Path]:
         "empty_dir": empty_dir,
         "empty_labels": empty_labels,
         "bad_labels": bad_labels,
+        "no_camera": no_camera,
         "out": tmp_path / "out",
         "detections": SAMPLE / "detections.json.gz",
         "gt": SAMPLE / "gt.json.gz",
@@ -306,6 +321,31 @@ F = dict[str, Path]
 CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
     ("validate truncated", lambda f: ["validate", str(f["truncated"])], ("truncated.json",)),
     ("validate folder", lambda f: ["validate", str(f["stock"])], ("stock_kitti",)),
+    (  # (was "OK, scenes: 0, frames: 0", exit 0)
+        "validate no scene",
+        lambda f: ["validate", str(f["no_scenes"])],
+        ("no_scenes.json", "no scene to track", "holds none"),
+    ),
+    (  # (was "OK, scenes: 2, frames: 0", exit 0; with --json too)
+        "validate no frames",
+        lambda f: ["validate", str(f["no_frames"]), "--json"],
+        ("no_frames.json", "no frames to track", "2 scene(s)"),
+    ),
+    (  # (was "0 scenes, 0 frames" and an empty tracks.json, exit 0)
+        "track no scene",
+        lambda f: ["track", str(f["no_scenes"]), "--out", str(f["out"])],
+        ("no_scenes.json", "no scene to track (the file holds none)"),
+    ),
+    (  # (was "2 scenes, 0 frames" and a tracks.json of empty scenes, exit 0)
+        "track no frames",
+        lambda f: ["track", str(f["no_frames"]), "--out", str(f["out"])],
+        ("no_frames.json", "no frames to track (2 scene(s), all empty)"),
+    ),
+    (
+        "track chosen scene without frames",
+        lambda f: ["track", str(f["no_frames"]), "--scenes", "0002", "--out", str(f["out"])],
+        ("no_frames.json", "no frames to track (--scenes 0002, all empty)"),
+    ),
     (
         "track truncated",
         lambda f: ["track", str(f["truncated"]), "--out", str(f["out"])],
@@ -408,7 +448,21 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
         ("--labels",),
     ),
     ("view truncated", lambda f: ["view", str(f["truncated"])], ("truncated.json",)),
-    ("view empty file", lambda f: ["view", str(f["empty"])], ("empty.json", "JSON")),
+    (  # (each was 'malformed JSON (Expecting value: line 1 column 1 (char 0))')
+        "view empty file",
+        lambda f: ["view", str(f["empty"])],
+        ("empty.json: the file is empty (0 bytes)",),
+    ),
+    (
+        "track empty file",
+        lambda f: ["track", str(f["empty"]), "--out", str(f["out"])],
+        ("empty.json: the file is empty (0 bytes)",),
+    ),
+    (
+        "validate empty file",
+        lambda f: ["validate", str(f["empty"])],
+        ("empty.json: the file is empty (0 bytes)",),
+    ),
     (  # (was exit 0, nothing written, nothing said)
         "view no scene",
         lambda f: ["view", str(f["no_scenes"]), "--save", str(f["out"] / "x.rrd")],
@@ -487,6 +541,30 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
             *("--images", str(f["empty_dir"]), "--save", str(f["out"] / "x.rrd")),
         ],
         ("--images", "empty_dir", "no images"),
+    ),
+    (  # (was a recording without its images, exit 0, nothing said)
+        "view images of a camera the input has not",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "10:12"),
+            *("--images", f"CAM_BACK={SAMPLE / 'image_02'}", "--save", str(f["out"] / "x.rrd")),
+        ],
+        ("--images CAM_BACK=", "detections.json.gz", "no camera 'CAM_BACK'", "CAM_FRONT)"),
+    ),
+    (  # (was the same)
+        "view images for an input without cameras",
+        lambda f: [
+            *("view", str(f["no_camera"]), "--images", str(SAMPLE / "image_02")),
+            *("--save", str(f["out"] / "x.rrd")),
+        ],
+        ("--images", "image_02", "no_camera.json has no camera"),
+    ),
+    (  # (was the same: the sample's images are of frames 10, 15 and 20)
+        "view images of no recorded frame",
+        lambda f: [
+            *("view", str(f["detections"]), "--frames", "0:3"),
+            *("--images", f"CAM_FRONT={SAMPLE / 'image_02'}", "--save", str(f["out"] / "x.rrd")),
+        ],
+        ("--images", "image_02", "no image of a recorded frame", "0..2", "frames 10..20"),
     ),
     (
         "shots not a recording",
@@ -617,6 +695,16 @@ def test_a_frame_range_that_empties_some_scenes_warns_and_tracks_the_rest(
         select_scenes(scenes, None, slice(20, 30), source="in.json")  # type: ignore[arg-type]
 
 
+def test_track_writes_nothing_for_an_input_without_frames(
+    files: F, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """An input without frames is refused before any output: no tracks.json of nothing."""
+    for name in ("no_scenes", "no_frames"):
+        code, printed, _ = _run(["track", str(files[name]), "--out", str(files["out"])], capsys)
+        assert code == 2 and printed == ""
+        assert list(files["out"].iterdir()) == []
+
+
 def test_view_says_which_scenes_it_records_without_labels(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -638,6 +726,29 @@ def test_view_says_which_scenes_it_records_without_labels(
     # (the ID events by TrackEval's KITTI protocol: per class, for the labelled scene alone)
     assert "scene 0001: 3 frames" in printed and "car: 0 ID switches" in printed
     assert "scene 0002: 3 frames" in printed and "car:" not in printed.split("scene 0002: 3")[1]
+
+
+def test_view_says_which_scenes_it_records_without_images(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--images with images of one scene's frames only: the other is recorded without, and
+    says so (as a scene without labels); the images are recorded for the scene they fit."""
+    frames = _sample_frames()
+    two = tmp_path / "two.json"
+    two.write_text(json.dumps({"early": frames[:3], "late": frames[9:12]}))  # images: 10
+    path = tmp_path / "x.rrd"
+    argv = ["view", str(two), "--images", str(SAMPLE / "image_02"), "--no-motion"]
+    code, printed, err = _run([*argv, "--save", str(path)], capsys)
+    assert code == 0, err
+    image_02 = SAMPLE / "image_02"
+    assert f"scene early: no image of its frames in {image_02}; recording without them" in printed
+    assert "scene late: no image" not in printed
+    from rerun.chunk import RrdReader
+
+    for scene, has_images in (("early", False), ("late", True)):
+        chunks = RrdReader(str(tmp_path / f"x_{scene}.rrd")).stream().to_chunks()
+        entities = {str(c.entity_path) for c in chunks}
+        assert ("/cameras/CAM_FRONT/image" in entities) is has_images, scene
 
 
 def test_kitti_into_an_earlier_runs_folder_replaces_that_run(

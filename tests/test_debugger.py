@@ -212,6 +212,33 @@ def test_inspect_refuses_a_frame_the_recording_does_not_have(
         assert err.count("\n") == 1
 
 
+def test_shots_refuses_a_frame_the_recording_does_not_have(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """shots --frame outside the recording is inspect's one-line error, before any viewer (it
+    was a screenshot of an empty scene at that frame, or 'cannot render' without a driver)."""
+    from viz import shots
+
+    path, _ = recording()  # frames 0-199
+    planned: list[PlannedShot] = []
+
+    def take_shots(recording: Path, out: str, *, plan: list[PlannedShot], **kw: object) -> list:
+        planned.extend(plan)
+        return []
+
+    monkeypatch.setattr(shots, "take_shots", take_shots)
+    out = str(tmp_path / "shots")
+    assert main(["shots", str(path), "--frame", "199", "--out", out]) == 0
+    assert planned == [PlannedShot(199, "frame")]
+    for frame in ("200", "-1"):
+        assert main(["shots", str(path), "--frame", frame, "--out", out]) == 2
+        err = capsys.readouterr().err
+        assert err == (
+            f"mctrack shots: error: {path}: --frame {frame}: the recording has frames 0..199\n"
+        )
+    assert planned == [PlannedShot(199, "frame")] and not (tmp_path / "shots").exists()
+
+
 def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> None:
     """``mctrack inspect``'s viewer driving on Rerun's headless native viewer: the viewer's own
     time cursor (read back with ViewerClient.get_state) is on the event's frame and the

@@ -118,11 +118,18 @@ def _parse_int(text: str) -> int:
 
 def parse_json_bytes(path: Path, raw: bytes) -> Any:
     """Strict, depth-safe JSON: duplicate keys and overlong integers are refused; every failure
-    is an InputError naming the file (and the line and column where the parser knows them)."""
+    is an InputError naming the file (and the line and column where the parser knows them), an
+    empty file (or all whitespace) one of its own."""
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise InputError(f"{path}: not UTF-8 text (byte {exc.start})") from None
+    if not text.strip():  # json's 'Expecting value: line 1 column 1' reads as a syntax error
+        if raw:
+            how = "whitespace only"
+        else:
+            how = "gunzipped: 0 bytes" if path.suffix == ".gz" else "0 bytes"
+        raise InputError(f"{path}: the file is empty ({how}), no JSON in it")
     try:
         return json.loads(text, object_pairs_hook=_object_no_duplicates, parse_int=_parse_int)
     except json.JSONDecodeError as exc:
