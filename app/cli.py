@@ -11,6 +11,7 @@ import importlib
 import importlib.util
 import json
 import logging
+import os
 import re
 import sys
 import time
@@ -58,13 +59,16 @@ EPILOG = """examples:
   mctrack view detections.json --gt gt.json      the same, recorded for the Rerun viewer
 
 exit status: 0 success, 2 bad input or usage (one line on stderr: the file and what to do),
-1 an unexpected error (a bug: re-run with --debug for the traceback and report it)."""
+1 an unexpected error (a bug: re-run with --debug for the traceback and report it), 141 the
+reader of the output closed it early (`| head`)."""
 
 #: Exit status for bad input (a wrong path, a missing or malformed file, a wrong flag), as
 #: argparse uses for usage errors.
 EXIT_INPUT = 2
 #: Exit status for an unexpected error (a bug).
 EXIT_BUG = 1
+#: Exit status when the reader of stdout closed it early (a shell's for SIGPIPE).
+EXIT_PIPE = 141
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
@@ -276,7 +280,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         if args.command in TRACKING_COMMANDS:
             _warm_kernels()
-        return int(args._run(args))
+        status = int(args._run(args))
+        sys.stdout.flush()  # (a reader that went away shows here, not at the interpreter's exit)
+        return status
+    except BrokenPipeError:
+        # the reader of the output went away (`mctrack validate F | head -2`): stop quietly, as
+        # a Unix tool killed by SIGPIPE does, with its status (128 + 13)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_PIPE
     except KeyboardInterrupt:
         print(f"mctrack {args.command}: interrupted", file=sys.stderr)
         return 130

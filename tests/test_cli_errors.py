@@ -859,3 +859,18 @@ def test_validate_reports_every_error_with_the_count(
     assert err.strip().splitlines()[-1].endswith("2 errors")
     code, _, err = _run(["validate", "--max-errors", "1", str(path)], capsys)
     assert code == 2 and "missing key 'lwh'" not in err and "2 errors (1 shown)" in err
+
+
+def test_a_reader_that_closes_the_pipe_stops_the_command_quietly() -> None:
+    """`mctrack validate F | head -2`: the reader goes away before the output is written; the
+    command stops with the shell's SIGPIPE status and says nothing (was 'unexpected error:
+    BrokenPipeError', exit 1)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", "validate", str(SAMPLE / "detections.json.gz")],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=ROOT,
+    )  # fmt: skip
+    assert proc.stdout is not None and proc.stderr is not None
+    proc.stdout.close()  # before the command writes a byte
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == cli.EXIT_PIPE
+    assert "error" not in err and "Exception ignored" not in err, err
