@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -409,3 +410,45 @@ def test_official_evaluation_clean_vs_noisy(
     assert 0.5 <= noisy["overall"]["amota"] <= clean["overall"]["amota"] - 0.02
     assert noisy["overall"]["recall"] < 1.0
     assert (tmp_path / "clean" / "metrics_summary.json").is_file()
+
+
+def _edited_dataset(
+    dataset: SyntheticNuScenes, root: Path, edit: Callable[[dict[str, list[Any]]], None]
+) -> Path:
+    """A copy of the synthetic dataset (tables and maps) with ``edit`` applied to its tables."""
+    shutil.copytree(dataset.dataroot / "maps", root / "maps")
+    tables = {
+        p.stem: json.loads(p.read_text())
+        for p in (dataset.dataroot / dataset.version).glob("*.json")
+    }
+    edit(tables)
+    (root / dataset.version).mkdir()
+    for name, rows in tables.items():
+        (root / dataset.version / f"{name}.json").write_text(json.dumps(rows))
+    return root
+
+
+def _set_sample(tables: dict[str, list[Any]], token: str, **fields: Any) -> None:
+    next(s for s in tables["sample"] if s["token"] == token).update(fields)
+
+
+@needs_devkit
+def test_a_sample_chain_that_loops_or_leaves_its_scene_is_named(
+    dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
+) -> None:
+    """Following 'next' from a scene's first sample: a loop (was an endless loop) or a step into
+    another scene (its samples were tracked as this scene's) is an error naming the sample."""
+    val, other = dataset.samples["scene-0103"], dataset.samples["scene-0061"]
+    cases = {  # the loop last: without the check it never ends
+        "leaves": (
+            lambda t: _set_sample(t, val[-1], next=other[0]),
+            "of another scene",
+            other[0],
+        ),
+        "loop": (lambda t: _set_sample(t, val[5], next=val[2]), "reached again", val[2]),
+    }
+    for name, (edit, match, named) in cases.items():
+        root = _edited_dataset(dataset, tmp_path / name, edit)
+        with pytest.raises(InputError, match=match) as err:
+            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+        assert f"sample.json: sample '{named}'" in str(err.value)

@@ -418,10 +418,28 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
 
 
 def _scene_samples(nusc: Any, scene: dict[str, Any]) -> list[dict[str, Any]]:
-    samples = []
+    """The scene's samples, following ``next`` from its first sample. A chain that loops back
+    (would never end) or runs into another scene's samples (they would be tracked as this
+    scene's) is an error naming the sample and the field that leads there."""
+    samples: list[dict[str, Any]] = []
+    seen: set[str] = set()
     token = scene["first_sample_token"]
     while token:
         sample = nusc.get("sample", token)
+        via = (
+            f"field 'next' of sample {samples[-1]['token']!r}"
+            if samples
+            else f"field 'first_sample_token' of scene {scene['name']!r}"
+        )
+        where = f"{Path(nusc.dataroot) / nusc.version / 'sample.json'}: sample {token!r}"
+        if token in seen:
+            raise InputError(f"{where}: reached again through {via} (the samples form a loop)")
+        if sample["scene_token"] != scene["token"]:
+            raise InputError(
+                f"{where}: of another scene (field 'scene_token'), reached through {via} of "
+                f"scene {scene['name']!r}"
+            )
+        seen.add(token)
         samples.append(sample)
         token = sample["next"]
     return samples
