@@ -452,3 +452,20 @@ def test_a_sample_chain_that_loops_or_leaves_its_scene_is_named(
         with pytest.raises(InputError, match=match) as err:
             convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
         assert f"sample.json: sample '{named}'" in str(err.value)
+
+
+@needs_devkit
+def test_sample_timestamps_out_of_order_are_named_at_conversion(
+    dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
+) -> None:
+    """A scene's sample timestamp repeated or going back: one error naming the sample (was
+    converted; then the tracker refused the scene, or `mctrack track` the converted file)."""
+    val = dataset.samples["scene-0103"]
+    table = json.loads((dataset.dataroot / dataset.version / "sample.json").read_text())
+    t4 = next(s["timestamp"] for s in table if s["token"] == val[4])
+    for name, timestamp in (("repeated", t4), ("backwards", t4 - 1)):
+        root = _edited_dataset(
+            dataset, tmp_path / name, lambda t, ts=timestamp: _set_sample(t, val[5], timestamp=ts)
+        )
+        with pytest.raises(InputError, match=rf"'{val[5]}': field 'timestamp' = {timestamp} "):
+            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")

@@ -420,7 +420,8 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
 def _scene_samples(nusc: Any, scene: dict[str, Any]) -> list[dict[str, Any]]:
     """The scene's samples, following ``next`` from its first sample. A chain that loops back
     (would never end) or runs into another scene's samples (they would be tracked as this
-    scene's) is an error naming the sample and the field that leads there."""
+    scene's) is an error naming the sample and the field that leads there, as is a timestamp
+    not after the previous sample's."""
     samples: list[dict[str, Any]] = []
     seen: set[str] = set()
     token = scene["first_sample_token"]
@@ -438,6 +439,12 @@ def _scene_samples(nusc: Any, scene: dict[str, Any]) -> list[dict[str, Any]]:
             raise InputError(
                 f"{where}: of another scene (field 'scene_token'), reached through {via} of "
                 f"scene {scene['name']!r}"
+            )
+        if samples and not sample["timestamp"] > samples[-1]["timestamp"]:
+            # the tracker needs time order (a converted file with it would be refused later)
+            raise InputError(
+                f"{where}: field 'timestamp' = {sample['timestamp']} is not after the previous "
+                f"sample's ({samples[-1]['timestamp']}) in scene {scene['name']!r}"
             )
         seen.add(token)
         samples.append(sample)
