@@ -469,3 +469,29 @@ def test_sample_timestamps_out_of_order_are_named_at_conversion(
         )
         with pytest.raises(InputError, match=rf"'{val[5]}': field 'timestamp' = {timestamp} "):
             convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+
+
+@needs_devkit
+def test_a_pose_without_a_rotation_is_named(
+    dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
+) -> None:
+    """A zero or short quaternion in ego_pose / calibrated_sensor: one error naming the table,
+    the record and the field (a zero one made NaN matrices: 'unexpected error' at writing)."""
+    pose, sensor = {}, {}
+
+    def zero_pose(tables: dict[str, list[Any]]) -> None:
+        pose.update(tables["ego_pose"][0])
+        tables["ego_pose"][0]["rotation"] = [0.0, 0.0, 0.0, 0.0]
+
+    def short_rotation(tables: dict[str, list[Any]]) -> None:
+        sensor.update(tables["calibrated_sensor"][-1])
+        tables["calibrated_sensor"][-1]["rotation"] = [1.0, 0.0, 0.0]
+
+    for edit, table, record, field in (
+        (zero_pose, "ego_pose", pose, "'rotation' is the zero quaternion"),
+        (short_rotation, "calibrated_sensor", sensor, "'rotation' must be 4 finite numbers"),
+    ):
+        root = _edited_dataset(dataset, tmp_path / table, edit)
+        with pytest.raises(InputError) as err:
+            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+        assert f"{table}.json: {table} '{record['token']}': field {field}" in str(err.value)

@@ -362,6 +362,22 @@ class _SampleGeometry:
     transform_matrix: dict[str, Any]
 
 
+def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
+    """``pose_matrix`` of an ego_pose or calibrated_sensor record, its fields checked: a zero
+    or non-finite quaternion has no rotation (it made NaN matrices, found much later)."""
+    where = f"{Path(nusc.dataroot) / nusc.version / f'{table}.json'}: {table} {record['token']!r}"
+    values = {}
+    for key, size in (("translation", 3), ("rotation", 4)):
+        value = record.get(key)
+        array = np.asarray(value, dtype=np.float64) if _numeric(value) else None
+        if array is None or array.shape != (size,) or not np.isfinite(array).all():
+            raise InputError(f"{where}: field '{key}' must be {size} finite numbers, got {value!r}")
+        values[key] = array
+    if not np.linalg.norm(values["rotation"]) > 0:
+        raise InputError(f"{where}: field 'rotation' is the zero quaternion (no rotation)")
+    return pose_matrix(values["translation"], values["rotation"])
+
+
 def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
     """Ego pose (LIDAR_TOP keyframe), the six camera models and the official transform object."""
     data = sample["data"]
@@ -370,8 +386,8 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
     lidar_sd = nusc.get("sample_data", data[LIDAR_CHANNEL])
     ego = nusc.get("ego_pose", lidar_sd["ego_pose_token"])
     lidar_cs = nusc.get("calibrated_sensor", lidar_sd["calibrated_sensor_token"])
-    world_from_ego = pose_matrix(ego["translation"], ego["rotation"])
-    ego_from_lidar = pose_matrix(lidar_cs["translation"], lidar_cs["rotation"])
+    world_from_ego = _record_pose(nusc, "ego_pose", ego)
+    ego_from_lidar = _record_pose(nusc, "calibrated_sensor", lidar_cs)
     world_from_lidar = world_from_ego @ ego_from_lidar
     cameras: list[Camera] = []
     camera_records: dict[str, Any] = {}
@@ -386,10 +402,8 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
             raise InputError(
                 f"calibrated_sensor {cs['token']!r} ({name}): camera_intrinsic must be 3x3"
             )
-        ego_from_camera = pose_matrix(cs["translation"], cs["rotation"])
-        world_from_camera = pose_matrix(cam_ego["translation"], cam_ego["rotation"]) @ (
-            ego_from_camera
-        )
+        ego_from_camera = _record_pose(nusc, "calibrated_sensor", cs)
+        world_from_camera = _record_pose(nusc, "ego_pose", cam_ego) @ ego_from_camera
         camera_from_world = np.linalg.inv(world_from_camera)
         image_from_camera = np.zeros((3, 4))
         image_from_camera[:, :3] = intrinsic
