@@ -129,6 +129,15 @@ def test_yaw_from_quaternions_round_trip() -> None:
     np.testing.assert_allclose(yaw_from_quaternions(-quats), yaws, atol=1e-12)  # q ≡ -q
 
 
+def test_yaw_of_a_quaternion_that_is_not_unit() -> None:
+    """A detector's quaternion of norm 2 or 0.5 has the heading of its unit quaternion (the
+    devkit normalises it too); it gave 127° or 18° for 90°."""
+    yaws = np.array([-2.0, 0.5, np.pi / 2])
+    quats = np.stack([np.cos(yaws / 2), 0 * yaws, 0 * yaws, np.sin(yaws / 2)], axis=1)
+    for scale in (2.0, 0.5, 1.01):
+        np.testing.assert_allclose(yaw_from_quaternions(scale * quats), yaws, atol=1e-12)
+
+
 def _output(scene: str, frame_id: int, n: int, rng: np.random.Generator) -> TrackOutput:
     boxes = Boxes.create(
         xyz=rng.normal(0, 30, (n, 3)),
@@ -366,6 +375,14 @@ def test_bad_inputs_name_the_table_or_token(
     bad = dict(results, results={**results["results"], token: boxes})
     path.write_text(json.dumps(bad))
     with pytest.raises(InputError, match=rf"results\['{token}'\]\[2\]: field 'size'"):
+        convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
+        )
+    # a zero quaternion has no heading
+    boxes = [dict(b) for b in results["results"][token]]
+    boxes[1]["rotation"] = [0.0, 0.0, 0.0, 0.0]
+    path.write_text(json.dumps(dict(results, results={**results["results"], token: boxes})))
+    with pytest.raises(InputError, match=r"\[1\]: field 'rotation' is the zero quaternion"):
         convert_nuscenes(
             dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
         )

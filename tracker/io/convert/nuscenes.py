@@ -226,8 +226,18 @@ def pose_matrix(translation: Sequence[float], rotation_wxyz: Sequence[float]) ->
 
 
 def yaw_from_quaternions(q_wxyz: FloatArray) -> FloatArray:
-    """(N,) heading about +z of (N, 4) quaternions [w, x, y, z], as the reference converter."""
+    """(N,) heading about +z of (N, 4) quaternions [w, x, y, z], as the reference converter.
+
+    The formula holds for unit quaternions only (a norm of 2 turns 90° into 127°); others are
+    normalised first, as the devkit's evaluation does. Unit ones (to 1e-6: float32 rounding)
+    are used as given, so their headings stay bit for bit those of the reference.
+    """
     q = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+    norm = np.linalg.norm(q, axis=1)
+    off = np.abs(norm - 1.0) > 1e-6
+    if off.any():
+        q = q.copy()
+        q[off] /= norm[off, None]
     w, x, y, z = q.T
     return wrap_angle(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
@@ -320,6 +330,8 @@ def _detection_boxes(
                 raise InputError(f"{at}: field '{key}' must be {size} finite numbers")
         if (np.asarray(box["size"]) < 0).any():
             raise InputError(f"{at}: field 'size' has a negative value {box['size']}")
+        if not np.linalg.norm(box["rotation"]) > 0:
+            raise InputError(f"{at}: field 'rotation' is the zero quaternion (no heading)")
         keep.append(box)
     if not keep:
         return Boxes.empty()
