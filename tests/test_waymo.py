@@ -294,6 +294,43 @@ def test_flat_layout_is_checked(segment: Path) -> None:
         assert str(path) in str(err.value), name
 
 
+def test_ego_info_poses_and_cameras_are_checked(segment: Path, tmp_path: Path) -> None:
+    """A singular or non-rigid ego pose or camera extrinsic, or a camera without a focal length:
+    one InputError naming the file and the array entry. A singular one ended mctrack waymo in
+    'unexpected error: LinAlgError' (every segment lost); a scaled or transposed one, or a zero
+    focal length, gave wrong positions or camera boxes without a word."""
+    path = segment / "ego_info" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))
+    scaled, transposed, zero = (good["ego2global"].copy() for _ in range(3))
+    scaled[4, :3, :3] *= 2.0
+    transposed[4] = transposed[4].T
+    zero[4] = 0.0
+    extrinsics, intrinsics = good["cam_extrinsics"].copy(), good["cam_intrinsics"].copy()
+    extrinsics[2, 1] = 0.0
+    intrinsics[2, 1, :2] = 0.0
+    cases = {
+        "scaled": ({"ego2global": scaled}, r"ego2global\[4\] is not a rigid transform"),
+        "transposed": ({"ego2global": transposed}, r"ego2global\[4\] is not a rigid"),
+        "singular": ({"ego2global": zero}, r"ego2global\[4\] is not a rigid"),
+        "singular camera": (
+            {"cam_extrinsics": extrinsics},
+            r"cam_extrinsics\[2, 1\] \(CAM_FRONT_LEFT\) is not a rigid",
+        ),
+        "no focal length": (
+            {"cam_intrinsics": intrinsics},
+            r"cam_intrinsics\[2, 1\] \(CAM_FRONT_LEFT\): focal lengths",
+        ),
+    }
+    for name, (arrays, match) in cases.items():
+        np.savez_compressed(path, **{**good, **arrays})
+        with pytest.raises(InputError, match=match) as err:
+            convert_waymo(segment, segment / "dets")
+        assert str(path) in str(err.value), name
+    # mctrack waymo: the segment fails alone, with that line (not an unexpected error)
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--out", str(tmp_path / "run")]) == 2
+
+
 def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
     (segment / "ts_info" / f"{SEGMENT}.json").unlink()
     with pytest.raises(InputError, match=rf"ts_info/{SEGMENT}\.json: ts_info file not found"):
