@@ -282,6 +282,10 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
     bad = np.flatnonzero(~np.isfinite(bboxes).all(axis=1))
     if len(bad):
         raise InputError(f"{path}: bboxes row {bad[0]}: must be finite [x,y,z,o,l,w,h(,score)]")
+    negative = np.flatnonzero((bboxes[:, 4:7] < 0).any(axis=1))
+    if len(negative):  # as the nuScenes converter: a size is never negative
+        k = negative[0]
+        raise InputError(f"{path}: bboxes row {k}: l, w, h = {bboxes[k, 4:7].tolist()} < 0")
 
     def column(key: str, kinds: str) -> np.ndarray:
         arr = npz[key]
