@@ -333,6 +333,33 @@ def test_ego_info_poses_and_cameras_are_checked(segment: Path, tmp_path: Path) -
     assert main([*argv, "--out", str(tmp_path / "run")]) == 2
 
 
+def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Path) -> None:
+    """An object twice in one frame, or a NaN velocity, in the ground truth: one error naming
+    the file and the row (mctrack waymo --motion ended in an unexpected error, after tracking:
+    'GT track 0 has two samples', or NaN in gt.json)."""
+    path = segment / "gt" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))
+    ids, velos = good["ids"].copy(), good["velos"].copy()
+    frame0 = np.flatnonzero(good["frame_index"] == 0)
+    ids[frame0[1]] = ids[frame0[0]]
+    velos[3] = np.nan
+    cases = {
+        "object twice in a frame": (
+            {"ids": ids},
+            rf"ids row {frame0[1]}: object '{ids[0]}' is in frame 0 twice",
+        ),
+        "NaN velocity": ({"velos": velos}, r"velos row 3: must be finite"),
+    }
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    for name, (arrays, match) in cases.items():
+        np.savez_compressed(path, **{**good, **arrays})
+        with pytest.raises(InputError, match=match) as err:
+            convert_waymo(segment, segment / "dets", gt=segment / "gt")
+        assert str(path) in str(err.value), name
+        run = ["--gt", str(segment / "gt"), "--motion", "--out", str(tmp_path / "run")]
+        assert main([*argv, *run]) == 2, name
+
+
 def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
     (segment / "ts_info" / f"{SEGMENT}.json").unlink()
     with pytest.raises(InputError, match=rf"ts_info/{SEGMENT}\.json: ts_info file not found"):

@@ -308,12 +308,24 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
     bounds = np.searchsorted(frame_index[order], np.arange(n_frames + 1))
     ids = velos = None
     if gt:
-        ids = column("ids", "iuU").astype(str)[order]
+        ids = column("ids", "iuU").astype(str)
+        first_row: dict[tuple[int, str], int] = {}
+        for k, key in enumerate(zip(frame_index.tolist(), ids.tolist(), strict=True)):
+            if first_row.setdefault(key, k) != k:  # one object, two boxes: no single truth
+                raise InputError(
+                    f"{path}: ids row {k}: object {key[1]!r} is in frame {key[0]} twice "
+                    f"(rows {first_row[key]} and {k})"
+                )
+        ids = ids[order]
         if "velos" in npz.files:
             velos = npz["velos"]
             if velos.dtype.kind not in "fiu" or velos.shape != (n, 2):
                 raise InputError(f"{path}: 'velos' must be numbers of shape ({n}, 2)")
-            velos = velos.astype(np.float64)[order]
+            velos = velos.astype(np.float64)
+            bad = np.flatnonzero(~np.isfinite(velos).all(axis=1))
+            if len(bad):
+                raise InputError(f"{path}: velos row {bad[0]}: must be finite [vx, vy]")
+            velos = velos[order]
     return _BoxTable(bboxes[order], types[order], bounds, ids, velos)
 
 
