@@ -113,3 +113,22 @@ def test_nuscenes_with_workers_gives_the_sequential_files(
         runs[workers] = (files, motion, summary["boxes_written"])
     assert runs["2"] == runs["1"]
     assert list(json.loads(runs["2"][0]["tracks.json"])) == ["scene-0103", "scene-0916"]
+
+
+def test_nuscenes_run_into_an_earlier_run_replaces_it(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path
+) -> None:
+    """A second run into the same --out leaves only its own outputs: an earlier run's metrics
+    and motion metrics went with it (they stayed beside a --no-eval run's submission); a run
+    refused on its inputs keeps the earlier one, and files of other names stay."""
+    out = tmp_path / "run"
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--out", str(out)]
+    assert main([*argv, "--motion"]) == 0
+    (out / "notes.txt").write_text("mine")
+    earlier = ("eval/metrics_summary.json", "gt.json", "motion.md", "motion_velocity.png")
+    assert all((out / name).is_file() for name in earlier)
+    assert main([*argv, "--no-eval", "--scenes", "scene-9999"]) == 2  # refused
+    assert all((out / name).is_file() for name in earlier)
+    assert main([*argv, "--no-eval"]) == 0
+    assert not any((out / name).exists() for name in earlier)
+    assert (out / "results.json").is_file() and (out / "notes.txt").read_text() == "mine"

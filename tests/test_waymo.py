@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import sys
 import zipfile
 from pathlib import Path
@@ -398,3 +399,25 @@ def test_waymo_cli_records_like_kitti_and_nuscenes(segment: Path, tmp_path: Path
     assert json.loads((run / "summary.json").read_text())["recordings"] == [str(rrd)]
     found = {c.entity_path for c in RrdReader(str(rrd)).stream().to_chunks()}
     assert paths.entity(paths.TRACKS_UPDATED) in found and paths.entity(paths.GT) in found
+
+
+def test_waymo_run_into_an_earlier_run_replaces_it(segment: Path, tmp_path: Path) -> None:
+    """A second run into the same --out leaves only its own outputs (pred_bin.py reads every
+    file of results/: a segment left out kept its old results beside the new ones); a run
+    refused on its inputs keeps the earlier one, and files of other names stay."""
+    for sub, ext in (("ts_info", "json"), ("ego_info", "npz"), ("dets", "npz"), ("gt", "npz")):
+        shutil.copy(segment / sub / f"{SEGMENT}.{ext}", segment / sub / f"other.{ext}")
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--motion", "--out", str(run)]) == 0
+    (run / "notes.txt").write_text("mine")
+    first = sorted(p.relative_to(run).as_posix() for p in run.rglob("*.npz"))
+    assert f"results/vehicle/{SEGMENT}.npz" in first and "results/vehicle/other.npz" in first
+    assert main([*argv, "--segments", "../other", "--out", str(run)]) == 2  # refused
+    assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*.npz")) == first
+    assert main([*argv, "--segments", "other", "--out", str(run)]) == 0
+    assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*.npz")) == [
+        f"results/{kind}/other.npz" for kind in ("cyclist", "pedestrian", "vehicle")
+    ]
+    assert not (run / "gt.json").exists() and (run / "notes.txt").read_text() == "mine"
+    assert json.loads((run / "summary.json").read_text())["segments"] == ["other"]
