@@ -132,3 +132,18 @@ def test_nuscenes_run_into_an_earlier_run_replaces_it(
     assert main([*argv, "--no-eval"]) == 0
     assert not any((out / name).exists() for name in earlier)
     assert (out / "results.json").is_file() and (out / "notes.txt").read_text() == "mine"
+
+
+def test_eval_names_a_file_that_is_not_a_tracking_submission(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """mctrack eval --dataset nuscenes of a detection results file (no tracking_id) or of a
+    truncated submission: one line naming the file (was 'unexpected error: KeyError', or
+    'malformed JSON' without the file)."""
+    truncated = tmp_path / "results.json"
+    truncated.write_text(noisy.read_text()[:3000])
+    common = [*_common(dataset), "--dataset", "nuscenes", "--out", str(tmp_path / "e")]
+    for path, said in ((noisy, "a box has no field 'tracking_id'"), (truncated, "malformed JSON")):
+        assert main(["eval", str(path), *common]) == 2
+        err = capsys.readouterr().err
+        assert f"error: {path}: {said}" in err and "unexpected" not in err
