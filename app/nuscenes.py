@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.common import peak_rss_mb
+from app.common import peak_rss_mb, remove_earlier_outputs
 from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
@@ -25,6 +25,20 @@ from tracker.io.fileio import (
     write_bytes_atomic,
     write_text_atomic,
 )
+
+#: What a run writes in --out, removed (once the inputs are accepted) when --out holds an earlier
+#: run, so the folder never mixes two (an earlier run's metrics, motion metrics or recordings
+#: beside a run that made none). Other files stay. (.<name>.*.tmp: the temporary files of a run
+#: stopped by Ctrl-C; .scenes/: its scene parts)
+RUN_OUTPUTS = (
+    "summary.json", "results.json", "tracks.json", "gt.json", "motion.md", "motion_velocity.png",
+    "eval/*.json", "recordings/*.rrd",
+    ".summary.json.*.tmp", ".results.json.*.tmp", ".tracks.json.*.tmp", ".gt.json.*.tmp",
+    ".motion.md.*.tmp", ".motion_velocity.png.*.tmp", "eval/.*.json.*.tmp",
+    "recordings/.*.rrd.*.tmp", ".scenes/*",
+)  # fmt: skip
+#: What only a run leaves (its scene parts while it runs; the submission and summary at the end)
+RUN_MARKS = ("summary.json", "results.json", "tracks.json", ".scenes")
 
 
 @dataclass(frozen=True, slots=True)
@@ -172,6 +186,8 @@ def run_nuscenes(
             raise InputError(f"--scenes: not in split {split!r}: {missing}")
         det_scenes = {s: det_scenes[s] for s in scene_names}
     convert_secs = time.perf_counter() - t0
+    if any((out / mark).exists() for mark in RUN_MARKS):  # a refused run keeps the earlier one
+        remove_earlier_outputs(out, RUN_OUTPUTS)
 
     coasting_score = None if config.mode is TrackingMode.OFFLINE else 0.0
     job = NuscenesSceneJob(

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -539,3 +540,23 @@ def test_kitti_parked_cars_have_zero_gt_velocity_and_motion_block(
     assert saved["motion"]["metrics"]["kalman"]["car"]["n_samples"] == car.n_samples
     assert "Motion metrics: car" in (tmp_path / "motion.md").read_text()
     assert (tmp_path / "motion_velocity.png").is_file()
+
+
+def test_a_scene_without_tracker_output_is_scored_with_the_others() -> None:
+    """A scene whose detector found nothing (no output box) beside a tracked one: the motion
+    metrics are those of the tracked scene (was a ValueError from zip in the baselines)."""
+    dets, gts, outputs = tracked(scene="a", num_frames=40)
+    empty_dets = [replace(f, scene="b", boxes=Boxes.empty()) for f in dets]
+    empty_gts = [replace(f, scene="b") for f in gts]
+    empty_outputs = run_scene(empty_dets, load_config("kitti_reference")).outputs
+    assert not any(len(o.boxes) for o in empty_outputs)
+    both = evaluate_motion(
+        {"a": dets, "b": empty_dets},
+        {"a": gts, "b": empty_gts},
+        {"a": outputs, "b": empty_outputs},
+        classes=CLASSES,
+    )
+    alone = evaluate_motion({"a": dets}, {"a": gts}, {"a": outputs}, classes=CLASSES)
+    for est in ("kalman", "difference", "curve_fit"):
+        for cls in (*CLASSES, "all"):
+            assert_metrics_close(metrics_of(both, est, cls), metrics_of(alone, est, cls))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -126,6 +127,15 @@ def test_yaw_from_quaternions_round_trip() -> None:
     quats = np.stack([np.cos(yaws / 2), 0 * yaws, 0 * yaws, np.sin(yaws / 2)], axis=1)
     np.testing.assert_allclose(yaw_from_quaternions(quats), yaws, atol=1e-12)
     np.testing.assert_allclose(yaw_from_quaternions(-quats), yaws, atol=1e-12)  # q ≡ -q
+
+
+def test_yaw_of_a_quaternion_that_is_not_unit() -> None:
+    """A detector's quaternion of norm 2 or 0.5 has the heading of its unit quaternion (the
+    devkit normalises it too); it gave 127° or 18° for 90°."""
+    yaws = np.array([-2.0, 0.5, np.pi / 2])
+    quats = np.stack([np.cos(yaws / 2), 0 * yaws, 0 * yaws, np.sin(yaws / 2)], axis=1)
+    for scale in (2.0, 0.5, 1.01):
+        np.testing.assert_allclose(yaw_from_quaternions(scale * quats), yaws, atol=1e-12)
 
 
 def _output(scene: str, frame_id: int, n: int, rng: np.random.Generator) -> TrackOutput:
@@ -368,6 +378,14 @@ def test_bad_inputs_name_the_table_or_token(
         convert_nuscenes(
             dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
         )
+    # a zero quaternion has no heading
+    boxes = [dict(b) for b in results["results"][token]]
+    boxes[1]["rotation"] = [0.0, 0.0, 0.0, 0.0]
+    path.write_text(json.dumps(dict(results, results={**results["results"], token: boxes})))
+    with pytest.raises(InputError, match=r"\[1\]: field 'rotation' is the zero quaternion"):
+        convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
+        )
 
 
 def _track_and_evaluate(
@@ -409,3 +427,88 @@ def test_official_evaluation_clean_vs_noisy(
     assert 0.5 <= noisy["overall"]["amota"] <= clean["overall"]["amota"] - 0.02
     assert noisy["overall"]["recall"] < 1.0
     assert (tmp_path / "clean" / "metrics_summary.json").is_file()
+
+
+def _edited_dataset(
+    dataset: SyntheticNuScenes, root: Path, edit: Callable[[dict[str, list[Any]]], None]
+) -> Path:
+    """A copy of the synthetic dataset (tables and maps) with ``edit`` applied to its tables."""
+    shutil.copytree(dataset.dataroot / "maps", root / "maps")
+    tables = {
+        p.stem: json.loads(p.read_text())
+        for p in (dataset.dataroot / dataset.version).glob("*.json")
+    }
+    edit(tables)
+    (root / dataset.version).mkdir()
+    for name, rows in tables.items():
+        (root / dataset.version / f"{name}.json").write_text(json.dumps(rows))
+    return root
+
+
+def _set_sample(tables: dict[str, list[Any]], token: str, **fields: Any) -> None:
+    next(s for s in tables["sample"] if s["token"] == token).update(fields)
+
+
+@needs_devkit
+def test_a_sample_chain_that_loops_or_leaves_its_scene_is_named(
+    dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
+) -> None:
+    """Following 'next' from a scene's first sample: a loop (was an endless loop) or a step into
+    another scene (its samples were tracked as this scene's) is an error naming the sample."""
+    val, other = dataset.samples["scene-0103"], dataset.samples["scene-0061"]
+    cases = {  # the loop last: without the check it never ends
+        "leaves": (
+            lambda t: _set_sample(t, val[-1], next=other[0]),
+            "of another scene",
+            other[0],
+        ),
+        "loop": (lambda t: _set_sample(t, val[5], next=val[2]), "reached again", val[2]),
+    }
+    for name, (edit, match, named) in cases.items():
+        root = _edited_dataset(dataset, tmp_path / name, edit)
+        with pytest.raises(InputError, match=match) as err:
+            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+        assert f"sample.json: sample '{named}'" in str(err.value)
+
+
+@needs_devkit
+def test_sample_timestamps_out_of_order_are_named_at_conversion(
+    dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
+) -> None:
+    """A scene's sample timestamp repeated or going back: one error naming the sample (was
+    converted; then the tracker refused the scene, or `mctrack track` the converted file)."""
+    val = dataset.samples["scene-0103"]
+    table = json.loads((dataset.dataroot / dataset.version / "sample.json").read_text())
+    t4 = next(s["timestamp"] for s in table if s["token"] == val[4])
+    for name, timestamp in (("repeated", t4), ("backwards", t4 - 1)):
+        root = _edited_dataset(
+            dataset, tmp_path / name, lambda t, ts=timestamp: _set_sample(t, val[5], timestamp=ts)
+        )
+        with pytest.raises(InputError, match=rf"'{val[5]}': field 'timestamp' = {timestamp} "):
+            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+
+
+@needs_devkit
+def test_a_pose_without_a_rotation_is_named(
+    dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
+) -> None:
+    """A zero or short quaternion in ego_pose / calibrated_sensor: one error naming the table,
+    the record and the field (a zero one made NaN matrices: 'unexpected error' at writing)."""
+    pose, sensor = {}, {}
+
+    def zero_pose(tables: dict[str, list[Any]]) -> None:
+        pose.update(tables["ego_pose"][0])
+        tables["ego_pose"][0]["rotation"] = [0.0, 0.0, 0.0, 0.0]
+
+    def short_rotation(tables: dict[str, list[Any]]) -> None:
+        sensor.update(tables["calibrated_sensor"][-1])
+        tables["calibrated_sensor"][-1]["rotation"] = [1.0, 0.0, 0.0]
+
+    for edit, table, record, field in (
+        (zero_pose, "ego_pose", pose, "'rotation' is the zero quaternion"),
+        (short_rotation, "calibrated_sensor", sensor, "'rotation' must be 4 finite numbers"),
+    ):
+        root = _edited_dataset(dataset, tmp_path / table, edit)
+        with pytest.raises(InputError) as err:
+            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+        assert f"{table}.json: {table} '{record['token']}': field {field}" in str(err.value)

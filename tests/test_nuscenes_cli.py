@@ -113,3 +113,37 @@ def test_nuscenes_with_workers_gives_the_sequential_files(
         runs[workers] = (files, motion, summary["boxes_written"])
     assert runs["2"] == runs["1"]
     assert list(json.loads(runs["2"][0]["tracks.json"])) == ["scene-0103", "scene-0916"]
+
+
+def test_nuscenes_run_into_an_earlier_run_replaces_it(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path
+) -> None:
+    """A second run into the same --out leaves only its own outputs: an earlier run's metrics
+    and motion metrics went with it (they stayed beside a --no-eval run's submission); a run
+    refused on its inputs keeps the earlier one, and files of other names stay."""
+    out = tmp_path / "run"
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--out", str(out)]
+    assert main([*argv, "--motion"]) == 0
+    (out / "notes.txt").write_text("mine")
+    earlier = ("eval/metrics_summary.json", "gt.json", "motion.md", "motion_velocity.png")
+    assert all((out / name).is_file() for name in earlier)
+    assert main([*argv, "--no-eval", "--scenes", "scene-9999"]) == 2  # refused
+    assert all((out / name).is_file() for name in earlier)
+    assert main([*argv, "--no-eval"]) == 0
+    assert not any((out / name).exists() for name in earlier)
+    assert (out / "results.json").is_file() and (out / "notes.txt").read_text() == "mine"
+
+
+def test_eval_names_a_file_that_is_not_a_tracking_submission(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """mctrack eval --dataset nuscenes of a detection results file (no tracking_id) or of a
+    truncated submission: one line naming the file (was 'unexpected error: KeyError', or
+    'malformed JSON' without the file)."""
+    truncated = tmp_path / "results.json"
+    truncated.write_text(noisy.read_text()[:3000])
+    common = [*_common(dataset), "--dataset", "nuscenes", "--out", str(tmp_path / "e")]
+    for path, said in ((noisy, "a box has no field 'tracking_id'"), (truncated, "malformed JSON")):
+        assert main(["eval", str(path), *common]) == 2
+        err = capsys.readouterr().err
+        assert f"error: {path}: {said}" in err and "unexpected" not in err

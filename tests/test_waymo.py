@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import sys
 import zipfile
 from pathlib import Path
@@ -282,6 +283,8 @@ def test_flat_layout_is_checked(segment: Path) -> None:
         "short types": ({**good, "types": good["types"][:3]}, "'types'"),
         "strings as boxes": ({**good, "bboxes": good["bboxes"].astype(str)}, "'bboxes'"),
         "NaN box": ({**good, "bboxes": np.where(good["bboxes"] > 1e9, 0, np.nan)}, "finite"),
+        "negative size": ({**good, "bboxes": good["bboxes"] * [1, 1, 1, 1, 1, -1, 1, 1]},
+                          r"bboxes row 0: l, w, h = .* < 0"),
         "per-frame (F, K, 8) boxes": (
             {"bboxes": good["bboxes"][:68].reshape(17, 4, 8), "types": good["types"]},
             "per-frame arrays",
@@ -292,6 +295,70 @@ def test_flat_layout_is_checked(segment: Path) -> None:
         with pytest.raises(InputError, match=match) as err:
             convert_waymo(segment, segment / "dets")
         assert str(path) in str(err.value), name
+
+
+def test_ego_info_poses_and_cameras_are_checked(segment: Path, tmp_path: Path) -> None:
+    """A singular or non-rigid ego pose or camera extrinsic, or a camera without a focal length:
+    one InputError naming the file and the array entry. A singular one ended mctrack waymo in
+    'unexpected error: LinAlgError' (every segment lost); a scaled or transposed one, or a zero
+    focal length, gave wrong positions or camera boxes without a word."""
+    path = segment / "ego_info" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))
+    scaled, transposed, zero = (good["ego2global"].copy() for _ in range(3))
+    scaled[4, :3, :3] *= 2.0
+    transposed[4] = transposed[4].T
+    zero[4] = 0.0
+    extrinsics, intrinsics = good["cam_extrinsics"].copy(), good["cam_intrinsics"].copy()
+    extrinsics[2, 1] = 0.0
+    intrinsics[2, 1, :2] = 0.0
+    cases = {
+        "scaled": ({"ego2global": scaled}, r"ego2global\[4\] is not a rigid transform"),
+        "transposed": ({"ego2global": transposed}, r"ego2global\[4\] is not a rigid"),
+        "singular": ({"ego2global": zero}, r"ego2global\[4\] is not a rigid"),
+        "singular camera": (
+            {"cam_extrinsics": extrinsics},
+            r"cam_extrinsics\[2, 1\] \(CAM_FRONT_LEFT\) is not a rigid",
+        ),
+        "no focal length": (
+            {"cam_intrinsics": intrinsics},
+            r"cam_intrinsics\[2, 1\] \(CAM_FRONT_LEFT\): focal lengths",
+        ),
+    }
+    for name, (arrays, match) in cases.items():
+        np.savez_compressed(path, **{**good, **arrays})
+        with pytest.raises(InputError, match=match) as err:
+            convert_waymo(segment, segment / "dets")
+        assert str(path) in str(err.value), name
+    # mctrack waymo: the segment fails alone, with that line (not an unexpected error)
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--out", str(tmp_path / "run")]) == 2
+
+
+def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Path) -> None:
+    """An object twice in one frame, or a NaN velocity, in the ground truth: one error naming
+    the file and the row (mctrack waymo --motion ended in an unexpected error, after tracking:
+    'GT track 0 has two samples', or NaN in gt.json)."""
+    path = segment / "gt" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))
+    ids, velos = good["ids"].copy(), good["velos"].copy()
+    frame0 = np.flatnonzero(good["frame_index"] == 0)
+    ids[frame0[1]] = ids[frame0[0]]
+    velos[3] = np.nan
+    cases = {
+        "object twice in a frame": (
+            {"ids": ids},
+            rf"ids row {frame0[1]}: object '{ids[0]}' is in frame 0 twice",
+        ),
+        "NaN velocity": ({"velos": velos}, r"velos row 3: must be finite"),
+    }
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    for name, (arrays, match) in cases.items():
+        np.savez_compressed(path, **{**good, **arrays})
+        with pytest.raises(InputError, match=match) as err:
+            convert_waymo(segment, segment / "dets", gt=segment / "gt")
+        assert str(path) in str(err.value), name
+        run = ["--gt", str(segment / "gt"), "--motion", "--out", str(tmp_path / "run")]
+        assert main([*argv, *run]) == 2, name
 
 
 def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
@@ -332,3 +399,25 @@ def test_waymo_cli_records_like_kitti_and_nuscenes(segment: Path, tmp_path: Path
     assert json.loads((run / "summary.json").read_text())["recordings"] == [str(rrd)]
     found = {c.entity_path for c in RrdReader(str(rrd)).stream().to_chunks()}
     assert paths.entity(paths.TRACKS_UPDATED) in found and paths.entity(paths.GT) in found
+
+
+def test_waymo_run_into_an_earlier_run_replaces_it(segment: Path, tmp_path: Path) -> None:
+    """A second run into the same --out leaves only its own outputs (pred_bin.py reads every
+    file of results/: a segment left out kept its old results beside the new ones); a run
+    refused on its inputs keeps the earlier one, and files of other names stay."""
+    for sub, ext in (("ts_info", "json"), ("ego_info", "npz"), ("dets", "npz"), ("gt", "npz")):
+        shutil.copy(segment / sub / f"{SEGMENT}.{ext}", segment / sub / f"other.{ext}")
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--motion", "--out", str(run)]) == 0
+    (run / "notes.txt").write_text("mine")
+    first = sorted(p.relative_to(run).as_posix() for p in run.rglob("*.npz"))
+    assert f"results/vehicle/{SEGMENT}.npz" in first and "results/vehicle/other.npz" in first
+    assert main([*argv, "--segments", "../other", "--out", str(run)]) == 2  # refused
+    assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*.npz")) == first
+    assert main([*argv, "--segments", "other", "--out", str(run)]) == 0
+    assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*.npz")) == [
+        f"results/{kind}/other.npz" for kind in ("cyclist", "pedestrian", "vehicle")
+    ]
+    assert not (run / "gt.json").exists() and (run / "notes.txt").read_text() == "mine"
+    assert json.loads((run / "summary.json").read_text())["segments"] == ["other"]

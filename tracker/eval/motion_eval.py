@@ -453,8 +453,10 @@ def _baseline_velocities(
         rows = np.flatnonzero(det_row >= 0)
         rows = rows[np.lexsort((times_secs[rows], track_id[rows]))]
         ids = track_id[rows]
+        # no row (a scene without a detection-backed output): no start, and no end either
         starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]) if rows.size else rows
-        for start, stop in zip(starts, np.r_[starts[1:], rows.size], strict=True):
+        stops = np.r_[starts[1:], rows.size] if rows.size else rows
+        for start, stop in zip(starts, stops, strict=True):
             seg = rows[start:stop]
             t, xy = times_secs[seg], det_boxes.xyz[seg, :2]
             diff[seg] = velocity_differencing(t, xy)

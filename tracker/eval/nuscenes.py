@@ -42,6 +42,12 @@ METRICS: Final[tuple[str, ...]] = (
     "lgd",
 )
 
+#: The fields of a tracking submission's box (devkit ``TrackingBox.deserialize``).
+SUBMISSION_BOX_FIELDS: Final = frozenset(
+    ("sample_token", "translation", "size", "rotation", "velocity", "tracking_id",
+     "tracking_name", "tracking_score")
+)  # fmt: skip
+
 
 def evaluate_nuscenes(
     results_path: str | Path,
@@ -97,6 +103,15 @@ def evaluate_nuscenes(
             metrics, _ = evaluation.evaluate()
         except AssertionError as exc:
             raise InputError(f"{results_path}: nuScenes TrackingEval: {exc}") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise InputError(f"{results_path}: malformed JSON ({exc})") from None
+        except KeyError as exc:  # the devkit's loader reads each box's fields by name
+            if exc.args and exc.args[0] in SUBMISSION_BOX_FIELDS:
+                raise InputError(
+                    f"{results_path}: a box has no field {exc.args[0]!r}: not a tracking "
+                    "submission (a detection results file is tracked first: mctrack nuscenes)"
+                ) from None
+            raise
     serialized = metrics.serialize()
     label = serialized["label_metrics"]
     result: dict[str, Any] = {

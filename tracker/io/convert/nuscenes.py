@@ -226,8 +226,18 @@ def pose_matrix(translation: Sequence[float], rotation_wxyz: Sequence[float]) ->
 
 
 def yaw_from_quaternions(q_wxyz: FloatArray) -> FloatArray:
-    """(N,) heading about +z of (N, 4) quaternions [w, x, y, z], as the reference converter."""
+    """(N,) heading about +z of (N, 4) quaternions [w, x, y, z], as the reference converter.
+
+    The formula holds for unit quaternions only (a norm of 2 turns 90° into 127°); others are
+    normalised first, as the devkit's evaluation does. Unit ones (to 1e-6: float32 rounding)
+    are used as given, so their headings stay bit for bit those of the reference.
+    """
     q = np.asarray(q_wxyz, dtype=np.float64).reshape(-1, 4)
+    norm = np.linalg.norm(q, axis=1)
+    off = np.abs(norm - 1.0) > 1e-6
+    if off.any():
+        q = q.copy()
+        q[off] /= norm[off, None]
     w, x, y, z = q.T
     return wrap_angle(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
@@ -320,6 +330,8 @@ def _detection_boxes(
                 raise InputError(f"{at}: field '{key}' must be {size} finite numbers")
         if (np.asarray(box["size"]) < 0).any():
             raise InputError(f"{at}: field 'size' has a negative value {box['size']}")
+        if not np.linalg.norm(box["rotation"]) > 0:
+            raise InputError(f"{at}: field 'rotation' is the zero quaternion (no heading)")
         keep.append(box)
     if not keep:
         return Boxes.empty()
@@ -362,6 +374,22 @@ class _SampleGeometry:
     transform_matrix: dict[str, Any]
 
 
+def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
+    """``pose_matrix`` of an ego_pose or calibrated_sensor record, its fields checked: a zero
+    or non-finite quaternion has no rotation (it made NaN matrices, found much later)."""
+    where = f"{Path(nusc.dataroot) / nusc.version / f'{table}.json'}: {table} {record['token']!r}"
+    values = {}
+    for key, size in (("translation", 3), ("rotation", 4)):
+        value = record.get(key)
+        array = np.asarray(value, dtype=np.float64) if _numeric(value) else None
+        if array is None or array.shape != (size,) or not np.isfinite(array).all():
+            raise InputError(f"{where}: field '{key}' must be {size} finite numbers, got {value!r}")
+        values[key] = array
+    if not np.linalg.norm(values["rotation"]) > 0:
+        raise InputError(f"{where}: field 'rotation' is the zero quaternion (no rotation)")
+    return pose_matrix(values["translation"], values["rotation"])
+
+
 def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
     """Ego pose (LIDAR_TOP keyframe), the six camera models and the official transform object."""
     data = sample["data"]
@@ -370,8 +398,8 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
     lidar_sd = nusc.get("sample_data", data[LIDAR_CHANNEL])
     ego = nusc.get("ego_pose", lidar_sd["ego_pose_token"])
     lidar_cs = nusc.get("calibrated_sensor", lidar_sd["calibrated_sensor_token"])
-    world_from_ego = pose_matrix(ego["translation"], ego["rotation"])
-    ego_from_lidar = pose_matrix(lidar_cs["translation"], lidar_cs["rotation"])
+    world_from_ego = _record_pose(nusc, "ego_pose", ego)
+    ego_from_lidar = _record_pose(nusc, "calibrated_sensor", lidar_cs)
     world_from_lidar = world_from_ego @ ego_from_lidar
     cameras: list[Camera] = []
     camera_records: dict[str, Any] = {}
@@ -386,10 +414,8 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
             raise InputError(
                 f"calibrated_sensor {cs['token']!r} ({name}): camera_intrinsic must be 3x3"
             )
-        ego_from_camera = pose_matrix(cs["translation"], cs["rotation"])
-        world_from_camera = pose_matrix(cam_ego["translation"], cam_ego["rotation"]) @ (
-            ego_from_camera
-        )
+        ego_from_camera = _record_pose(nusc, "calibrated_sensor", cs)
+        world_from_camera = _record_pose(nusc, "ego_pose", cam_ego) @ ego_from_camera
         camera_from_world = np.linalg.inv(world_from_camera)
         image_from_camera = np.zeros((3, 4))
         image_from_camera[:, :3] = intrinsic
@@ -418,10 +444,35 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
 
 
 def _scene_samples(nusc: Any, scene: dict[str, Any]) -> list[dict[str, Any]]:
-    samples = []
+    """The scene's samples, following ``next`` from its first sample. A chain that loops back
+    (would never end) or runs into another scene's samples (they would be tracked as this
+    scene's) is an error naming the sample and the field that leads there, as is a timestamp
+    not after the previous sample's."""
+    samples: list[dict[str, Any]] = []
+    seen: set[str] = set()
     token = scene["first_sample_token"]
     while token:
         sample = nusc.get("sample", token)
+        via = (
+            f"field 'next' of sample {samples[-1]['token']!r}"
+            if samples
+            else f"field 'first_sample_token' of scene {scene['name']!r}"
+        )
+        where = f"{Path(nusc.dataroot) / nusc.version / 'sample.json'}: sample {token!r}"
+        if token in seen:
+            raise InputError(f"{where}: reached again through {via} (the samples form a loop)")
+        if sample["scene_token"] != scene["token"]:
+            raise InputError(
+                f"{where}: of another scene (field 'scene_token'), reached through {via} of "
+                f"scene {scene['name']!r}"
+            )
+        if samples and not sample["timestamp"] > samples[-1]["timestamp"]:
+            # the tracker needs time order (a converted file with it would be refused later)
+            raise InputError(
+                f"{where}: field 'timestamp' = {sample['timestamp']} is not after the previous "
+                f"sample's ({samples[-1]['timestamp']}) in scene {scene['name']!r}"
+            )
+        seen.add(token)
         samples.append(sample)
         token = sample["next"]
     return samples

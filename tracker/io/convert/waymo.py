@@ -155,6 +155,12 @@ def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
                 extrinsic, intrinsic = extrinsics[i, k], intrinsics[i, k]
                 if not (np.isfinite(extrinsic).all() and np.isfinite(intrinsic[:4]).all()):
                     continue  # NaN: this frame has no such camera
+                _check_rigid(extrinsic, path, f"cam_extrinsics[{i}, {k}] ({name})")
+                if not (intrinsic[:2] > 0).all():
+                    raise InputError(
+                        f"{path}: cam_intrinsics[{i}, {k}] ({name}): focal lengths f_u, f_v "
+                        f"must be positive, got {intrinsic[:2].tolist()}"
+                    )
                 cam = camera_model(name, extrinsic, intrinsic, world_from_ego)
                 cameras.append(cam)
                 camera2image = np.eye(4)
@@ -212,7 +218,24 @@ def _matrix4(value: Any, path: Path, what: str) -> FloatArray:
         raise InputError(f"{path}: {what} is not a 4x4 matrix") from None
     if not np.isfinite(m).all():
         raise InputError(f"{path}: {what} contains NaN or inf")
+    _check_rigid(m, path, what)
     return m
+
+
+def _check_rigid(m: FloatArray, path: Path, what: str) -> None:
+    """A pose must be a rotation and a translation, last row [0, 0, 0, 1]: a singular matrix
+    cannot be inverted, a scaled or transposed one (a row-major / column-major mix-up) would
+    put every box in the wrong place without a word."""
+    rotation = m[:3, :3]
+    if not (
+        np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6)
+        and np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-3)
+        and np.linalg.det(rotation) > 0
+    ):
+        raise InputError(
+            f"{path}: {what} is not a rigid transform (a rotation and a translation, last row "
+            "[0, 0, 0, 1])"
+        )
 
 
 def boxes_ego_to_world(
@@ -259,6 +282,10 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
     bad = np.flatnonzero(~np.isfinite(bboxes).all(axis=1))
     if len(bad):
         raise InputError(f"{path}: bboxes row {bad[0]}: must be finite [x,y,z,o,l,w,h(,score)]")
+    negative = np.flatnonzero((bboxes[:, 4:7] < 0).any(axis=1))
+    if len(negative):  # as the nuScenes converter: a size is never negative
+        k = negative[0]
+        raise InputError(f"{path}: bboxes row {k}: l, w, h = {bboxes[k, 4:7].tolist()} < 0")
 
     def column(key: str, kinds: str) -> np.ndarray:
         arr = npz[key]
@@ -281,12 +308,24 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
     bounds = np.searchsorted(frame_index[order], np.arange(n_frames + 1))
     ids = velos = None
     if gt:
-        ids = column("ids", "iuU").astype(str)[order]
+        ids = column("ids", "iuU").astype(str)
+        first_row: dict[tuple[int, str], int] = {}
+        for k, key in enumerate(zip(frame_index.tolist(), ids.tolist(), strict=True)):
+            if first_row.setdefault(key, k) != k:  # one object, two boxes: no single truth
+                raise InputError(
+                    f"{path}: ids row {k}: object {key[1]!r} is in frame {key[0]} twice "
+                    f"(rows {first_row[key]} and {k})"
+                )
+        ids = ids[order]
         if "velos" in npz.files:
             velos = npz["velos"]
             if velos.dtype.kind not in "fiu" or velos.shape != (n, 2):
                 raise InputError(f"{path}: 'velos' must be numbers of shape ({n}, 2)")
-            velos = velos.astype(np.float64)[order]
+            velos = velos.astype(np.float64)
+            bad = np.flatnonzero(~np.isfinite(velos).all(axis=1))
+            if len(bad):
+                raise InputError(f"{path}: velos row {bad[0]}: must be finite [vx, vy]")
+            velos = velos[order]
     return _BoxTable(bboxes[order], types[order], bounds, ids, velos)
 
 
