@@ -512,3 +512,23 @@ def test_a_pose_without_a_rotation_is_named(
         with pytest.raises(InputError) as err:
             convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
         assert f"{table}.json: {table} '{record['token']}': field {field}" in str(err.value)
+
+
+@needs_devkit
+def test_a_sample_without_lidar_top_names_the_sample_data_table(
+    dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
+) -> None:
+    """The ego pose comes from the sample's key-frame LIDAR_TOP record in sample_data.json: the
+    error names that table (it named the sample only)."""
+    sample = dataset.samples["scene-0103"][3]
+
+    def drop_lidar(tables: dict[str, list[Any]]) -> None:
+        for record in tables["sample_data"]:
+            if record["sample_token"] == sample and "/LIDAR_TOP/" in record["filename"]:
+                record["is_key_frame"] = False
+
+    root = _edited_dataset(dataset, tmp_path / "no_lidar", drop_lidar)
+    with pytest.raises(InputError) as err:
+        convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+    table = root / dataset.version / "sample_data.json"
+    assert str(err.value).startswith(f"{table}: no key-frame LIDAR_TOP record of sample '{sample}'")

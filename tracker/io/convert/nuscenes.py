@@ -393,8 +393,12 @@ def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
 def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
     """Ego pose (LIDAR_TOP keyframe), the six camera models and the official transform object."""
     data = sample["data"]
-    if LIDAR_CHANNEL not in data:
-        raise InputError(f"sample {sample['token']!r}: no {LIDAR_CHANNEL} sample_data")
+    if LIDAR_CHANNEL not in data:  # the devkit fills 'data' from sample_data's key frames
+        table = Path(nusc.dataroot) / nusc.version / "sample_data.json"
+        raise InputError(
+            f"{table}: no key-frame {LIDAR_CHANNEL} record of sample {sample['token']!r} "
+            "(field 'sample_token', 'is_key_frame')"
+        )
     lidar_sd = nusc.get("sample_data", data[LIDAR_CHANNEL])
     ego = nusc.get("ego_pose", lidar_sd["ego_pose_token"])
     lidar_cs = nusc.get("calibrated_sensor", lidar_sd["calibrated_sensor_token"])
