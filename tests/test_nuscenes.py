@@ -532,3 +532,47 @@ def test_a_sample_without_lidar_top_names_the_sample_data_table(
         convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
     table = root / dataset.version / "sample_data.json"
     assert str(err.value).startswith(f"{table}: no key-frame LIDAR_TOP record of sample '{sample}'")
+
+
+@needs_devkit
+def test_detection_meta_flags_are_booleans(
+    dataset: SyntheticNuScenes,
+    nusc: Any,
+    clean_path: Path,
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The modality flags go into the submission: a string "false" was copied as true, a meta
+    that is not an object became the defaults silently; a missing meta says which defaults."""
+    results = json.loads(clean_path.read_text())
+    path = tmp_path / "meta.json"
+
+    def convert(meta: Any) -> Any:
+        data = {"results": results["results"]} if meta is None else {**results, "meta": meta}
+        path.write_text(json.dumps(data))
+        return convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
+        )
+
+    for meta, said in (
+        ({**results["meta"], "use_camera": "false"}, "field 'meta.use_camera' must be true or "
+         "false, got 'false'"),
+        ({**results["meta"], "use_lidar": 1}, "field 'meta.use_lidar' must be true or false"),
+        ([True], "field 'meta' must be an object of flags"),
+    ):  # fmt: skip
+        with pytest.raises(InputError) as err:
+            convert(meta)
+        assert str(err.value).startswith(f"{path}: {said}")
+    with caplog.at_level("INFO"):
+        conv = convert(None)
+    assert f"{path}: no 'meta': the submission gets the defaults" in caplog.text
+    written = tmp_path / "results.json"
+    write_nuscenes_results(written, {}, meta=conv.meta)
+    assert json.loads(written.read_text())["meta"] == {
+        "use_camera": False, "use_lidar": True, "use_radar": False, "use_map": False,
+        "use_external": False,
+    }  # fmt: skip
+    caplog.clear()
+    with caplog.at_level("INFO"):
+        assert convert({"use_camera": True}).meta == {"use_camera": True}
+    assert "'meta' has no use_lidar, use_radar, use_map, use_external" in caplog.text

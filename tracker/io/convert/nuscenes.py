@@ -52,6 +52,7 @@ from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
+from tracker.io.nuscenes_writer import DEFAULT_META
 
 log = logging.getLogger(__name__)
 
@@ -288,11 +289,33 @@ def read_detection_results(path: str | Path) -> tuple[dict[str, list[Any]], dict
             f"{path}: not a nuScenes results file (expected {{'results': {{sample_token: "
             "[box, ...]}, 'meta': {...}}})"
         )
-    meta = data.get("meta") if isinstance(data.get("meta"), dict) else {}
+    meta = _read_meta(data, path)
     for token, boxes in data["results"].items():
         if not isinstance(boxes, list):
             raise InputError(f"{path}: results[{token!r}] must be a list of boxes")
-    return data["results"], dict(meta)
+    return data["results"], meta
+
+
+def _read_meta(data: dict[str, Any], path: Path) -> dict[str, Any]:
+    """The file's ``meta`` (its modality flags go into the tracking submission). A flag must be
+    a JSON boolean: ``"false"`` was written as true. A missing ``meta`` or flag gets the
+    LiDAR-only default, said in a log line."""
+    if "meta" not in data:
+        log.info("%s: no 'meta': the submission gets the defaults %s", path, DEFAULT_META)
+        return {}
+    meta = data["meta"]
+    if not isinstance(meta, dict):
+        raise InputError(
+            f"{path}: field 'meta' must be an object of flags ({', '.join(DEFAULT_META)}), "
+            f"got {type(meta).__name__}"
+        )
+    for key in DEFAULT_META:
+        if key in meta and not isinstance(meta[key], bool):
+            raise InputError(f"{path}: field 'meta.{key}' must be true or false, got {meta[key]!r}")
+    missing = {k: v for k, v in DEFAULT_META.items() if k not in meta}
+    if missing:
+        log.info("%s: 'meta' has no %s: the submission gets %s", path, ", ".join(missing), missing)
+    return dict(meta)
 
 
 def _detection_boxes(
