@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -378,6 +379,21 @@ def test_bad_inputs_name_the_table_or_token(
         convert_nuscenes(
             dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
         )
+    # a box without a length, width or height (BaseVersion's rule: a flat box is allowed)
+    for size, said in (([1.8, 0.0, 1.5], "[1.8, 0.0, 1.5]: width and length must be > 0"),
+                       ([1.8, 4.0, -1.0], "[1.8, 4.0, -1.0]: width and length must be > 0, "
+                                          "height >= 0")):  # fmt: skip
+        boxes = [dict(b) for b in results["results"][token]]
+        boxes[3]["size"] = size
+        path.write_text(json.dumps(dict(results, results={**results["results"], token: boxes})))
+        with pytest.raises(InputError, match=re.escape(f"[3]: field 'size' = {said}")):
+            convert_nuscenes(
+                dataset.dataroot,
+                version=dataset.version,
+                detections=path,
+                split="mini_val",
+                nusc=nusc,
+            )
     # a zero quaternion has no heading
     boxes = [dict(b) for b in results["results"][token]]
     boxes[1]["rotation"] = [0.0, 0.0, 0.0, 0.0]

@@ -284,7 +284,9 @@ def test_flat_layout_is_checked(segment: Path) -> None:
         "strings as boxes": ({**good, "bboxes": good["bboxes"].astype(str)}, "'bboxes'"),
         "NaN box": ({**good, "bboxes": np.where(good["bboxes"] > 1e9, 0, np.nan)}, "finite"),
         "negative size": ({**good, "bboxes": good["bboxes"] * [1, 1, 1, 1, 1, -1, 1, 1]},
-                          r"bboxes row 0: l, w, h = .* < 0"),
+                          r"bboxes row 0: l, w, h = .*: length and width must be > 0"),
+        "zero length": ({**good, "bboxes": good["bboxes"] * [1, 1, 1, 1, 0, 1, 1, 1]},
+                        r"bboxes row 0: l, w, h = \[0\.0, .*: length and width must be > 0"),
         "per-frame (F, K, 8) boxes": (
             {"bboxes": good["bboxes"][:68].reshape(17, 4, 8), "types": good["types"]},
             "per-frame arrays",

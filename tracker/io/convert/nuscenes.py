@@ -351,8 +351,11 @@ def _detection_boxes(
             value = np.asarray(box[key], dtype=np.float64) if _numeric(box[key]) else None
             if value is None or value.shape != (size,) or not np.isfinite(value).all():
                 raise InputError(f"{at}: field '{key}' must be {size} finite numbers")
-        if (np.asarray(box["size"]) < 0).any():
-            raise InputError(f"{at}: field 'size' has a negative value {box['size']}")
+        width, length, height = box["size"]
+        if not (width > 0 and length > 0 and height >= 0):  # as a BaseVersion box's lwh
+            raise InputError(
+                f"{at}: field 'size' = {box['size']}: width and length must be > 0, height >= 0"
+            )
         if not np.linalg.norm(box["rotation"]) > 0:
             raise InputError(f"{at}: field 'rotation' is the zero quaternion (no heading)")
         keep.append(box)

@@ -282,10 +282,14 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
     bad = np.flatnonzero(~np.isfinite(bboxes).all(axis=1))
     if len(bad):
         raise InputError(f"{path}: bboxes row {bad[0]}: must be finite [x,y,z,o,l,w,h(,score)]")
-    negative = np.flatnonzero((bboxes[:, 4:7] < 0).any(axis=1))
-    if len(negative):  # as the nuScenes converter: a size is never negative
-        k = negative[0]
-        raise InputError(f"{path}: bboxes row {k}: l, w, h = {bboxes[k, 4:7].tolist()} < 0")
+    # as a BaseVersion box's lwh (a flat box has a height of 0, never a length or width of 0)
+    bad = np.flatnonzero((bboxes[:, 4:6] <= 0).any(axis=1) | (bboxes[:, 6] < 0))
+    if len(bad):
+        k = bad[0]
+        raise InputError(
+            f"{path}: bboxes row {k}: l, w, h = {bboxes[k, 4:7].tolist()}: length and width "
+            "must be > 0, height >= 0"
+        )
 
     def column(key: str, kinds: str) -> np.ndarray:
         arr = npz[key]
