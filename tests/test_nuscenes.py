@@ -592,3 +592,48 @@ def test_detection_meta_flags_are_booleans(
     with caplog.at_level("INFO"):
         assert convert({"use_camera": True}).meta == {"use_camera": True}
     assert "'meta' has no use_lidar, use_radar, use_map, use_external" in caplog.text
+
+
+@needs_devkit
+def test_detection_fields_are_read_strictly(
+    dataset: SyntheticNuScenes,
+    nusc: Any,
+    clean_path: Path,
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A boolean score (was 1.0), a detection_name that is not a string (was counted as a
+    skipped class), a velocity of three values (the first two were used; the format and the
+    devkit say two) or an infinite one (was 0, unsaid): one error naming the box and field. A
+    NaN velocity (the devkit's "no estimate") is still read as 0, now counted and logged."""
+    results = json.loads(clean_path.read_text())
+    token = dataset.samples["scene-0916"][2]
+    path = tmp_path / "fields.json"
+
+    def convert(**fields: Any) -> Any:
+        boxes = [dict(b) for b in results["results"][token]]
+        boxes[1].update(fields)
+        path.write_text(json.dumps(dict(results, results={**results["results"], token: boxes})))
+        return convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
+        )
+
+    at = f"{path}: results['{token}'][1]: field"
+    for fields, said in (
+        ({"detection_score": True}, "'detection_score' must be a number, got True"),
+        ({"detection_name": 7}, "'detection_name' must be a string, got 7"),
+        ({"detection_name": None}, "'detection_name' must be a string, got None"),
+        ({"velocity": [1.0, 2.0, 0.5]}, "'velocity' must be [vx, vy], got [1.0, 2.0, 0.5]"),
+        ({"velocity": [math.inf, 0.0]}, "'velocity' = [inf, 0.0] is infinite"),
+    ):
+        with pytest.raises(InputError) as err:
+            convert(**fields)
+        assert str(err.value) == f"{at} {said}", fields
+    with caplog.at_level("WARNING"):
+        conv = convert(velocity=[math.nan, 1.5])
+    assert conv.velocity_unknown == 1
+    assert f"{path}: 1 detections with a NaN velocity (no estimate)" in caplog.text
+    assert convert_nuscenes(
+        dataset.dataroot, version=dataset.version, detections=clean_path, split="mini_val",
+        nusc=nusc,
+    ).velocity_unknown == 0  # fmt: skip

@@ -140,6 +140,7 @@ class NuScenesConversion:
     meta: dict[str, Any]  # the detection file's "meta" (copied into the tracking submission)
     skipped_detections: Counter[str] = field(default_factory=Counter)  # per detection_name
     gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (written as 0)
+    velocity_unknown: int = 0  # detections whose velocity had a NaN (written as 0)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -320,9 +321,12 @@ def _read_meta(data: dict[str, Any], path: Path) -> dict[str, Any]:
 
 def _detection_boxes(
     raw: list[Any], token: str, path: Path, score_min: float, skipped: Counter[str]
-) -> Boxes:
-    """Boxes of one sample's detections (tracking classes only), validated."""
+) -> tuple[Boxes, int]:
+    """Boxes of one sample's detections (tracking classes only), validated, and how many of
+    them have a NaN velocity (no estimate: read as 0)."""
     keep: list[dict[str, Any]] = []
+    velocities: list[tuple[float, float]] = []
+    no_velocity = 0
     for i, box in enumerate(raw):
         at = f"{path}: results[{token!r}][{i}]"
         if not isinstance(box, dict):
@@ -336,13 +340,15 @@ def _detection_boxes(
                 f"{at}: field 'sample_token' = {token_in_box!r} differs from its results key"
             )
         name = box["detection_name"]
+        if not isinstance(name, str):
+            raise InputError(f"{at}: field 'detection_name' must be a string, got {name!r}")
         if name not in TRACKING_NAMES:
-            skipped[str(name)] += 1
+            skipped[name] += 1
             continue
-        try:
-            score = float(box["detection_score"])
-        except (TypeError, ValueError):
-            raise InputError(f"{at}: field 'detection_score' must be a number") from None
+        score = box["detection_score"]
+        if not isinstance(score, int | float) or isinstance(score, bool):  # true is not 1.0
+            raise InputError(f"{at}: field 'detection_score' must be a number, got {score!r}")
+        score = float(score)
         if not 0.0 <= score <= 1.0:
             raise InputError(f"{at}: field 'detection_score' = {score} is outside [0, 1]")
         if score < score_min:
@@ -358,19 +364,21 @@ def _detection_boxes(
             )
         if not np.linalg.norm(box["rotation"]) > 0:
             raise InputError(f"{at}: field 'rotation' is the zero quaternion (no heading)")
+        velocity, known = _velocity(box.get("velocity"), at)
+        no_velocity += not known
+        velocities.append(velocity)
         keep.append(box)
     if not keep:
-        return Boxes.empty()
-    velocity = np.array([_velocity(b.get("velocity"), f"{path}: results[{token!r}]") for b in keep])
+        return Boxes.empty(), 0
     size = np.array([b["size"] for b in keep], dtype=np.float64)
     return Boxes.create(
         xyz=np.array([b["translation"] for b in keep], dtype=np.float64),
         lwh=size[:, [1, 0, 2]],
         yaw=yaw_from_quaternions(np.array([b["rotation"] for b in keep], dtype=np.float64)),
-        velocity=velocity,
+        velocity=np.array(velocities),
         score=np.array([float(b["detection_score"]) for b in keep]),
         category=[category_index(b["detection_name"]) for b in keep],
-    )
+    ), no_velocity
 
 
 def _numeric(value: Any) -> bool:
@@ -379,14 +387,19 @@ def _numeric(value: Any) -> bool:
     )
 
 
-def _velocity(value: Any, at: str) -> tuple[float, float]:
-    """[vx, vy]; absent → 0, NaN → 0 (the detector has no estimate)."""
+def _velocity(value: Any, at: str) -> tuple[tuple[float, float], bool]:
+    """``([vx, vy], known)``: absent → 0; a NaN component → 0, not known (NaN is the devkit's
+    "no estimate", as for annotations). The format has exactly two values (the devkit asserts
+    it); an infinite one is no estimate of anything: an error."""
     if value is None:
-        return (0.0, 0.0)
-    if not _numeric(value) or len(value) < 2:
+        return (0.0, 0.0), True
+    if not _numeric(value) or len(value) != 2:
         raise InputError(f"{at}: field 'velocity' must be [vx, vy], got {value!r}")
     vx, vy = float(value[0]), float(value[1])
-    return (vx if math.isfinite(vx) else 0.0, vy if math.isfinite(vy) else 0.0)
+    if math.isinf(vx) or math.isinf(vy):
+        raise InputError(f"{at}: field 'velocity' = {value!r} is infinite")
+    known = not (math.isnan(vx) or math.isnan(vy))
+    return (vx if math.isfinite(vx) else 0.0, vy if math.isfinite(vy) else 0.0), known
 
 
 # ---------------------------------------------------------------------------------------------
@@ -612,6 +625,7 @@ def convert_nuscenes(
     det_scenes: Scenes = {}
     gt_scenes: Scenes | None = {} if with_gt else None
     unknown_velocity = 0
+    velocity_nan = 0
     missing_samples = 0
     for scene in nusc.scene:  # table order, as the devkit
         if scene["name"] not in wanted:
@@ -624,7 +638,10 @@ def convert_nuscenes(
             if raw is None:
                 missing_samples += 1
                 raw = []
-            boxes = _detection_boxes(raw, sample["token"], det_path, score_min, skipped)
+            boxes, no_velocity = _detection_boxes(
+                raw, sample["token"], det_path, score_min, skipped
+            )
+            velocity_nan += no_velocity
 
             det_frames.append(_frame(scene["name"], frame_id, sample, geometry, boxes))
             if gt_scenes is not None:
@@ -643,7 +660,13 @@ def convert_nuscenes(
             missing_samples,
             split,
         )
-    return NuScenesConversion(det_scenes, gt_scenes, meta, skipped, unknown_velocity)
+    if velocity_nan:
+        log.warning(
+            "%s: %d detections with a NaN velocity (no estimate) are tracked with velocity 0",
+            det_path,
+            velocity_nan,
+        )
+    return NuScenesConversion(det_scenes, gt_scenes, meta, skipped, unknown_velocity, velocity_nan)
 
 
 def _check_result_tokens(
