@@ -10,11 +10,13 @@ metrics of a tracks file."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
+import shutil
 import sys
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -291,15 +293,43 @@ def _is_submission(path: Path) -> bool:
     return re.match(rb'\s*\{\s*"(meta|results)"', head) is not None
 
 
-def _run_nuscenes(args: argparse.Namespace) -> int:
-    from tracker.eval.nuscenes import evaluate_nuscenes, nuscenes_markdown
+@contextlib.contextmanager
+def _removed_on_failure(*paths: Path) -> Iterator[None]:
+    """Remove those of ``paths`` that did not exist before the block if it fails: a refused run
+    leaves no output of its own (a half-written evaluation folder) and never touches what was
+    there before. List a folder before the paths inside it."""
+    new = [p for p in paths if not (p.exists() or p.is_symlink())]
+    try:
+        yield
+    except BaseException:
+        for path in new:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif path.exists() or path.is_symlink():
+                path.unlink()
+        raise
 
+
+def _run_nuscenes(args: argparse.Namespace) -> int:
     if not args.dataroot:
         raise InputError("--dataset nuscenes needs --dataroot (the nuScenes tables)")
+    if args.motion and args.gt is None:  # before the evaluation, not after it
+        raise InputError("--motion needs --gt (the GT BaseVersion of `mctrack nuscenes`)")
     tracks = Path(args.tracks)
     if not tracks.is_file():
         raise InputError(f"{tracks}: file not found")
     out = Path(args.out) if args.out else tracks.parent
+    from tracker.eval.motion_eval import MOTION_PLOT
+
+    created = (out, out / "nuscenes_eval", out / "results.json", out / "eval.json",
+               out / "eval.md", out / MOTION_PLOT)  # fmt: skip
+    with _removed_on_failure(*created):
+        return _evaluate_nuscenes(args, tracks, out)
+
+
+def _evaluate_nuscenes(args: argparse.Namespace, tracks: Path, out: Path) -> int:
+    from tracker.eval.nuscenes import evaluate_nuscenes, nuscenes_markdown
+
     out.mkdir(parents=True, exist_ok=True)
     result: dict[str, Any] = {"tracks": str(tracks), "dataset": "nuscenes"}
     md = ["# Evaluation", ""]
@@ -328,8 +358,6 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
     if args.motion and motion_inputs is not None:
         from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
-        if args.gt is None:
-            raise InputError("--motion needs --gt (the GT BaseVersion of `mctrack nuscenes`)")
         classes = args.classes or list(load_config("nuscenes").categories)
         gt = read_baseversion(args.gt)
         dets = read_baseversion(args.detections) if args.detections else None

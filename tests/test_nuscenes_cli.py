@@ -147,3 +147,23 @@ def test_eval_names_a_file_that_is_not_a_tracking_submission(
         assert main(["eval", str(path), *common]) == 2
         err = capsys.readouterr().err
         assert f"error: {path}: {said}" in err and "unexpected" not in err
+
+
+def test_eval_refused_leaves_no_output_of_its_own(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """mctrack eval --dataset nuscenes refused by the devkit (here: a tracks file of one scene
+    of the split) removes what it created (the folder, results.json, nuscenes_eval/: they were
+    left half-written); files that were there before stay."""
+    run = tmp_path / "run"
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--no-eval"]
+    assert main([*argv, "--scenes", "scene-0916", "--out", str(run)]) == 0
+    common = [*_common(dataset), "--dataset", "nuscenes"]
+    new = tmp_path / "new"
+    assert main(["eval", str(run / "tracks.json"), *common, "--out", str(new)]) == 2
+    assert "nuScenes TrackingEval" in capsys.readouterr().err
+    assert not new.exists()
+    before = sorted(p.relative_to(run).as_posix() for p in run.rglob("*"))
+    assert main(["eval", str(run / "tracks.json"), *common]) == 2  # --out: the tracks' folder
+    assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*")) == before
+    assert "results.json" in before and "nuscenes_eval" not in before
