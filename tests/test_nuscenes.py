@@ -637,3 +637,47 @@ def test_detection_fields_are_read_strictly(
         dataset.dataroot, version=dataset.version, detections=clean_path, split="mini_val",
         nusc=nusc,
     ).velocity_unknown == 0  # fmt: skip
+
+
+@needs_devkit
+def test_coordinates_that_overflow_the_transforms_are_named(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
+) -> None:
+    """A detection or an ego pose so far away (1e308) that the camera or pose transforms
+    overflow: one error naming the file and the record (was converted with numpy overflow
+    warnings: the box in no camera, NaN matrices in the transforms)."""
+    import warnings
+
+    results = json.loads(clean_path.read_text())
+    token = dataset.samples["scene-0103"][4]
+    boxes = [dict(b) for b in results["results"][token]]
+    boxes[2]["translation"] = [1e308, 1e308, 0.0]
+    path = tmp_path / "far.json"
+    path.write_text(json.dumps(dict(results, results={**results["results"], token: boxes})))
+    pose: dict[str, Any] = {}
+
+    def far_pose(tables: dict[str, list[Any]]) -> None:
+        lidar = next(
+            d
+            for d in tables["sample_data"]
+            if d["sample_token"] == token and "/LIDAR_TOP/" in d["filename"]
+        )
+        record = next(p for p in tables["ego_pose"] if p["token"] == lidar["ego_pose_token"])
+        record["translation"] = [1.7e308, 1.7e308, 0.0]
+        pose.update(record)
+
+    root = _edited_dataset(dataset, tmp_path / "far_pose", far_pose)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # said once, as an error: no numpy warnings first
+        with pytest.raises(InputError) as err:
+            convert_nuscenes(
+                dataset.dataroot, version=dataset.version, detections=path, split="mini_val",
+                nusc=nusc,
+            )  # fmt: skip
+        assert str(err.value).startswith(f"{path}: results['{token}'][2]: fields 'translation'")
+        assert "not finite in the world or camera frames" in str(err.value)
+        with pytest.raises(InputError) as err:
+            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+        table = root / dataset.version / "ego_pose.json"
+        assert str(err.value).startswith(f"{table}: ego_pose '{pose['token']}' with ")
+        assert "(LIDAR_TOP): ego_from_world is not finite" in str(err.value)

@@ -423,3 +423,31 @@ def test_waymo_run_into_an_earlier_run_replaces_it(segment: Path, tmp_path: Path
     ]
     assert not (run / "gt.json").exists() and (run / "notes.txt").read_text() == "mine"
     assert json.loads((run / "summary.json").read_text())["segments"] == ["other"]
+
+
+def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> None:
+    """A box or an ego translation so large (1e308) that the pose or camera transforms overflow:
+    one error naming the file and the row or entry (was converted with numpy overflow warnings,
+    the box in no camera, or NaN poses)."""
+    import warnings
+
+    dets, ego = segment / "dets" / f"{SEGMENT}.npz", segment / "ego_info" / f"{SEGMENT}.npz"
+    good_dets, good_ego = dict(np.load(dets)), dict(np.load(ego))
+    bboxes, poses = good_dets["bboxes"].copy(), good_ego["ego2global"].copy()
+    row = int(np.flatnonzero(good_dets["frame_index"] == 3)[1])
+    bboxes[row, :3] = 1e308
+    poses[2, :3, 3] = 1.7e308
+    cases = (
+        (dets, {**good_dets, "bboxes": bboxes},
+         rf"bboxes row {row}: .* with ego2global\[3\] is not finite"),
+        (ego, {**good_ego, "ego2global": poses}, r"ego2global\[2\]: its inverse is not finite"),
+    )  # fmt: skip
+    for path, arrays, match in cases:
+        np.savez_compressed(path, **arrays)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # said once, as an error: no numpy warnings first
+            with pytest.raises(InputError, match=match) as err:
+                convert_waymo(segment, segment / "dets")
+        assert str(err.value).startswith(f"{path}: "), match
+        np.savez_compressed(dets, **good_dets)
+        np.savez_compressed(ego, **good_ego)

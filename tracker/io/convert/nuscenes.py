@@ -51,7 +51,7 @@ from tracker.camera import project_boxes
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
-from tracker.geometry import wrap_angle
+from tracker.geometry import corners_3d, wrap_angle
 from tracker.io.nuscenes_writer import DEFAULT_META
 
 log = logging.getLogger(__name__)
@@ -271,6 +271,28 @@ def assign_cameras(
     return camera, xyxy_image
 
 
+def overflowing_boxes(
+    xyz: FloatArray, lwh: FloatArray, yaw: FloatArray, cameras: Sequence[Camera]
+) -> IntArray:
+    """Rows whose corners, in the world or in any camera's image coordinates, are not finite:
+    coordinates so large (1e300) that the transforms overflow. They are named as errors by the
+    callers (projecting them gave numpy overflow warnings and boxes no camera could see)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        corners = corners_3d(xyz, lwh, yaw)  # (N, 8, 3)
+        bad = ~np.isfinite(corners).all(axis=(1, 2))
+        for cam in cameras:
+            m = cam.image_from_world
+            bad |= ~np.isfinite(corners @ m[:, :3].T + m[:, 3]).all(axis=(1, 2))
+    return np.flatnonzero(bad)
+
+
+def _check_finite_pose(matrices: Mapping[str, FloatArray], where: str) -> None:
+    """The pose products of a sample must be finite (a translation of 1e300 overflows)."""
+    for what, m in matrices.items():
+        if not np.isfinite(m).all():
+            raise InputError(f"{where}: {what} is not finite (a translation too large?)")
+
+
 # ---------------------------------------------------------------------------------------------
 # detections file
 
@@ -320,11 +342,17 @@ def _read_meta(data: dict[str, Any], path: Path) -> dict[str, Any]:
 
 
 def _detection_boxes(
-    raw: list[Any], token: str, path: Path, score_min: float, skipped: Counter[str]
+    raw: list[Any],
+    token: str,
+    path: Path,
+    score_min: float,
+    skipped: Counter[str],
+    cameras: Sequence[Camera] = (),
 ) -> tuple[Boxes, int]:
     """Boxes of one sample's detections (tracking classes only), validated, and how many of
     them have a NaN velocity (no estimate: read as 0)."""
     keep: list[dict[str, Any]] = []
+    rows: list[int] = []
     velocities: list[tuple[float, float]] = []
     no_velocity = 0
     for i, box in enumerate(raw):
@@ -368,13 +396,24 @@ def _detection_boxes(
         no_velocity += not known
         velocities.append(velocity)
         keep.append(box)
+        rows.append(i)
     if not keep:
         return Boxes.empty(), 0
     size = np.array([b["size"] for b in keep], dtype=np.float64)
+    xyz = np.array([b["translation"] for b in keep], dtype=np.float64)
+    yaw = yaw_from_quaternions(np.array([b["rotation"] for b in keep], dtype=np.float64))
+    overflow = overflowing_boxes(xyz, size[:, [1, 0, 2]], yaw, cameras)
+    if len(overflow):
+        i = rows[overflow[0]]
+        raise InputError(
+            f"{path}: results[{token!r}][{i}]: fields 'translation', 'size' = "
+            f"{raw[i]['translation']}, {raw[i]['size']}: not finite in the world or camera "
+            "frames (too large)"
+        )
     return Boxes.create(
-        xyz=np.array([b["translation"] for b in keep], dtype=np.float64),
+        xyz=xyz,
         lwh=size[:, [1, 0, 2]],
-        yaw=yaw_from_quaternions(np.array([b["rotation"] for b in keep], dtype=np.float64)),
+        yaw=yaw,
         velocity=np.array(velocities),
         score=np.array([float(b["detection_score"]) for b in keep]),
         category=[category_index(b["detection_name"]) for b in keep],
@@ -443,7 +482,23 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
     lidar_cs = nusc.get("calibrated_sensor", lidar_sd["calibrated_sensor_token"])
     world_from_ego = _record_pose(nusc, "ego_pose", ego)
     ego_from_lidar = _record_pose(nusc, "calibrated_sensor", lidar_cs)
-    world_from_lidar = world_from_ego @ ego_from_lidar
+    table_dir = Path(nusc.dataroot) / nusc.version
+    with np.errstate(over="ignore", invalid="ignore"):
+        world_from_lidar = world_from_ego @ ego_from_lidar
+        ego_from_world = np.linalg.inv(world_from_ego)
+        lidar_from_ego = np.linalg.inv(ego_from_lidar)
+        lidar_from_world = lidar_from_ego @ ego_from_world
+    _check_finite_pose(
+        {
+            "world_from_lidar": world_from_lidar,
+            "ego_from_world": ego_from_world,
+            "lidar_from_ego": lidar_from_ego,
+            "lidar_from_world": lidar_from_world,
+        },
+        f"{table_dir / 'ego_pose.json'}: ego_pose {ego['token']!r} with "
+        f"{table_dir / 'calibrated_sensor.json'}: calibrated_sensor {lidar_cs['token']!r} "
+        f"({LIDAR_CHANNEL})",
+    )
     cameras: list[Camera] = []
     camera_records: dict[str, Any] = {}
     for name in NUSCENES_CAMERAS:
@@ -458,8 +513,20 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
                 f"calibrated_sensor {cs['token']!r} ({name}): camera_intrinsic must be 3x3"
             )
         ego_from_camera = _record_pose(nusc, "calibrated_sensor", cs)
-        world_from_camera = _record_pose(nusc, "ego_pose", cam_ego) @ ego_from_camera
-        camera_from_world = np.linalg.inv(world_from_camera)
+        world_from_cam_ego = _record_pose(nusc, "ego_pose", cam_ego)
+        with np.errstate(over="ignore", invalid="ignore"):
+            world_from_camera = world_from_cam_ego @ ego_from_camera
+            camera_from_world = np.linalg.inv(world_from_camera)
+            camera_from_lidar = camera_from_world @ world_from_lidar
+        _check_finite_pose(
+            {
+                "world_from_camera": world_from_camera,
+                "camera_from_world": camera_from_world,
+                "camera_from_lidar": camera_from_lidar,
+            },
+            f"{table_dir / 'ego_pose.json'}: ego_pose {cam_ego['token']!r} with "
+            f"{table_dir / 'calibrated_sensor.json'}: calibrated_sensor {cs['token']!r} ({name})",
+        )
         image_from_camera = np.zeros((3, 4))
         image_from_camera[:, :3] = intrinsic
         width = int(sd.get("width") or DEFAULT_IMAGE_SIZE[0])
@@ -471,16 +538,14 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
             "image_shape": [width, height],
             "ego2camera": np.linalg.inv(ego_from_camera).tolist(),
             "camera2image": camera2image.tolist(),
-            "lidar2camera": (camera_from_world @ world_from_lidar).tolist(),
+            "lidar2camera": camera_from_lidar.tolist(),
             "camera_token": sd["token"],
             "camera_path": sd.get("filename"),
         }
-    ego_from_world = np.linalg.inv(world_from_ego)
-    lidar_from_ego = np.linalg.inv(ego_from_lidar)
     transform = {
         "global2ego": ego_from_world.tolist(),
         "ego2lidar": lidar_from_ego.tolist(),
-        "global2lidar": (lidar_from_ego @ ego_from_world).tolist(),
+        "global2lidar": lidar_from_world.tolist(),
         "cameras_transform_matrix": camera_records,
     }
     return _SampleGeometry(world_from_ego, tuple(cameras), transform)
@@ -639,7 +704,7 @@ def convert_nuscenes(
                 missing_samples += 1
                 raw = []
             boxes, no_velocity = _detection_boxes(
-                raw, sample["token"], det_path, score_min, skipped
+                raw, sample["token"], det_path, score_min, skipped, geometry.cameras
             )
             velocity_nan += no_velocity
 

@@ -59,7 +59,7 @@ from tracker.boxes import Boxes, FloatArray
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
-from tracker.io.convert.nuscenes import assign_cameras
+from tracker.io.convert.nuscenes import assign_cameras, overflowing_boxes
 from tracker.io.fileio import SafeNpz, load_npz
 
 log = logging.getLogger(__name__)
@@ -161,7 +161,13 @@ def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
                         f"{path}: cam_intrinsics[{i}, {k}] ({name}): focal lengths f_u, f_v "
                         f"must be positive, got {intrinsic[:2].tolist()}"
                     )
-                cam = camera_model(name, extrinsic, intrinsic, world_from_ego)
+                with np.errstate(over="ignore", invalid="ignore"):
+                    cam = camera_model(name, extrinsic, intrinsic, world_from_ego)
+                if not np.isfinite(cam.camera_from_world).all():  # a translation of 1e300
+                    raise InputError(
+                        f"{path}: cam_extrinsics[{i}, {k}] ({name}) with ego2global[{i}]: "
+                        "camera_from_world is not finite (a translation too large?)"
+                    )
                 cameras.append(cam)
                 camera2image = np.eye(4)
                 camera2image[:3, :3] = cam.image_from_camera[:, :3]
@@ -219,6 +225,10 @@ def _matrix4(value: Any, path: Path, what: str) -> FloatArray:
     if not np.isfinite(m).all():
         raise InputError(f"{path}: {what} contains NaN or inf")
     _check_rigid(m, path, what)
+    with np.errstate(over="ignore", invalid="ignore"):
+        finite = np.isfinite(np.linalg.inv(m)).all()
+    if not finite:  # a translation of 1e308: its inverse overflows
+        raise InputError(f"{path}: {what}: its inverse is not finite (a translation too large?)")
     return m
 
 
@@ -259,6 +269,7 @@ class _BoxTable:
     bounds: np.ndarray  # (F + 1,)
     ids: np.ndarray | None = None  # (N,) object ids as str (ground truth)
     velos: FloatArray | None = None  # (N, 2) vehicle-frame velocity (ground truth, optional)
+    rows: np.ndarray | None = None  # (N,) each row's index in the file (for errors)
 
 
 def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _BoxTable:
@@ -330,7 +341,7 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
             if len(bad):
                 raise InputError(f"{path}: velos row {bad[0]}: must be finite [vx, vy]")
             velos = velos[order]
-    return _BoxTable(bboxes[order], types[order], bounds, ids, velos)
+    return _BoxTable(bboxes[order], types[order], bounds, ids, velos, order)
 
 
 def _segment_boxes(
@@ -354,7 +365,16 @@ def _segment_boxes(
             skipped[int(c)] += 1
     keep = np.array([n is not None for n in names], dtype=bool)
     arr = arr[keep]
-    xyz, yaw = boxes_ego_to_world(arr, world_from_ego)
+    with np.errstate(over="ignore", invalid="ignore"):
+        xyz, yaw = boxes_ego_to_world(arr, world_from_ego)
+    overflow = overflowing_boxes(xyz, arr[:, 4:7], yaw, cameras)
+    if len(overflow):
+        k = np.arange(a, b)[keep][overflow[0]]
+        row = int(table.rows[k]) if table.rows is not None else int(k)
+        raise InputError(
+            f"{path}: bboxes row {row}: {table.bboxes[k, :7].tolist()} with ego2global[{i}] "
+            "is not finite in the world or camera frames (too large)"
+        )
     velocity = None
     track_id = None
     if ids is not None and table.ids is not None:
