@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import filecmp
 import json
 import logging
 import shutil
@@ -344,7 +345,19 @@ def _evaluate_nuscenes(args: argparse.Namespace, tracks: Path, out: Path) -> int
 
         track_frames, outputs = read_tracks_file(tracks)
         results_path = out / "results.json"
-        write_nuscenes_results(results_path, {s: (track_frames[s], outputs[s]) for s in outputs})
+        fresh = out / ".results.json.eval.tmp"
+        try:
+            write_nuscenes_results(fresh, {s: (track_frames[s], outputs[s]) for s in outputs})
+            if results_path.exists() and not filecmp.cmp(fresh, results_path, shallow=False):
+                # another submission (`mctrack nuscenes` writes its detections' meta): keep it
+                raise InputError(
+                    f"{results_path}: exists and is not this tracks file's submission (a run's "
+                    "own, with its detections' meta?): evaluate it directly (mctrack eval "
+                    f"{results_path} --dataset nuscenes ...) or give another --out"
+                )
+            fresh.replace(results_path)
+        finally:
+            fresh.unlink(missing_ok=True)
         motion_inputs = outputs
     result["results"] = str(results_path)
     result["static"] = evaluate_nuscenes(

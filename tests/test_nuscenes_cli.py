@@ -167,3 +167,27 @@ def test_eval_refused_leaves_no_output_of_its_own(
     assert main(["eval", str(run / "tracks.json"), *common]) == 2  # --out: the tracks' folder
     assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*")) == before
     assert "results.json" in before and "nuscenes_eval" not in before
+
+
+def test_eval_of_a_tracks_file_keeps_another_submission_in_its_folder(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """mctrack eval TRACKS --dataset nuscenes writes TRACKS' submission as OUT/results.json, by
+    default in the run's own folder: a results.json there that is another submission (the run's,
+    with its detections' meta) is kept byte for byte and the command refused; the same
+    submission is evaluated (was: overwritten with the default meta, also when refused)."""
+    run = tmp_path / "run"
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--no-eval"]
+    assert main([*argv, "--out", str(run)]) == 0
+    common = [*_common(dataset), "--dataset", "nuscenes"]
+    assert main(["eval", str(run / "tracks.json"), *common]) == 0  # the same submission
+    capsys.readouterr()
+    submission = json.loads((run / "results.json").read_text())
+    submission["meta"]["use_camera"] = True  # as a camera detector's run writes it
+    (run / "results.json").write_text(json.dumps(submission))
+    before = (run / "results.json").read_bytes()
+    assert main(["eval", str(run / "tracks.json"), *common]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'results.json'}: exists and is not this tracks file's submission" in err
+    assert (run / "results.json").read_bytes() == before
+    assert not list(run.glob(".results.json*"))
