@@ -13,6 +13,7 @@ import json
 import logging
 import os
 import re
+import select
 import sys
 import time
 from collections.abc import Sequence
@@ -283,15 +284,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         status = int(args._run(args))
         sys.stdout.flush()  # (a reader that went away shows here, not at the interpreter's exit)
         return status
-    except BrokenPipeError:
-        # the reader of the output went away (`mctrack validate F | head -2`): stop quietly, as
-        # a Unix tool killed by SIGPIPE does, with its status (128 + 13)
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return EXIT_PIPE
     except KeyboardInterrupt:
         print(f"mctrack {args.command}: interrupted", file=sys.stderr)
         return 130
     except Exception as exc:
+        if isinstance(exc, BrokenPipeError) and _stdout_reader_gone():
+            # the reader of the output went away (`mctrack validate F | head -2`): stop
+            # quietly, as a Unix tool killed by SIGPIPE does, with its status (128 + 13)
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return EXIT_PIPE
         if args.debug:
             raise
         known = error_message(exc)
@@ -305,6 +306,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             file=sys.stderr,
         )
         return EXIT_BUG
+
+
+def _stdout_reader_gone() -> bool:
+    """Whether stdout is a pipe whose reader closed it (poll says POLLERR), as opposed to another
+    pipe of the command's breaking (a worker's, the viewer's): that one is a bug to report."""
+    try:
+        poll = select.poll()
+        poll.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(event & select.POLLERR for _, event in poll.poll(0))
+    except (AttributeError, OSError, ValueError):  # (no poll on this platform, no stdout fd)
+        return False
 
 
 if __name__ == "__main__":

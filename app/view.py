@@ -131,8 +131,9 @@ def _images(
 def _check_labels(folder: str, scenes: list[str]) -> set[str]:
     """The ``scenes`` with a label file in ``--labels`` ``folder``, each checked up front (a bad
     one is its file, line and field, not a TrackEval error after the tracking). A missing
-    folder, one without a label file of any scene, or an empty label file is an error: the
-    recording would otherwise quietly have no KITTI matching."""
+    folder, or one without a label file of any scene, is an error: the recording would otherwise
+    quietly have no KITTI matching. An empty label file is a scene without labelled objects
+    (valid KITTI, as `mctrack eval` scores it): said, and recorded with it."""
     from tracker.eval.kitti import check_label_file
 
     if not Path(folder).is_dir():
@@ -142,7 +143,7 @@ def _check_labels(folder: str, scenes: list[str]) -> set[str]:
         path = path_in(folder, scene, ".txt")
         if path.is_file():
             if check_label_file(path) == 0:
-                raise InputError(f"{path}: --labels: the label file holds no labels")
+                print(f"scene {scene}: {path} holds no labels (no labelled object to match)")
             labelled.add(scene)
     if not labelled:
         wanted = ", ".join(path_in(folder, s, ".txt").name for s in scenes[:4])
