@@ -3,15 +3,14 @@ Identity) when label files are given, motion metrics (VAE, VNE, VAIE, VIR, VSE, 
 ``--motion``. Writes ``OUT/eval.json`` and ``OUT/eval.md`` (and the velocity-curve PNG).
 
 ``--dataset nuscenes``: the official nuScenes tracking metrics (devkit ``TrackingEval``, AMOTA,
-AMOTP, MOTA, IDS, recall) of a tracks file (written as ``OUT/results.json`` first) or of a
-tracking submission ``results.json`` directly; ``--motion`` with ``--gt`` adds the motion
+AMOTP, MOTA, IDS, recall) of a tracks file (written as ``OUT/eval_results.json`` first) or
+of a tracking submission ``results.json`` directly; ``--motion`` with ``--gt`` adds the motion
 metrics of a tracks file."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import filecmp
 import json
 import logging
 import shutil
@@ -30,6 +29,9 @@ from tracker.io.baseversion import read_baseversion
 from tracker.io.fileio import path_in, write_text_atomic
 
 LOG = logging.getLogger(__name__)
+#: The tracking submission of a tracks file, written in OUT and evaluated (not results.json: OUT
+#: is by default the run's folder, and a run's results.json carries its detections' meta)
+EVAL_SUBMISSION = "eval_results.json"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -322,7 +324,7 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else tracks.parent
     from tracker.eval.motion_eval import MOTION_PLOT
 
-    created = (out, out / "nuscenes_eval", out / "results.json", out / "eval.json",
+    created = (out, out / "nuscenes_eval", out / EVAL_SUBMISSION, out / "eval.json",
                out / "eval.md", out / MOTION_PLOT)  # fmt: skip
     with _removed_on_failure(*created):
         return _evaluate_nuscenes(args, tracks, out)
@@ -344,20 +346,8 @@ def _evaluate_nuscenes(args: argparse.Namespace, tracks: Path, out: Path) -> int
         from tracker.io.writers import read_tracks_file
 
         track_frames, outputs = read_tracks_file(tracks)
-        results_path = out / "results.json"
-        fresh = out / ".results.json.eval.tmp"
-        try:
-            write_nuscenes_results(fresh, {s: (track_frames[s], outputs[s]) for s in outputs})
-            if results_path.exists() and not filecmp.cmp(fresh, results_path, shallow=False):
-                # another submission (`mctrack nuscenes` writes its detections' meta): keep it
-                raise InputError(
-                    f"{results_path}: exists and is not this tracks file's submission (a run's "
-                    "own, with its detections' meta?): evaluate it directly (mctrack eval "
-                    f"{results_path} --dataset nuscenes ...) or give another --out"
-                )
-            fresh.replace(results_path)
-        finally:
-            fresh.unlink(missing_ok=True)
+        results_path = out / EVAL_SUBMISSION
+        write_nuscenes_results(results_path, {s: (track_frames[s], outputs[s]) for s in outputs})
         motion_inputs = outputs
     result["results"] = str(results_path)
     result["static"] = evaluate_nuscenes(

@@ -153,7 +153,7 @@ def test_eval_refused_leaves_no_output_of_its_own(
     dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """mctrack eval --dataset nuscenes refused by the devkit (here: a tracks file of one scene
-    of the split) removes what it created (the folder, results.json, nuscenes_eval/: they were
+    of the split) removes what it created (the folder, eval_results.json, nuscenes_eval/: they were
     left half-written); files that were there before stay."""
     run = tmp_path / "run"
     argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--no-eval"]
@@ -169,25 +169,21 @@ def test_eval_refused_leaves_no_output_of_its_own(
     assert "results.json" in before and "nuscenes_eval" not in before
 
 
-def test_eval_of_a_tracks_file_keeps_another_submission_in_its_folder(
+def test_eval_of_a_tracks_file_leaves_the_runs_submission_as_it_is(
     dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """mctrack eval TRACKS --dataset nuscenes writes TRACKS' submission as OUT/results.json, by
-    default in the run's own folder: a results.json there that is another submission (the run's,
-    with its detections' meta) is kept byte for byte and the command refused; the same
-    submission is evaluated (was: overwritten with the default meta, also when refused)."""
+    """mctrack eval TRACKS --dataset nuscenes writes TRACKS' submission as OUT/eval_results.json,
+    OUT by default the run's own folder: the run's results.json (with its detections' meta)
+    stays byte for byte (it was overwritten with the default meta, also when refused)."""
     run = tmp_path / "run"
     argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--no-eval"]
     assert main([*argv, "--out", str(run)]) == 0
-    common = [*_common(dataset), "--dataset", "nuscenes"]
-    assert main(["eval", str(run / "tracks.json"), *common]) == 0  # the same submission
-    capsys.readouterr()
     submission = json.loads((run / "results.json").read_text())
     submission["meta"]["use_camera"] = True  # as a camera detector's run writes it
     (run / "results.json").write_text(json.dumps(submission))
     before = (run / "results.json").read_bytes()
-    assert main(["eval", str(run / "tracks.json"), *common]) == 2
-    err = capsys.readouterr().err
-    assert f"{run / 'results.json'}: exists and is not this tracks file's submission" in err
+    common = [*_common(dataset), "--dataset", "nuscenes"]
+    assert main(["eval", str(run / "tracks.json"), *common]) == 0
     assert (run / "results.json").read_bytes() == before
-    assert not list(run.glob(".results.json*"))
+    evaluated = json.loads((run / "eval.json").read_text())["results"]
+    assert evaluated == str(run / "eval_results.json") and Path(evaluated).is_file()
