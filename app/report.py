@@ -173,6 +173,9 @@ def _bars(
     import numpy as np
 
     plt = _pyplot()
+    # names from the input: a "$" would start matplotlib's mathtext (a "$\frac{$": an error)
+    groups = [_literal(g) for g in groups]
+    series = [(_literal(name), values, color) for name, values, color in series]
     width = max(4.5, 0.55 * len(groups) * max(1, len(series)) + 1.5)
     fig, ax = plt.subplots(figsize=(min(width, 14.0), 3.0))
     x = np.arange(len(groups))
@@ -188,6 +191,11 @@ def _bars(
         ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     _save(fig, path)
     plt.close(fig)
+
+
+def _literal(text: str) -> str:
+    """``text`` shown as it is by matplotlib (no mathtext)."""
+    return str(text).replace("$", r"\$")
 
 
 def _num(v: Any) -> float:

@@ -7,6 +7,7 @@ browser, it downloads none). Set MCTRACK_REPORT_SCREENSHOT=DIR to keep the scree
 
 from __future__ import annotations
 
+import html
 import json
 import os
 import shutil
@@ -112,6 +113,32 @@ def test_report_hand_made_compare(tmp_path: Path, browser) -> None:
     assert got == [("fixed", "1", "5"), ("introduced", "3", "6"), ("kept", "2", "4")]
     asc, desc = seen["sorted"]
     assert asc == sorted(asc) and desc == sorted(asc, reverse=True)
+
+
+def test_report_shows_names_from_the_runs_as_text(tmp_path: Path) -> None:
+    """A sequence and a class named with HTML and a matplotlib "$": escaped in the page, and
+    plotted as they are (a "$\\frac{$" tick label was matplotlib's mathtext parse error, exit 1
+    with the report half-written)."""
+    from tracker.io.fileio import safe_filename
+
+    seq, cls = "<script>alert(1)</script>$\\frac{$", "<img src=x onerror=alert(2)>$\\frac{$"
+    a, b, labels = make_runs(tmp_path)
+    shutil.copy(labels / f"{SEQ}.txt", labels / f"{safe_filename(seq)}.txt")
+    for run in (a, b):
+        (run / "data" / f"{SEQ}.txt").rename(run / "data" / f"{safe_filename(seq)}.txt")
+        summary = json.loads((run / "summary.json").read_text())
+        summary["sequences"] = [seq]
+        summary["per_sequence"] = {seq: summary["per_sequence"][SEQ]}
+        summary["metrics"][cls] = summary["metrics"]["car"]
+        (run / "summary.json").write_text(json.dumps(summary))
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 0
+    page = (out / "index.html").read_text()
+    assert "<script>alert" not in page and "<img src=x" not in page
+    assert html.escape(seq) in page and html.escape(cls) in page
+    # the plots name them as they are (matplotlib's SVG keeps each text in a comment)
+    assert html.escape(cls) in (out / "plots" / "hota.svg").read_text()
+    assert html.escape(seq) in (out / "plots" / "idsw_per_sequence.svg").read_text()
 
 
 def test_report_of_one_run_is_self_contained(tmp_path: Path) -> None:
