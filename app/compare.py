@@ -84,10 +84,11 @@ def run(args: argparse.Namespace) -> int:
         *(["--record"] if args.record else []),
     ]
     command = "mctrack compare " + shlex.join(words)
-    result = compare(run_a, run_b, out, tolerance=args.tolerance, command=command)
-    if args.record:
+    result = compare_result(run_a, run_b, tolerance=args.tolerance)
+    result["command"] = command
+    if args.record:  # first: a run that cannot be drawn leaves no compare.json claiming it was
         result["recordings"] = record(run_a, run_b, result, out)
-        write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
+    write_compare(result, out, command=command)
     _print(result, out)
     return 0
 
@@ -228,9 +229,14 @@ def compare(
     result = compare_result(run_a, run_b, tolerance=tolerance)
     if command:
         result["command"] = command
+    write_compare(result, out, command=command)
+    return result
+
+
+def write_compare(result: dict[str, Any], out: Path, *, command: str | None = None) -> None:
+    """``out/compare.json`` and ``out/compare.md`` of a comparison."""
     write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
     write_text_atomic(out / "compare.md", ["\n".join(compare_markdown(result, command=command))])
-    return result
 
 
 def record(run_a: Run, run_b: Run, result: dict[str, Any], out: Path) -> dict[str, str]:

@@ -123,6 +123,20 @@ def test_compare_bad_input_is_one_line(tmp_path: Path, capsys) -> None:
     assert "missing" in capsys.readouterr().err
 
 
+def test_compare_record_refused_writes_nothing(tmp_path: Path, capsys) -> None:
+    """--record of runs without tracks.json is refused before compare.json and compare.md are
+    written (they were left behind, without the recordings, by the failed command)."""
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out), "--record"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"mctrack compare: error: {a / 'tracks.json'}: missing (--record draws each run's "
+        "tracks from it)"
+    )
+    assert list(out.iterdir()) == []
+
+
 @pytest.mark.parametrize(
     ("field", "value", "named"),
     [
