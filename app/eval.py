@@ -24,7 +24,7 @@ from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.baseversion import read_baseversion
-from tracker.io.fileio import path_in, write_text_atomic
+from tracker.io.fileio import check_output_folder, path_in, write_text_atomic
 
 LOG = logging.getLogger(__name__)
 
@@ -112,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
     dets = read_baseversion(args.detections) if args.detections else None
     if dets is not None:
         check_detections_match(dets, outputs, args.detections)
+    check_output_folder(out)  # before the evaluation: a bad --out fails now, not at the end
     result = evaluate_tracks(
         track_frames,
         outputs,

@@ -629,6 +629,21 @@ def test_bench_refuses_a_bad_json_path_before_the_benchmark(
     assert "synthetic" not in out  # refused before any case ran
 
 
+def test_eval_refuses_a_bad_out_before_evaluating(
+    files: F, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """(was: after the evaluation, when eval.json or the velocity plot was written)"""
+    import app.eval
+
+    def evaluated(*args: object, **kwargs: object) -> None:
+        raise AssertionError("evaluated before --out was checked")
+
+    monkeypatch.setattr(app.eval, "evaluate_tracks", evaluated)
+    argv = ["eval", str(files["detections"]), "--gt", str(files["gt"]), "--motion"]
+    code, _, err = _run([*argv, "--out", str(files["a_file"])], capsys)
+    _assert_one_line_error(code, err, "eval", f"--out {files['a_file']}: exists and is not a")
+
+
 # ---------------------------------------------------------------------------------------------
 # the console script: exit status, no traceback, --debug
 
