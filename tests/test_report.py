@@ -285,3 +285,66 @@ def test_serve_stops_cleanly(tmp_path: Path, monkeypatch) -> None:
     with pytest.raises(urllib.error.URLError):
         urllib.request.urlopen(url, timeout=5)
     assert len(made) == 1 and made[0].process.poll() is not None
+
+
+def _children(pid: int) -> list[int]:
+    found: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        found += [int(c) for c in (task / "children").read_text().split()]
+    return found
+
+
+def _running(pid: int) -> bool:
+    """Alive and not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads /proc (Linux)")
+def test_serve_stops_the_viewer_on_sigterm(tmp_path: Path) -> None:
+    """`kill` (SIGTERM) of `mctrack report --serve` stops the server and the rerun web viewer
+    it started, as Ctrl-C does (the viewer process was left running, holding its port)."""
+    import signal
+    import subprocess
+    import sys
+
+    from viz.shots import _rerun_executable
+
+    if _rerun_executable() is None:
+        pytest.skip("the rerun binary of rerun-sdk is not installed")
+    a, _, _ = make_runs(tmp_path)
+    root = Path(__file__).resolve().parents[1]
+    argv = ["report", str(a), "--out", str(tmp_path / "r"), "--serve", "--port", "0"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", *argv],
+        cwd=root,
+        env={**os.environ, "PYTHONPATH": str(root), "PYTHONUNBUFFERED": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # the report line, then the server's
+            if line.startswith("serving the report at "):
+                break
+        else:
+            pytest.fail(f"not served: {proc.stderr.read() if proc.stderr else ''}")
+        viewers = _children(proc.pid)
+        assert viewers and all(_running(v) for v in viewers)
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    deadline = time.monotonic() + 10  # (an orphan would be re-parented and keep running)
+    while any(_running(v) for v in viewers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = [v for v in viewers if _running(v)]
+    for v in left:  # (not left behind by a failing test either)
+        os.kill(v, signal.SIGKILL)
+    assert not left
+    assert proc.returncode == 0 and out.strip().endswith("stopped")
