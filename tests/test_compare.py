@@ -137,6 +137,28 @@ def test_compare_record_refused_writes_nothing(tmp_path: Path, capsys) -> None:
     assert list(out.iterdir()) == []
 
 
+def test_compare_into_an_earlier_comparison_removes_its_recordings(tmp_path: Path) -> None:
+    """An earlier --record's recordings/<seq>.rrd (of other runs) do not stay beside the new
+    compare.json; a run folder's own recordings are never touched."""
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    (out / "recordings").mkdir()
+    (out / "recordings" / f"{SEQ}.rrd").write_bytes(b"an earlier --record's")
+    (out / "notes.txt").write_text("mine")
+    # a refused comparison (--record of runs without tracks.json) keeps the earlier one
+    assert main(["compare", str(a), str(b), "--out", str(out), "--record"]) == 2
+    assert (out / "recordings" / f"{SEQ}.rrd").is_file() and (out / "compare.json").is_file()
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["compare.json", "compare.md", "notes.txt"]
+    # the output folder is run A itself (it has its summary.json): its recording stays
+    (a / "recordings").mkdir()
+    (a / "recordings" / f"{SEQ}.rrd").write_bytes(b"run a's own")
+    for _ in range(2):
+        assert main(["compare", str(a), str(b), "--out", str(a)]) == 0
+    assert (a / "recordings" / f"{SEQ}.rrd").read_bytes() == b"run a's own"
+
+
 @pytest.mark.parametrize(
     ("field", "value", "named"),
     [
