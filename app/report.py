@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from app import report_html as h
+from app.common import remove_earlier_outputs
 from app.compare import compare_result
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
@@ -37,6 +38,9 @@ from tracker.eval.compare import (
 )
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
 
+#: An earlier report's files that this one may not write again, removed first: its
+#: compare.json before a report without --compare, its shots of other runs or events.
+REPORT_OUTPUTS = ("compare.json", ".compare.json.*.tmp", "shots/*/*.png", "b/shots/*/*.png")
 RGB_A = "#3c78f0"
 RGB_B = "#f08c1e"
 
@@ -309,11 +313,13 @@ def build_report(
 ) -> dict[str, Any]:
     """Write ``out/index.html`` and its files; returns {"events": n, "summary": text}.
     ``links``: (relative href, text) of other reports, listed under "Runs"."""
+    # (first: runs that share no sequence are refused before anything is removed)
+    result = compare_result(run_a, run_b, tolerance=tolerance) if run_b is not None else None
+    if (out / "index.html").is_file():  # an earlier report's folder (its plots: below)
+        remove_earlier_outputs(out, REPORT_OUTPUTS)
     shutil.rmtree(out / "plots", ignore_errors=True)
     (out / "plots").mkdir(parents=True, exist_ok=True)
-    result = None
-    if run_b is not None:
-        result = compare_result(run_a, run_b, tolerance=tolerance)
+    if result is not None:
         write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
     plots = make_plots(run_a, run_b, out)
     motion_png = run_a.folder / "motion_velocity.png"

@@ -141,6 +141,34 @@ def test_report_shows_names_from_the_runs_as_text(tmp_path: Path) -> None:
     assert html.escape(seq) in (out / "plots" / "idsw_per_sequence.svg").read_text()
 
 
+def test_report_into_an_earlier_report_removes_what_it_does_not_write(tmp_path: Path) -> None:
+    """A report without --compare into an earlier --compare report's folder leaves no
+    compare.json of the earlier pair, nor its shots; other files stay."""
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 0
+    assert (out / "compare.json").is_file()
+    for shot in (out / "shots" / SEQ / "event0_f3_focus.png", out / "b" / "shots" / SEQ / "x.png"):
+        shot.parent.mkdir(parents=True)
+        shot.write_bytes(b"an earlier --shots'")
+    (out / "kitti_0016").mkdir()  # another report, linked with --link: not this one's
+    (out / "kitti_0016" / "compare.json").write_text("{}")
+    # a refused report (runs without a shared sequence) keeps the earlier one
+    summary = json.loads((b / "summary.json").read_text())
+    (b / "summary.json").write_text(json.dumps({**summary, "failed": {SEQ: "boom"}}))
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 2
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    files = {p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()}
+    assert files == {
+        "index.html",
+        "plots/hota.svg",
+        "plots/idsw_per_sequence.svg",
+        "kitti_0016/compare.json",
+    }
+
+
 def test_report_of_one_run_is_self_contained(tmp_path: Path) -> None:
     a, _, _ = make_runs(tmp_path)
     out = tmp_path / "report"
