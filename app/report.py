@@ -91,6 +91,13 @@ def run(args: argparse.Namespace) -> int:
     out = check_output_folder(args.out)
     labels = Path(args.labels) if args.labels else None
     path_a = Path(args.run)
+    for given in (args.run, args.compare):
+        # (load_run's own line says "pass --gt", an option report does not have)
+        if given and Path(given).is_file():
+            raise InputError(
+                f"{given}: a file; mctrack report reads `mctrack kitti --out` folders (compare "
+                "two tracks files with mctrack compare A B --gt GT.json --out DIR)"
+            )
     if args.compare:
         path_b = Path(args.compare)
         na, nb = run_names(path_a, path_b)

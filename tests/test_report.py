@@ -169,6 +169,19 @@ def test_report_into_an_earlier_report_removes_what_it_does_not_write(tmp_path: 
     }
 
 
+def test_report_of_a_tracks_file_says_it_reads_run_folders(tmp_path: Path, capsys) -> None:
+    """(was "pass --gt GT.json", an option mctrack report does not have)"""
+    a, _, _ = make_runs(tmp_path)
+    tracks = tmp_path / "tracks.json"
+    tracks.write_text("{}")
+    for argv in ([str(tracks)], [str(a), "--compare", str(tracks)]):
+        assert main(["report", *argv, "--out", str(tmp_path / "r")]) == 2
+        assert capsys.readouterr().err.strip() == (
+            f"mctrack report: error: {tracks}: a file; mctrack report reads `mctrack kitti --out` "
+            "folders (compare two tracks files with mctrack compare A B --gt GT.json --out DIR)"
+        )
+
+
 def test_report_of_one_run_is_self_contained(tmp_path: Path) -> None:
     a, _, _ = make_runs(tmp_path)
     out = tmp_path / "report"
