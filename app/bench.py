@@ -26,7 +26,7 @@ from app.inputs import (
 )
 from tracker.calibration import calibrate_frames, find_profile
 from tracker.config import ScoreSource, load_config
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import check_output_file, write_text_atomic
 from tracker.io.synthetic import synthetic_scene
 
 
@@ -48,6 +48,8 @@ def run(args: argparse.Namespace) -> int:
     from tracker.io.convert.kitti import VALIDATION_SEQS
     from tracker.pipeline import run_scene  # scipy: imported when running, not for --help
 
+    if args.json:  # before the benchmark: a bad --json fails now, not after minutes
+        check_output_file(args.json, "--json")
     results: dict[str, Any] = {"load_average_1min": round(os.getloadavg()[0], 2)}
     print(
         f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} (1 min); "

@@ -19,9 +19,11 @@ import dataclasses
 import json
 import shlex
 import sys
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from app.common import remove_earlier_outputs
 from app.runs import Run, load_run, run_names, scored_sequences
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -71,11 +73,26 @@ def load_pair(args: argparse.Namespace) -> tuple[Run, Run]:
     return run_a, run_b
 
 
+#: What a comparison writes, removed first from an earlier one's folder: its recordings of
+#: other sequences or runs (or all of them, before a comparison without --record) would sit
+#: beside this one's compare.json.
+COMPARE_OUTPUTS = (
+    "compare.json", "compare.md", "recordings/*.rrd",
+    ".compare.json.*.tmp", ".compare.md.*.tmp", "recordings/.*.rrd.*.tmp",
+)  # fmt: skip
+
+
 def run(args: argparse.Namespace) -> int:
     if args.tolerance < 0:
         raise InputError(f"--tolerance {args.tolerance}: must be >= 0")
     out = check_output_folder(args.out)
     run_a, run_b = load_pair(args)
+    result = compare_result(run_a, run_b, tolerance=args.tolerance)
+    tracks = record_tracks(run_a, run_b) if args.record else None
+    # once the inputs are accepted; only in an earlier comparison's folder (a run folder's
+    # recordings/ are the run's own)
+    if (out / "compare.json").is_file() and not (out / "summary.json").exists():
+        remove_earlier_outputs(out, COMPARE_OUTPUTS)
     # every option that changes the result, quoted: the line repeats the comparison
     words = [args.run_a, args.run_b, "--out", args.out, "--tolerance", str(args.tolerance)]
     words += [
@@ -84,10 +101,10 @@ def run(args: argparse.Namespace) -> int:
         *(["--record"] if args.record else []),
     ]
     command = "mctrack compare " + shlex.join(words)
-    result = compare(run_a, run_b, out, tolerance=args.tolerance, command=command)
-    if args.record:
-        result["recordings"] = record(run_a, run_b, result, out)
-        write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
+    result["command"] = command
+    if tracks is not None:  # first: a failed recording leaves no compare.json claiming it
+        result["recordings"] = record(run_a, run_b, result, out, tracks)
+    write_compare(result, out, command=command)
     _print(result, out)
     return 0
 
@@ -228,15 +245,19 @@ def compare(
     result = compare_result(run_a, run_b, tolerance=tolerance)
     if command:
         result["command"] = command
-    write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
-    write_text_atomic(out / "compare.md", ["\n".join(compare_markdown(result, command=command))])
+    write_compare(result, out, command=command)
     return result
 
 
-def record(run_a: Run, run_b: Run, result: dict[str, Any], out: Path) -> dict[str, str]:
-    """One side-by-side recording per sequence of both runs; {sequence: path}."""
+def write_compare(result: dict[str, Any], out: Path, *, command: str | None = None) -> None:
+    """``out/compare.json`` and ``out/compare.md`` of a comparison."""
+    write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
+    write_text_atomic(out / "compare.md", ["\n".join(compare_markdown(result, command=command))])
+
+
+def record_tracks(run_a: Run, run_b: Run) -> list[dict[str, Any]]:
+    """Both runs' tracks (their tracks.json), which --record draws (InputError if absent)."""
     from tracker.io.baseversion import read_baseversion
-    from viz.compare_record import record_comparison
 
     if run_a.kind != "kitti":
         raise InputError(f"{run_a.path}: --record needs `mctrack kitti` run folders")
@@ -246,6 +267,22 @@ def record(run_a: Run, run_b: Run, result: dict[str, Any], out: Path) -> dict[st
         if not file.is_file():
             raise InputError(f"{file}: missing (--record draws each run's tracks from it)")
         tracks.append(read_baseversion(file))
+    return tracks
+
+
+def record(
+    run_a: Run,
+    run_b: Run,
+    result: dict[str, Any],
+    out: Path,
+    tracks: Sequence[Mapping[str, Any]] | None = None,
+) -> dict[str, str]:
+    """One side-by-side recording per sequence of both runs; {sequence: path}. ``tracks``:
+    :func:`record_tracks` (read here when None)."""
+    from viz.compare_record import record_comparison
+
+    if tracks is None:
+        tracks = record_tracks(run_a, run_b)
     compared = result.get("sequences_compared") or run_a.summary["sequences"]
     seqs = [s for s in compared if s in tracks[0] and s in tracks[1]]
     gt = _ground_truth(run_a, seqs)

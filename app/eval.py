@@ -26,7 +26,7 @@ from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.baseversion import read_baseversion
-from tracker.io.fileio import path_in, write_text_atomic
+from tracker.io.fileio import check_output_folder, path_in, write_text_atomic
 
 LOG = logging.getLogger(__name__)
 #: The tracking submission of a tracks file, written in OUT and evaluated (not results.json: OUT
@@ -117,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
     dets = read_baseversion(args.detections) if args.detections else None
     if dets is not None:
         check_detections_match(dets, outputs, args.detections)
+    check_output_folder(out)  # before the evaluation: a bad --out fails now, not at the end
     result = evaluate_tracks(
         track_frames,
         outputs,

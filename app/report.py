@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from app import report_html as h
+from app.common import remove_earlier_outputs
 from app.compare import compare_result
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
@@ -37,6 +38,9 @@ from tracker.eval.compare import (
 )
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
 
+#: An earlier report's files that this one may not write again, removed first: its
+#: compare.json before a report without --compare, its shots of other runs or events.
+REPORT_OUTPUTS = ("compare.json", ".compare.json.*.tmp", "shots/*/*.png", "b/shots/*/*.png")
 RGB_A = "#3c78f0"
 RGB_B = "#f08c1e"
 
@@ -87,6 +91,13 @@ def run(args: argparse.Namespace) -> int:
     out = check_output_folder(args.out)
     labels = Path(args.labels) if args.labels else None
     path_a = Path(args.run)
+    for given in (args.run, args.compare):
+        # (load_run's own line says "pass --gt", an option report does not have)
+        if given and Path(given).is_file():
+            raise InputError(
+                f"{given}: a file; mctrack report reads `mctrack kitti --out` folders (compare "
+                "two tracks files with mctrack compare A B --gt GT.json --out DIR)"
+            )
     if args.compare:
         path_b = Path(args.compare)
         na, nb = run_names(path_a, path_b)
@@ -173,6 +184,9 @@ def _bars(
     import numpy as np
 
     plt = _pyplot()
+    # names from the input: a "$" would start matplotlib's mathtext (a "$\frac{$": an error)
+    groups = [_literal(g) for g in groups]
+    series = [(_literal(name), values, color) for name, values, color in series]
     width = max(4.5, 0.55 * len(groups) * max(1, len(series)) + 1.5)
     fig, ax = plt.subplots(figsize=(min(width, 14.0), 3.0))
     x = np.arange(len(groups))
@@ -188,6 +202,11 @@ def _bars(
         ax.legend(frameon=False, fontsize=8, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     _save(fig, path)
     plt.close(fig)
+
+
+def _literal(text: str) -> str:
+    """``text`` shown as it is by matplotlib (no mathtext)."""
+    return str(text).replace("$", r"\$")
 
 
 def _num(v: Any) -> float:
@@ -301,11 +320,13 @@ def build_report(
 ) -> dict[str, Any]:
     """Write ``out/index.html`` and its files; returns {"events": n, "summary": text}.
     ``links``: (relative href, text) of other reports, listed under "Runs"."""
+    # (first: runs that share no sequence are refused before anything is removed)
+    result = compare_result(run_a, run_b, tolerance=tolerance) if run_b is not None else None
+    if (out / "index.html").is_file():  # an earlier report's folder (its plots: below)
+        remove_earlier_outputs(out, REPORT_OUTPUTS)
     shutil.rmtree(out / "plots", ignore_errors=True)
     (out / "plots").mkdir(parents=True, exist_ok=True)
-    result = None
-    if run_b is not None:
-        result = compare_result(run_a, run_b, tolerance=tolerance)
+    if result is not None:
         write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
     plots = make_plots(run_a, run_b, out)
     motion_png = run_a.folder / "motion_velocity.png"

@@ -90,10 +90,47 @@ def read_summary(folder: Path) -> dict[str, Any]:
     classes = summary.get("classes")
     if not isinstance(classes, list) or not all(isinstance(c, str) for c in classes):
         raise InputError(f"{file}: field 'classes': expected a list of class names")
-    for key in ("metrics", "per_sequence", "per_sequence_metrics", "motion", "causes"):
+    for key in ("motion", "causes"):
         if key in summary and not isinstance(summary[key], dict | str):
             raise InputError(f"{file}: field {key!r}: expected an object")
+    # the shapes compare and report index into (a string or a list there was 'unexpected
+    # error'): {class: {...}}, {seq: {class: {...}}}, motion {"metrics": {estimator: {class:
+    # {...}}}}, failed {seq: reason}, config {...}
+    for key, depth in (
+        ("metrics", 2),
+        ("per_sequence", 3),
+        ("per_sequence_metrics", 3),
+        ("failed", 1),
+        ("config", 1),
+    ):
+        if summary.get(key) is not None:
+            _check_objects(file, repr(key), summary[key], depth)
+    if isinstance(summary.get("motion"), dict) and "metrics" in summary["motion"]:
+        _check_objects(file, "'motion' 'metrics'", summary["motion"]["metrics"], 3)
+    for key in ("labels", "kitti_root"):
+        if summary.get(key) is not None and not isinstance(summary[key], str):
+            raise InputError(f"{file}: field {key!r}: expected a folder path")
+    # a name listed twice would count its sequence's events twice
+    for key, names in (("sequences", seqs), ("evaluated_sequences", scored)):
+        twice = sorted({s for s in names if names.count(s) > 1})
+        if twice:
+            raise InputError(f"{file}: field {key!r}: {', '.join(twice)} listed more than once")
+    unknown = [s for s in scored if s not in seqs]
+    if unknown:
+        raise InputError(
+            f"{file}: field 'evaluated_sequences': {', '.join(unknown)} not in 'sequences'"
+        )
     return summary
+
+
+def _check_objects(file: Path, field: str, value: Any, depth: int) -> None:
+    """``value`` is a JSON object, and so are its values down to ``depth`` levels
+    (InputError naming the field and the keys that lead to the first that is not)."""
+    if not isinstance(value, dict):
+        raise InputError(f"{file}: field {field}: expected an object")
+    if depth > 1:
+        for key, inner in value.items():
+            _check_objects(file, f"{field} {key!r}", inner, depth - 1)
 
 
 def scored_sequences(summary: dict[str, Any]) -> list[str]:

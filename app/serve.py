@@ -21,6 +21,7 @@ import http.server
 import json
 import mimetypes
 import re
+import signal
 import subprocess
 import sys
 import threading
@@ -247,11 +248,18 @@ def report_server(
             viewer.stop()
 
 
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
 def serve_report(root: Path, recordings: Mapping[str, Path], *, host: str, port: int) -> int:
-    """Serve until Ctrl-C."""
+    """Serve until Ctrl-C or SIGTERM."""
+    # SIGTERM (kill, a CI timeout, docker stop) stops it as Ctrl-C does: by default it ended
+    # the process at once, and the rerun web viewer it started kept running, holding its port
+    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         with report_server(root, recordings, host=host, port=port) as (_, url):
-            print(f"serving the report at {url} (Ctrl-C to stop)")
+            print(f"serving the report at {url} (Ctrl-C to stop)", flush=True)
             if host not in ("127.0.0.1", "localhost", "::1"):
                 print(f"note: --host {host} exposes the report and recordings to the network")
             while True:
@@ -262,3 +270,5 @@ def serve_report(root: Path, recordings: Mapping[str, Path], *, host: str, port:
     except OSError as exc:
         print(f"mctrack report: cannot serve on {host}:{port}: {exc}", file=sys.stderr)
         return 2
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -602,6 +602,36 @@ def test_bad_input_is_one_line_naming_the_file(
     _assert_one_line_error(code, err, argv[0], *fragments)
 
 
+def test_bench_refuses_a_bad_json_path_before_the_benchmark(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """(was: after the whole benchmark, naming its temporary file: "/x/.out.123.tmp: is a
+    folder, expected a file")"""
+    monkeypatch.setenv("MCTRACK_KITTI_ROOT", str(tmp_path / "no_kit"))  # synthetic cases only
+    folder = tmp_path / "results"
+    folder.mkdir()
+    code, out, err = _run(
+        ["bench", "--repeat", "1", "--frames", "2", "--json", str(folder)], capsys
+    )
+    _assert_one_line_error(code, err, "bench", f"--json {folder}: is a folder")
+    assert "synthetic" not in out  # refused before any case ran
+
+
+def test_eval_refuses_a_bad_out_before_evaluating(
+    files: F, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """(was: after the evaluation, when eval.json or the velocity plot was written)"""
+    import app.eval
+
+    def evaluated(*args: object, **kwargs: object) -> None:
+        raise AssertionError("evaluated before --out was checked")
+
+    monkeypatch.setattr(app.eval, "evaluate_tracks", evaluated)
+    argv = ["eval", str(files["detections"]), "--gt", str(files["gt"]), "--motion"]
+    code, _, err = _run([*argv, "--out", str(files["a_file"])], capsys)
+    _assert_one_line_error(code, err, "eval", f"--out {files['a_file']}: exists and is not a")
+
+
 # ---------------------------------------------------------------------------------------------
 # the console script: exit status, no traceback, --debug
 

@@ -123,6 +123,73 @@ def test_compare_bad_input_is_one_line(tmp_path: Path, capsys) -> None:
     assert "missing" in capsys.readouterr().err
 
 
+def test_compare_record_refused_writes_nothing(tmp_path: Path, capsys) -> None:
+    """--record of runs without tracks.json is refused before compare.json and compare.md are
+    written (they were left behind, without the recordings, by the failed command)."""
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out), "--record"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == (
+        f"mctrack compare: error: {a / 'tracks.json'}: missing (--record draws each run's "
+        "tracks from it)"
+    )
+    assert list(out.iterdir()) == []
+
+
+def test_compare_into_an_earlier_comparison_removes_its_recordings(tmp_path: Path) -> None:
+    """An earlier --record's recordings/<seq>.rrd (of other runs) do not stay beside the new
+    compare.json; a run folder's own recordings are never touched."""
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    (out / "recordings").mkdir()
+    (out / "recordings" / f"{SEQ}.rrd").write_bytes(b"an earlier --record's")
+    (out / "notes.txt").write_text("mine")
+    # a refused comparison (--record of runs without tracks.json) keeps the earlier one
+    assert main(["compare", str(a), str(b), "--out", str(out), "--record"]) == 2
+    assert (out / "recordings" / f"{SEQ}.rrd").is_file() and (out / "compare.json").is_file()
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["compare.json", "compare.md", "notes.txt"]
+    # the output folder is run A itself (it has its summary.json): its recording stays
+    (a / "recordings").mkdir()
+    (a / "recordings" / f"{SEQ}.rrd").write_bytes(b"run a's own")
+    for _ in range(2):
+        assert main(["compare", str(a), str(b), "--out", str(a)]) == 0
+    assert (a / "recordings" / f"{SEQ}.rrd").read_bytes() == b"run a's own"
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "named"),
+    [
+        ("metrics", "absent", "field 'metrics': expected an object"),
+        ("metrics", {"car": "x"}, "field 'metrics' 'car': expected an object"),
+        ("per_sequence_metrics", {SEQ: "x"}, f"field 'per_sequence_metrics' '{SEQ}': expected"),
+        ("per_sequence", {SEQ: {"car": [1]}}, f"field 'per_sequence' '{SEQ}' 'car': expected"),
+        ("motion", {"metrics": {"kalman": "x"}}, "field 'motion' 'metrics' 'kalman': expected"),
+        ("failed", 3, "field 'failed': expected an object"),
+        ("failed", SEQ, "field 'failed': expected an object"),  # ("1" in "0001": failed)
+        ("config", "x", "field 'config': expected an object"),
+        ("labels", 3, "field 'labels': expected a folder path"),  # (was: the default kit's)
+        ("sequences", [SEQ, SEQ], f"field 'sequences': {SEQ} listed more than once"),
+        ("evaluated_sequences", ["0002"], "field 'evaluated_sequences': 0002 not in 'sequences'"),
+    ],
+)
+def test_compare_and_report_name_a_malformed_summary_field(
+    tmp_path: Path, capsys, field: str, value: object, named: str
+) -> None:
+    """Each shape compare and report index into is checked on reading (these were 'unexpected
+    error: AttributeError', or a sequence listed twice had its events counted twice)."""
+    a, b, _ = make_runs(tmp_path)
+    summary = json.loads((b / "summary.json").read_text())
+    (b / "summary.json").write_text(json.dumps({**summary, field: value}))
+    for args in (["compare", str(a), str(b)], ["report", str(a), "--compare", str(b)]):
+        assert main([*args, "--out", str(tmp_path / "o")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1
+        assert err.startswith(f"mctrack {args[0]}: error: {b / 'summary.json'}: {named}")
+
+
 def _with_second_sequence(run: Path, labels: Path, *, failed: bool = False) -> None:
     """Run a hand-made run over "0002" too (a copy of "0001": the same two ID switches in A),
     or, with ``failed``, a run whose "0002" failed (no result file, no metrics)."""

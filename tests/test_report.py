@@ -7,6 +7,7 @@ browser, it downloads none). Set MCTRACK_REPORT_SCREENSHOT=DIR to keep the scree
 
 from __future__ import annotations
 
+import html
 import json
 import os
 import shutil
@@ -112,6 +113,73 @@ def test_report_hand_made_compare(tmp_path: Path, browser) -> None:
     assert got == [("fixed", "1", "5"), ("introduced", "3", "6"), ("kept", "2", "4")]
     asc, desc = seen["sorted"]
     assert asc == sorted(asc) and desc == sorted(asc, reverse=True)
+
+
+def test_report_shows_names_from_the_runs_as_text(tmp_path: Path) -> None:
+    """A sequence and a class named with HTML and a matplotlib "$": escaped in the page, and
+    plotted as they are (a "$\\frac{$" tick label was matplotlib's mathtext parse error, exit 1
+    with the report half-written)."""
+    from tracker.io.fileio import safe_filename
+
+    seq, cls = "<script>alert(1)</script>$\\frac{$", "<img src=x onerror=alert(2)>$\\frac{$"
+    a, b, labels = make_runs(tmp_path)
+    shutil.copy(labels / f"{SEQ}.txt", labels / f"{safe_filename(seq)}.txt")
+    for run in (a, b):
+        (run / "data" / f"{SEQ}.txt").rename(run / "data" / f"{safe_filename(seq)}.txt")
+        summary = json.loads((run / "summary.json").read_text())
+        summary["sequences"] = [seq]
+        summary["per_sequence"] = {seq: summary["per_sequence"][SEQ]}
+        summary["metrics"][cls] = summary["metrics"]["car"]
+        (run / "summary.json").write_text(json.dumps(summary))
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 0
+    page = (out / "index.html").read_text()
+    assert "<script>alert" not in page and "<img src=x" not in page
+    assert html.escape(seq) in page and html.escape(cls) in page
+    # the plots name them as they are (matplotlib's SVG keeps each text in a comment)
+    assert html.escape(cls) in (out / "plots" / "hota.svg").read_text()
+    assert html.escape(seq) in (out / "plots" / "idsw_per_sequence.svg").read_text()
+
+
+def test_report_into_an_earlier_report_removes_what_it_does_not_write(tmp_path: Path) -> None:
+    """A report without --compare into an earlier --compare report's folder leaves no
+    compare.json of the earlier pair, nor its shots; other files stay."""
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 0
+    assert (out / "compare.json").is_file()
+    for shot in (out / "shots" / SEQ / "event0_f3_focus.png", out / "b" / "shots" / SEQ / "x.png"):
+        shot.parent.mkdir(parents=True)
+        shot.write_bytes(b"an earlier --shots'")
+    (out / "kitti_0016").mkdir()  # another report, linked with --link: not this one's
+    (out / "kitti_0016" / "compare.json").write_text("{}")
+    # a refused report (runs without a shared sequence) keeps the earlier one
+    summary = json.loads((b / "summary.json").read_text())
+    (b / "summary.json").write_text(json.dumps({**summary, "failed": {SEQ: "boom"}}))
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 2
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    files = {p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()}
+    assert files == {
+        "index.html",
+        "plots/hota.svg",
+        "plots/idsw_per_sequence.svg",
+        "kitti_0016/compare.json",
+    }
+
+
+def test_report_of_a_tracks_file_says_it_reads_run_folders(tmp_path: Path, capsys) -> None:
+    """(was "pass --gt GT.json", an option mctrack report does not have)"""
+    a, _, _ = make_runs(tmp_path)
+    tracks = tmp_path / "tracks.json"
+    tracks.write_text("{}")
+    for argv in ([str(tracks)], [str(a), "--compare", str(tracks)]):
+        assert main(["report", *argv, "--out", str(tmp_path / "r")]) == 2
+        assert capsys.readouterr().err.strip() == (
+            f"mctrack report: error: {tracks}: a file; mctrack report reads `mctrack kitti --out` "
+            "folders (compare two tracks files with mctrack compare A B --gt GT.json --out DIR)"
+        )
 
 
 def test_report_of_one_run_is_self_contained(tmp_path: Path) -> None:
@@ -258,3 +326,66 @@ def test_serve_stops_cleanly(tmp_path: Path, monkeypatch) -> None:
     with pytest.raises(urllib.error.URLError):
         urllib.request.urlopen(url, timeout=5)
     assert len(made) == 1 and made[0].process.poll() is not None
+
+
+def _children(pid: int) -> list[int]:
+    found: list[int] = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        found += [int(c) for c in (task / "children").read_text().split()]
+    return found
+
+
+def _running(pid: int) -> bool:
+    """Alive and not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, IndexError):
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads /proc (Linux)")
+def test_serve_stops_the_viewer_on_sigterm(tmp_path: Path) -> None:
+    """`kill` (SIGTERM) of `mctrack report --serve` stops the server and the rerun web viewer
+    it started, as Ctrl-C does (the viewer process was left running, holding its port)."""
+    import signal
+    import subprocess
+    import sys
+
+    from viz.shots import _rerun_executable
+
+    if _rerun_executable() is None:
+        pytest.skip("the rerun binary of rerun-sdk is not installed")
+    a, _, _ = make_runs(tmp_path)
+    root = Path(__file__).resolve().parents[1]
+    argv = ["report", str(a), "--out", str(tmp_path / "r"), "--serve", "--port", "0"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", *argv],
+        cwd=root,
+        env={**os.environ, "PYTHONPATH": str(root), "PYTHONUNBUFFERED": "1"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:  # the report line, then the server's
+            if line.startswith("serving the report at "):
+                break
+        else:
+            pytest.fail(f"not served: {proc.stderr.read() if proc.stderr else ''}")
+        viewers = _children(proc.pid)
+        assert viewers and all(_running(v) for v in viewers)
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    deadline = time.monotonic() + 10  # (an orphan would be re-parented and keep running)
+    while any(_running(v) for v in viewers) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = [v for v in viewers if _running(v)]
+    for v in left:  # (not left behind by a failing test either)
+        os.kill(v, signal.SIGKILL)
+    assert not left
+    assert proc.returncode == 0 and out.strip().endswith("stopped")
