@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import fnmatch
 import logging
 import resource
 import shlex
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from tracker.errors import InputError
 
 if TYPE_CHECKING:
     from tracker.calibration import ScoreProfile
@@ -109,6 +112,31 @@ def _own_file(folder: Path, path: Path) -> bool:
         (folder / Path(*path.relative_to(folder).parts[:i])).is_symlink()
         for i in range(1, len(path.relative_to(folder).parts))
     )
+
+
+def refuse_inputs_among_outputs(
+    folder: Path, patterns: Sequence[str], inputs: Mapping[str, Path | None]
+) -> None:
+    """InputError when an input (``inputs``: option -> path) is, or holds, a file the run writes
+    or removes in ``folder`` (``patterns``: globs relative to it, as for
+    :func:`remove_earlier_outputs`): `--detections OUT/results.json --out OUT` would be deleted
+    or overwritten by the run that reads it. Called before any work."""
+    root = folder.resolve()
+    for option, path in inputs.items():
+        if path is None:
+            continue
+        target = Path(path).resolve()
+        if not target.is_relative_to(root):
+            continue
+        files = sorted(target.rglob("*")) if target.is_dir() else [target]
+        for file in files:
+            rel = file.relative_to(root).as_posix()
+            if any(fnmatch.fnmatchcase(rel, pattern) for pattern in patterns):
+                what = "is" if file == target else f"holds {rel},"
+                raise InputError(
+                    f"{path}: {option} {what} a file this run writes in {folder}: move it, or "
+                    "give another --out"
+                )
 
 
 def remove_earlier_outputs(folder: Path, patterns: Sequence[str]) -> int:

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.common import peak_rss_mb, remove_earlier_outputs
+from app.common import peak_rss_mb, refuse_inputs_among_outputs, remove_earlier_outputs
 from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
@@ -164,6 +164,7 @@ def run_nuscenes(
     from tracker.io.nuscenes_writer import write_nuscenes_parts
     from tracker.io.writers import write_tracks_parts
 
+    refuse_inputs_among_outputs(out, RUN_OUTPUTS, {"--detections": detections})
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     has_gt = not version.endswith("test")
     want_gt = has_gt and (motion or record)

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from app import scenes
-from app.common import SELF_PROFILE, log_self_profile
+from app.common import SELF_PROFILE, log_self_profile, refuse_inputs_among_outputs
 from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.calibration import (
@@ -258,8 +258,13 @@ def _calibrated(
     return calibrated, fitted
 
 
+#: What a run writes in --out (its scene parts: .scenes/)
+RUN_OUTPUTS = ("summary.json", "tracks.json", "self_profile.toml", "data/*.txt", ".scenes/*")
+
+
 def run(args: argparse.Namespace) -> int:
     out = check_output_folder(args.out)  # before any work: exists as a file, not writable
+    refuse_inputs_among_outputs(out, RUN_OUTPUTS, {"INPUT": Path(args.input)})
     summary_path = out / "summary.json"
     summary_path.unlink(missing_ok=True)  # written last: its absence marks a run cut short
     overrides = {"mode": args.mode} if args.mode else None

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.common import remove_earlier_outputs
+from app.common import refuse_inputs_among_outputs, remove_earlier_outputs
 from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
@@ -147,6 +147,8 @@ def run_waymo(
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     from tracker.io.convert.waymo import segment_names
 
+    inputs = {"--data-root": data_root, "--detections": detections, "--gt": gt}
+    refuse_inputs_among_outputs(out, RUN_OUTPUTS, inputs)
     names = segment_names(data_root, detections, segments)
     if any((out / mark).exists() for mark in RUN_MARKS):  # a refused run keeps the earlier one
         remove_earlier_outputs(out, RUN_OUTPUTS)

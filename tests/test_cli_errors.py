@@ -923,3 +923,22 @@ def test_a_broken_pipe_of_the_commands_own_is_an_unexpected_error(
     monkeypatch.setattr(app.validate, "run", broken)
     code, _, err = _run(["validate", str(SAMPLE / "detections.json.gz")], capsys)
     assert code == cli.EXIT_BUG and "unexpected error: BrokenPipeError" in err
+
+
+def test_track_refuses_an_input_it_would_overwrite(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack track OUT/tracks.json --out OUT`: the run would overwrite the file it reads with
+    its tracks; refused before any work, the file kept (it was overwritten)."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "tracks.json").write_text(json.dumps({"0001": _sample_frames()[:3]}))
+    before = (out / "tracks.json").read_bytes()
+    code, _, err = _run(["track", str(out / "tracks.json"), "--out", str(out)], capsys)
+    assert code == 2
+    assert f"{out / 'tracks.json'}: INPUT is a file this run writes in {out}" in err
+    assert (out / "tracks.json").read_bytes() == before
+    # another name in the same folder is fine
+    (out / "tracks.json").rename(out / "dets.json")
+    code, _, err = _run(["track", str(out / "dets.json"), "--out", str(out)], capsys)
+    assert code == 0, err

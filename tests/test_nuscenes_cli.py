@@ -4,6 +4,7 @@ synthetic dataset (tests/test_nuscenes_fixture.py)."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -187,3 +188,21 @@ def test_eval_of_a_tracks_file_leaves_the_runs_submission_as_it_is(
     assert (run / "results.json").read_bytes() == before
     evaluated = json.loads((run / "eval.json").read_text())["results"]
     assert evaluated == str(run / "eval_results.json") and Path(evaluated).is_file()
+
+
+def test_nuscenes_refuses_detections_it_would_overwrite(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--detections OUT/results.json --out OUT: the run would delete (an earlier run's outputs go
+    first) or overwrite the file it reads; refused before any work, the file kept (it was
+    deleted)."""
+    out = tmp_path / "run"
+    out.mkdir()
+    detections = out / "results.json"
+    shutil.copy(noisy, detections)
+    before = detections.read_bytes()
+    argv = ["nuscenes", *_common(dataset), "--detections", str(detections), "--no-eval"]
+    assert main([*argv, "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{detections}: --detections is a file this run writes in {out}" in err
+    assert detections.read_bytes() == before and sorted(out.iterdir()) == [detections]

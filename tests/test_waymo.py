@@ -425,6 +425,23 @@ def test_waymo_run_into_an_earlier_run_replaces_it(segment: Path, tmp_path: Path
     assert json.loads((run / "summary.json").read_text())["segments"] == ["other"]
 
 
+def test_waymo_refuses_inputs_among_its_outputs(
+    segment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--detections a folder of an earlier run's results/ inside --out: the run would delete the
+    files it reads (an earlier run's outputs go first); refused before any work, files kept."""
+    run = tmp_path / "run"
+    detections = run / "results" / "vehicle"
+    detections.mkdir(parents=True)
+    shutil.copy(segment / "dets" / f"{SEGMENT}.npz", detections)
+    (run / "summary.json").write_text("{}")  # an earlier run's
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(detections)]
+    assert main([*argv, "--out", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert f"--detections holds results/vehicle/{SEGMENT}.npz, a file this run writes" in err
+    assert (detections / f"{SEGMENT}.npz").is_file() and (run / "summary.json").is_file()
+
+
 def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> None:
     """A box or an ego translation so large (1e308) that the pose or camera transforms overflow:
     one error naming the file and the row or entry (was converted with numpy overflow warnings,
