@@ -605,7 +605,8 @@ def test_detection_fields_are_read_strictly(
     """A boolean score (was 1.0), a detection_name that is not a string (was counted as a
     skipped class), a velocity of three values (the first two were used; the format and the
     devkit say two) or an infinite one (was 0, unsaid): one error naming the box and field. A
-    NaN velocity (the devkit's "no estimate") is still read as 0, now counted and logged."""
+    NaN, null or absent velocity (the devkit's "no estimate") is still read as 0, now counted
+    and logged (null was not), and a half-NaN one wholly (its other half was kept)."""
     results = json.loads(clean_path.read_text())
     token = dataset.samples["scene-0916"][2]
     path = tmp_path / "fields.json"
@@ -629,10 +630,15 @@ def test_detection_fields_are_read_strictly(
         with pytest.raises(InputError) as err:
             convert(**fields)
         assert str(err.value) == f"{at} {said}", fields
-    with caplog.at_level("WARNING"):
-        conv = convert(velocity=[math.nan, 1.5])
-    assert conv.velocity_unknown == 1
-    assert f"{path}: 1 detections with a NaN velocity (no estimate)" in caplog.text
+    for velocity in ([math.nan, 1.5], None):  # (None: "velocity": null; absent alike)
+        caplog.clear()
+        with caplog.at_level("WARNING"):
+            conv = convert(velocity=velocity)
+        assert conv.velocity_unknown == 1, velocity
+        assert f"{path}: 1 detections without a velocity estimate" in caplog.text
+        frame = next(f for f in conv.detections["scene-0916"] if f.sample_token == token)
+        assert np.isfinite(frame.boxes.velocity).all()
+        assert not np.any(frame.boxes.velocity == 1.5), "a half-known velocity is not kept"
     assert convert_nuscenes(
         dataset.dataroot, version=dataset.version, detections=clean_path, split="mini_val",
         nusc=nusc,
