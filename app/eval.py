@@ -132,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
     if isinstance(result.get("static"), str):
         print(result["static"])
+    for cls, why in result.get("static_absent", {}).items():
+        print(f"{cls:<12}  absent: {why}")  # (as mctrack kitti prints it)
     return 0
 
 
@@ -152,6 +154,7 @@ def evaluate_tracks(
     :func:`tracker.io.writers.write_kitti_sequence` (``TrackerConfig.kitti_writer_options()``;
     None: projections, full width); a mode other than projection takes its 2D boxes from
     ``dets`` (:func:`check_detections_match` them first), and without them writes projections."""
+    from tracker.eval.kitti import absent_class_notes
     from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
     result: dict[str, Any] = {"tracks_scenes": sorted(outputs), "classes": list(classes)}
@@ -162,10 +165,16 @@ def evaluate_tracks(
             writer["image_boxes"] = ImageBoxes.PROJECTION
         mode = ImageBoxes(writer.get("image_boxes", ImageBoxes.PROJECTION))
         frames = track_frames if mode is ImageBoxes.PROJECTION else dets
-        result["static"] = _static_metrics(frames, outputs, gt, classes, labels, writer, result)
+        static = _static_metrics(frames, outputs, gt, classes, labels, writer, result)
+        if isinstance(static, dict):  # a class without ground truth is absent, as in kitti
+            absent = absent_class_notes(static)
+            static = {c: m for c, m in static.items() if c not in absent}
+            if absent:
+                result["static_absent"] = absent
+        result["static"] = static
     else:
         result["static"] = "skipped: static metrics need --labels (KITTI label_02 folder)"
-    md += _static_markdown(result["static"])
+    md += _static_markdown(result["static"], result.get("static_absent", {}))
     if "evaluation" in result:
         md += [result["evaluation"], ""]
     if motion:
@@ -268,7 +277,7 @@ def check_detections_match(
                 )
 
 
-def _static_markdown(static: dict[str, Any] | str) -> list[str]:
+def _static_markdown(static: dict[str, Any] | str, absent: Mapping[str, str]) -> list[str]:
     if isinstance(static, str):
         return ["## Static metrics", "", static, ""]
     cols = ["HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "FP", "FN", "Frag"]
@@ -279,6 +288,7 @@ def _static_markdown(static: dict[str, Any] | str) -> list[str]:
         "|---|" + "---:|" * len(cols),
     ]
     lines += [f"| {c} | " + " | ".join(str(m[k]) for k in cols) + " |" for c, m in static.items()]
+    lines += [f"| {c} | absent: {why} |" + " |" * (len(cols) - 1) for c, why in absent.items()]
     return [*lines, ""]
 
 

@@ -56,7 +56,7 @@ from tracker.eval.fates import FateCounter, combine_fates
 from tracker.eval.kitti import (
     SUPPORTED_CLASSES,
     SequenceEvaluation,
-    absent_classes,
+    absent_class_notes,
     check_kitti_labels,
     combine_sequences,
     evaluate_kitti_sequence,
@@ -484,14 +484,10 @@ def run_kitti(
             metrics = combine_sequences(
                 [r.info["evaluation"] for r in scored], job.eval_classes, per_sequence=per_seq
             )
-            absent = absent_classes(metrics)
+            absent = absent_class_notes(metrics)
             summary["metrics"] = {c: m for c, m in metrics.items() if c not in absent}
             if absent:
-                summary["metrics_absent"] = {
-                    c: f"no ground-truth {c} in these sequences; {metrics[c]['FP']} tracked "
-                    "boxes, all false positives"
-                    for c in absent
-                }
+                summary["metrics_absent"] = absent
             summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
             summary["per_sequence"] = {
                 seq: {c: {k: m[k] for k in ("IDSW", "Frag")} for c, m in per.items()}

@@ -201,7 +201,9 @@ def test_eval_scores_the_frames_the_tracks_file_covers(
         num_timesteps=20,
         classes=classes,
     )
-    assert result["static"] == combine_sequences([expected], classes)
+    combined = combine_sequences([expected], classes)
+    assert result["static"] == {"car": combined["car"]}  # (no pedestrian in 20-39: absent)
+    assert list(result["static_absent"]) == ["pedestrian"]
     assert result["static"]["car"]["FN"] < 50  # (every labelled frame: > 1000)
     # a whole run is scored as before, on every frame, and says nothing
     whole = _eval(sample_tracks["all"], labels, tmp_path / "w", capsys)
@@ -260,3 +262,24 @@ def test_kitti_refuses_the_reviewers_label_file(
     detections = kitti_root / "detections" / "virconv" / "training"
     code, err = _run([*argv[:-4], "--labels", str(detections), *argv[-2:]], capsys)
     _one_line_error(code, err, f"{detections / '0012.txt'}:1: field 'track_id': not a number")
+
+
+def test_eval_shows_a_class_without_ground_truth_as_absent_as_kitti_does(
+    sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The sample (0001) has no labelled cyclist: its tracked cyclists are all false positives
+    (HOTA 0, MOTA -2300), so eval reports the class absent, with mctrack kitti's rule, wording
+    and JSON shape (scored metrics without it, {class: why} beside them); the other classes'
+    metrics stay as they were."""
+    argv = ["eval", str(sample_tracks["all"]), "--gt", str(SAMPLE / "gt.json.gz")]
+    code = main([*argv, "--labels", str(LABEL.parent), "--out", str(tmp_path / "e")])
+    printed = capsys.readouterr().out
+    assert code == 0
+    result = json.loads((tmp_path / "e" / "eval.json").read_text())
+    why = "no ground-truth cyclist in these sequences; 23 tracked boxes, all false positives"
+    assert result["static_absent"] == {"cyclist": why}
+    assert list(result["static"]) == ["car", "pedestrian"]
+    assert f"cyclist       absent: {why}" in printed.splitlines()
+    assert f"| cyclist | absent: {why} |" in (tmp_path / "e" / "eval.md").read_text()
+    scored = _eval(sample_tracks["all"], LABEL.parent, tmp_path / "cp", capsys)
+    assert result["static"] == scored["static"] and "static_absent" not in scored

@@ -337,6 +337,16 @@ def absent_classes(metrics: Mapping[str, Mapping[str, float]]) -> list[str]:
     return [c for c, m in metrics.items() if m["TP"] + m["FN"] == 0]
 
 
+def absent_class_notes(metrics: Mapping[str, Mapping[str, float]]) -> dict[str, str]:
+    """{class: why it is absent} of :func:`absent_classes`: the wording every report of KITTI
+    metrics uses (`mctrack kitti`'s ``metrics_absent``, `mctrack eval`'s ``static_absent``)."""
+    return {
+        c: f"no ground-truth {c} in these sequences; {metrics[c]['FP']} tracked boxes, all "
+        "false positives"
+        for c in absent_classes(metrics)
+    }
+
+
 def _summarise(res: dict[str, dict[str, Any]]) -> dict[str, float]:
     hota, clear, ident = res["HOTA"], res["CLEAR"], res["Identity"]
     pct = lambda v: round(float(np.mean(v)) * 100.0, 3)  # noqa: E731
