@@ -16,8 +16,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
+import os
 import shlex
 import shutil
+import stat
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -38,6 +41,8 @@ from tracker.eval.compare import (
 )
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
 
+LOG = logging.getLogger(__name__)
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 #: An earlier report's files that this one may not write again, removed first: its
 #: compare.json before a report without --compare, its shots of other runs or events.
 REPORT_OUTPUTS = ("compare.json", ".compare.json.*.tmp", "shots/*/*.png", "b/shots/*/*.png")
@@ -329,9 +334,9 @@ def build_report(
     if result is not None:
         write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
     plots = make_plots(run_a, run_b, out)
-    motion_png = run_a.folder / "motion_velocity.png"
-    if motion_png.is_file():
-        write_bytes_atomic(out / "plots" / "motion_velocity.png", motion_png.read_bytes())
+    motion_png = _run_png(run_a.folder / "motion_velocity.png")
+    if motion_png is not None:
+        write_bytes_atomic(out / "plots" / "motion_velocity.png", motion_png)
         plots.append(
             ("plots/motion_velocity.png", f"velocity curves of the largest lags ({run_a.name})")
         )
@@ -375,6 +380,32 @@ def build_report(
     n = len(result["events"]) if result else len(run_a.events)
     summary = f"{n} events, {len(plots)} plots, {len(shot_files)} shots"
     return {"events": n, "summary": summary}
+
+
+def _run_png(path: Path) -> bytes | None:
+    """The content of a run folder's PNG that the report copies, or None: absent (the report
+    goes without it), or skipped with a logged line. The run folder is input and the report may
+    be served: a symbolic link (to any file the user can read), a FIFO or device, or a file that
+    is not a PNG is not copied."""
+    if path.is_symlink():
+        why = "a symbolic link"
+    elif not path.exists():
+        return None
+    else:
+        try:  # (O_NOFOLLOW: not a link put there since; O_NONBLOCK: a FIFO does not hang)
+            fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK)
+        except OSError as exc:
+            why = f"unreadable ({exc.strerror})"
+        else:
+            with os.fdopen(fd, "rb") as fh:
+                if not stat.S_ISREG(os.fstat(fh.fileno()).st_mode):
+                    why = "not a regular file"
+                elif (data := fh.read()).startswith(PNG_SIGNATURE):
+                    return data
+                else:
+                    why = "not a PNG"
+    LOG.warning("%s: %s, not copied into the report", path, why)
+    return None
 
 
 def _links(links: Sequence[tuple[str, str]]) -> str:

@@ -182,6 +182,42 @@ def test_report_of_a_tracks_file_says_it_reads_run_folders(tmp_path: Path, capsy
         )
 
 
+PNG = b"\x89PNG\r\n\x1a\n" + b"\0" * 32  # (the signature is what the report checks)
+
+
+@pytest.mark.parametrize("kind", ["link to a PNG", "link to a secret", "FIFO", "not a PNG", "PNG"])
+def test_report_copies_a_runs_motion_png_only_as_a_png_file(
+    kind: str, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The run folder is input, the report's plots/ may be served: motion_velocity.png that is
+    a link (the reviewer's, to /etc/hostname, was copied as what it points to), a FIFO or a
+    file that is not a PNG is skipped with a line naming it; a PNG file is copied."""
+    a, _, _ = make_runs(tmp_path)
+    png = a / "motion_velocity.png"
+    (tmp_path / "secret").write_bytes(b"secret")
+    (tmp_path / "elsewhere.png").write_bytes(PNG)
+    if kind == "link to a PNG":
+        png.symlink_to(tmp_path / "elsewhere.png")
+    elif kind == "link to a secret":
+        png.symlink_to(tmp_path / "secret")
+    elif kind == "FIFO":
+        os.mkfifo(png)
+    else:
+        png.write_bytes(b"secret" if kind == "not a PNG" else PNG)
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    copied = out / "plots" / "motion_velocity.png"
+    if kind == "PNG":
+        assert (
+            copied.read_bytes() == PNG
+            and "plots/motion_velocity.png" in (out / "index.html").read_text()
+        )
+        return
+    assert not copied.exists() and "motion_velocity.png" not in (out / "index.html").read_text()
+    why = {"FIFO": "not a regular file", "not a PNG": "not a PNG"}.get(kind, "a symbolic link")
+    assert f"{png}: {why}, not copied into the report" in caplog.text
+
+
 def test_report_of_one_run_is_self_contained(tmp_path: Path) -> None:
     a, _, _ = make_runs(tmp_path)
     out = tmp_path / "report"
