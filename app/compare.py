@@ -23,7 +23,7 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from app.common import remove_earlier_outputs
+from app.common import refuse_inputs_among_outputs, remove_earlier_outputs
 from app.runs import Run, load_run, run_names, scored_sequences
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -76,9 +76,9 @@ def load_pair(args: argparse.Namespace) -> tuple[Run, Run]:
 #: What a comparison writes, removed first from an earlier one's folder: its recordings of
 #: other sequences or runs (or all of them, before a comparison without --record) would sit
 #: beside this one's compare.json.
+COMPARE_RECORDINGS = ("recordings/*.rrd", "recordings/.*.rrd.*.tmp")  # (--record's)
 COMPARE_OUTPUTS = (
-    "compare.json", "compare.md", "recordings/*.rrd",
-    ".compare.json.*.tmp", ".compare.md.*.tmp", "recordings/.*.rrd.*.tmp",
+    "compare.json", "compare.md", ".compare.json.*.tmp", ".compare.md.*.tmp", *COMPARE_RECORDINGS
 )  # fmt: skip
 
 
@@ -86,6 +86,11 @@ def run(args: argparse.Namespace) -> int:
     if args.tolerance < 0:
         raise InputError(f"--tolerance {args.tolerance}: must be >= 0")
     out = check_output_folder(args.out)
+    if args.record:  # --out RUN_A: its own recordings/<seq>.rrd (which it reads) overwritten
+        inputs = {"RUN_A": args.run_a, "RUN_B": args.run_b, "--labels": args.labels}
+        refuse_inputs_among_outputs(
+            out, COMPARE_RECORDINGS, {k: Path(v) if v else None for k, v in inputs.items()}
+        )
     run_a, run_b = load_pair(args)
     result = compare_result(run_a, run_b, tolerance=args.tolerance)
     tracks = record_tracks(run_a, run_b) if args.record else None

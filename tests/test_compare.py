@@ -159,6 +159,25 @@ def test_compare_into_an_earlier_comparison_removes_its_recordings(tmp_path: Pat
     assert (a / "recordings" / f"{SEQ}.rrd").read_bytes() == b"run a's own"
 
 
+@pytest.mark.parametrize("which", ["a", "b"])
+def test_compare_record_into_a_compared_run_is_refused(which: str, tmp_path: Path, capsys) -> None:
+    """--record --out RUN wrote the side-by-side recording over the run's own
+    recordings/<seq>.rrd (which compare reads the run's events from): refused before any
+    work, naming the run and its file, which stays."""
+    runs = dict(zip("ab", make_runs(tmp_path)[:2], strict=True))
+    own = runs[which] / "recordings" / f"{SEQ}.rrd"
+    own.parent.mkdir()
+    own.write_bytes(b"the run's own")
+    argv = ["compare", str(runs["a"]), str(runs["b"]), "--out", str(runs[which]), "--record"]
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack compare: error: {runs[which]}: RUN_{which.upper()} holds recordings/{SEQ}.rrd,"
+        f" a file this run writes in {runs[which]}: move it, or give another --out"
+    )
+    assert own.read_bytes() == b"the run's own"
+    assert not (runs[which] / "compare.json").exists()
+
+
 @pytest.mark.parametrize(
     ("field", "value", "named"),
     [
