@@ -102,7 +102,11 @@ def run(args: argparse.Namespace) -> int:
     classes = args.classes or list(SUPPORTED_CLASSES)
     config = load_config(args.config)
     writer = config.kitti_writer_options()
-    if args.detections is None and writer["image_boxes"] is not ImageBoxes.PROJECTION:
+    if (
+        args.labels is not None  # (the 2D boxes are the static metrics' alone)
+        and args.detections is None
+        and writer["image_boxes"] is not ImageBoxes.PROJECTION
+    ):
         # the tracks file keeps the tracked boxes, not the detections' own 2D boxes
         print(
             f"mctrack eval: {args.config}: image_boxes = {config.image_boxes.value!r} needs the"

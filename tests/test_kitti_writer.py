@@ -543,3 +543,18 @@ def test_detections_without_a_2d_box_write_the_projections(tmp_path: Path, fill:
                          own_box_window=15)  # fmt: skip
     text = (tmp_path / "auto.txt").read_text()
     assert text.count("\n") > 300 and text == (tmp_path / "projection.txt").read_text()
+
+
+def test_eval_says_nothing_of_image_boxes_without_labels(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The image_boxes note is about the 2D boxes of the static metrics: without --labels
+    (motion metrics alone) it does not apply and is not printed."""
+    from app.cli import main
+
+    tracks = tmp_path / "t" / "tracks.json"
+    assert main(["track", str(SAMPLE / "detections.json.gz"), "--out", str(tracks.parent)]) == 0
+    capsys.readouterr()
+    args = ["eval", str(tracks), "--gt", str(SAMPLE / "gt.json.gz"), "--motion"]
+    assert main([*args, "--out", str(tmp_path / "e")]) == 0
+    assert "image_boxes" not in capsys.readouterr().err
