@@ -283,3 +283,29 @@ def test_eval_shows_a_class_without_ground_truth_as_absent_as_kitti_does(
     assert f"| cyclist | absent: {why} |" in (tmp_path / "e" / "eval.md").read_text()
     scored = _eval(sample_tracks["all"], LABEL.parent, tmp_path / "cp", capsys)
     assert result["static"] == scored["static"] and "static_absent" not in scored
+
+
+def test_eval_warns_when_the_tracks_file_is_the_ground_truth(
+    sample_tracks: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """`mctrack eval GT --gt GT` (or a copy of GT) was scored, without a word, as a near-perfect
+    tracker (car HOTA 99.95): one warning says the tracks file looks like the ground truth."""
+    import gzip
+
+    gt = SAMPLE / "gt.json.gz"
+    (tmp_path / "copy.json").write_bytes(gzip.decompress(gt.read_bytes()))
+    for tracks in (gt, tmp_path / "copy.json"):
+        caplog.clear()
+        result = _eval(tracks, LABEL.parent, tmp_path / f"e_{tracks.name}", capsys)
+        assert result["static"]["car"]["HOTA"] > 99
+        said = [r.getMessage() for r in caplog.records if "ground truth itself" in r.message]
+        assert said == [
+            f"{tracks}: the tracks file looks like the ground truth itself (--gt {gt}: the same "
+            "boxes and track ids): it is scored as a (near-)perfect tracker"
+        ]
+    caplog.clear()
+    _eval(sample_tracks["all"], LABEL.parent, tmp_path / "tracked", capsys)
+    assert "ground truth itself" not in caplog.text
