@@ -203,7 +203,9 @@ def test_eval_scores_the_frames_the_tracks_file_covers(
     )
     combined = combine_sequences([expected], classes)
     assert result["static"] == {"car": combined["car"]}  # (no pedestrian in 20-39: absent)
-    assert list(result["static_absent"]) == ["pedestrian"]
+    assert result["static_absent"] == {
+        "pedestrian": "no ground-truth pedestrian in these sequences; no tracked pedestrian either"
+    }  # (none tracked: not "0 tracked boxes, all false positives")
     assert result["static"]["car"]["FN"] < 50  # (every labelled frame: > 1000)
     # a whole run is scored as before, on every frame, and says nothing
     whole = _eval(sample_tracks["all"], labels, tmp_path / "w", capsys)

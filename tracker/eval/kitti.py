@@ -340,11 +340,13 @@ def absent_classes(metrics: Mapping[str, Mapping[str, float]]) -> list[str]:
 def absent_class_notes(metrics: Mapping[str, Mapping[str, float]]) -> dict[str, str]:
     """{class: why it is absent} of :func:`absent_classes`: the wording every report of KITTI
     metrics uses (`mctrack kitti`'s ``metrics_absent``, `mctrack eval`'s ``static_absent``)."""
-    return {
-        c: f"no ground-truth {c} in these sequences; {metrics[c]['FP']} tracked boxes, all "
-        "false positives"
-        for c in absent_classes(metrics)
-    }
+
+    def why(c: str) -> str:
+        fp = int(metrics[c]["FP"])
+        tracked = f"{fp} tracked boxes, all false positives" if fp else f"no tracked {c} either"
+        return f"no ground-truth {c} in these sequences; {tracked}"
+
+    return {c: why(c) for c in absent_classes(metrics)}
 
 
 def _summarise(res: dict[str, dict[str, Any]]) -> dict[str, float]:
