@@ -461,6 +461,20 @@ def _edited_dataset(
     return root
 
 
+def _conversion_error(
+    dataset: SyntheticNuScenes,
+    root: Path,
+    edit: Callable[[dict[str, list[Any]]], None],
+    detections: Path,
+    match: str | None = None,
+) -> tuple[Path, str]:
+    """The edited dataset (:func:`_edited_dataset`) and the InputError converting it raises."""
+    root = _edited_dataset(dataset, root, edit)
+    with pytest.raises(InputError, match=match) as err:
+        convert_nuscenes(root, version=dataset.version, detections=detections, split="mini_val")
+    return root, str(err.value)
+
+
 def _set_sample(tables: dict[str, list[Any]], token: str, **fields: Any) -> None:
     next(s for s in tables["sample"] if s["token"] == token).update(fields)
 
@@ -481,10 +495,8 @@ def test_a_sample_chain_that_loops_or_leaves_its_scene_is_named(
         "loop": (lambda t: _set_sample(t, val[5], next=val[2]), "reached again", val[2]),
     }
     for name, (edit, match, named) in cases.items():
-        root = _edited_dataset(dataset, tmp_path / name, edit)
-        with pytest.raises(InputError, match=match) as err:
-            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
-        assert f"sample.json: sample '{named}'" in str(err.value)
+        _, error = _conversion_error(dataset, tmp_path / name, edit, clean_path, match)
+        assert f"sample.json: sample '{named}'" in error
 
 
 @needs_devkit
@@ -524,10 +536,8 @@ def test_a_pose_without_a_rotation_is_named(
         (zero_pose, "ego_pose", pose, "'rotation' is the zero quaternion"),
         (short_rotation, "calibrated_sensor", sensor, "'rotation' must be 4 finite numbers"),
     ):
-        root = _edited_dataset(dataset, tmp_path / table, edit)
-        with pytest.raises(InputError) as err:
-            convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
-        assert f"{table}.json: {table} '{record['token']}': field {field}" in str(err.value)
+        _, error = _conversion_error(dataset, tmp_path / table, edit, clean_path)
+        assert f"{table}.json: {table} '{record['token']}': field {field}" in error
 
 
 @needs_devkit
@@ -543,11 +553,9 @@ def test_a_sample_without_lidar_top_names_the_sample_data_table(
             if record["sample_token"] == sample and "/LIDAR_TOP/" in record["filename"]:
                 record["is_key_frame"] = False
 
-    root = _edited_dataset(dataset, tmp_path / "no_lidar", drop_lidar)
-    with pytest.raises(InputError) as err:
-        convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
+    root, error = _conversion_error(dataset, tmp_path / "no_lidar", drop_lidar, clean_path)
     table = root / dataset.version / "sample_data.json"
-    assert str(err.value).startswith(f"{table}: no key-frame LIDAR_TOP record of sample '{sample}'")
+    assert error.startswith(f"{table}: no key-frame LIDAR_TOP record of sample '{sample}'")
 
 
 @needs_devkit
