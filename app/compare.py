@@ -91,6 +91,12 @@ def run(args: argparse.Namespace) -> int:
         refuse_inputs_among_outputs(
             out, COMPARE_RECORDINGS, {k: Path(v) if v else None for k, v in inputs.items()}
         )
+        for name in ("RUN_A", "RUN_B"):  # (a run without recordings: later read as its own)
+            if Path(inputs[name]).resolve() == out.resolve():
+                raise InputError(
+                    f"{out}: --out is {name}, a run folder: --record would write the comparison's"
+                    " recordings into the run's own recordings/; give another --out"
+                )
     run_a, run_b = load_pair(args)
     result = compare_result(run_a, run_b, tolerance=args.tolerance)
     tracks = record_tracks(run_a, run_b) if args.record else None

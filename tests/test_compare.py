@@ -176,6 +176,16 @@ def test_compare_record_into_a_compared_run_is_refused(which: str, tmp_path: Pat
     )
     assert own.read_bytes() == b"the run's own"
     assert not (runs[which] / "compare.json").exists()
+    # a run folder without recordings of its own: the comparison's would later be read as its
+    own.unlink()
+    own.parent.rmdir()
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack compare: error: {runs[which]}: --out is RUN_{which.upper()}, a run folder: "
+        "--record would write the comparison's recordings into the run's own recordings/; give"
+        " another --out"
+    )
+    assert not (runs[which] / "recordings").exists()
 
 
 @pytest.mark.parametrize(
