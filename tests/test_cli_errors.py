@@ -942,3 +942,16 @@ def test_track_refuses_an_input_it_would_overwrite(
     (out / "tracks.json").rename(out / "dets.json")
     code, _, err = _run(["track", str(out / "dets.json"), "--out", str(out)], capsys)
     assert code == 0, err
+
+
+def test_track_says_which_scenes_have_no_frames(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A scene without frames beside scenes with frames is kept in tracks.json without tracks,
+    and said (it was silent)."""
+    path = tmp_path / "two.json"
+    path.write_text(json.dumps({"0001": _sample_frames()[:3], "0002": []}))
+    code, printed, err = _run(["track", str(path), "--out", str(tmp_path / "out")], capsys)
+    assert code == 0, err
+    assert "1 scene(s) without frames, written without tracks: 0002" in printed
+    assert json.loads((tmp_path / "out" / "tracks.json").read_text())["0002"] == []
