@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import gzip
 import json
 import math
@@ -239,6 +240,38 @@ def test_round_trip_is_exact(tmp_path: Path) -> None:
     assert path.read_bytes() == path2.read_bytes()
 
 
+def test_null_velocity_is_no_estimate_and_absent_is_zero(tmp_path: Path) -> None:
+    """null: the detector gave no estimate (NaN, which the tracker does not measure); an absent
+    key keeps meaning 0, as in official and KITTI files."""
+    data = copy.deepcopy(OFFICIAL)
+    ped = data["scene-0103"][0]["bboxes"]
+    ped.append(copy.deepcopy(ped[0]))
+    ped[0]["global_velocity"] = None
+    del ped[2]["global_velocity"]
+    boxes = read_baseversion(write(tmp_path, data))["scene-0103"][0].boxes
+    assert np.isnan(boxes.velocity[0]).all()
+    assert boxes.velocity[1].tolist() == [0.0, 0.0]
+
+
+def test_unknown_velocity_round_trips_as_null(tmp_path: Path) -> None:
+    scenes = make_frames()
+    frame = scenes["s"][1]
+    velocity = frame.boxes.velocity.copy()
+    velocity[0] = np.nan
+    scenes["s"][1] = dataclasses.replace(frame, boxes=frame.boxes.replace(velocity=velocity))
+    path = tmp_path / "out.json"
+    write_baseversion(path, scenes)  # (JSON has no NaN: the writer refuses one)
+    written = json.loads(path.read_text())["s"][1]["bboxes"]
+    assert written[0]["global_velocity"] is None
+    assert written[1]["global_velocity"] == velocity[1].tolist()
+    back = read_baseversion(path)
+    for a, b in zip(scenes["s"], back["s"], strict=True):
+        assert a.boxes.equals(b.boxes)  # (NaN equals NaN)
+    path2 = tmp_path / "out2.json"
+    write_baseversion(path2, back)
+    assert path.read_bytes() == path2.read_bytes()
+
+
 def _official_with(edit: Any) -> dict[str, Any]:
     data = copy.deepcopy(OFFICIAL)
     edit(data)
@@ -256,6 +289,9 @@ BAD_CASES = [
     ("NaN", lambda d: _box(d).update(global_yaw=float("nan")), "field 'global_yaw'"),
     ("inf", lambda d: _box(d).update(global_xyz=[1, float("inf"), 0]), "field 'global_xyz'"),
     ("negative size", lambda d: _box(d).update(lwh=[3.9, -1.6, 1.5]), "field 'lwh'"),
+    # (the fast path once read an empty list as [0, 0])
+    ("velocity empty", lambda d: _box(d).update(global_velocity=[]), "field 'global_velocity'"),
+    ("velocity NaN", lambda d: _box(d).update(global_velocity=[1, math.nan]), "global_velocity"),
     ("score range", lambda d: _box(d).update(detection_score=7.5), "field 'detection_score'"),
     ("frame not object", lambda d: d["0007"].insert(0, 5), "frame index 0"),
     ("frame missing key", lambda d: d["0007"][0].pop("bboxes"), "missing key 'bboxes'"),

@@ -228,6 +228,21 @@ def test_back_predict_moves_detections_back_by_velocity() -> None:
     np.testing.assert_array_equal(dets.xyz[0], [10.0, 5.0, 1.0])  # input untouched
 
 
+def test_back_predict_leaves_a_detection_without_velocity_in_place() -> None:
+    """An unknown velocity (NaN: BaseVersion null) moves nothing, as the 0 it used to be read
+    as; a NaN position would fail every cost."""
+    dets = Boxes.create(
+        xyz=[[10.0, 5.0, 1.0], [3.0, 4.0, 0.0]],
+        lwh=[[4, 2, 1.5]] * 2,
+        yaw=[0.3, 0.0],
+        category=[0, 0],
+        velocity=[[np.nan, np.nan], [2.0, -4.0]],
+    )
+    moved = back_predict(dets, 0.5)
+    np.testing.assert_array_equal(moved.xyz, [[10.0, 5.0, 1.0], [2.0, 6.0, 0.0]])
+    assert np.isnan(moved.velocity[0]).all()  # still unknown, not made 0
+
+
 # --- SDIoU (spec §2.5) ---------------------------------------------------------------------------
 
 

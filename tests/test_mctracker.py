@@ -401,3 +401,38 @@ def test_sample_sequence_regression() -> None:
     assert metrics["car"]["IDSW"] == golden["car"]["IDSW"]
     assert metrics["pedestrian"]["IDSW"] == golden["pedestrian"]["IDSW"]
     assert metrics["car"]["HOTA"] == pytest.approx(golden["car"]["HOTA"], abs=0.05)
+
+
+@pytest.mark.parametrize("category", ["car", "motorcycle"])  # motorcycle: backward prediction
+def test_an_unknown_detector_velocity_is_not_measured(tmp_path: Path, category: str) -> None:
+    """nuScenes config (measures the detector velocity): an object moving at 4 m/s whose
+    detections say ``global_velocity: null`` (no estimate) gets its velocity from the positions,
+    not a "measured" 0; the same boxes with [0, 0] are held back by that measurement."""
+    cfg = load_config("nuscenes")
+    assert cfg.per_category[category].pose.measure_velocity
+
+    def box(i: int, velocity: list[float] | None) -> dict[str, object]:
+        return {
+            "category": category,
+            "detection_score": 0.9,
+            "global_xyz": [10.0 + 2.0 * i, 5.0, 1.0],  # 4 m/s along x at 2 Hz
+            "lwh": [4.6, 1.9, 1.6] if category == "car" else [2.2, 0.9, 1.5],
+            "global_yaw": 0.0,
+            "global_velocity": velocity,
+        }
+
+    def speed(velocity: list[float] | None) -> float:
+        scene = [
+            {"frame_id": i, "timestamp": 500_000 * i, "bboxes": [box(i, velocity)]}
+            for i in range(12)
+        ]
+        path = tmp_path / "dets.json"
+        path.write_text(json.dumps({"s": scene}))
+        outputs = run_scene(read_baseversion(path)["s"], cfg).outputs
+        assert {int(o.boxes.track_id[0]) for o in outputs} == {outputs[0].boxes.track_id[0]}
+        vx, vy = outputs[-1].boxes.velocity[0]
+        assert abs(vy) < 0.1
+        return float(vx)
+
+    assert speed(None) == pytest.approx(4.0, abs=0.2)
+    assert speed([0.0, 0.0]) < 3.0  # a measured 0 does hold it back (the test can tell)

@@ -11,6 +11,7 @@ import json
 import math
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -334,6 +335,39 @@ def test_detection_estimator_present_with_detector_velocity() -> None:
     det = metrics_of(result, "detection", "all")
     assert det.n_samples == metrics_of(result, "kalman", "all").n_samples
     assert det.vne_mps < 1e-9 and det.vae_deg < 1e-6
+
+
+def test_an_unknown_detection_velocity_is_no_estimate() -> None:
+    """NaN detection velocities (BaseVersion null): all unknown is a detector without velocity
+    (absent, as all zeros); some unknown leaves those samples out of the detection estimator
+    only, counted as dropped."""
+    dets, gts, outputs = tracked()
+
+    def with_velocity(unknown: Any) -> list[Frame]:
+        frames = []
+        for i, (det, gt) in enumerate(zip(dets, gts, strict=True)):
+            d = np.linalg.norm(det.boxes.xyz[:, None, :2] - gt.boxes.xyz[None, :, :2], axis=2)
+            v = gt.boxes.velocity[np.argmin(d, axis=1)] if len(det.boxes) else np.zeros((0, 2))
+            v = np.where(unknown(i), np.nan, v)
+            boxes = det.boxes.replace(velocity=v)
+            frames.append(
+                Frame(det.scene, det.frame_id, det.timestamp_secs, boxes, cameras=det.cameras)
+            )
+        return frames
+
+    def evaluate(frames: list[Frame]) -> dict[str, Any]:
+        scenes = {"synthetic": frames}
+        return evaluate_motion(scenes, {"synthetic": gts}, {"synthetic": outputs}, classes=CLASSES)
+
+    none_known = evaluate(with_velocity(lambda i: True))
+    assert none_known["absent"] == {"detection": NO_DETECTOR_VELOCITY}
+    some = evaluate(with_velocity(lambda i: i % 2 == 1))
+    assert "detection" not in some["absent"]
+    det, kalman = metrics_of(some, "detection", "all"), metrics_of(some, "kalman", "all")
+    assert 0 < det.n_dropped_samples < kalman.n_samples
+    assert det.n_samples + det.n_dropped_samples == kalman.n_samples
+    assert det.vne_mps < 1e-9  # the known ones are exact; no unknown one was read as 0
+    assert metrics_of(some, "difference", "all").n_samples == kalman.n_samples
 
 
 def test_frame_order_does_not_matter() -> None:

@@ -613,8 +613,9 @@ def test_detection_fields_are_read_strictly(
     """A boolean score (was 1.0), a detection_name that is not a string (was counted as a
     skipped class), a velocity of three values (the first two were used; the format and the
     devkit say two) or an infinite one (was 0, unsaid): one error naming the box and field. A
-    NaN, null or absent velocity (the devkit's "no estimate") is still read as 0, now counted
-    and logged (null was not), and a half-NaN one wholly (its other half was kept)."""
+    NaN, null or absent velocity (the devkit's "no estimate") is kept unknown (NaN, was 0:
+    measured as standing still), counted and logged (null was not), and a half-NaN one wholly
+    (its other half was kept)."""
     results = json.loads(clean_path.read_text())
     token = dataset.samples["scene-0916"][2]
     path = tmp_path / "fields.json"
@@ -622,6 +623,14 @@ def test_detection_fields_are_read_strictly(
     def convert(**fields: Any) -> Any:
         boxes = [dict(b) for b in results["results"][token]]
         boxes[1].update(fields)
+        path.write_text(json.dumps(dict(results, results={**results["results"], token: boxes})))
+        return convert_nuscenes(
+            dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
+        )
+
+    def convert_absent() -> Any:
+        boxes = [dict(b) for b in results["results"][token]]
+        del boxes[1]["velocity"]
         path.write_text(json.dumps(dict(results, results={**results["results"], token: boxes})))
         return convert_nuscenes(
             dataset.dataroot, version=dataset.version, detections=path, split="mini_val", nusc=nusc
@@ -638,15 +647,19 @@ def test_detection_fields_are_read_strictly(
         with pytest.raises(InputError) as err:
             convert(**fields)
         assert str(err.value) == f"{at} {said}", fields
-    for velocity in ([math.nan, 1.5], None):  # (None: "velocity": null; absent alike)
+    for velocity in ([math.nan, 1.5], None, "absent"):  # (None: "velocity": null)
         caplog.clear()
         with caplog.at_level("WARNING"):
-            conv = convert(velocity=velocity)
+            conv = convert(velocity=velocity) if velocity != "absent" else convert_absent()
         assert conv.velocity_unknown == 1, velocity
         assert f"{path}: 1 detections without a velocity estimate" in caplog.text
         frame = next(f for f in conv.detections["scene-0916"] if f.sample_token == token)
-        assert np.isfinite(frame.boxes.velocity).all()
-        assert not np.any(frame.boxes.velocity == 1.5), "a half-known velocity is not kept"
+        unknown = ~np.isfinite(frame.boxes.velocity).all(axis=1)
+        assert np.isnan(frame.boxes.velocity[unknown]).all(), "not 0, not half kept"
+        assert unknown.sum() == 1 and not np.any(frame.boxes.velocity == 1.5), velocity
+        write_baseversion(tmp_path / "bv.json", conv.detections)  # `mctrack convert nuscenes`
+        back = read_baseversion(tmp_path / "bv.json")["scene-0916"][frame.frame_id]
+        np.testing.assert_array_equal(back.boxes.velocity, frame.boxes.velocity)  # null: NaN
     assert convert_nuscenes(
         dataset.dataroot, version=dataset.version, detections=clean_path, split="mini_val",
         nusc=nusc,

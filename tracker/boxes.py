@@ -31,7 +31,8 @@ class Boxes:
     xyz : (N, 3) geometric centre, metres.
     lwh : (N, 3) length, width, height, metres.
     yaw : (N,) heading about +z, radians in (-pi, pi].
-    velocity : (N, 2) world-frame vx, vy in m/s (0 when the source has none).
+    velocity : (N, 2) world-frame vx, vy in m/s (0 when the source has none; NaN rows: the
+        detector gave no estimate, which the tracker does not measure).
     score : (N,) calibrated confidence in [0, 1].
     category : (N,) index into :data:`tracker.categories.CATEGORIES`.
     xyxy_image : (N, 4) 2D box in pixels of ``camera`` (NaN when absent).

@@ -336,10 +336,11 @@ def _sdiou(a: FloatArray, b: FloatArray) -> FloatArray:
 def back_predict(dets: Boxes, dt_secs: float) -> Boxes:
     """Detections moved back in time by their velocity: xy - v·dt (the BackPredict cost state).
 
-    The reference hard-codes dt_secs = 0.5 (nuScenes' sample interval) for every dataset.
+    The reference hard-codes dt_secs = 0.5 (nuScenes' sample interval) for every dataset. An
+    unknown velocity (NaN) moves nothing, as when it was read as 0.
     """
     xyz = dets.xyz.copy()
-    xyz[:, :2] -= dets.velocity * dt_secs
+    xyz[:, :2] -= np.nan_to_num(dets.velocity) * dt_secs
     return dets.replace(xyz=xyz)
 
 

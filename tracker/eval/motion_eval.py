@@ -32,7 +32,9 @@ Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4
      online, its RTS smoother's offline (``offline.rts``).
    - ``detection``: the matched detection's own velocity. When no detection of the evaluated
      classes has a non-zero velocity (KITTI's PointRCNN gives none) the estimator is *absent*:
-     NaN metrics and the note ``n/a: detector has no velocity``, never zeros.
+     NaN metrics and the note ``n/a: detector has no velocity``, never zeros. A detection whose
+     velocity is unknown (BaseVersion ``null``, NaN) is no estimate: that sample is left out of
+     this estimator only and counted in its ``n_dropped_samples``.
    - ``difference``: backward difference of the track's matched-detection centres over real time
      (spec §2.10, but across a gap the real elapsed time is used; 0 at the track's first
      detection, as in the reference).
@@ -314,8 +316,11 @@ def _gt_has_velocity(gt_scenes: Mapping[str, Sequence[Frame]]) -> bool:
 def _detector_has_velocity(
     det_scenes: Mapping[str, Sequence[Frame]], categories: Sequence[int]
 ) -> bool:
+    def given(v: FloatArray) -> bool:  # (NaN: no estimate, not a velocity)
+        return bool(np.any(np.isfinite(v) & (v != 0.0)))
+
     return any(
-        np.any(f.boxes.velocity[np.isin(f.boxes.category, categories)] != 0.0)
+        given(f.boxes.velocity[np.isin(f.boxes.category, categories)])
         for frames in det_scenes.values()
         for f in frames
     )

@@ -16,7 +16,7 @@ import zlib
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import numpy as np
 
@@ -568,7 +568,8 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
     lwh_rows = [b["lwh"] for b in bboxes]
     yaw_list = [b["global_yaw"] for b in bboxes]
     score_list = [b["detection_score"] for b in bboxes]
-    vel_rows = [b.get("global_velocity") or [0.0, 0.0] for b in bboxes]
+    # absent: 0 (KITTI, official files); null: no estimate (NaN, not measured by the tracker)
+    vel_rows = [_velocity_row(b) for b in bboxes]
     raw_list = [b.get("detection_score_raw") for b in bboxes]
     tid_list = [b.get("track_id", -1) for b in bboxes]
     images = [b.get("bbox_image") or {} for b in bboxes]
@@ -610,7 +611,7 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         and np.isfinite(lwh).all()
         and np.isfinite(yaw).all()
         and np.isfinite(score).all()
-        and np.isfinite(vel).all()
+        and np.isfinite(vel[[b.get("global_velocity") is not None for b in bboxes]]).all()
         and (lwh[:, :2] > 0).all()
         and (lwh[:, 2] >= 0).all()
         and ((score >= 0) & (score <= 1)).all()
@@ -635,6 +636,17 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         track_id=tid[known],
         score_raw=raw[known],
     )
+
+
+_ZERO_VELOCITY: Final = [0.0, 0.0]
+_NO_VELOCITY: Final = [math.nan, math.nan]
+
+
+def _velocity_row(b: dict[str, Any]) -> Any:
+    if "global_velocity" not in b:
+        return _ZERO_VELOCITY
+    value = b["global_velocity"]
+    return _NO_VELOCITY if value is None else value
 
 
 def _opt_float(value: Any) -> float:
@@ -729,7 +741,8 @@ def frame_to_dict(frame: Frame) -> dict[str, Any]:
             "lwh": b.lwh[i].tolist(),
             "global_yaw": float(b.yaw[i]),
             "global_orientation": quats[i].tolist(),
-            "global_velocity": b.velocity[i].tolist(),
+            # NaN (no estimate) as null: JSON has no NaN, and null reads back as NaN
+            "global_velocity": None if np.isnan(b.velocity[i]).any() else b.velocity[i].tolist(),
             "global_acceleration": [0.0, 0.0],
             "bbox_image": {
                 # a track's camera comes from the frame of its last detection: this frame

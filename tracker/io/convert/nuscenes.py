@@ -140,7 +140,7 @@ class NuScenesConversion:
     meta: dict[str, Any]  # the detection file's "meta" (copied into the tracking submission)
     skipped_detections: Counter[str] = field(default_factory=Counter)  # per detection_name
     gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (written as 0)
-    velocity_unknown: int = 0  # detections without a velocity (absent, null, NaN: written as 0)
+    velocity_unknown: int = 0  # detections without a velocity (absent, null, NaN: kept NaN)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -350,7 +350,8 @@ def _detection_boxes(
     cameras: Sequence[Camera] = (),
 ) -> tuple[Boxes, int]:
     """Boxes of one sample's detections (tracking classes only), validated, and how many of
-    them have no velocity estimate (absent, null or NaN: read as 0)."""
+    them have no velocity estimate (absent, null or NaN: kept NaN, so the tracker does not
+    measure it and BaseVersion writes null)."""
     keep: list[dict[str, Any]] = []
     rows: list[int] = []
     velocities: list[tuple[float, float]] = []
@@ -428,18 +429,19 @@ def _numeric(value: Any) -> bool:
 
 def _velocity(value: Any, at: str) -> tuple[tuple[float, float], bool]:
     """``([vx, vy], known)``: absent, null or with a NaN (the devkit's "no estimate", as for
-    annotations) → [0, 0], not known (a half-known velocity is no estimate either). The format
+    annotations) → [NaN, NaN], not known (a half-known velocity is no estimate either; not 0,
+    which the tracker would measure as "standing still"). The format
     has exactly two values (the devkit asserts it); an infinite one is no estimate of anything:
     an error."""
     if value is None:
-        return (0.0, 0.0), False
+        return (math.nan, math.nan), False
     if not _numeric(value) or len(value) != 2:
         raise InputError(f"{at}: field 'velocity' must be [vx, vy], got {value!r}")
     vx, vy = float(value[0]), float(value[1])
     if math.isinf(vx) or math.isinf(vy):
         raise InputError(f"{at}: field 'velocity' = {value!r} is infinite")
     if math.isnan(vx) or math.isnan(vy):
-        return (0.0, 0.0), False
+        return (math.nan, math.nan), False
     return (vx, vy), True
 
 
@@ -730,7 +732,7 @@ def convert_nuscenes(
     if velocity_nan:
         log.warning(
             "%s: %d detections without a velocity estimate (absent, null or NaN) are tracked "
-            "with velocity 0",
+            "without a velocity measurement (written as null)",
             det_path,
             velocity_nan,
         )
