@@ -138,24 +138,31 @@ def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
         poses = _float_array(ego, "ego2global", path, (None, 4, 4))
         if len(poses) < n_frames:
             raise InputError(f"{path}: {len(poses)} frames of ego2global, ts_info has {n_frames}")
-        extrinsics = intrinsics = None
+        extrinsics = intrinsics = extrinsic_rigid = None
         if "cam_extrinsics" in ego.files or "cam_intrinsics" in ego.files:
             n_cam = len(WAYMO_CAMERAS)
             extrinsics = _float_array(ego, "cam_extrinsics", path, (len(poses), n_cam, 4, 4))
             intrinsics = _float_array(ego, "cam_intrinsics", path, (len(poses), n_cam, None))
             if intrinsics.shape[2] < 4:
                 raise InputError(f"{path}: cam_intrinsics needs f_u, f_v, c_u, c_v per camera")
+        # once for all matrices (per matrix it was most of this function's time); the loop
+        # still raises for the first bad frame and camera, in the same order as before
+        pose_rigid = _rigid_mask(poses[:n_frames])
+        extrinsic_rigid = _rigid_mask(extrinsics[:n_frames]) if extrinsics is not None else None
         for i in range(n_frames):
-            world_from_ego = _matrix4(poses[i], path, f"ego2global[{i}]")
+            world_from_ego, ego_from_world = _matrix4(
+                poses[i], path, f"ego2global[{i}]", rigid=bool(pose_rigid[i])
+            )
             cameras = []
             records: dict[str, Any] = {}
             for k, (name, _waymo, width, height) in enumerate(WAYMO_CAMERAS):
-                if extrinsics is None or intrinsics is None:
+                if extrinsics is None or intrinsics is None or extrinsic_rigid is None:
                     break
                 extrinsic, intrinsic = extrinsics[i, k], intrinsics[i, k]
                 if not (np.isfinite(extrinsic).all() and np.isfinite(intrinsic[:4]).all()):
                     continue  # NaN: this frame has no such camera
-                _check_rigid(extrinsic, path, f"cam_extrinsics[{i}, {k}] ({name})")
+                if not extrinsic_rigid[i, k]:
+                    raise _not_rigid(path, f"cam_extrinsics[{i}, {k}] ({name})")
                 if not (intrinsic[:2] > 0).all():
                     raise InputError(
                         f"{path}: cam_intrinsics[{i}, {k}] ({name}): focal lengths f_u, f_v "
@@ -181,7 +188,7 @@ def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
                     "lidar2camera": None,
                 }
             out.append(
-                _EgoFrame(world_from_ego, tuple(cameras), _transform(world_from_ego, records))
+                _EgoFrame(world_from_ego, tuple(cameras), _transform(ego_from_world, records))
             )
     else:
         for i in range(n_frames):
@@ -189,8 +196,8 @@ def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
                 raise InputError(
                     f"{path}: no ego pose for frame {i} (neither 'ego2global' nor key '{i}')"
                 )
-            world_from_ego = _matrix4(ego[str(i)], path, f"frame {i} ego2global")
-            out.append(_EgoFrame(world_from_ego, (), _transform(world_from_ego, {})))
+            world_from_ego, ego_from_world = _matrix4(ego[str(i)], path, f"frame {i} ego2global")
+            out.append(_EgoFrame(world_from_ego, (), _transform(ego_from_world, {})))
     return out
 
 
@@ -208,44 +215,57 @@ def _float_array(npz: SafeNpz, key: str, path: Path, shape: tuple[int | None, ..
     return arr.astype(np.float64)
 
 
-def _transform(world_from_ego: FloatArray, cameras: dict[str, Any]) -> dict[str, Any]:
+def _transform(ego_from_world: FloatArray, cameras: dict[str, Any]) -> dict[str, Any]:
     return {
-        "global2ego": np.linalg.inv(world_from_ego).tolist(),
+        "global2ego": ego_from_world.tolist(),
         "ego2lidar": None,
         "global2lidar": None,
         "cameras_transform_matrix": cameras,
     }
 
 
-def _matrix4(value: Any, path: Path, what: str) -> FloatArray:
+def _matrix4(
+    value: Any, path: Path, what: str, *, rigid: bool | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """The checked 4x4 pose ``value`` and its inverse (computed here to check it is finite,
+    and kept: the caller needs it). ``rigid``: :func:`_rigid_mask` of ``value`` when the
+    caller computed it for all poses at once."""
     try:
         m = np.asarray(value, dtype=np.float64).reshape(4, 4)
     except (TypeError, ValueError):
         raise InputError(f"{path}: {what} is not a 4x4 matrix") from None
     if not np.isfinite(m).all():
         raise InputError(f"{path}: {what} contains NaN or inf")
-    _check_rigid(m, path, what)
+    if not (bool(_rigid_mask(m)) if rigid is None else rigid):
+        raise _not_rigid(path, what)
     with np.errstate(over="ignore", invalid="ignore"):
-        finite = np.isfinite(np.linalg.inv(m)).all()
-    if not finite:  # a translation of 1e308: its inverse overflows
+        inverse = np.linalg.inv(m)
+    if not np.isfinite(inverse).all():  # a translation of 1e308: its inverse overflows
         raise InputError(f"{path}: {what}: its inverse is not finite (a translation too large?)")
-    return m
+    return m, inverse
 
 
-def _check_rigid(m: FloatArray, path: Path, what: str) -> None:
-    """A pose must be a rotation and a translation, last row [0, 0, 0, 1]: a singular matrix
-    cannot be inverted, a scaled or transposed one (a row-major / column-major mix-up) would
-    put every box in the wrong place without a word."""
-    rotation = m[:3, :3]
-    if not (
-        np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6)
-        and np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-3)
-        and np.linalg.det(rotation) > 0
-    ):
-        raise InputError(
-            f"{path}: {what} is not a rigid transform (a rotation and a translation, last row "
-            "[0, 0, 0, 1])"
+def _rigid_mask(m: FloatArray) -> np.ndarray:
+    """Which of the (..., 4, 4) matrices ``m`` are rigid: a rotation and a translation, last
+    row [0, 0, 0, 1]. A singular matrix cannot be inverted, a scaled or transposed one (a
+    row-major / column-major mix-up) would put every box in the wrong place without a word.
+    (``isclose(...).all(axis)`` is ``np.allclose`` per matrix; NaN or inf is never rigid.)"""
+    rotation = m[..., :3, :3]
+    with np.errstate(all="ignore"):  # non-finite matrices: the caller skips or names them
+        return (
+            np.isclose(m[..., 3, :], [0.0, 0.0, 0.0, 1.0], atol=1e-6).all(axis=-1)
+            & np.isclose(np.swapaxes(rotation, -1, -2) @ rotation, np.eye(3), atol=1e-3).all(
+                axis=(-2, -1)
+            )
+            & (np.linalg.det(rotation) > 0)
         )
+
+
+def _not_rigid(path: Path, what: str) -> InputError:
+    return InputError(
+        f"{path}: {what} is not a rigid transform (a rotation and a translation, last row "
+        "[0, 0, 0, 1])"
+    )
 
 
 def boxes_ego_to_world(
