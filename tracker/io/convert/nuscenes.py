@@ -47,7 +47,7 @@ from typing import Any, Final
 import numpy as np
 
 from tracker.boxes import Boxes, FloatArray, IntArray
-from tracker.camera import project_boxes
+from tracker.camera import _homogeneous_image, project_boxes
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
@@ -280,9 +280,17 @@ def overflowing_boxes(
     with np.errstate(over="ignore", invalid="ignore"):
         corners = corners_3d(xyz, lwh, yaw)  # (N, 8, 3)
         bad = ~np.isfinite(corners).all(axis=(1, 2))
+        # |M[:, :3] @ c + M[:, 3]| <= max|c| * max row-sum |M[:, :3]| + max|M[:, 3]|: below
+        # 1e300 for every camera, no product can overflow (and the usual data skips the
+        # projections). A NaN or inf corner or matrix entry makes the bound NaN or inf.
+        extent = np.abs(corners).max(initial=0.0)
+        if all(
+            extent * np.abs(m[:, :3]).sum(axis=1).max() + np.abs(m[:, 3]).max() < 1e300
+            for m in (cam.image_from_world for cam in cameras)
+        ):
+            return np.flatnonzero(bad)
         for cam in cameras:
-            m = cam.image_from_world
-            bad |= ~np.isfinite(corners @ m[:, :3].T + m[:, 3]).all(axis=(1, 2))
+            bad |= ~np.isfinite(_homogeneous_image(corners, cam)).all(axis=(1, 2))
     return np.flatnonzero(bad)
 
 
