@@ -363,6 +363,7 @@ def _detection_boxes(
     keep: list[dict[str, Any]] = []
     rows: list[int] = []
     velocities: list[tuple[float, float]] = []
+    scores: list[float] = []
     no_velocity = 0
     for i, box in enumerate(raw):
         at = f"{path}: results[{token!r}][{i}]"
@@ -399,18 +400,25 @@ def _detection_boxes(
             raise InputError(
                 f"{at}: field 'size' = {box['size']}: width and length must be > 0, height >= 0"
             )
-        if not np.linalg.norm(box["rotation"]) > 0:
-            raise InputError(f"{at}: field 'rotation' is the zero quaternion (no heading)")
         velocity, known = _velocity(box.get("velocity"), at)
         no_velocity += not known
         velocities.append(velocity)
+        scores.append(score)
         keep.append(box)
         rows.append(i)
     if not keep:
         return Boxes.empty(), 0
     size = np.array([b["size"] for b in keep], dtype=np.float64)
     xyz = np.array([b["translation"] for b in keep], dtype=np.float64)
-    yaw = yaw_from_quaternions(np.array([b["rotation"] for b in keep], dtype=np.float64))
+    rotation = np.array([b["rotation"] for b in keep], dtype=np.float64)
+    # the norm, not any(): a tiny quaternion's norm underflows to 0, and it has no heading
+    zero = np.flatnonzero(~(np.linalg.norm(rotation, axis=1) > 0))
+    if len(zero):
+        raise InputError(
+            f"{path}: results[{token!r}][{rows[zero[0]]}]: field 'rotation' is the zero "
+            "quaternion (no heading)"
+        )
+    yaw = yaw_from_quaternions(rotation)
     overflow = overflowing_boxes(xyz, size[:, [1, 0, 2]], yaw, cameras)
     if len(overflow):
         i = rows[overflow[0]]
@@ -424,7 +432,7 @@ def _detection_boxes(
         lwh=size[:, [1, 0, 2]],
         yaw=yaw,
         velocity=np.array(velocities),
-        score=np.array([float(b["detection_score"]) for b in keep]),
+        score=np.array(scores),
         category=[category_index(b["detection_name"]) for b in keep],
     ), no_velocity
 
