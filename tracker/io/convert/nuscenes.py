@@ -475,16 +475,23 @@ class _SampleGeometry:
 def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
     """``pose_matrix`` of an ego_pose or calibrated_sensor record, its fields checked: a zero
     or non-finite quaternion has no rotation (it made NaN matrices, found much later)."""
-    where = f"{Path(nusc.dataroot) / nusc.version / f'{table}.json'}: {table} {record['token']!r}"
+
+    def where() -> str:  # built only for an error (this runs for every sample's records)
+        return (
+            f"{Path(nusc.dataroot) / nusc.version / f'{table}.json'}: {table} {record['token']!r}"
+        )
+
     values = {}
     for key, size in (("translation", 3), ("rotation", 4)):
         value = record.get(key)
         array = np.asarray(value, dtype=np.float64) if _numeric(value) else None
         if array is None or array.shape != (size,) or not np.isfinite(array).all():
-            raise InputError(f"{where}: field '{key}' must be {size} finite numbers, got {value!r}")
+            raise InputError(
+                f"{where()}: field '{key}' must be {size} finite numbers, got {value!r}"
+            )
         values[key] = array
     if not np.linalg.norm(values["rotation"]) > 0:
-        raise InputError(f"{where}: field 'rotation' is the zero quaternion (no rotation)")
+        raise InputError(f"{where()}: field 'rotation' is the zero quaternion (no rotation)")
     return pose_matrix(values["translation"], values["rotation"])
 
 
