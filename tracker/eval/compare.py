@@ -300,7 +300,7 @@ def compare_markdown(result: Mapping[str, Any], *, command: str | None = None) -
             name = f"**{seq}**" if seq == "total" else seq
             lines.append(f"| {name} | " + " | ".join(cells) + " |")
     else:
-        where = " in what was compared" if left_out_note(result) else ""
+        where = " in what was compared" if note else ""
         lines.append(f"Neither run has ID switches or fragmentations{where}.")
     motion = result.get("motion")
     lines += ["", "## Motion metrics (Kalman velocity, B − A)", ""]

@@ -457,15 +457,15 @@ def _baseline_velocities(
     if det_boxes is not None:
         rows = np.flatnonzero(det_row >= 0)
         rows = rows[np.lexsort((times_secs[rows], track_id[rows]))]
-        ids = track_id[rows]
-        # no row (a scene without a detection-backed output): no start, and no end either
-        starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]]) if rows.size else rows
-        stops = np.r_[starts[1:], rows.size] if rows.size else rows
-        for start, stop in zip(starts, stops, strict=True):
-            seg = rows[start:stop]
-            t, xy = times_secs[seg], det_boxes.xyz[seg, :2]
-            diff[seg] = velocity_differencing(t, xy)
-            curve[seg] = velocity_curve_fit(t, xy, window=CURVE_FIT_WINDOW)
+        if rows.size:  # no row (a scene without a detection-backed output): no track to fit
+            ids = track_id[rows]
+            starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+            stops = np.r_[starts[1:], rows.size]
+            for start, stop in zip(starts, stops, strict=True):
+                seg = rows[start:stop]
+                t, xy = times_secs[seg], det_boxes.xyz[seg, :2]
+                diff[seg] = velocity_differencing(t, xy)
+                curve[seg] = velocity_curve_fit(t, xy, window=CURVE_FIT_WINDOW)
     return {Estimator.DIFFERENCE: diff, Estimator.CURVE_FIT: curve}
 
 

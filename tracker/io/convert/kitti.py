@@ -256,7 +256,7 @@ def read_kitti_poses(path: str | Path) -> FloatArray:
     # scaled, reflected or hand-edited matrix would move every box of its frame)
     rotation = poses[:, :3, :3]
     off = np.abs(np.einsum("nji,njk->nik", rotation, rotation) - np.eye(3)).max(axis=(1, 2))
-    off = np.maximum(off, np.abs(np.linalg.det(rotation) - 1.0)) if len(poses) else off
+    off = np.maximum(off, np.abs(np.linalg.det(rotation) - 1.0))  # no poses: shape (0,)
     if (off > POSE_RIGID_TOLERANCE).any():
         row = int(np.argmax(off > POSE_RIGID_TOLERANCE))
         bad_path, line = table.where(row)

@@ -287,9 +287,9 @@ class _BoxTable:
     bboxes: FloatArray  # (N, 7 or 8), vehicle frame
     types: np.ndarray  # (N,) Waymo type codes
     bounds: np.ndarray  # (F + 1,)
+    rows: np.ndarray  # (N,) each row's index in the file (for errors)
     ids: np.ndarray | None = None  # (N,) object ids as str (ground truth)
     velos: FloatArray | None = None  # (N, 2) vehicle-frame velocity (ground truth, optional)
-    rows: np.ndarray | None = None  # (N,) each row's index in the file (for errors)
 
 
 def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _BoxTable:
@@ -361,7 +361,7 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
             if len(bad):
                 raise InputError(f"{path}: velos row {bad[0]}: must be finite [vx, vy]")
             velos = velos[order]
-    return _BoxTable(bboxes[order], types[order], bounds, ids, velos, order)
+    return _BoxTable(bboxes[order], types[order], bounds, order, ids, velos)
 
 
 def _segment_boxes(
@@ -390,7 +390,7 @@ def _segment_boxes(
     overflow = overflowing_boxes(xyz, arr[:, 4:7], yaw, cameras)
     if len(overflow):
         k = np.arange(a, b)[keep][overflow[0]]
-        row = int(table.rows[k]) if table.rows is not None else int(k)
+        row = int(table.rows[k])
         raise InputError(
             f"{path}: bboxes row {row}: {table.bboxes[k, :7].tolist()} with ego2global[{i}] "
             "is not finite in the world or camera frames (too large)"
