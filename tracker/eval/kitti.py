@@ -269,6 +269,7 @@ def evaluate_kitti(
     classes: Sequence[str] = ("car", "pedestrian"),
     per_sequence: dict[str, dict[str, dict[str, float]]] | None = None,
     first_frames: Mapping[str, int] | None = None,
+    labels_checked: bool = False,
 ) -> dict[str, dict[str, float]]:
     """Evaluate ``result_dir/<seq>.txt`` against ``label_dir/<seq>.txt``.
 
@@ -276,14 +277,17 @@ def evaluate_kitti(
     TP (counts) over the combined sequences. A ``per_sequence`` dict given is filled with the
     same per sequence (``{seq: {class: metrics}}``; TrackEval computes them anyway). A sequence
     in ``first_frames`` is scored on its frames first .. first+length-1 alone
-    (:func:`evaluate_kitti_sequence`). Every label file is checked before the first is scored.
+    (:func:`evaluate_kitti_sequence`). Every label file is checked before the first is scored,
+    unless ``labels_checked`` (the caller ran :func:`check_label_file` on each, at least as
+    strictly: it need not be parsed twice).
     """
     unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
     if unknown:
         raise ValueError(f"cannot evaluate classes {unknown}; supported: {SUPPORTED_CLASSES}")
     firsts = first_frames or {}
-    for seq, length in sorted(seq_lengths.items()):
-        check_label_file(path_in(label_dir, seq, ".txt"), None if seq in firsts else length)
+    if not labels_checked:
+        for seq, length in sorted(seq_lengths.items()):
+            check_label_file(path_in(label_dir, seq, ".txt"), None if seq in firsts else length)
     evaluations = [
         evaluate_kitti_sequence(
             label_file=path_in(label_dir, seq, ".txt"),
