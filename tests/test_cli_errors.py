@@ -847,6 +847,20 @@ def test_earlier_outputs_are_removed_inside_the_folder_only(tmp_path: Path) -> N
     assert (outside / "keep.txt").is_file() and not (out / "runs" / "a").exists()
 
 
+def test_inputs_are_refused_by_the_glob_that_removes_outputs(tmp_path: Path) -> None:
+    """An input is refused where the run's globs (as remove_earlier_outputs reads them) reach
+    it: ``data/*.txt`` holds data/0001.txt, not data/sub/notes.txt one folder deeper."""
+    from app.common import refuse_inputs_among_outputs
+
+    out = tmp_path / "out"
+    (out / "data" / "sub").mkdir(parents=True)
+    (out / "data" / "0001.txt").write_text("x")
+    (out / "data" / "sub" / "notes.txt").write_text("x")
+    refuse_inputs_among_outputs(out, ["data/*.txt"], {"INPUT": out / "data" / "sub"})
+    with pytest.raises(InputError, match=r"INPUT holds data/0001\.txt, a file this run writes"):
+        refuse_inputs_among_outputs(out, ["data/*.txt"], {"INPUT": out / "data"})
+
+
 def test_kitti_root_defaults_to_the_environment_variable(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
