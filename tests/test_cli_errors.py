@@ -969,3 +969,19 @@ def test_track_says_which_scenes_have_no_frames(
     assert code == 0, err
     assert "1 scene(s) without frames, written without tracks: 0002" in printed
     assert json.loads((tmp_path / "out" / "tracks.json").read_text())["0002"] == []
+
+
+def test_track_says_the_scenes_a_frame_range_empties_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """With --frames, the scenes the window leaves empty are select_scenes' warning, not said
+    again by run()."""
+    path = tmp_path / "two.json"
+    path.write_text(json.dumps({"0001": _sample_frames()[:3], "0002": []}))
+    argv = ["track", str(path), "--frames", "1:3", "--out", str(tmp_path / "out")]
+    with caplog.at_level(logging.WARNING):
+        code, printed, err = _run(argv, capsys)
+    assert code == 0, err
+    assert "--frames 1:3 selects no frame of 1 scene(s): '0002' 0:0" in caplog.text
+    assert "without frames" not in printed
+    assert json.loads((tmp_path / "out" / "tracks.json").read_text())["0002"] == []
