@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import fnmatch
 import logging
 import resource
 import shlex
@@ -122,17 +121,19 @@ def refuse_inputs_among_outputs(
     :func:`remove_earlier_outputs`): `--detections OUT/results.json --out OUT` would be deleted
     or overwritten by the run that reads it. Called before any work."""
     root = folder.resolve()
+    # the same glob (and the same files) as remove_earlier_outputs, so the two never disagree
+    written = sorted(
+        {p.resolve() for pattern in patterns for p in folder.glob(pattern) if _own_file(folder, p)}
+    )
     for option, path in inputs.items():
         if path is None:
             continue
         target = Path(path).resolve()
-        if not target.is_relative_to(root):
+        if not target.is_relative_to(root):  # (outside --out: the run writes nothing there)
             continue
-        files = sorted(target.rglob("*")) if target.is_dir() else [target]
-        for file in files:
-            rel = file.relative_to(root).as_posix()
-            if any(fnmatch.fnmatchcase(rel, pattern) for pattern in patterns):
-                what = "is" if file == target else f"holds {rel},"
+        for file in written:
+            if file.is_relative_to(target):
+                what = "is" if file == target else f"holds {file.relative_to(root).as_posix()},"
                 raise InputError(
                     f"{path}: {option} {what} a file this run writes in {folder}: move it, or "
                     "give another --out"

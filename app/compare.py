@@ -17,13 +17,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import shlex
 import sys
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from app.common import refuse_inputs_among_outputs, remove_earlier_outputs
+from app.common import command_line, refuse_inputs_among_outputs, remove_earlier_outputs
 from app.runs import Run, load_run, run_names, scored_sequences
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -111,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         *(["--gt", args.gt] if args.gt else []),
         *(["--record"] if args.record else []),
     ]
-    command = "mctrack compare " + shlex.join(words)
+    command = command_line(["compare", *words])
     result["command"] = command
     if tracks is not None:  # first: a failed recording leaves no compare.json claiming it
         result["recordings"] = record(run_a, run_b, result, out, tracks)
@@ -249,17 +248,6 @@ def _metrics_on(
     return {c: m for c, m in metrics.items() if c not in absent}
 
 
-def compare(
-    run_a: Run, run_b: Run, out: Path, *, tolerance: int, command: str | None = None
-) -> dict[str, Any]:
-    """Compare and write ``out/compare.json`` and ``out/compare.md``; returns the result."""
-    result = compare_result(run_a, run_b, tolerance=tolerance)
-    if command:
-        result["command"] = command
-    write_compare(result, out, command=command)
-    return result
-
-
 def write_compare(result: dict[str, Any], out: Path, *, command: str | None = None) -> None:
     """``out/compare.json`` and ``out/compare.md`` of a comparison."""
     write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
@@ -286,14 +274,12 @@ def record(
     run_b: Run,
     result: dict[str, Any],
     out: Path,
-    tracks: Sequence[Mapping[str, Any]] | None = None,
+    tracks: Sequence[Mapping[str, Any]],
 ) -> dict[str, str]:
     """One side-by-side recording per sequence of both runs; {sequence: path}. ``tracks``:
-    :func:`record_tracks` (read here when None)."""
+    :func:`record_tracks`."""
     from viz.compare_record import record_comparison
 
-    if tracks is None:
-        tracks = record_tracks(run_a, run_b)
     compared = result.get("sequences_compared") or run_a.summary["sequences"]
     seqs = [s for s in compared if s in tracks[0] and s in tracks[1]]
     gt = _ground_truth(run_a, seqs)

@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from app import report_html as h
-from app.common import remove_earlier_outputs
+from app.common import command_line, remove_earlier_outputs
 from app.compare import compare_result
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
         *(["--shots", str(args.shots)] if args.shots else []),
         *(w for href, text in args.link or [] for w in ("--link", href, text)),
     ]
-    command = "mctrack report " + shlex.join(words)
+    command = command_line(["report", *words])
     links = [tuple(x) for x in args.link or []]
     for href, _ in links:
         if "://" in href or href.startswith(("/", "\\")) or ".." in Path(href).parts:

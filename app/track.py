@@ -277,10 +277,11 @@ def run(args: argparse.Namespace) -> int:
     scene_frames = select_scenes(scene_frames, args.scenes, window, source=args.input)
     require_frames(scene_frames, args.input, "track", args.scenes)  # else an empty tracks.json
     empty = [s for s, frames in scene_frames.items() if not frames]
-    if empty:  # (kept in tracks.json, as scenes without tracks: said, not silent)
-        where = f" in --frames {args.frames}" if args.frames else ""
+    # (kept in tracks.json, as scenes without tracks: said, not silent; with --frames,
+    # select_scenes has already warned of them)
+    if empty and window == slice(None):
         more = " ..." if len(empty) > 5 else ""
-        print(f"{len(empty)} scene(s) without frames{where}, written without tracks: "
+        print(f"{len(empty)} scene(s) without frames, written without tracks: "
               f"{', '.join(empty[:5])}{more}")  # fmt: skip
     scene_frames, self_profile = _calibrated(scene_frames, config, args.profile, args.input)
     if args.kitti_results:

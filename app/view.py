@@ -134,22 +134,20 @@ def _check_labels(folder: str, scenes: list[str]) -> set[str]:
     folder, or one without a label file of any scene, is an error: the recording would otherwise
     quietly have no KITTI matching. An empty label file is a scene without labelled objects
     (valid KITTI, as `mctrack eval` scores it): said, and recorded with it."""
-    from tracker.eval.kitti import check_label_file
+    from tracker.eval.kitti import check_kitti_labels
 
     if not Path(folder).is_dir():
         raise InputError(f"{folder}: --labels folder not found (KITTI label_02)")
-    labelled = set()
+    labelled = check_kitti_labels(Path(folder), dict.fromkeys(scenes))  # {scene: frames spanned}
     for scene in scenes:
-        path = path_in(folder, scene, ".txt")
-        if path.is_file():
-            if check_label_file(path) == 0:
-                print(f"scene {scene}: {path} holds no labels (no labelled object to match)")
-            labelled.add(scene)
+        if labelled.get(scene) == 0:
+            path = path_in(folder, scene, ".txt")
+            print(f"scene {scene}: {path} holds no labels (no labelled object to match)")
     if not labelled:
         wanted = ", ".join(path_in(folder, s, ".txt").name for s in scenes[:4])
         more = " ..." if len(scenes) > 4 else ""
         raise InputError(f"{folder}: --labels holds no label file of the scenes ({wanted}{more})")
-    return labelled
+    return set(labelled)
 
 
 def _save_path(save: str | None, scene: str, many: bool) -> Path:

@@ -847,6 +847,20 @@ def test_earlier_outputs_are_removed_inside_the_folder_only(tmp_path: Path) -> N
     assert (outside / "keep.txt").is_file() and not (out / "runs" / "a").exists()
 
 
+def test_inputs_are_refused_by_the_glob_that_removes_outputs(tmp_path: Path) -> None:
+    """An input is refused where the run's globs (as remove_earlier_outputs reads them) reach
+    it: ``data/*.txt`` holds data/0001.txt, not data/sub/notes.txt one folder deeper."""
+    from app.common import refuse_inputs_among_outputs
+
+    out = tmp_path / "out"
+    (out / "data" / "sub").mkdir(parents=True)
+    (out / "data" / "0001.txt").write_text("x")
+    (out / "data" / "sub" / "notes.txt").write_text("x")
+    refuse_inputs_among_outputs(out, ["data/*.txt"], {"INPUT": out / "data" / "sub"})
+    with pytest.raises(InputError, match=r"INPUT holds data/0001\.txt, a file this run writes"):
+        refuse_inputs_among_outputs(out, ["data/*.txt"], {"INPUT": out / "data"})
+
+
 def test_kitti_root_defaults_to_the_environment_variable(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -954,4 +968,20 @@ def test_track_says_which_scenes_have_no_frames(
     code, printed, err = _run(["track", str(path), "--out", str(tmp_path / "out")], capsys)
     assert code == 0, err
     assert "1 scene(s) without frames, written without tracks: 0002" in printed
+    assert json.loads((tmp_path / "out" / "tracks.json").read_text())["0002"] == []
+
+
+def test_track_says_the_scenes_a_frame_range_empties_once(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], caplog: pytest.LogCaptureFixture
+) -> None:
+    """With --frames, the scenes the window leaves empty are select_scenes' warning, not said
+    again by run()."""
+    path = tmp_path / "two.json"
+    path.write_text(json.dumps({"0001": _sample_frames()[:3], "0002": []}))
+    argv = ["track", str(path), "--frames", "1:3", "--out", str(tmp_path / "out")]
+    with caplog.at_level(logging.WARNING):
+        code, printed, err = _run(argv, capsys)
+    assert code == 0, err
+    assert "--frames 1:3 selects no frame of 1 scene(s): '0002' 0:0" in caplog.text
+    assert "without frames" not in printed
     assert json.loads((tmp_path / "out" / "tracks.json").read_text())["0002"] == []

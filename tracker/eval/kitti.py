@@ -95,16 +95,16 @@ def check_kitti_labels(
     label_dir: Path,
     seq_lengths: Mapping[str, int | None],
     length_sources: Mapping[str, str] | None = None,
-) -> list[str]:
+) -> dict[str, int]:
     """The sequences of ``seq_lengths`` with a label file in ``label_dir``, each checked by
-    :func:`check_label_file` against its length (None: unknown). Run before tracking or
-    evaluating, so that a bad label file stops the run at once with its file and line."""
-    labelled = []
+    :func:`check_label_file` against its length (None: unknown), with the frames its labels
+    span (0: an empty file). Run before tracking or evaluating, so that a bad label file stops
+    the run at once with its file and line."""
+    labelled: dict[str, int] = {}
     for seq, length in sorted(seq_lengths.items()):
         path = path_in(label_dir, seq, ".txt")
         if path.is_file():
-            check_label_file(path, length, (length_sources or {}).get(seq, ""))
-            labelled.append(seq)
+            labelled[seq] = check_label_file(path, length, (length_sources or {}).get(seq, ""))
     return labelled
 
 
