@@ -207,8 +207,9 @@ def _restricted(run: Run, seqs: list[str]) -> Run:
 def _metrics_on(
     run: Run, seqs: list[str], per_sequence: dict[str, Any]
 ) -> dict[str, dict[str, Any]]:
-    """A run's metrics over ``seqs``: a kitti run's by TrackEval from its result files (as
-    `mctrack kitti` combines its sequences), a tracks run's IDSW and Frag summed."""
+    """A run's metrics over ``seqs``: a kitti run's by :func:`tracker.eval.kitti.evaluate_kitti`
+    on its result files (as `mctrack kitti` combines its sequences), a tracks run's IDSW and
+    Frag summed."""
     if run.kind != "kitti" or run.label_dir is None:
         totals: dict[str, dict[str, Any]] = {}
         for seq in seqs:
@@ -218,32 +219,21 @@ def _metrics_on(
                 t["Frag"] += c["Frag"]
         return totals
     from tracker.eval.id_switches import result_file_timesteps
-    from tracker.eval.kitti import (
-        SUPPORTED_CLASSES,
-        absent_classes,
-        combine_sequences,
-        evaluate_kitti_sequence,
-    )
+    from tracker.eval.kitti import SUPPORTED_CLASSES, absent_classes, evaluate_kitti
 
     classes = [c for c in run.summary["classes"] if c in SUPPORTED_CLASSES]
-    evaluations = []
-    for seq in seqs:
-        result = path_in(run.folder / "data", seq, ".txt")
-        label = path_in(run.label_dir, seq, ".txt")
-        try:
-            evaluations.append(
-                evaluate_kitti_sequence(
-                    label_file=label,
-                    result_file=result,
-                    num_timesteps=result_file_timesteps(result, label),
-                    classes=classes,
-                )
-            )
-        except Exception as exc:  # TrackEval's own exception for a malformed result file
-            if type(exc).__name__ != "TrackEvalException":
-                raise
-            raise InputError(f"{result}: {exc}") from None
-    metrics = combine_sequences(evaluations, classes)
+    data = run.folder / "data"
+    lengths = {  # (the run's frames are not at hand: as far as labels or results reach)
+        seq: result_file_timesteps(path_in(data, seq, ".txt"), path_in(run.label_dir, seq, ".txt"))
+        for seq in seqs
+    }
+    metrics = evaluate_kitti(
+        label_dir=run.label_dir,
+        result_dir=data,
+        seq_lengths=lengths,
+        classes=classes,
+        name_refused_results=True,
+    )
     absent = absent_classes(metrics)  # (no GT of the class: as `mctrack kitti` leaves them out)
     return {c: m for c, m in metrics.items() if c not in absent}
 

@@ -182,14 +182,7 @@ def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
         if found is not None:
             events += found
             continue
-        try:
-            evaluation = result_file_id_events(result, label, classes=classes)
-        except InputError:
-            raise
-        except Exception as exc:  # TrackEval's own exception for a malformed result file
-            if type(exc).__name__ != "TrackEvalException":
-                raise
-            raise InputError(f"{result}: {exc}") from None
+        evaluation = result_file_id_events(result, label, classes=classes)
         events += _with_causes(seq, evaluation.events, index)
     return Run(name, folder, summary, events, recordings, "kitti", label_dir)
 

@@ -298,6 +298,37 @@ def test_compare_leaves_out_a_sequence_that_failed_in_one_run(tmp_path: Path, ca
     assert hota["a"] is not None and hota["b"] is not None  # (B had no metrics at all)
 
 
+def _repeat_a_track_id(result: Path) -> None:
+    """``result`` with its first row twice: a track id twice in frame 0, which TrackEval reads
+    but refuses (its preprocessing raises)."""
+    rows = result.read_text().splitlines(keepends=True)
+    result.write_text(rows[0] + "".join(rows))
+
+
+def test_compare_names_a_result_file_trackeval_refuses(tmp_path: Path, capsys) -> None:
+    """A result file TrackEval reads but refuses is one line naming it, whether the events
+    (loading the run) or the metrics (scoring it again on the shared sequences) meet it."""
+    from app.compare import compare_result
+    from app.runs import load_run
+    from tracker.errors import InputError
+
+    a, b, labels = make_runs(tmp_path)
+    _with_second_sequence(a, labels)
+    run_a, run_b = load_run(a, name="a"), load_run(b, name="b")
+    _repeat_a_track_id(a / "data" / "0002.txt")  # (not compared: not scored again)
+    assert compare_result(run_a, run_b, tolerance=2)["rescored"] == ["a"]
+    _repeat_a_track_id(a / "data" / f"{SEQ}.txt")
+    with pytest.raises(InputError) as excinfo:  # (the run's events were read before)
+        compare_result(run_a, run_b, tolerance=2)
+    assert str(excinfo.value).startswith(
+        f"{a / 'data' / f'{SEQ}.txt'}: Tracker predicts the same ID more than once"
+    )
+    assert main(["compare", str(a), str(b), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.startswith(
+        f"mctrack compare: error: {a / 'data' / f'{SEQ}.txt'}: Tracker predicts the same ID "
+    )
+
+
 def test_compare_refuses_runs_without_a_shared_sequence(tmp_path: Path, capsys) -> None:
     a, b, labels = make_runs(tmp_path)
     shutil.copy(labels / f"{SEQ}.txt", labels / "0002.txt")

@@ -148,6 +148,29 @@ def test_trackeval_failures_are_one_line_and_quiet(
     )
 
 
+def test_evaluate_kitti_names_a_refused_result_file_when_asked(tmp_path: Path) -> None:
+    """A result file TrackEval loads but refuses (a track id twice in one frame): with
+    ``name_refused_results`` (a run's own files: `mctrack compare`) an InputError naming it;
+    without (temporary copies: `mctrack eval`) TrackEval's own exception, as before."""
+    import trackeval
+
+    from tracker.eval.kitti import evaluate_kitti
+
+    data = tmp_path / "data"
+    data.mkdir()
+    row = "0 1 Car 0 0 -1 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 0.1 0.9\n"
+    (data / "0001.txt").write_text(row + row)
+    args = dict(label_dir=LABEL.parent, result_dir=data, seq_lengths={"0001": 447}, classes=["car"])
+    with pytest.raises(trackeval.utils.TrackEvalException):
+        evaluate_kitti(**args)
+    with pytest.raises(InputError) as excinfo:
+        evaluate_kitti(**args, name_refused_results=True)
+    assert excinfo.value.path == str(data / "0001.txt")
+    assert str(excinfo.value).startswith(
+        f"{data / '0001.txt'}: Tracker predicts the same ID more than once in a single timestep"
+    )
+
+
 @pytest.fixture(scope="module")
 def sample_tracks(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """The sample tracked whole and on frames 20:40 (`mctrack track --frames`)."""

@@ -317,11 +317,15 @@ def result_file_id_events(
     result_file: str | Path, label_file: str | Path, *, classes: Sequence[str]
 ) -> IdEvaluation:
     """:func:`kitti_id_events` of a finished run's KITTI result file (no frames at hand): the
-    sequence length is :func:`result_file_timesteps`."""
-    return kitti_id_events(
-        (), (), label_file, classes=classes, result_file=result_file,
-        num_timesteps=result_file_timesteps(result_file, label_file),
-    )  # fmt: skip
+    sequence length is :func:`result_file_timesteps`; a file TrackEval refuses is named
+    (:func:`tracker.eval.kitti.naming_refused_result`)."""
+    from tracker.eval.kitti import naming_refused_result
+
+    with naming_refused_result(Path(result_file)):
+        return kitti_id_events(
+            (), (), label_file, classes=classes, result_file=result_file,
+            num_timesteps=result_file_timesteps(result_file, label_file),
+        )  # fmt: skip
 
 
 def result_file_timesteps(result_file: str | Path, label_file: str | Path) -> int:

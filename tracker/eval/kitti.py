@@ -12,7 +12,7 @@ import contextlib
 import io
 import shutil
 import tempfile
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -231,6 +231,20 @@ def _raw_seq_data(
         raise InputError(f"TrackEval cannot read it: {why}", path=culprit or files[0]) from None
 
 
+@contextlib.contextmanager
+def naming_refused_result(result_file: Path) -> Iterator[None]:
+    """TrackEval's refusal of a result file it has loaded (its preprocessing raises on a track
+    id twice in one frame) as an :class:`InputError` naming that file: for a finished run's own
+    result files, which the user can open (a caller scoring temporary copies, as `mctrack eval`
+    does, keeps the CLI's ``TrackEval: ...`` line rather than name a file that is gone)."""
+    try:
+        yield
+    except Exception as exc:
+        if type(exc).__name__ != "TrackEvalException":  # (not imported: trackeval is heavy)
+            raise
+        raise InputError(str(exc), path=result_file) from None
+
+
 def combine_sequences(
     evaluations: Sequence[SequenceEvaluation],
     classes: Sequence[str],
@@ -270,6 +284,7 @@ def evaluate_kitti(
     per_sequence: dict[str, dict[str, dict[str, float]]] | None = None,
     first_frames: Mapping[str, int] | None = None,
     labels_checked: bool = False,
+    name_refused_results: bool = False,
 ) -> dict[str, dict[str, float]]:
     """Evaluate ``result_dir/<seq>.txt`` against ``label_dir/<seq>.txt``.
 
@@ -279,7 +294,8 @@ def evaluate_kitti(
     in ``first_frames`` is scored on its frames first .. first+length-1 alone
     (:func:`evaluate_kitti_sequence`). Every label file is checked before the first is scored,
     unless ``labels_checked`` (the caller ran :func:`check_label_file` on each, at least as
-    strictly: it need not be parsed twice).
+    strictly: it need not be parsed twice). With ``name_refused_results`` a result file
+    TrackEval refuses is an :class:`InputError` naming it (:func:`naming_refused_result`).
     """
     unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
     if unknown:
@@ -288,17 +304,20 @@ def evaluate_kitti(
     if not labels_checked:
         for seq, length in sorted(seq_lengths.items()):
             check_label_file(path_in(label_dir, seq, ".txt"), None if seq in firsts else length)
-    evaluations = [
-        evaluate_kitti_sequence(
-            label_file=path_in(label_dir, seq, ".txt"),
-            result_file=path_in(result_dir, seq, ".txt"),
-            num_timesteps=length,
-            classes=classes,
-            first_frame=firsts.get(seq),
-            label_checked=True,
-        )
-        for seq, length in sorted(seq_lengths.items())
-    ]
+    evaluations = []
+    for seq, length in sorted(seq_lengths.items()):
+        result = path_in(result_dir, seq, ".txt")
+        with naming_refused_result(result) if name_refused_results else contextlib.nullcontext():
+            evaluations.append(
+                evaluate_kitti_sequence(
+                    label_file=path_in(label_dir, seq, ".txt"),
+                    result_file=result,
+                    num_timesteps=length,
+                    classes=classes,
+                    first_frame=firsts.get(seq),
+                    label_checked=True,
+                )
+            )
     return combine_sequences(evaluations, classes, per_sequence)
 
 
