@@ -23,6 +23,7 @@ import shutil
 import stat
 import sys
 import time
+import urllib.parse
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -589,8 +590,11 @@ def _event_cells(
     )
     live = ""
     if e["sequence"] in run.recordings:
+        # the recording's URL path under /recordings/ (the page's script adds it as it is): a
+        # name's '?', '#', '%' or space would end or change the path
+        rec = f"{side}/{urllib.parse.quote(e['sequence'], safe='')}"
         live = (
-            f'<a class="live" hidden data-rec="{side}/{h.esc(e["sequence"])}" '
+            f'<a class="live" hidden data-rec="{h.esc(rec)}" '
             f'data-frame="{int(e["frame"])}">view</a>'
         )
     return [
