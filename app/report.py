@@ -23,6 +23,7 @@ import shutil
 import stat
 import sys
 import time
+import urllib.parse
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -582,15 +583,17 @@ def _event_cells(
     cmd = _inspect_cmd(run, e)
     key = (e["sequence"] if side == "a" else "b/" + e["sequence"], e.get("event"))
     shot = shot_files.get(key) if e.get("event") is not None else None
+    src = h.esc(h.url_path(shot)) if shot else ""
     shot_cell = (
-        f'<a href="{h.esc(shot)}"><img src="{h.esc(shot)}" alt="event shot" height="48"></a>'
-        if shot
-        else ""
+        f'<a href="{src}"><img src="{src}" alt="event shot" height="48"></a>' if shot else ""
     )
     live = ""
     if e["sequence"] in run.recordings:
+        # the recording's URL path under /recordings/ (the page's script adds it as it is): a
+        # name's '?', '#', '%' or space would end or change the path
+        rec = f"{side}/{urllib.parse.quote(e['sequence'], safe='')}"
         live = (
-            f'<a class="live" hidden data-rec="{side}/{h.esc(e["sequence"])}" '
+            f'<a class="live" hidden data-rec="{h.esc(rec)}" '
             f'data-frame="{int(e["frame"])}">view</a>'
         )
     return [
@@ -769,7 +772,10 @@ def _shots_section(
             if e.get("event") is not None:
                 captions[(prefix + e["sequence"], e["event"])] = event_text(e)
     figs = [
-        h.figure(p, ("B " if seq.startswith("b/") else "") + f"#{k}: {captions.get((seq, k), '')}")
+        h.figure(
+            h.url_path(p),
+            ("B " if seq.startswith("b/") else "") + f"#{k}: {captions.get((seq, k), '')}",
+        )
         for (seq, k), p in sorted(shot_files.items())
     ]
     return '<div class="gallery">' + "".join(figs) + "</div>"

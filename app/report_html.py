@@ -4,6 +4,7 @@ by a click on a column header and filterable, images from the report folder."""
 from __future__ import annotations
 
 import html
+import urllib.parse
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
@@ -157,6 +158,12 @@ def td(v: Any, *, num: bool = False, raw: bool = False, sort: Any = None) -> str
     elif num and isinstance(v, int | float):
         attrs += f' data-sort="{v}"'
     return f"<td{attrs}>{text}</td>"
+
+
+def url_path(path: str) -> str:
+    """A relative file path as a URL path: a folder named after a sequence holds its escape
+    (``%3F`` for '?', :func:`tracker.io.fileio.safe_filename`), which a browser would decode."""
+    return urllib.parse.quote(path)
 
 
 def figure(src: str, caption: str, width: int | None = None) -> str:

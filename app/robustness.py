@@ -131,7 +131,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     custom_levels, seeds = parse_levels(args.level or []), _seeds(args.seeds)
-    check_output_folder(args.out)  # before any work: a bad --out fails at once, naming --out
     root = args.kitti_root or default_kitti_root()
     check_kitti_root(root, seqs=args.seqs, detector=args.detector)
     report = run_robustness(
@@ -207,6 +206,10 @@ def run_robustness(
     if missing:
         raise InputError(f"no labels to score against: {', '.join(missing)}")
     config = load_config(config_name, overrides={"categories": list(classes)})
+    calibrate, calibration, calibration_note = score_source(config, detector, profile)
+    # every argument is accepted: only now is --out made (a refused run leaves no folder
+    # behind), and a bad --out still fails before any work, naming --out
+    check_output_folder(out)
     t0 = time.perf_counter()
     try:
         detections, _ = convert_kitti(
@@ -216,7 +219,6 @@ def run_robustness(
         raise InputError(str(exc)) from None
     found = {int(c) for fr in detections.values() for f in fr for c in np.unique(f.boxes.category)}
     warn_undetected_classes(detector, [c for c in classes if category_index(c) not in found])
-    calibrate, calibration, calibration_note = score_source(config, detector, profile)
     if calibrate:  # thresholds in calibrated units
         if calibration is not None:  # a profile's classes without a map keep the fallback
             every = [frame for frames in detections.values() for frame in frames]

@@ -87,6 +87,7 @@ def _check_images(
     """Each ``--images`` folder's camera must be one of the input's, and the folder must hold
     an image of a recorded frame of it: else the camera view stays dark, without a word.
     Returns, per scene, the folders without an image of its frames (beside scenes with)."""
+    _refuse_repeated_cameras(folders, scenes)
     cameras = sorted({c.name for frames in scenes.values() for f in frames for c in f.cameras})
     has = f"its cameras: {', '.join(cameras)}" if cameras else "it has none"
     unmatched: dict[str, list[str]] = {}
@@ -114,6 +115,28 @@ def _check_images(
             if not ok:
                 unmatched.setdefault(scene, []).append(str(folder))
     return unmatched
+
+
+def _refuse_repeated_cameras(folders: list[ImageFolder], scenes: dict[str, list[Frame]]) -> None:
+    """Two ``--images`` folders for one camera of a scene are a usage error: :func:`_images`
+    would keep the last one without a word. A folder without ``CAMERA=`` is for each scene's
+    first camera, so it repeats a named one only in the scenes whose first camera that is."""
+    for scene, frames in scenes.items():
+        first = frames[0].cameras[0].name if frames[0].cameras else None
+        given: dict[str, tuple[str | None, Path]] = {}
+        for name, folder, _ in folders:
+            camera = name if name is not None else first
+            if camera is None:
+                continue
+            if camera in given:
+                earlier_name, earlier = given[camera]
+                both_named = name is not None and earlier_name is not None
+                which = "" if both_named else f" (without CAMERA=: scene {scene}'s first camera)"
+                raise InputError(
+                    f"--images: camera {camera!r} given twice, {earlier} and {folder}{which}: "
+                    "give one folder per camera"
+                )
+            given[camera] = (name, folder)
 
 
 def _images(

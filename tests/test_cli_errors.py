@@ -785,6 +785,35 @@ def test_view_says_which_scenes_it_records_without_images(
         assert ("/cameras/CAM_FRONT/image" in entities) is has_images, scene
 
 
+def test_view_refuses_two_image_folders_for_one_camera(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two --images folders for the same camera: one usage error naming both, before any
+    recording (the last one was used, without a word). A folder without CAMERA= is the first
+    camera's, so it repeats --images CAM_FRONT=... on the sample."""
+    image_02 = SAMPLE / "image_02"
+    other = tmp_path / "other_images"
+    shutil.copytree(image_02, other)
+    argv = ["view", str(SAMPLE / "detections.json.gz"), "--frames", "10:12", "--no-motion"]
+    for images, said in (
+        (["CAM_FRONT=" + str(image_02), "CAM_FRONT=" + str(other)], ""),
+        ([str(image_02), "CAM_FRONT=" + str(other)],
+         " (without CAMERA=: scene 0001's first camera)"),
+        ([str(image_02), str(other)], " (without CAMERA=: scene 0001's first camera)"),
+    ):  # fmt: skip
+        path = tmp_path / "x.rrd"
+        options = [word for folder in images for word in ("--images", folder)]
+        code, printed, err = _run([*argv, *options, "--save", str(path)], capsys)
+        _assert_one_line_error(
+            code,
+            err,
+            "view",
+            f"--images: camera 'CAM_FRONT' given twice, {image_02} and {other}{said}: give one "
+            "folder per camera",
+        )
+        assert printed == "" and not list(tmp_path.glob("*.rrd*")), images
+
+
 def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -541,6 +541,41 @@ def test_a_pose_without_a_rotation_is_named(
 
 
 @needs_devkit
+def test_a_ground_truth_size_is_checked_as_a_detection_size(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
+) -> None:
+    """A tracked sample_annotation whose size is zero, negative, NaN or short: one error naming
+    the table, the annotation and the field, as for a detection (was converted: a zero-width
+    GT box went into --gt-out)."""
+    ann = next(
+        a
+        for a in nusc.sample_annotation
+        if a["sample_token"] in set(dataset.split_samples(VAL_SCENES))
+        and a["num_lidar_pts"] > 0
+        and a["category_name"] in CATEGORY_TO_TRACKING_NAME
+    )
+    for name, size, said in (
+        ("zero", [0.0, 4.5, 1.6], "= [0.0, 4.5, 1.6]: width and length must be > 0, height >= 0"),
+        ("negative", [1.9, 4.5, -1.0], "= [1.9, 4.5, -1.0]: width and length must be > 0, "
+                                       "height >= 0"),
+        ("nan", [1.9, math.nan, 1.6], "must be 3 finite numbers"),
+        ("short", [1.9, 4.5], "must be 3 finite numbers"),
+    ):  # fmt: skip
+
+        def edit(tables: dict[str, list[Any]], size: list[float] = size) -> None:
+            record = next(a for a in tables["sample_annotation"] if a["token"] == ann["token"])
+            record["size"] = size
+
+        root = _edited_dataset(dataset, tmp_path / name, edit)
+        with pytest.raises(InputError) as err:
+            convert_nuscenes(
+                root, version=dataset.version, detections=clean_path, split="mini_val", with_gt=True
+            )
+        table = root / dataset.version / "sample_annotation.json"
+        assert str(err.value) == f"{table}: sample_annotation '{ann['token']}': field 'size' {said}"
+
+
+@needs_devkit
 def test_a_sample_without_lidar_top_names_the_sample_data_table(
     dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
 ) -> None:

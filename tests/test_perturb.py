@@ -454,6 +454,10 @@ def test_bad_levels_are_one_line_errors(
         (["--seeds", "0,x"], "--seeds"),
         (["--classes", "van"], "--classes"),
         (["--seqs", "0002"], "0002.txt"),
+        (["--score-sigma", "-1"], "--score-sigma"),
+        (["--detector", "nope"], "--detector"),
+        (["--config", "nope"], "config not found"),
+        (["--profile", "nope.toml"], "nope.toml"),
     ],
 )
 def test_robustness_bad_arguments_are_one_line_errors(
@@ -463,10 +467,12 @@ def test_robustness_bad_arguments_are_one_line_errors(
     extra: list[str],
     message: str,
 ) -> None:
+    """Refused before --out is made (it was left behind, empty, by most of these)."""
     argv = ["robustness", "--kitti-root", str(sample_kit), "--seqs", "0001", *extra]
-    assert main([*argv, "--out", str(tmp_path)]) == 2
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and message in err and err.startswith("mctrack robustness")
+    assert not (tmp_path / "out").exists()
 
 
 def test_the_parts_of_noise_add_up_to_noise() -> None:

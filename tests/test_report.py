@@ -341,6 +341,100 @@ def test_serve_event_link_opens_the_viewer_at_the_frame(served_report, browser) 
     page.close()
 
 
+#: a sequence name with every character that ends or changes a URL path
+ODD_SEQ = "a?b#c%41 d"
+
+
+def _odd_run(root: Path) -> tuple[Path, Path]:
+    """(run A with its sequence renamed ODD_SEQ, that sequence's recording)."""
+    from tracker.io.fileio import safe_filename
+
+    a, _, labels = make_runs(root)
+    shutil.copy(labels / f"{SEQ}.txt", labels / f"{safe_filename(ODD_SEQ)}.txt")
+    (a / "data" / f"{SEQ}.txt").rename(a / "data" / f"{safe_filename(ODD_SEQ)}.txt")
+    summary = json.loads((a / "summary.json").read_text())
+    summary["sequences"] = [ODD_SEQ]
+    summary["per_sequence"] = {ODD_SEQ: summary["per_sequence"][SEQ]}
+    (a / "summary.json").write_text(json.dumps(summary))
+    (a / "recordings").mkdir()
+    return a, _tiny_recording(a / "recordings" / f"{safe_filename(ODD_SEQ)}.rrd")
+
+
+@pytest.fixture
+def odd_served_report(tmp_path: Path):
+    """A run whose sequence (with a recording) is named ODD_SEQ, its report served (without
+    the viewer: the links are what is tested)."""
+    from app.serve import report_server
+
+    a, rec = _odd_run(tmp_path)
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    with report_server(out, {f"a/{ODD_SEQ}": rec}, with_viewer=False) as (_, url):
+        yield url, rec, out
+
+
+def test_serve_event_link_encodes_the_sequence_name(odd_served_report) -> None:
+    """A sequence named with '?', '#', '%' and a space: the event link's recording path is
+    URL-encoded, so the page's URL of it fetches that recording (the name went in as it was:
+    the path ended at '?', a 404)."""
+    import re
+    import urllib.parse
+
+    url, rec, out = odd_served_report
+    found = re.findall(
+        r'<a class="live" hidden data-rec="([^"]*)"', (out / "index.html").read_text()
+    )
+    assert found and set(found) == {"a/" + urllib.parse.quote(ODD_SEQ, safe="")}
+    status, data = _get(url + "recordings/" + html.unescape(found[0]) + ".rrd")  # as the script
+    assert status == 200 and data == rec.read_bytes()
+
+
+def test_serve_event_link_of_an_odd_name_in_the_browser(odd_served_report, browser) -> None:
+    """The same through the page's own script: the viewer link's ?url= is the recording."""
+    import urllib.parse
+
+    url, rec, _ = odd_served_report
+    page = browser.new_page()
+    page.goto(url)
+    link = page.wait_for_selector("a.live:not([hidden])", timeout=10_000)
+    query = urllib.parse.parse_qs(urllib.parse.urlsplit(link.get_attribute("href")).query)
+    page.close()
+    status, data = _get(query["url"][0])
+    assert status == 200 and data == rec.read_bytes()
+
+
+def test_shot_links_of_an_odd_name_lead_to_the_file(tmp_path: Path, monkeypatch) -> None:
+    """A shot lives in shots/<the sequence name escaped>/ ('%3F' for '?'): its src and href
+    are URL-encoded, so that a browser, decoding them, finds the file (it decoded the escape
+    itself: shots/a?b#c... does not exist, a broken image)."""
+    import re
+    import urllib.parse
+
+    from app import report
+    from app.runs import load_run
+    from tracker.io.fileio import path_in
+
+    a, _ = _odd_run(tmp_path)
+    out = tmp_path / "report"
+
+    def fake_shots(run, folder: Path, per_sequence: int) -> dict[tuple[str, int], str]:
+        shot = path_in(folder / "shots", ODD_SEQ, "") / "1.png"
+        shot.parent.mkdir(parents=True)
+        shot.write_bytes(b"\x89PNG\r\n\x1a\n")
+        return {(ODD_SEQ, 1): str(shot.relative_to(folder))}
+
+    monkeypatch.setattr(report, "take_event_shots", fake_shots)
+    assert main(["report", str(a), "--shots", "1", "--out", str(out)]) == 0
+    page = (out / "index.html").read_text()
+    run = load_run(a)  # an event of a recording with an index has its number: its shot cell
+    event = {**run.events[0], "event": 1}
+    cell = report._event_cells(run, "a", event, fake_shots(None, tmp_path / "x", 1))
+    srcs = re.findall(r'(?:src|href)="(shots/[^"]*)"', page + "".join(cell))
+    assert len(srcs) == 3  # the gallery's image, the event cell's link and image
+    for src in srcs:  # what a browser reads: the path with its escapes decoded
+        assert "%25" in src and (out / urllib.parse.unquote(html.unescape(src))).is_file(), src
+
+
 def test_serve_stops_cleanly(tmp_path: Path, monkeypatch) -> None:
     """After the ``with``: the port refuses connections and the viewer process has ended."""
     from app import serve

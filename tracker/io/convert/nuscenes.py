@@ -391,15 +391,11 @@ def _detection_boxes(
             raise InputError(f"{at}: field 'detection_score' = {score} is outside [0, 1]")
         if score < score_min:
             continue
-        for key, size in (("translation", 3), ("size", 3), ("rotation", 4)):
+        for key, size in (("translation", 3), ("rotation", 4)):
             value = np.asarray(box[key], dtype=np.float64) if _numeric(box[key]) else None
             if value is None or value.shape != (size,) or not np.isfinite(value).all():
                 raise InputError(f"{at}: field '{key}' must be {size} finite numbers")
-        width, length, height = box["size"]
-        if not (width > 0 and length > 0 and height >= 0):  # as a BaseVersion box's lwh
-            raise InputError(
-                f"{at}: field 'size' = {box['size']}: width and length must be > 0, height >= 0"
-            )
+        _check_size(box["size"], at)
         velocity, known = _velocity(box.get("velocity"), at)
         no_velocity += not known
         velocities.append(velocity)
@@ -435,6 +431,17 @@ def _detection_boxes(
         score=np.array(scores),
         category=[category_index(b["detection_name"]) for b in keep],
     ), no_velocity
+
+
+def _check_size(value: Any, at: str) -> None:
+    """InputError (``at``: the file and record) unless ``value`` is a box's ``size`` (w, l, h):
+    3 finite numbers, width and length > 0, height >= 0 (as a BaseVersion box's lwh)."""
+    array = np.asarray(value, dtype=np.float64) if _numeric(value) else None
+    if array is None or array.shape != (3,) or not np.isfinite(array).all():
+        raise InputError(f"{at}: field 'size' must be 3 finite numbers")
+    width, length, height = array
+    if not (width > 0 and length > 0 and height >= 0):
+        raise InputError(f"{at}: field 'size' = {value}: width and length must be > 0, height >= 0")
 
 
 def _numeric(value: Any) -> bool:
@@ -623,6 +630,7 @@ def _with_cameras(boxes: Boxes, cameras: Sequence[Camera]) -> Boxes:
 def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxes, int]:
     """GT boxes of one sample and the number whose velocity was unknown (set to 0)."""
     rows: list[dict[str, Any]] = []
+    table = Path(nusc.dataroot) / nusc.version / "sample_annotation.json"
     for ann_token in sample["anns"]:
         ann = nusc.get("sample_annotation", ann_token)
         name = CATEGORY_TO_TRACKING_NAME.get(ann["category_name"])
@@ -630,6 +638,8 @@ def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxe
             continue
         if not keep_empty and ann.get("num_lidar_pts", 1) + ann.get("num_radar_pts", 0) <= 0:
             continue
+        # checked as a detection's: the devkit loads sizes unchecked (a zero one was written)
+        _check_size(ann.get("size"), f"{table}: sample_annotation {ann['token']!r}")
         rows.append({**ann, "tracking_name": name})
     if not rows:
         return Boxes.empty(), 0
