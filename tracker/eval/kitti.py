@@ -15,12 +15,15 @@ import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tracker.errors import InputError
 from tracker.io.fileio import path_in
+
+if TYPE_CHECKING:
+    from tracker.io.convert.kitti import KittiObjects
 
 SUPPORTED_CLASSES = ("car", "pedestrian", "cyclist")
 #: The label types TrackEval's KITTI reader knows (lower-cased); any other stops it.
@@ -65,10 +68,11 @@ class SequenceEvaluation:
 def check_label_file(path: Path, num_frames: int | None = None, length_source: str = "") -> int:
     """Raise :class:`InputError` (file, line, field) unless TrackEval can score ``path``: a
     KITTI label file (:func:`~tracker.io.convert.kitti.read_kitti_labels`), of types TrackEval
-    knows, with no frame at or beyond ``num_frames`` (when known; ``length_source`` says where
-    that length comes from). TrackEval itself fails on these with a traceback, a ValueError or
-    "invalid timesteps", and only once the tracking is done. Returns the frames the labels span
-    (their last frame + 1)."""
+    knows, with no object twice in one frame (:func:`repeated_track_id`) and no frame at or
+    beyond ``num_frames`` (when known; ``length_source`` says where that length comes from).
+    TrackEval itself fails on these with a traceback, a ValueError, "invalid timesteps" or
+    "Ground-truth has the same ID more than once", and only once the tracking is done. Returns
+    the frames the labels span (their last frame + 1)."""
     from tracker.io.convert.kitti import read_kitti_labels
 
     labels = read_kitti_labels(path)
@@ -80,6 +84,14 @@ def check_label_file(path: Path, num_frames: int | None = None, length_source: s
             " Pedestrian, Person, Cyclist, Tram, Misc, DontCare)",
             path=path, line=labels.where(row)[1], field="type",
         )  # fmt: skip
+    twice = repeated_track_id(labels)
+    if twice is not None:
+        row, earlier = twice
+        raise InputError(
+            f"frame {labels.frame[row]}: track id {labels.track_id[row]} ({labels.type_name[row]})"
+            f" is also on line {labels.where(earlier)[1]}: one object twice in one frame",
+            path=path, line=labels.where(row)[1], field="track_id",
+        )  # fmt: skip
     if num_frames is not None and len(labels) and labels.frame.max() >= num_frames:
         row = int(np.argmax(labels.frame))
         source = f" ({length_source})" if length_source else ""
@@ -89,6 +101,27 @@ def check_label_file(path: Path, num_frames: int | None = None, length_source: s
             path=path, line=labels.where(row)[1], field="frame",
         )  # fmt: skip
     return int(labels.frame.max(initial=-1)) + 1
+
+
+def repeated_track_id(objects: KittiObjects) -> tuple[int, int] | None:
+    """(row, an earlier row) of the first row (in file order) whose frame, track id and type an
+    earlier row has, DontCare regions (all id -1) aside; None if there is none. TrackEval
+    refuses a file with one id twice in a frame within a class it scores (Car_2 is a Car)."""
+    kind = np.char.lower(objects.type_name.astype(str))
+    kind = np.where(kind == "car_2", "car", kind)
+    codes = np.unique(kind, return_inverse=True)[1].reshape(-1)
+    rows = np.flatnonzero(kind != "dontcare")
+    frame, tid = objects.frame[rows], objects.track_id[rows]
+    order = rows[np.lexsort((rows, codes[rows], tid, frame))]
+    same = np.flatnonzero(
+        (objects.frame[order[1:]] == objects.frame[order[:-1]])
+        & (objects.track_id[order[1:]] == objects.track_id[order[:-1]])
+        & (codes[order[1:]] == codes[order[:-1]])
+    )
+    if not len(same):
+        return None
+    k = same[np.argmin(order[same + 1])]  # the repeat that comes first in the file
+    return int(order[k + 1]), int(order[k])
 
 
 def check_kitti_labels(
@@ -195,10 +228,16 @@ def evaluate_kitti_sequence(
             for dataset, names in runs:
                 raw = _raw_seq_data(trackeval, dataset, seq, label_file, result)
                 for name, eval_cls in names:
-                    if keep_id_inputs:
-                        data, id_inputs[name] = preprocess_keeping_ids(dataset, raw, eval_cls)
-                    else:
-                        data = dataset.get_preprocessed_seq_data(raw, eval_cls)
+                    try:
+                        if keep_id_inputs:
+                            data, id_inputs[name] = preprocess_keeping_ids(dataset, raw, eval_cls)
+                        else:
+                            data = dataset.get_preprocessed_seq_data(raw, eval_cls)
+                    except trackeval.utils.TrackEvalException:
+                        # an id twice in a frame: when the labels hold it, their file is named
+                        # (file, line, frame, id), even if the caller had them checked
+                        check_label_file(label_file)
+                        raise
                     results[name] = {
                         m.get_name(): m.eval_sequence(data)
                         for m in metrics  # names: METRIC_NAMES
