@@ -161,6 +161,7 @@ def evaluate_kitti_sequence(
     keep_id_inputs: bool = False,
     first_frame: int | None = None,
     label_checked: bool = False,
+    result_name: str | None = None,
 ) -> SequenceEvaluation:
     """Evaluate one sequence's result file (None: no tracks) against its ``label_02`` file.
 
@@ -173,6 +174,9 @@ def evaluate_kitti_sequence(
     Identity on it. With ``keep_id_inputs`` the preprocessed ids are the files' own (see
     :func:`preprocess_keeping_ids`; the metrics are the same) and are kept for the ID-switch
     replay, so a recording needs no second evaluation.
+
+    ``result_name``: what an error calls the result file instead of its path (a temporary
+    copy's source, as `mctrack eval` names its tracks file and scene).
     """
     import trackeval  # heavy import: only when evaluating
 
@@ -226,7 +230,9 @@ def evaluate_kitti_sequence(
             if "cyclist" in classes:
                 runs.append((_cyclist_dataset(trackeval, ds_config), [("cyclist", "car")]))
             for dataset, names in runs:
-                raw = _raw_seq_data(trackeval, dataset, seq, label_file, result)
+                raw = _raw_seq_data(
+                    trackeval, dataset, seq, label_file, result, result_name, first_frame or 0
+                )
                 for name, eval_cls in names:
                     try:
                         if keep_id_inputs:
@@ -247,12 +253,19 @@ def evaluate_kitti_sequence(
 
 
 def _raw_seq_data(
-    trackeval: Any, dataset: Any, seq: str, label_file: Path, result_file: Path | None
+    trackeval: Any,
+    dataset: Any,
+    seq: str,
+    label_file: Path,
+    result_file: Path | None,
+    result_name: str | None = None,
+    first_frame: int = 0,
 ) -> Any:
     """TrackEval's loading, its own error report on stderr kept quiet (it prints a traceback
     before raising) and its error an :class:`InputError` naming the file that holds the row
     it could not read (else the result file, where there is one: the label file has passed
-    :func:`check_label_file`)."""
+    :func:`check_label_file`); a result file by ``result_name`` when given, with the row's
+    frame in it (TrackEval reads frames from ``first_frame`` on as 0, 1, ...)."""
     files = [f for f in (result_file, label_file) if f is not None]
     try:
         with contextlib.redirect_stderr(io.StringIO()):
@@ -267,21 +280,50 @@ def _raw_seq_data(
         why = " ".join(f"{exc} {exc.__context__ or ''}".split())
         row = why.partition("cannot be read correctly: ")[2].strip()
         culprit = next((f for f in files if row and row in " ".join(f.read_text().split())), None)
-        raise InputError(f"TrackEval cannot read it: {why}", path=culprit or files[0]) from None
+        culprit = culprit or files[0]
+        if result_name is not None and culprit == result_file:  # (a temporary copy)
+            head, _, rest = row.partition(" ")
+            if head.isdigit():
+                frame = int(head) + first_frame
+                raise InputError(
+                    f"{result_name} frame {frame}: TrackEval cannot read the KITTI row written"
+                    f" for it: {frame} {rest}"
+                ) from None
+            raise InputError(f"{result_name}: TrackEval cannot read it: {why}") from None
+        raise InputError(f"TrackEval cannot read it: {why}", path=culprit) from None
 
 
 @contextlib.contextmanager
-def naming_refused_result(result_file: Path) -> Iterator[None]:
+def naming_refused_result(result_file: Path, name: str | None = None) -> Iterator[None]:
     """TrackEval's refusal of a result file it has loaded (its preprocessing raises on a track
-    id twice in one frame) as an :class:`InputError` naming that file: for a finished run's own
-    result files, which the user can open (a caller scoring temporary copies, as `mctrack eval`
-    does, keeps the CLI's ``TrackEval: ...`` line rather than name a file that is gone)."""
+    id twice in one frame) as an :class:`InputError` naming that file, line, frame and id
+    (TrackEval's own words give its frame 1-based and the id renumbered): for a finished run's
+    own result files, which the user can open. ``name``: what to call the file instead, without
+    a line (a temporary copy's source: `mctrack eval` names its tracks file and scene)."""
     try:
         yield
     except Exception as exc:
         if type(exc).__name__ != "TrackEvalException":  # (not imported: trackeval is heavy)
             raise
-        raise InputError(str(exc), path=result_file) from None
+        raise _refused_result(result_file, name, str(exc)) from None
+
+
+def _refused_result(result_file: Path, name: str | None, refusal: str) -> InputError:
+    from tracker.io.convert.kitti import read_kitti_labels
+
+    rows = read_kitti_labels(result_file) if result_file.is_file() else None
+    twice = repeated_track_id(rows) if rows is not None else None
+    if rows is None or twice is None:  # (not a repeated id: TrackEval's words, on one line)
+        why = " ".join(refusal.split())
+        return InputError(f"{name}: {why}") if name else InputError(why, path=result_file)
+    row, earlier = twice
+    what = f"frame {rows.frame[row]}: track id {rows.track_id[row]} ({rows.type_name[row]})"
+    if name:
+        return InputError(f"{name} {what} twice: one track twice in one frame")
+    return InputError(
+        f"{what} is also on line {rows.where(earlier)[1]}: one track twice in one frame",
+        path=result_file, line=rows.where(row)[1], field="track_id",
+    )  # fmt: skip
 
 
 def combine_sequences(
@@ -323,7 +365,7 @@ def evaluate_kitti(
     per_sequence: dict[str, dict[str, dict[str, float]]] | None = None,
     first_frames: Mapping[str, int] | None = None,
     labels_checked: bool = False,
-    name_refused_results: bool = False,
+    name_refused_results: bool | Mapping[str, str] = False,
 ) -> dict[str, dict[str, float]]:
     """Evaluate ``result_dir/<seq>.txt`` against ``label_dir/<seq>.txt``.
 
@@ -334,7 +376,9 @@ def evaluate_kitti(
     (:func:`evaluate_kitti_sequence`). Every label file is checked before the first is scored,
     unless ``labels_checked`` (the caller ran :func:`check_label_file` on each, at least as
     strictly: it need not be parsed twice). With ``name_refused_results`` a result file
-    TrackEval refuses is an :class:`InputError` naming it (:func:`naming_refused_result`).
+    TrackEval refuses is an :class:`InputError` naming it (:func:`naming_refused_result`); a
+    mapping ``{seq: name}`` calls each sequence's file by its name instead (temporary copies:
+    `mctrack eval` names its tracks file and scene, not a file that is gone).
     """
     unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
     if unknown:
@@ -343,10 +387,16 @@ def evaluate_kitti(
     if not labels_checked:
         for seq, length in sorted(seq_lengths.items()):
             check_label_file(path_in(label_dir, seq, ".txt"), None if seq in firsts else length)
+    names = name_refused_results if isinstance(name_refused_results, Mapping) else {}
     evaluations = []
     for seq, length in sorted(seq_lengths.items()):
         result = path_in(result_dir, seq, ".txt")
-        with naming_refused_result(result) if name_refused_results else contextlib.nullcontext():
+        naming = (
+            naming_refused_result(result, names.get(seq))
+            if name_refused_results
+            else contextlib.nullcontext()
+        )
+        with naming:
             evaluations.append(
                 evaluate_kitti_sequence(
                     label_file=path_in(label_dir, seq, ".txt"),
@@ -355,6 +405,7 @@ def evaluate_kitti(
                     classes=classes,
                     first_frame=firsts.get(seq),
                     label_checked=True,
+                    result_name=names.get(seq),
                 )
             )
     return combine_sequences(evaluations, classes, per_sequence)
