@@ -127,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
             args.tracks,
             args.gt,
         )
+    check_unique_track_ids(outputs, args.tracks)
     dets = read_baseversion(args.detections) if args.detections else None
     if dets is not None:
         check_detections_match(dets, outputs, args.detections)
@@ -141,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
         motion=args.motion,
         out=out,
         writer=writer,
+        tracks_name=args.tracks,
     )
     print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
     if isinstance(result.get("static"), str):
@@ -161,12 +163,15 @@ def evaluate_tracks(
     motion: bool,
     out: Path,
     writer: Mapping[str, Any] | None = None,
+    tracks_name: str = "the tracks file",
 ) -> dict[str, Any]:
     """Static and/or motion metrics of tracker output; writes ``out/eval.json`` and
     ``out/eval.md`` and returns the JSON content. ``writer``: the keywords of
     :func:`tracker.io.writers.write_kitti_sequence` (``TrackerConfig.kitti_writer_options()``;
     None: projections, full width); a mode other than projection takes its 2D boxes from
-    ``dets`` (:func:`check_detections_match` them first), and without them writes projections."""
+    ``dets`` (:func:`check_detections_match` them first), and without them writes projections.
+    ``tracks_name``: what an error calls the tracks (TrackEval scores temporary KITTI files of
+    them: an error names the tracks and the scene instead)."""
     from tracker.eval.kitti import absent_class_notes
     from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
@@ -178,7 +183,7 @@ def evaluate_tracks(
             writer["image_boxes"] = ImageBoxes.PROJECTION
         mode = ImageBoxes(writer.get("image_boxes", ImageBoxes.PROJECTION))
         frames = track_frames if mode is ImageBoxes.PROJECTION else dets
-        static = _static_metrics(frames, outputs, gt, classes, labels, writer, result)
+        static = _static_metrics(frames, outputs, gt, classes, labels, writer, result, tracks_name)
         if isinstance(static, dict):  # a class without ground truth is absent, as in kitti
             absent = absent_class_notes(static)
             static = {c: m for c, m in static.items() if c not in absent}
@@ -216,6 +221,7 @@ def _static_metrics(
     labels: Path,
     writer: Mapping[str, Any],
     notes: dict[str, Any],
+    tracks_name: str,
 ) -> dict[str, Any] | str:
     """The KITTI metrics of the labelled scenes, on the frames the tracks file covers. What was
     scored goes into ``notes`` (eval.json): ``evaluated_sequences``, and when some scenes or
@@ -274,6 +280,8 @@ def _static_metrics(
             # checked above, as strictly: with --gt against the same length, without it the
             # labels end within length unless the frames are windowed (then no length check)
             labels_checked=True,
+            # a refused file is a temporary one: named by the tracks and scene it was written from
+            name_refused_results={s: f"{tracks_name}: scene {s}" for s in lengths},
         )
 
 
@@ -294,6 +302,22 @@ def is_ground_truth(
             ):
                 return False
     return True
+
+
+def check_unique_track_ids(outputs: Mapping[str, Sequence[TrackOutput]], path: str) -> None:
+    """Raise :class:`InputError` naming the tracks file, scene, frame and id where one track id
+    is on two boxes of a frame (the tracker numbers every class from one counter; ids below 0
+    are no tracks): TrackEval refuses it once scoring has begun, the motion metrics fail on it."""
+    for scene, scene_outputs in outputs.items():
+        for out in scene_outputs:
+            ids = out.boxes.track_id[out.boxes.track_id >= 0]
+            unique, counts = np.unique(ids, return_counts=True)
+            if (counts > 1).any():
+                k = int(np.argmax(counts > 1))
+                raise InputError(
+                    f"{path}: scene {scene} frame {out.frame_id}: track id {unique[k]} is on"
+                    f" {counts[k]} boxes: one track twice in one frame"
+                )
 
 
 def check_detections_match(

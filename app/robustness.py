@@ -179,7 +179,7 @@ def run_robustness(
     config asks for calibrated scores; else the converter's sigmoid; not an option of the
     command line the report records).
     """
-    from tracker.eval.kitti import SUPPORTED_CLASSES, evaluate_kitti
+    from tracker.eval.kitti import SUPPORTED_CLASSES, check_kitti_labels, evaluate_kitti
     from tracker.io.convert.kitti import convert_kitti
 
     bad_classes = [c for c in classes if c not in SUPPORTED_CLASSES]
@@ -237,6 +237,9 @@ def run_robustness(
         if calibration is not None and rescore is None:
             rescore = calibration.scores
     lengths = {seq: len(frames) for seq, frames in detections.items()}
+    # a bad label file stops the run here, not after the clean level is tracked (and the
+    # earlier run's outputs are gone)
+    check_kitti_labels(label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines"))
     options = [
         ("--kitti-root", kitti_root), ("--detector", detector), ("--seqs", ",".join(seqs)),
         ("--classes", ",".join(classes)), ("--config", config_name),

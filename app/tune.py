@@ -526,6 +526,7 @@ def _run(args: argparse.Namespace) -> int:
 
     from tracker.calibration import find_profile
     from tracker.eval.calibrate import fit_profile, one_score_warning
+    from tracker.eval.kitti import check_kitti_labels
     from tracker.io.convert.kitti import convert_kitti
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
@@ -590,6 +591,8 @@ def _run(args: argparse.Namespace) -> int:
                 f"({', '.join(seqs)}); --detectors must name detectors that detect {cls}"
             )
     lengths = {s: len(f) for s, f in raw[detectors[0]].items()}
+    # a bad label file stops the search here, not in its first trial (Optuna's traceback)
+    check_kitti_labels(label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines"))
     folds = folds_by_frames(lengths, args.folds)
 
     # calibrated frames per (detector, fold): profiles fitted on the fold's training sequences;

@@ -53,7 +53,14 @@ BAD_LABELS = {  # (the line appended, what the error names)
         GOOD_ROW.replace(" Car ", " Person_sitting "),
         (f"0001.txt:{N_LINES + 1}", "'type'", "Person_sitting"),
     ),
+    "an object twice in one frame": (GOOD_ROW, (f"0001.txt:{N_LINES + 1}", "'track_id'")),
 }
+#: The error on the sample's labels with GOOD_ROW appended, after "<label file>:".
+TWICE = (
+    f"{N_LINES + 1}: field 'track_id': frame {GOOD_ROW.split()[0]}: track id {GOOD_ROW.split()[1]}"
+    f" (Car) is also on line {LABEL.read_text().splitlines().index(GOOD_ROW) + 1}: one object"
+    " twice in one frame"
+)
 
 
 @pytest.mark.parametrize("case", list(BAD_LABELS))
@@ -79,6 +86,80 @@ def test_kitti_refuses_bad_labels_before_tracking_and_keeps_the_earlier_run(
     assert not list((out / "data").iterdir())  # nothing tracked
 
 
+@pytest.mark.parametrize("command", ["eval", "view", "compare", "robustness", "tune"])
+def test_an_object_twice_in_one_frame_is_named_in_its_label_file_by_every_command(
+    command: str,
+    sample_tracks: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """TrackEval refuses labels holding one track id twice in a frame ("Ground-truth has the
+    same ID more than once ...", its frame 1-based, its id renumbered): every command that
+    scores names the label file, line, frame and id, in the same words, before scoring (`mctrack
+    kitti`: BAD_LABELS). `mctrack compare` named the run's result file instead; robustness and
+    tune stop before tracking, the earlier run's outputs kept (tune: no trial's traceback)."""
+    from tests.report_fixtures import make_runs
+
+    labels = _labels(tmp_path / "labels", GOOD_ROW)
+    expected = f"{labels / '0001.txt'}:{TWICE}"
+    if command == "eval":
+        argv = ["eval", str(sample_tracks["all"]), "--gt", str(SAMPLE / "gt.json.gz")]
+        argv += ["--labels", str(labels), "--out", str(tmp_path / "o")]
+    elif command == "view":
+        argv = ["view", str(SAMPLE / "detections.json.gz"), "--labels", str(labels)]
+        argv += ["--save", str(tmp_path / "v.rrd")]
+    elif command == "compare":
+        a, b, labels = make_runs(tmp_path / "runs")  # (their summaries name these labels)
+        rows = labels.joinpath("0001.txt").read_text().splitlines(keepends=True)
+        labels.joinpath("0001.txt").write_text("".join(rows) + rows[0])
+        expected = (
+            f"{labels / '0001.txt'}:{len(rows) + 1}: field 'track_id': frame 0: track id 1 (Car)"
+            " is also on line 1: one object twice in one frame"
+        )
+        argv = ["compare", str(a), str(b), "--out", str(tmp_path / "o")]
+    else:  # the kit's labels; tune's two folds need two sequences (0002: a copy of 0001)
+        kit = tmp_path / "kit"
+        shutil.copytree(SAMPLE_KIT, kit)
+        for path in list(kit.rglob("0001.txt")):
+            shutil.copy(path, path.with_name("0002.txt"))
+        labels = _labels(kit / "training" / "label_02", GOOD_ROW)
+        expected = f"{labels / '0001.txt'}:{TWICE}"
+        argv = [command, "--kitti-root", str(kit), "--out", str(tmp_path / "o")]
+        (tmp_path / "o").mkdir()
+        (tmp_path / "o" / f"{command}.json").write_text("an earlier run's\n")
+        if command == "robustness":
+            argv += ["--seqs", "0001", "--classes", "car", "--levels", "clean", "--seeds", "1"]
+        else:
+            argv += ["--seqs", "0001,0002", "--detectors", "pointrcnn", "--trials", "1"]
+            argv += ["--folds", "2"]
+    code, err = _run(argv, capsys)
+    _one_line_error(code, err)
+    assert err.splitlines()[-1] == f"mctrack {command}: error: {expected}"
+    if command in ("robustness", "tune"):
+        assert (tmp_path / "o" / f"{command}.json").read_text() == "an earlier run's\n"
+        assert not (tmp_path / "o" / "runs").exists()  # (robustness: nothing tracked)
+
+
+def test_a_label_refusal_never_names_the_result_file(tmp_path: Path) -> None:
+    """Labels said to be checked (``labels_checked``) that TrackEval refuses (an object twice in
+    a frame) are named, with line, frame and id, even where a refused result file is named."""
+    from tracker.eval.kitti import evaluate_kitti
+
+    labels = _labels(tmp_path / "labels", GOOD_ROW)
+    data = tmp_path / "data"
+    data.mkdir()
+    data.joinpath("0001.txt").write_text(
+        "0 1 Car 0 0 -1 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 0.1 0.9\n"
+    )
+    for name_refused_results in (False, True):
+        with pytest.raises(InputError) as excinfo:
+            evaluate_kitti(
+                label_dir=labels, result_dir=data, seq_lengths={"0001": 447}, classes=["car"],
+                labels_checked=True, name_refused_results=name_refused_results,
+            )  # fmt: skip
+        assert str(excinfo.value) == f"{labels / '0001.txt'}:{TWICE}"
+
+
 def test_kitti_refuses_detections_given_as_labels(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -99,7 +180,8 @@ def test_trackeval_failures_are_one_line_and_quiet(
     from app import validate
     from tracker.eval.kitti import evaluate_kitti_sequence
 
-    labels = _labels(tmp_path / "labels", "\t".join(GOOD_ROW.split()))
+    frame, _, *rest = GOOD_ROW.split()  # (another track id: not the same object twice)
+    labels = _labels(tmp_path / "labels", "\t".join([frame, "999", *rest]))
     with pytest.raises(
         InputError,
         match=r"labels/0001.txt: TrackEval cannot read it: File 0001.txt cannot be read",
@@ -150,24 +232,32 @@ def test_trackeval_failures_are_one_line_and_quiet(
 
 def test_evaluate_kitti_names_a_refused_result_file_when_asked(tmp_path: Path) -> None:
     """A result file TrackEval loads but refuses (a track id twice in one frame): with
-    ``name_refused_results`` (a run's own files: `mctrack compare`) an InputError naming it;
-    without (temporary copies: `mctrack eval`) TrackEval's own exception, as before."""
+    ``name_refused_results`` (a run's own files: `mctrack compare`) an InputError naming it,
+    its line, frame and id (TrackEval's words: "frame: 3, ids: 0", its frame 1-based and its
+    ids renumbered), or by the name given for a temporary copy (`mctrack eval`); without,
+    TrackEval's own exception, as before."""
     import trackeval
 
     from tracker.eval.kitti import evaluate_kitti
 
     data = tmp_path / "data"
     data.mkdir()
-    row = "0 1 Car 0 0 -1 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 0.1 0.9\n"
-    (data / "0001.txt").write_text(row + row)
+    row = "2 7 Car 0 0 -1 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 0.1 0.9\n"
+    (data / "0001.txt").write_text(row.replace("2 7", "1 7") + row + row)
     args = dict(label_dir=LABEL.parent, result_dir=data, seq_lengths={"0001": 447}, classes=["car"])
-    with pytest.raises(trackeval.utils.TrackEvalException):
+    with pytest.raises(trackeval.utils.TrackEvalException, match="frame: 3, ids: 0"):
         evaluate_kitti(**args)
     with pytest.raises(InputError) as excinfo:
         evaluate_kitti(**args, name_refused_results=True)
     assert excinfo.value.path == str(data / "0001.txt")
-    assert str(excinfo.value).startswith(
-        f"{data / '0001.txt'}: Tracker predicts the same ID more than once in a single timestep"
+    assert str(excinfo.value) == (
+        f"{data / '0001.txt'}:3: field 'track_id': frame 2: track id 7 (Car) is also on line 2:"
+        " one track twice in one frame"
+    )
+    with pytest.raises(InputError) as excinfo:
+        evaluate_kitti(**args, name_refused_results={"0001": "t.json: scene 0001"})
+    assert str(excinfo.value) == (
+        "t.json: scene 0001 frame 2: track id 7 (Car) twice: one track twice in one frame"
     )
 
 
@@ -181,6 +271,53 @@ def sample_tracks(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         assert main(argv) == 0
         tracks[name] = out / name / "tracks.json"
     return tracks
+
+
+@pytest.mark.parametrize("motion", [False, True])
+def test_eval_names_a_track_id_twice_in_one_frame_by_the_tracks_file(
+    motion: bool, sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Two boxes of one track in a frame of the tracks: one line naming the tracks file, scene,
+    frame and id before any scoring. Was TrackEval's line ("Tracker predicts the same ID ...
+    frame: 6, ids: ...": its frame 1-based, its ids renumbered) for the static metrics, and
+    "unexpected error: ValueError" for the motion metrics."""
+    tracks = json.loads(sample_tracks["all"].read_text())
+    boxes = tracks["0001"][5]["bboxes"]
+    boxes[1]["track_id"] = boxes[0]["track_id"]
+    bad = tmp_path / "tracks.json"
+    bad.write_text(json.dumps(tracks))
+    argv = ["eval", str(bad), "--gt", str(SAMPLE / "gt.json.gz"), "--out", str(tmp_path / "o")]
+    argv += ["--motion"] if motion else ["--labels", str(LABEL.parent)]
+    code, err = _run(argv, capsys)
+    _one_line_error(code, err)
+    assert err.splitlines()[-1] == (
+        f"mctrack eval: error: {bad}: scene 0001 frame {tracks['0001'][5]['frame_id']}: track id"
+        f" {boxes[0]['track_id']} is on 2 boxes: one track twice in one frame"
+    )
+    assert not (tmp_path / "o" / "eval.json").exists()
+
+
+@pytest.mark.parametrize("which", ["all", "window"])
+def test_eval_names_a_row_trackeval_cannot_read_by_the_tracks_file(
+    which: str, sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A box TrackEval cannot read (a nuScenes class, bicycle, in the KITTI file written for
+    it): one line naming the tracks file, scene and frame (of the file: a --frames window is
+    scored from 0), not the temporary KITTI file that is gone by then."""
+    tracks = json.loads(sample_tracks[which].read_text())
+    frame = tracks["0001"][5]
+    frame["bboxes"][0]["category"] = "bicycle"
+    bad = tmp_path / "tracks.json"
+    bad.write_text(json.dumps(tracks))
+    argv = ["eval", str(bad), "--gt", str(SAMPLE / "gt.json.gz"), "--labels", str(LABEL.parent)]
+    code, err = _run([*argv, "--out", str(tmp_path / "o")], capsys)
+    _one_line_error(code, err)
+    assert err.splitlines()[-1].startswith(
+        f"mctrack eval: error: {bad}: scene 0001 frame {frame['frame_id']}: TrackEval cannot read"
+        f" the KITTI row written for it: {frame['frame_id']} {frame['bboxes'][0]['track_id']}"
+        " bicycle "
+    )
+    assert "mctrack-eval-" not in err
 
 
 def _eval(tracks: Path, labels: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> dict:

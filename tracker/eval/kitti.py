@@ -15,12 +15,15 @@ import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tracker.errors import InputError
 from tracker.io.fileio import path_in
+
+if TYPE_CHECKING:
+    from tracker.io.convert.kitti import KittiObjects
 
 SUPPORTED_CLASSES = ("car", "pedestrian", "cyclist")
 #: The label types TrackEval's KITTI reader knows (lower-cased); any other stops it.
@@ -65,10 +68,11 @@ class SequenceEvaluation:
 def check_label_file(path: Path, num_frames: int | None = None, length_source: str = "") -> int:
     """Raise :class:`InputError` (file, line, field) unless TrackEval can score ``path``: a
     KITTI label file (:func:`~tracker.io.convert.kitti.read_kitti_labels`), of types TrackEval
-    knows, with no frame at or beyond ``num_frames`` (when known; ``length_source`` says where
-    that length comes from). TrackEval itself fails on these with a traceback, a ValueError or
-    "invalid timesteps", and only once the tracking is done. Returns the frames the labels span
-    (their last frame + 1)."""
+    knows, with no object twice in one frame (:func:`repeated_track_id`) and no frame at or
+    beyond ``num_frames`` (when known; ``length_source`` says where that length comes from).
+    TrackEval itself fails on these with a traceback, a ValueError, "invalid timesteps" or
+    "Ground-truth has the same ID more than once", and only once the tracking is done. Returns
+    the frames the labels span (their last frame + 1)."""
     from tracker.io.convert.kitti import read_kitti_labels
 
     labels = read_kitti_labels(path)
@@ -80,6 +84,14 @@ def check_label_file(path: Path, num_frames: int | None = None, length_source: s
             " Pedestrian, Person, Cyclist, Tram, Misc, DontCare)",
             path=path, line=labels.where(row)[1], field="type",
         )  # fmt: skip
+    twice = repeated_track_id(labels)
+    if twice is not None:
+        row, earlier = twice
+        raise InputError(
+            f"frame {labels.frame[row]}: track id {labels.track_id[row]} ({labels.type_name[row]})"
+            f" is also on line {labels.where(earlier)[1]}: one object twice in one frame",
+            path=path, line=labels.where(row)[1], field="track_id",
+        )  # fmt: skip
     if num_frames is not None and len(labels) and labels.frame.max() >= num_frames:
         row = int(np.argmax(labels.frame))
         source = f" ({length_source})" if length_source else ""
@@ -89,6 +101,27 @@ def check_label_file(path: Path, num_frames: int | None = None, length_source: s
             path=path, line=labels.where(row)[1], field="frame",
         )  # fmt: skip
     return int(labels.frame.max(initial=-1)) + 1
+
+
+def repeated_track_id(objects: KittiObjects) -> tuple[int, int] | None:
+    """(row, an earlier row) of the first row (in file order) whose frame, track id and type an
+    earlier row has, DontCare regions (all id -1) aside; None if there is none. TrackEval
+    refuses a file with one id twice in a frame within a class it scores (Car_2 is a Car)."""
+    kind = np.char.lower(objects.type_name.astype(str))
+    kind = np.where(kind == "car_2", "car", kind)
+    codes = np.unique(kind, return_inverse=True)[1].reshape(-1)
+    rows = np.flatnonzero(kind != "dontcare")
+    frame, tid = objects.frame[rows], objects.track_id[rows]
+    order = rows[np.lexsort((rows, codes[rows], tid, frame))]
+    same = np.flatnonzero(
+        (objects.frame[order[1:]] == objects.frame[order[:-1]])
+        & (objects.track_id[order[1:]] == objects.track_id[order[:-1]])
+        & (codes[order[1:]] == codes[order[:-1]])
+    )
+    if not len(same):
+        return None
+    k = same[np.argmin(order[same + 1])]  # the repeat that comes first in the file
+    return int(order[k + 1]), int(order[k])
 
 
 def check_kitti_labels(
@@ -128,6 +161,7 @@ def evaluate_kitti_sequence(
     keep_id_inputs: bool = False,
     first_frame: int | None = None,
     label_checked: bool = False,
+    result_name: str | None = None,
 ) -> SequenceEvaluation:
     """Evaluate one sequence's result file (None: no tracks) against its ``label_02`` file.
 
@@ -140,6 +174,9 @@ def evaluate_kitti_sequence(
     Identity on it. With ``keep_id_inputs`` the preprocessed ids are the files' own (see
     :func:`preprocess_keeping_ids`; the metrics are the same) and are kept for the ID-switch
     replay, so a recording needs no second evaluation.
+
+    ``result_name``: what an error calls the result file instead of its path (a temporary
+    copy's source, as `mctrack eval` names its tracks file and scene).
     """
     import trackeval  # heavy import: only when evaluating
 
@@ -193,12 +230,20 @@ def evaluate_kitti_sequence(
             if "cyclist" in classes:
                 runs.append((_cyclist_dataset(trackeval, ds_config), [("cyclist", "car")]))
             for dataset, names in runs:
-                raw = _raw_seq_data(trackeval, dataset, seq, label_file, result)
+                raw = _raw_seq_data(
+                    trackeval, dataset, seq, label_file, result, result_name, first_frame or 0
+                )
                 for name, eval_cls in names:
-                    if keep_id_inputs:
-                        data, id_inputs[name] = preprocess_keeping_ids(dataset, raw, eval_cls)
-                    else:
-                        data = dataset.get_preprocessed_seq_data(raw, eval_cls)
+                    try:
+                        if keep_id_inputs:
+                            data, id_inputs[name] = preprocess_keeping_ids(dataset, raw, eval_cls)
+                        else:
+                            data = dataset.get_preprocessed_seq_data(raw, eval_cls)
+                    except trackeval.utils.TrackEvalException:
+                        # an id twice in a frame: when the labels hold it, their file is named
+                        # (file, line, frame, id), even if the caller had them checked
+                        check_label_file(label_file)
+                        raise
                     results[name] = {
                         m.get_name(): m.eval_sequence(data)
                         for m in metrics  # names: METRIC_NAMES
@@ -208,12 +253,19 @@ def evaluate_kitti_sequence(
 
 
 def _raw_seq_data(
-    trackeval: Any, dataset: Any, seq: str, label_file: Path, result_file: Path | None
+    trackeval: Any,
+    dataset: Any,
+    seq: str,
+    label_file: Path,
+    result_file: Path | None,
+    result_name: str | None = None,
+    first_frame: int = 0,
 ) -> Any:
     """TrackEval's loading, its own error report on stderr kept quiet (it prints a traceback
     before raising) and its error an :class:`InputError` naming the file that holds the row
     it could not read (else the result file, where there is one: the label file has passed
-    :func:`check_label_file`)."""
+    :func:`check_label_file`); a result file by ``result_name`` when given, with the row's
+    frame in it (TrackEval reads frames from ``first_frame`` on as 0, 1, ...)."""
     files = [f for f in (result_file, label_file) if f is not None]
     try:
         with contextlib.redirect_stderr(io.StringIO()):
@@ -228,21 +280,50 @@ def _raw_seq_data(
         why = " ".join(f"{exc} {exc.__context__ or ''}".split())
         row = why.partition("cannot be read correctly: ")[2].strip()
         culprit = next((f for f in files if row and row in " ".join(f.read_text().split())), None)
-        raise InputError(f"TrackEval cannot read it: {why}", path=culprit or files[0]) from None
+        culprit = culprit or files[0]
+        if result_name is not None and culprit == result_file:  # (a temporary copy)
+            head, _, rest = row.partition(" ")
+            if head.isdigit():
+                frame = int(head) + first_frame
+                raise InputError(
+                    f"{result_name} frame {frame}: TrackEval cannot read the KITTI row written"
+                    f" for it: {frame} {rest}"
+                ) from None
+            raise InputError(f"{result_name}: TrackEval cannot read it: {why}") from None
+        raise InputError(f"TrackEval cannot read it: {why}", path=culprit) from None
 
 
 @contextlib.contextmanager
-def naming_refused_result(result_file: Path) -> Iterator[None]:
+def naming_refused_result(result_file: Path, name: str | None = None) -> Iterator[None]:
     """TrackEval's refusal of a result file it has loaded (its preprocessing raises on a track
-    id twice in one frame) as an :class:`InputError` naming that file: for a finished run's own
-    result files, which the user can open (a caller scoring temporary copies, as `mctrack eval`
-    does, keeps the CLI's ``TrackEval: ...`` line rather than name a file that is gone)."""
+    id twice in one frame) as an :class:`InputError` naming that file, line, frame and id
+    (TrackEval's own words give its frame 1-based and the id renumbered): for a finished run's
+    own result files, which the user can open. ``name``: what to call the file instead, without
+    a line (a temporary copy's source: `mctrack eval` names its tracks file and scene)."""
     try:
         yield
     except Exception as exc:
         if type(exc).__name__ != "TrackEvalException":  # (not imported: trackeval is heavy)
             raise
-        raise InputError(str(exc), path=result_file) from None
+        raise _refused_result(result_file, name, str(exc)) from None
+
+
+def _refused_result(result_file: Path, name: str | None, refusal: str) -> InputError:
+    from tracker.io.convert.kitti import read_kitti_labels
+
+    rows = read_kitti_labels(result_file) if result_file.is_file() else None
+    twice = repeated_track_id(rows) if rows is not None else None
+    if rows is None or twice is None:  # (not a repeated id: TrackEval's words, on one line)
+        why = " ".join(refusal.split())
+        return InputError(f"{name}: {why}") if name else InputError(why, path=result_file)
+    row, earlier = twice
+    what = f"frame {rows.frame[row]}: track id {rows.track_id[row]} ({rows.type_name[row]})"
+    if name:
+        return InputError(f"{name} {what} twice: one track twice in one frame")
+    return InputError(
+        f"{what} is also on line {rows.where(earlier)[1]}: one track twice in one frame",
+        path=result_file, line=rows.where(row)[1], field="track_id",
+    )  # fmt: skip
 
 
 def combine_sequences(
@@ -284,7 +365,7 @@ def evaluate_kitti(
     per_sequence: dict[str, dict[str, dict[str, float]]] | None = None,
     first_frames: Mapping[str, int] | None = None,
     labels_checked: bool = False,
-    name_refused_results: bool = False,
+    name_refused_results: bool | Mapping[str, str] = False,
 ) -> dict[str, dict[str, float]]:
     """Evaluate ``result_dir/<seq>.txt`` against ``label_dir/<seq>.txt``.
 
@@ -295,7 +376,9 @@ def evaluate_kitti(
     (:func:`evaluate_kitti_sequence`). Every label file is checked before the first is scored,
     unless ``labels_checked`` (the caller ran :func:`check_label_file` on each, at least as
     strictly: it need not be parsed twice). With ``name_refused_results`` a result file
-    TrackEval refuses is an :class:`InputError` naming it (:func:`naming_refused_result`).
+    TrackEval refuses is an :class:`InputError` naming it (:func:`naming_refused_result`); a
+    mapping ``{seq: name}`` calls each sequence's file by its name instead (temporary copies:
+    `mctrack eval` names its tracks file and scene, not a file that is gone).
     """
     unknown = [c for c in classes if c not in SUPPORTED_CLASSES]
     if unknown:
@@ -304,10 +387,16 @@ def evaluate_kitti(
     if not labels_checked:
         for seq, length in sorted(seq_lengths.items()):
             check_label_file(path_in(label_dir, seq, ".txt"), None if seq in firsts else length)
+    names = name_refused_results if isinstance(name_refused_results, Mapping) else {}
     evaluations = []
     for seq, length in sorted(seq_lengths.items()):
         result = path_in(result_dir, seq, ".txt")
-        with naming_refused_result(result) if name_refused_results else contextlib.nullcontext():
+        naming = (
+            naming_refused_result(result, names.get(seq))
+            if name_refused_results
+            else contextlib.nullcontext()
+        )
+        with naming:
             evaluations.append(
                 evaluate_kitti_sequence(
                     label_file=path_in(label_dir, seq, ".txt"),
@@ -316,6 +405,7 @@ def evaluate_kitti(
                     classes=classes,
                     first_frame=firsts.get(seq),
                     label_checked=True,
+                    result_name=names.get(seq),
                 )
             )
     return combine_sequences(evaluations, classes, per_sequence)
