@@ -86,6 +86,37 @@ def test_kitti_refuses_bad_labels_before_tracking_and_keeps_the_earlier_run(
     assert not list((out / "data").iterdir())  # nothing tracked
 
 
+@pytest.mark.parametrize(
+    "repeat",
+    [
+        "\n".join(2 * [GOOD_ROW.replace(" 0 Car ", " 900 Van ", 1)]),  # a distractor, twice
+        " ".join([*GOOD_ROW.split()[:4], "3", *GOOD_ROW.split()[5:]]),  # occluded beyond 2
+        " ".join([*GOOD_ROW.split()[:3], "1", *GOOD_ROW.split()[4:]]),  # truncated
+    ],
+    ids=["van", "occluded", "truncated"],
+)
+def test_a_repeat_trackeval_does_not_score_is_accepted_as_trackeval_accepts_it(
+    repeat: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """TrackEval checks one id per frame only among the ground truth it scores (Kitti2DBox's
+    preprocessing keeps a scored class, occluded at most 2, not truncated): a repeat outside it
+    is scored, not refused, so the check before tracking must not refuse it either."""
+    from tracker.eval.kitti import check_label_file, evaluate_kitti
+
+    labels = _labels(tmp_path / "labels", repeat)
+    assert check_label_file(labels / "0001.txt", 447) == 447
+    with pytest.raises(InputError, match="one object twice in one frame"):  # (the rule's edge)
+        check_label_file(_labels(tmp_path / "scored", GOOD_ROW) / "0001.txt", 447)
+    result = tmp_path / "result"
+    result.mkdir()
+    rows = [r for r in LABEL.read_text().splitlines() if " DontCare " not in r]
+    result.joinpath("0001.txt").write_text("".join(f"{r} 1\n" for r in rows))  # (with a score)
+    metrics = evaluate_kitti(
+        label_dir=labels, result_dir=result, seq_lengths={"0001": 447}, classes=["car"]
+    )
+    assert metrics["car"]["HOTA"] > 99  # (the labels scored against themselves)
+
+
 @pytest.mark.parametrize("command", ["eval", "view", "compare", "robustness", "tune"])
 def test_an_object_twice_in_one_frame_is_named_in_its_label_file_by_every_command(
     command: str,

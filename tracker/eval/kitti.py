@@ -26,6 +26,8 @@ if TYPE_CHECKING:
     from tracker.io.convert.kitti import KittiObjects
 
 SUPPORTED_CLASSES = ("car", "pedestrian", "cyclist")
+#: Kitti2DBox's defaults: ground truth more occluded or truncated than this is not scored.
+_MAX_OCCLUSION, _MAX_TRUNCATION = 2, 0
 #: The label types TrackEval's KITTI reader knows (lower-cased); any other stops it.
 TRACKEVAL_TYPES = (
     "car", "van", "truck", "pedestrian", "person", "cyclist", "tram", "misc", "dontcare", "car_2"
@@ -84,7 +86,7 @@ def check_label_file(path: Path, num_frames: int | None = None, length_source: s
             " Pedestrian, Person, Cyclist, Tram, Misc, DontCare)",
             path=path, line=labels.where(row)[1], field="type",
         )  # fmt: skip
-    twice = repeated_track_id(labels)
+    twice = repeated_track_id(labels, scored_only=True)
     if twice is not None:
         row, earlier = twice
         raise InputError(
@@ -103,14 +105,22 @@ def check_label_file(path: Path, num_frames: int | None = None, length_source: s
     return int(labels.frame.max(initial=-1)) + 1
 
 
-def repeated_track_id(objects: KittiObjects) -> tuple[int, int] | None:
+def repeated_track_id(objects: KittiObjects, scored_only: bool = False) -> tuple[int, int] | None:
     """(row, an earlier row) of the first row (in file order) whose frame, track id and type an
     earlier row has, DontCare regions (all id -1) aside; None if there is none. TrackEval
-    refuses a file with one id twice in a frame within a class it scores (Car_2 is a Car)."""
+    refuses a file with one id twice in a frame within a class it scores (Car_2 is a Car).
+
+    ``scored_only``: only among the ground-truth rows TrackEval scores (a scored class, occluded
+    at most 2, not truncated; Kitti2DBox's preprocessing), where it checks them, so that a label
+    file TrackEval accepts is never refused."""
     kind = np.char.lower(objects.type_name.astype(str))
     kind = np.where(kind == "car_2", "car", kind)
     codes = np.unique(kind, return_inverse=True)[1].reshape(-1)
-    rows = np.flatnonzero(kind != "dontcare")
+    candidate = kind != "dontcare"
+    if scored_only:
+        candidate &= np.isin(kind, SUPPORTED_CLASSES)
+        candidate &= (objects.occluded <= _MAX_OCCLUSION) & (objects.truncated <= _MAX_TRUNCATION)
+    rows = np.flatnonzero(candidate)
     frame, tid = objects.frame[rows], objects.track_id[rows]
     order = rows[np.lexsort((rows, codes[rows], tid, frame))]
     same = np.flatnonzero(
