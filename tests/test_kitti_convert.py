@@ -18,11 +18,14 @@ from tracker.frame import Frame
 from tracker.geometry import wrap_angle
 from tracker.io.convert.kitti import (
     WORLD_FROM_CAMERA_AXES,
+    KittiObjects,
     boxes_rect_to_world,
     boxes_world_to_rect,
     convert_kitti,
     read_kitti_calib,
     read_kitti_labels,
+    read_kitti_object_detections,
+    read_kitti_tracking_detections,
 )
 
 VAL_SEQS = ("0001", "0006", "0008", "0010", "0012", "0013", "0014", "0015", "0016", "0018", "0019")
@@ -457,6 +460,69 @@ def test_bad_input_names_file_line_and_field(
     message = str(excinfo.value)
     assert f"{path}:6:" in message  # file and 1-based line
     assert f"field {field}" in message
+
+
+# A car and a DontCare row of label_02 (the DontCare as in the kit's files: sizes -1000), from
+# the ``type`` column on; each layout below wraps them in its own columns.
+_CAR = "Car 0 0 -1.79 296.7 161.7 455.2 292.3 2.0 1.8 4.4 -4.5 2.0 11.0 -2.1"
+_DONTCARE = (
+    "DontCare -1 -1 -10.000000 356.400000 195.810000 374.100000 216.650000 -1000.000000 "
+    "-1000.000000 -1000.000000 -10.000000 -1.000000 -1.000000 -1.000000"
+)
+_HWL = {"h": 8, "w": 9, "l": 10}  # their columns from ``type`` on
+
+
+def _write_layout(layout: str, objects: list[str], tmp_path: Path) -> Path:
+    """Write ``objects`` (rows from ``type`` on) as frame 0 of a sequence in ``layout``."""
+    if layout == "label_02":
+        lines = [f"0 {-1 if o.startswith('DontCare') else i} {o}" for i, o in enumerate(objects)]
+        path = tmp_path / "label_02" / "0001.txt"
+    elif layout == "tracking":  # KITTI tracking result format: label_02 without track id + score
+        lines, path = [f"0 {o} 0.9" for o in objects], tmp_path / "dets" / "0001.txt"
+    elif layout == "tracking_with_ids":  # as tracker results are written: 18 columns
+        lines = [f"0 {i} {o} 0.9" for i, o in enumerate(objects)]
+        path = tmp_path / "dets" / "0001.txt"
+    else:  # per-frame KITTI object layout: <seq>/<frame:06d>.txt
+        lines, path = [f"{o} 0.9" for o in objects], tmp_path / "0001" / "000000.txt"
+    path.parent.mkdir(parents=True)
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _read_layout(layout: str, path: Path) -> KittiObjects:
+    if layout == "label_02":
+        return read_kitti_labels(path)
+    if layout == "object":
+        return read_kitti_object_detections(path.parent)[0]
+    return read_kitti_tracking_detections(path)
+
+
+_LAYOUTS = ("label_02", "tracking", "tracking_with_ids", "object")
+
+
+@pytest.mark.parametrize("value", ["0", "-1.5"])
+@pytest.mark.parametrize("field", list(_HWL))
+@pytest.mark.parametrize("layout", _LAYOUTS)
+def test_a_box_size_not_above_zero_names_file_line_and_field(
+    tmp_path: Path, layout: str, field: str, value: str
+) -> None:
+    """h, w or l <= 0 in any of the readers sharing the label columns: one line naming the file,
+    the line and the field (a DontCare row before it, sizes -1000, is not the one named)."""
+    bad = _replace_column(_CAR, " ", _HWL[field], value)
+    path = _write_layout(layout, [_DONTCARE, _CAR, bad], tmp_path)
+    with pytest.raises(InputError) as excinfo:
+        _read_layout(layout, path)
+    assert str(excinfo.value) == (
+        f"{path}:3: field '{field}': box dimension must be > 0, got {float(value)}"
+    )
+
+
+@pytest.mark.parametrize("layout", _LAYOUTS)
+def test_a_dontcare_row_with_the_kits_sizes_still_reads(tmp_path: Path, layout: str) -> None:
+    objects = _read_layout(layout, _write_layout(layout, [_DONTCARE, _CAR], tmp_path))
+    assert objects.type_name.tolist() == ["DontCare", "Car"]
+    assert objects.category.tolist() == [-1, category_index("car")]
+    np.testing.assert_array_equal(objects.hwl, [[-1000.0] * 3, [2.0, 1.8, 4.4]])
 
 
 # ---------------------------------------------------------------------------------------------

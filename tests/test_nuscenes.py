@@ -575,6 +575,98 @@ def test_a_ground_truth_size_is_checked_as_a_detection_size(
         assert str(err.value) == f"{table}: sample_annotation '{ann['token']}': field 'size' {said}"
 
 
+def _tracked_annotation(dataset: SyntheticNuScenes, nusc: Any) -> dict[str, Any]:
+    """A val annotation of a tracking class with points and a previous and next annotation."""
+    return next(
+        a
+        for a in nusc.sample_annotation
+        if a["sample_token"] in set(dataset.split_samples(VAL_SCENES))
+        and a["num_lidar_pts"] > 0
+        and a["category_name"] in CATEGORY_TO_TRACKING_NAME
+        and a["prev"]
+        and a["next"]
+    )
+
+
+def _set_annotation(tables: dict[str, list[Any]], token: str, **fields: Any) -> None:
+    next(a for a in tables["sample_annotation"] if a["token"] == token).update(fields)
+
+
+_EMPTY = {"num_lidar_pts": 0, "num_radar_pts": 0}
+_MUST = "must be {} finite numbers"
+
+
+@needs_devkit
+@pytest.mark.parametrize(
+    ("fields", "said"),
+    [
+        ({"translation": [1.0, math.nan, 0.8]}, f"'translation' {_MUST.format(3)}"),
+        ({"translation": [math.inf, 2.0, 0.8]}, f"'translation' {_MUST.format(3)}"),
+        ({"translation": [1.0, 2.0]}, f"'translation' {_MUST.format(3)}"),
+        ({"translation": [1.0, "2", 0.8]}, f"'translation' {_MUST.format(3)}"),
+        ({"translation": [1.0, 2.0], **_EMPTY}, f"'translation' {_MUST.format(3)}"),
+        ({"rotation": [1.0, 0.0, 0.0, math.nan]}, f"'rotation' {_MUST.format(4)}"),
+        ({"rotation": [1.0, 0.0, 0.0]}, f"'rotation' {_MUST.format(4)}"),
+        ({"rotation": [0.0] * 4}, "'rotation' is the zero quaternion (no heading)"),
+        ({"rotation": [1e-170] * 4}, "'rotation' is the zero quaternion (no heading)"),
+    ],
+    ids=["t_nan", "t_inf", "t_short", "t_text", "t_short_no_points", "r_nan", "r_short",
+         "r_zero", "r_tiny"],
+)  # fmt: skip
+def test_a_ground_truth_translation_or_rotation_is_checked_as_a_detection_one(
+    dataset: SyntheticNuScenes,
+    nusc: Any,
+    clean_path: Path,
+    tmp_path: Path,
+    fields: dict[str, Any],
+    said: str,
+) -> None:
+    """A tracked sample_annotation whose translation is not 3 finite numbers, or whose rotation
+    is not 4 or is the zero quaternion: one error naming the table, the annotation and the
+    field (a NaN translation or a zero quaternion failed the GT writing after the detections
+    were written, a short translation or rotation was an 'unexpected error'). One without points
+    too: its translation is read for its neighbours' velocity (a short one was a crash)."""
+    ann = _tracked_annotation(dataset, nusc)
+    root = _edited_dataset(dataset, tmp_path, lambda t: _set_annotation(t, ann["token"], **fields))
+    table = root / dataset.version / "sample_annotation.json"
+    # with_gt converts the annotations; check_gt checks them for the official evaluation
+    for flags in ({"with_gt": True}, {"check_gt": True}):
+        with pytest.raises(InputError) as err:
+            convert_nuscenes(
+                root, version=dataset.version, detections=clean_path, split="mini_val", **flags
+            )
+        assert str(err.value) == f"{table}: sample_annotation '{ann['token']}': field {said}"
+
+
+@needs_devkit
+def test_a_ground_truth_quaternion_is_normalised_as_the_devkit_does(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
+) -> None:
+    """A non-unit GT quaternion is a rotation: its heading is its unit quaternion's."""
+    ann = _tracked_annotation(dataset, nusc)
+    scaled = [3.0 * q for q in ann["rotation"]]
+    root = _edited_dataset(
+        dataset, tmp_path / "scaled", lambda t: _set_annotation(t, ann["token"], rotation=scaled)
+    )
+
+    def gt_yaw(root: Path) -> dict[str, list[np.ndarray]]:
+        conv = convert_nuscenes(
+            root, version=dataset.version, detections=clean_path, split="mini_val", with_gt=True
+        )
+        assert conv.gt is not None
+        return {s: [f.boxes.yaw for f in frames] for s, frames in conv.gt.items()}
+
+    clean, edited = gt_yaw(dataset.dataroot), gt_yaw(root)
+    assert clean.keys() == edited.keys()
+    for scene in clean:
+        for a, b in zip(clean[scene], edited[scene], strict=True):
+            np.testing.assert_allclose(b, a, atol=1e-12)
+    # not moot: the heading formula on the scaled quaternion itself is another heading
+    w, x, y, z = scaled
+    unnormalised = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    assert abs(unnormalised - float(yaw_from_quaternions(np.array([ann["rotation"]]))[0])) > 0.1
+
+
 @needs_devkit
 def test_a_sample_without_lidar_top_names_the_sample_data_table(
     dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path

@@ -6,14 +6,16 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from app.cli import main
-from tests.test_nuscenes import NOISY, _devkit_missing
+from tests.test_nuscenes import NOISY, _devkit_missing, _edited_dataset
 from tests.test_nuscenes_fixture import (
     SyntheticNuScenes,
     make_detections,
+    token,
     write_synthetic_nuscenes,
 )
 from tracker.io.baseversion import read_baseversion
@@ -206,3 +208,46 @@ def test_nuscenes_refuses_detections_it_would_overwrite(
     err = capsys.readouterr().err
     assert f"{detections}: --detections is a file this run writes in {out}" in err
     assert detections.read_bytes() == before and sorted(out.iterdir()) == [detections]
+
+
+@pytest.mark.parametrize(
+    ("fields", "said"),
+    [
+        ({"translation": [1.0, float("nan"), 0.8]}, "'translation' must be 3 finite numbers"),
+        ({"rotation": [0.0, 0.0, 0.0, 0.0]}, "'rotation' is the zero quaternion (no heading)"),
+    ],
+    ids=["nan_translation", "zero_rotation"],
+)
+def test_a_bad_ground_truth_annotation_is_one_error_line(
+    dataset: SyntheticNuScenes,
+    noisy: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    fields: dict[str, Any],
+    said: str,
+) -> None:
+    """A tracked sample_annotation with a NaN translation or a zero quaternion: `mctrack convert
+    nuscenes --gt-out` and `mctrack nuscenes` (its evaluation reads the annotations) stop with
+    one line naming the table, the annotation and the field, writing nothing (convert wrote the
+    detections, then failed with 'unexpected error'; the evaluation blamed its results.json for
+    the NaN, and took the zero quaternion). A run that reads no annotation is not refused."""
+    ann_token = token("ann", "scene-0916", 4, 0)  # object 0, a car, in sample 4
+
+    def edit(tables: dict[str, list[Any]]) -> None:
+        next(a for a in tables["sample_annotation"] if a["token"] == ann_token).update(fields)
+
+    root = _edited_dataset(dataset, tmp_path / "data", edit)
+    table = root / dataset.version / "sample_annotation.json"
+    line = f"error: {table}: sample_annotation '{ann_token}': field {said}"
+    common = ["--dataroot", str(root), "--version", dataset.version, "--split", "mini_val"]
+    out, gt = tmp_path / "dets.json", tmp_path / "gt.json"
+    argv = ["convert", "nuscenes", *common, "--detections", str(noisy), "--out", str(out)]
+    assert main([*argv, "--gt-out", str(gt)]) == 2
+    assert capsys.readouterr().err.splitlines() == [f"mctrack convert: {line}"]
+    assert not out.exists() and not gt.exists()
+    run = ["nuscenes", *common, "--detections", str(noisy), "--out", str(tmp_path / "run")]
+    assert main(run) == 2
+    assert capsys.readouterr().err.splitlines() == [f"mctrack nuscenes: {line}"]
+    assert not any((tmp_path / "run").glob("*"))  # the folder is made before any work
+    assert main([*argv]) == 0  # the detections alone
+    assert main([*run, "--no-eval"]) == 0

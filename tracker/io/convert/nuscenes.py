@@ -39,7 +39,7 @@ import json
 import logging
 import math
 from collections import Counter
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Final
@@ -391,10 +391,8 @@ def _detection_boxes(
             raise InputError(f"{at}: field 'detection_score' = {score} is outside [0, 1]")
         if score < score_min:
             continue
-        for key, size in (("translation", 3), ("rotation", 4)):
-            value = np.asarray(box[key], dtype=np.float64) if _numeric(box[key]) else None
-            if value is None or value.shape != (size,) or not np.isfinite(value).all():
-                raise InputError(f"{at}: field '{key}' must be {size} finite numbers")
+        _check_numbers(box["translation"], "translation", 3, at)
+        _check_numbers(box["rotation"], "rotation", 4, at)
         _check_size(box["size"], at)
         velocity, known = _velocity(box.get("velocity"), at)
         no_velocity += not known
@@ -407,13 +405,7 @@ def _detection_boxes(
     size = np.array([b["size"] for b in keep], dtype=np.float64)
     xyz = np.array([b["translation"] for b in keep], dtype=np.float64)
     rotation = np.array([b["rotation"] for b in keep], dtype=np.float64)
-    # the norm, not any(): a tiny quaternion's norm underflows to 0, and it has no heading
-    zero = np.flatnonzero(~(np.linalg.norm(rotation, axis=1) > 0))
-    if len(zero):
-        raise InputError(
-            f"{path}: results[{token!r}][{rows[zero[0]]}]: field 'rotation' is the zero "
-            "quaternion (no heading)"
-        )
+    _check_quaternions(rotation, lambda row: f"{path}: results[{token!r}][{rows[row]}]")
     yaw = yaw_from_quaternions(rotation)
     overflow = overflowing_boxes(xyz, size[:, [1, 0, 2]], yaw, cameras)
     if len(overflow):
@@ -433,13 +425,30 @@ def _detection_boxes(
     ), no_velocity
 
 
+def _check_numbers(value: Any, key: str, size: int, at: str) -> FloatArray:
+    """``value`` as an array; InputError (``at``: the file and record) naming field ``key``
+    unless it is ``size`` finite numbers."""
+    array = np.asarray(value, dtype=np.float64) if _numeric(value) else None
+    if array is None or array.shape != (size,) or not np.isfinite(array).all():
+        raise InputError(f"{at}: field '{key}' must be {size} finite numbers")
+    return array
+
+
+def _check_quaternions(rotation: FloatArray, at: Callable[[int], str]) -> None:
+    """InputError naming the first zero row of (N, 4) quaternions (``at(row)``: its file and
+    record); others are normalised by :func:`yaw_from_quaternions`."""
+    # the norm, not any(): a tiny quaternion's norm underflows to 0, and it has no heading
+    zero = np.flatnonzero(~(np.linalg.norm(rotation, axis=1) > 0))
+    if len(zero):
+        raise InputError(
+            f"{at(int(zero[0]))}: field 'rotation' is the zero quaternion (no heading)"
+        )
+
+
 def _check_size(value: Any, at: str) -> None:
     """InputError (``at``: the file and record) unless ``value`` is a box's ``size`` (w, l, h):
     3 finite numbers, width and length > 0, height >= 0 (as a BaseVersion box's lwh)."""
-    array = np.asarray(value, dtype=np.float64) if _numeric(value) else None
-    if array is None or array.shape != (3,) or not np.isfinite(array).all():
-        raise InputError(f"{at}: field 'size' must be 3 finite numbers")
-    width, length, height = array
+    width, length, height = _check_numbers(value, "size", 3, at)
     if not (width > 0 and length > 0 and height >= 0):
         raise InputError(f"{at}: field 'size' = {value}: width and length must be > 0, height >= 0")
 
@@ -627,10 +636,34 @@ def _with_cameras(boxes: Boxes, cameras: Sequence[Camera]) -> Boxes:
     return boxes.replace(camera=camera, xyxy_image=xyxy)
 
 
-def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxes, int]:
-    """GT boxes of one sample and the number whose velocity was unknown (set to 0)."""
-    rows: list[dict[str, Any]] = []
+def _check_annotations(nusc: Any, samples: Sequence[dict[str, Any]]) -> None:
+    """The box fields of the samples' tracking-class annotations, checked as a detection's: the
+    devkit loads them unchecked (a zero size was written, a NaN translation or a zero quaternion
+    failed the writing, a short one the velocity). Those without points too: the velocity of
+    an annotation reads its neighbours' translations, and the official evaluation loads all."""
     table = Path(nusc.dataroot) / nusc.version / "sample_annotation.json"
+    tokens: list[str] = []
+    rotations: list[FloatArray] = []
+    for sample in samples:
+        for token in sample["anns"]:
+            ann = nusc.get("sample_annotation", token)
+            if ann["category_name"] not in CATEGORY_TO_TRACKING_NAME:
+                continue
+            at = f"{table}: sample_annotation {token!r}"
+            _check_numbers(ann.get("translation"), "translation", 3, at)
+            rotations.append(_check_numbers(ann.get("rotation"), "rotation", 4, at))
+            _check_size(ann.get("size"), at)
+            tokens.append(token)
+    if rotations:
+        _check_quaternions(
+            np.array(rotations), lambda row: f"{table}: sample_annotation {tokens[row]!r}"
+        )
+
+
+def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxes, int]:
+    """GT boxes of one sample (its annotations checked by :func:`_check_annotations`) and the
+    number whose velocity was unknown (set to 0)."""
+    rows: list[dict[str, Any]] = []
     for ann_token in sample["anns"]:
         ann = nusc.get("sample_annotation", ann_token)
         name = CATEGORY_TO_TRACKING_NAME.get(ann["category_name"])
@@ -638,8 +671,6 @@ def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxe
             continue
         if not keep_empty and ann.get("num_lidar_pts", 1) + ann.get("num_radar_pts", 0) <= 0:
             continue
-        # checked as a detection's: the devkit loads sizes unchecked (a zero one was written)
-        _check_size(ann.get("size"), f"{table}: sample_annotation {ann['token']!r}")
         rows.append({**ann, "tracking_name": name})
     if not rows:
         return Boxes.empty(), 0
@@ -683,6 +714,7 @@ def convert_nuscenes(
     with_gt: bool = False,
     score_min: float = 0.0,
     keep_empty_gt: bool = False,
+    check_gt: bool = False,
     nusc: Any = None,
 ) -> NuScenesConversion:
     """Convert a detection results file of one split to frames (and the split's GT).
@@ -697,12 +729,14 @@ def convert_nuscenes(
     score_min : drop detections scoring below this at conversion (keeps files small; the
         tracker's own thresholds still apply).
     keep_empty_gt : keep GT boxes without lidar/radar points (the official eval drops them).
+    check_gt : check the split's annotations as ``with_gt`` does, without converting them
+        (before the official evaluation, which reads them unchecked).
     nusc : an already loaded devkit ``NuScenes`` (tests, repeated calls).
 
     Raises
     ------
     InputError naming the missing table, the unknown sample token, or the sample outside the
-    split (with its scene), or the bad detection field.
+    split (with its scene), or the bad detection or annotation field.
     """
     if nusc is None:
         nusc = load_nuscenes(dataroot, version)
@@ -734,7 +768,10 @@ def convert_nuscenes(
             continue
         det_frames: list[Frame] = []
         gt_frames: list[Frame] = []
-        for frame_id, sample in enumerate(_scene_samples(nusc, scene)):
+        samples = _scene_samples(nusc, scene)
+        if with_gt or check_gt:
+            _check_annotations(nusc, samples)
+        for frame_id, sample in enumerate(samples):
             geometry = _sample_geometry(nusc, sample)
             raw = results.get(sample["token"])
             if raw is None:
