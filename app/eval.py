@@ -11,11 +11,13 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import logging
 import shutil
 import sys
 import tempfile
+from collections import Counter
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -23,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from app.inputs import class_list
+from tracker.categories import CATEGORIES
 from tracker.config import ImageBoxes, load_config
 from tracker.errors import InputError
 from tracker.events import TrackOutput
@@ -128,6 +131,12 @@ def run(args: argparse.Namespace) -> int:
             args.gt,
         )
     check_unique_track_ids(outputs, args.tracks)
+    boxes = [o.boxes.track_id for frames in outputs.values() for o in frames]
+    if any(len(ids) for ids in boxes) and not any((ids >= 0).any() for ids in boxes):
+        raise InputError(
+            f"{args.tracks}: no box has a track_id (a detections file? eval scores a tracker's"
+            " output: `mctrack track` writes one)"
+        )
     dets = read_baseversion(args.detections) if args.detections else None
     if dets is not None:
         check_detections_match(dets, outputs, args.detections)
@@ -266,11 +275,17 @@ def _static_metrics(
     if said:
         notes["evaluation"] = "; ".join(said)
         LOG.warning("%s", notes["evaluation"])
+    kept, others = _of_classes(outputs, static_classes)
+    if others:  # (a KITTI result file holds KITTI types alone: TrackEval refuses any other)
+        LOG.warning(
+            "%s: boxes of classes the KITTI metrics do not score, left out of them: %s",
+            tracks_name,
+            ", ".join(f"{n} {c}" for c, n in sorted(others.items())),
+        )
+        notes["left_out_of_static"] = dict(sorted(others.items()))
     with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
         for scene in scored:
-            write_kitti_sequence(
-                path_in(tmp, scene, ".txt"), outputs[scene], frames[scene], **writer
-            )
+            write_kitti_sequence(path_in(tmp, scene, ".txt"), kept[scene], frames[scene], **writer)
         return evaluate_kitti(
             label_dir=labels,
             result_dir=Path(tmp),
@@ -283,6 +298,40 @@ def _static_metrics(
             # a refused file is a temporary one: named by the tracks and scene it was written from
             name_refused_results={s: f"{tracks_name}: scene {s}" for s in lengths},
         )
+
+
+def _of_classes(
+    outputs: Mapping[str, Sequence[TrackOutput]], classes: Sequence[str]
+) -> tuple[dict[str, list[TrackOutput]], dict[str, int]]:
+    """The outputs with the boxes of ``classes`` alone, and the number of boxes left out per
+    class that is not a KITTI scored class (a scored class not asked for is left out quietly)."""
+    from tracker.eval.kitti import SUPPORTED_CLASSES
+
+    wanted = np.isin(np.array(CATEGORIES), list(classes))
+    kitti = np.isin(np.array(CATEGORIES), list(SUPPORTED_CLASSES))
+    others: Counter[str] = Counter()
+    kept: dict[str, list[TrackOutput]] = {}
+    for scene, scene_outputs in outputs.items():
+        kept[scene] = []
+        for out in scene_outputs:
+            keep = wanted[out.boxes.category]
+            if keep.all():
+                kept[scene].append(out)
+                continue
+            others.update(
+                CATEGORIES[c] for c in out.boxes.category[~keep & ~kitti[out.boxes.category]]
+            )
+            kept[scene].append(
+                dataclasses.replace(
+                    out,
+                    boxes=out.boxes[keep],
+                    acceleration=out.acceleration[keep],
+                    status=out.status[keep],
+                    det_row=out.det_row[keep],
+                    stage=out.stage[keep],
+                )
+            )
+    return kept, dict(others)
 
 
 def is_ground_truth(

@@ -627,7 +627,7 @@ def test_eval_refuses_a_bad_out_before_evaluating(
         raise AssertionError("evaluated before --out was checked")
 
     monkeypatch.setattr(app.eval, "evaluate_tracks", evaluated)
-    argv = ["eval", str(files["detections"]), "--gt", str(files["gt"]), "--motion"]
+    argv = ["eval", str(files["gt"]), "--gt", str(files["gt"]), "--motion"]  # (ids: tracks)
     code, _, err = _run([*argv, "--out", str(files["a_file"])], capsys)
     _assert_one_line_error(code, err, "eval", f"--out {files['a_file']}: exists and is not a")
 

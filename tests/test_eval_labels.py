@@ -292,6 +292,26 @@ def test_evaluate_kitti_names_a_refused_result_file_when_asked(tmp_path: Path) -
     )
 
 
+def test_evaluate_kitti_names_an_unreadable_temporary_row_by_its_source(tmp_path: Path) -> None:
+    """A row TrackEval cannot read (a type it does not know) in a temporary copy named by its
+    source (`mctrack eval`'s backstop; eval itself writes KITTI types alone): the error names
+    the source, scene and frame, and the row, not the temporary file."""
+    from tracker.eval.kitti import evaluate_kitti
+
+    data = tmp_path / "data"
+    data.mkdir()
+    row = "2 7 bicycle 0 0 -1 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 0.1 0.9\n"
+    (data / "0001.txt").write_text(row)
+    with pytest.raises(InputError) as excinfo:
+        evaluate_kitti(
+            label_dir=LABEL.parent, result_dir=data, seq_lengths={"0001": 447}, classes=["car"],
+            name_refused_results={"0001": "t.json: scene 0001"},
+        )  # fmt: skip
+    message = str(excinfo.value)
+    assert message.startswith("t.json: scene 0001 frame 2: TrackEval cannot read"), message
+    assert " bicycle " in message and str(data) not in message
+
+
 @pytest.fixture(scope="module")
 def sample_tracks(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """The sample tracked whole and on frames 20:40 (`mctrack track --frames`)."""
@@ -302,6 +322,19 @@ def sample_tracks(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
         assert main(argv) == 0
         tracks[name] = out / name / "tracks.json"
     return tracks
+
+
+@pytest.mark.parametrize("motion", [False, True])
+def test_eval_refuses_a_detections_file_given_as_the_tracks(
+    motion: bool, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A detections file (no box has a track id) given as the tracks was scored as a tracker
+    that wrote nothing (HOTA 0), without a word."""
+    dets = SAMPLE / "detections.json.gz"
+    argv = ["eval", str(dets), "--gt", str(SAMPLE / "gt.json.gz"), "--labels", str(LABEL.parent)]
+    code, err = _run([*argv, *(["--motion"] if motion else []), "--out", str(tmp_path)], capsys)
+    _one_line_error(code, err, f"{dets}: no box has a track_id (a detections file?")
+    assert not (tmp_path / "eval.json").exists()
 
 
 @pytest.mark.parametrize("motion", [False, True])
@@ -329,26 +362,43 @@ def test_eval_names_a_track_id_twice_in_one_frame_by_the_tracks_file(
 
 
 @pytest.mark.parametrize("which", ["all", "window"])
-def test_eval_names_a_row_trackeval_cannot_read_by_the_tracks_file(
-    which: str, sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+def test_eval_leaves_boxes_of_other_classes_out_of_the_kitti_metrics_and_says_so(
+    which: str,
+    sample_tracks: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
 ) -> None:
-    """A box TrackEval cannot read (a nuScenes class, bicycle, in the KITTI file written for
-    it): one line naming the tracks file, scene and frame (of the file: a --frames window is
-    scored from 0), not the temporary KITTI file that is gone by then."""
+    """A box of a class KITTI does not score (a nuScenes class, bicycle) is left out of the
+    KITTI files written for TrackEval, which refuses any other type, with a warning and a count
+    in eval.json: the metrics are those of the tracks without it. It used to fail the run."""
     tracks = json.loads(sample_tracks[which].read_text())
-    frame = tracks["0001"][5]
-    frame["bboxes"][0]["category"] = "bicycle"
+    tracks["0001"][5]["bboxes"][0]["category"] = "bicycle"
     bad = tmp_path / "tracks.json"
     bad.write_text(json.dumps(tracks))
-    argv = ["eval", str(bad), "--gt", str(SAMPLE / "gt.json.gz"), "--labels", str(LABEL.parent)]
-    code, err = _run([*argv, "--out", str(tmp_path / "o")], capsys)
-    _one_line_error(code, err)
-    assert err.splitlines()[-1].startswith(
-        f"mctrack eval: error: {bad}: scene 0001 frame {frame['frame_id']}: TrackEval cannot read"
-        f" the KITTI row written for it: {frame['frame_id']} {frame['bboxes'][0]['track_id']}"
-        " bicycle "
+    del tracks["0001"][5]["bboxes"][0]
+    without = tmp_path / "without.json"
+    without.write_text(json.dumps(tracks))
+    scored = []
+    for name, path in (("with", bad), ("without", without)):
+        argv = [
+            "eval",
+            str(path),
+            "--gt",
+            str(SAMPLE / "gt.json.gz"),
+            "--labels",
+            str(LABEL.parent),
+        ]
+        code, err = _run([*argv, "--out", str(tmp_path / name)], capsys)
+        assert code == 0, err
+        scored.append(json.loads((tmp_path / name / "eval.json").read_text()))
+    assert scored[0]["static"] == scored[1]["static"]
+    assert scored[0]["left_out_of_static"] == {"bicycle": 1}
+    assert "left_out_of_static" not in scored[1]
+    assert (
+        f"{bad}: boxes of classes the KITTI metrics do not score, left out of them: 1 bicycle"
+        in caplog.text
     )
-    assert "mctrack-eval-" not in err
 
 
 def _eval(tracks: Path, labels: Path, out: Path, capsys: pytest.CaptureFixture[str]) -> dict:
