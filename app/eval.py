@@ -131,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
             args.gt,
         )
     check_unique_track_ids(outputs, args.tracks)
+    if args.motion:  # (the static metrics read the labels, checked as TrackEval checks them)
+        check_unique_track_ids(gt, args.gt, "object")
     boxes = [o.boxes.track_id for frames in outputs.values() for o in frames]
     if any(len(ids) for ids in boxes) and not any((ids >= 0).any() for ids in boxes):
         raise InputError(
@@ -353,10 +355,13 @@ def is_ground_truth(
     return True
 
 
-def check_unique_track_ids(outputs: Mapping[str, Sequence[TrackOutput]], path: str) -> None:
-    """Raise :class:`InputError` naming the tracks file, scene, frame and id where one track id
-    is on two boxes of a frame (the tracker numbers every class from one counter; ids below 0
-    are no tracks): TrackEval refuses it once scoring has begun, the motion metrics fail on it."""
+def check_unique_track_ids(
+    outputs: Mapping[str, Sequence[TrackOutput | Frame]], path: str, what: str = "track"
+) -> None:
+    """Raise :class:`InputError` naming the tracks (or ground-truth) file, scene, frame and id
+    where one track id is on two boxes of a frame (the tracker numbers every class from one
+    counter; ids below 0 are no tracks): TrackEval refuses it once scoring has begun, the motion
+    metrics fail on it. ``what``: what an id is in the error (a track, an object)."""
     for scene, scene_outputs in outputs.items():
         for out in scene_outputs:
             ids = out.boxes.track_id[out.boxes.track_id >= 0]
@@ -365,7 +370,7 @@ def check_unique_track_ids(outputs: Mapping[str, Sequence[TrackOutput]], path: s
                 k = int(np.argmax(counts > 1))
                 raise InputError(
                     f"{path}: scene {scene} frame {out.frame_id}: track id {unique[k]} is on"
-                    f" {counts[k]} boxes: one track twice in one frame"
+                    f" {counts[k]} boxes: one {what} twice in one frame"
                 )
 
 

@@ -352,7 +352,7 @@ def run_kitti(
         names = [_normalise_seq(s) for s in seqs]  # as the converter names them
         lengths = {seq: _pose_count(kitti_root, seq, poses) for seq in names}
         sources = {seq: f"the pose lines of {_pose_file(kitti_root, seq, poses)}" for seq in names}
-        check_kitti_labels(label_dir, lengths, sources)
+        check_kitti_labels(label_dir, lengths, sources, all_rows=motion)
     unscored = [c for c in classes if c not in SUPPORTED_CLASSES]
     if evaluate and unscored:
         LOG.warning(

@@ -117,6 +117,45 @@ def test_a_repeat_trackeval_does_not_score_is_accepted_as_trackeval_accepts_it(
     assert metrics["car"]["HOTA"] > 99  # (the labels scored against themselves)
 
 
+def test_kitti_motion_refuses_an_object_twice_in_a_frame_that_trackeval_would_not_score(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The motion metrics follow every labelled object, so a repeat TrackEval does not score
+    (an occluded car) stops a `--motion` run at once, naming the label file (it was a ValueError
+    of the motion metrics after the tracking); the static metrics alone score it as TrackEval
+    does."""
+    occluded = " ".join([*GOOD_ROW.split()[:4], "3", *GOOD_ROW.split()[5:]])
+    kit = tmp_path / "kit"
+    shutil.copytree(SAMPLE_KIT, kit)
+    labels = _labels(kit / "training" / "label_02", occluded)
+    argv = ["kitti", "--kitti-root", str(kit), "--seqs", "0001", "--classes", "car"]
+    code, err = _run([*argv, "--motion", "--out", str(tmp_path / "m")], capsys)
+    _one_line_error(code, err, f"{labels / '0001.txt'}:{N_LINES + 1}: field 'track_id'")
+    code, err = _run([*argv, "--out", str(tmp_path / "s")], capsys)
+    assert code == 0, err
+
+
+def test_eval_motion_refuses_ground_truth_with_an_object_twice_in_a_frame(
+    sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """(was a ValueError of the motion metrics: "unexpected error")"""
+    import gzip
+
+    gt = json.loads(gzip.open(SAMPLE / "gt.json.gz").read())
+    frame = gt["0001"][5]
+    frame["bboxes"].append(dict(frame["bboxes"][0]))
+    bad = tmp_path / "gt.json"
+    bad.write_text(json.dumps(gt))
+    argv = ["eval", str(sample_tracks["all"]), "--gt", str(bad), "--motion"]
+    code, err = _run([*argv, "--out", str(tmp_path / "o")], capsys)
+    _one_line_error(
+        code,
+        err,
+        f"{bad}: scene 0001 frame {frame['frame_id']}: track id"
+        f" {frame['bboxes'][0]['track_id']} is on 2 boxes: one object twice in one frame",
+    )
+
+
 @pytest.mark.parametrize("command", ["eval", "view", "compare", "robustness", "tune"])
 def test_an_object_twice_in_one_frame_is_named_in_its_label_file_by_every_command(
     command: str,

@@ -67,14 +67,18 @@ class SequenceEvaluation:
         return SequenceEvaluation(self.seq, self.num_timesteps, self.results)
 
 
-def check_label_file(path: Path, num_frames: int | None = None, length_source: str = "") -> int:
+def check_label_file(
+    path: Path, num_frames: int | None = None, length_source: str = "", *, all_rows: bool = False
+) -> int:
     """Raise :class:`InputError` (file, line, field) unless TrackEval can score ``path``: a
     KITTI label file (:func:`~tracker.io.convert.kitti.read_kitti_labels`), of types TrackEval
     knows, with no object twice in one frame (:func:`repeated_track_id`) and no frame at or
     beyond ``num_frames`` (when known; ``length_source`` says where that length comes from).
     TrackEval itself fails on these with a traceback, a ValueError, "invalid timesteps" or
     "Ground-truth has the same ID more than once", and only once the tracking is done. Returns
-    the frames the labels span (their last frame + 1)."""
+    the frames the labels span (their last frame + 1). A repeated id is looked for where
+    TrackEval looks, among the rows it scores, unless ``all_rows`` (the motion metrics' ground
+    truth, which follows every labelled object)."""
     from tracker.io.convert.kitti import read_kitti_labels
 
     labels = read_kitti_labels(path)
@@ -86,7 +90,7 @@ def check_label_file(path: Path, num_frames: int | None = None, length_source: s
             " Pedestrian, Person, Cyclist, Tram, Misc, DontCare)",
             path=path, line=labels.where(row)[1], field="type",
         )  # fmt: skip
-    twice = repeated_track_id(labels, scored_only=True)
+    twice = repeated_track_id(labels, scored_only=not all_rows)
     if twice is not None:
         row, earlier = twice
         raise InputError(
@@ -138,16 +142,19 @@ def check_kitti_labels(
     label_dir: Path,
     seq_lengths: Mapping[str, int | None],
     length_sources: Mapping[str, str] | None = None,
+    *,
+    all_rows: bool = False,
 ) -> dict[str, int]:
     """The sequences of ``seq_lengths`` with a label file in ``label_dir``, each checked by
-    :func:`check_label_file` against its length (None: unknown), with the frames its labels
-    span (0: an empty file). Run before tracking or evaluating, so that a bad label file stops
-    the run at once with its file and line."""
+    :func:`check_label_file` (``all_rows`` passed on) against its length (None: unknown), with
+    the frames its labels span (0: an empty file). Run before tracking or evaluating, so that a
+    bad label file stops the run at once with its file and line."""
     labelled: dict[str, int] = {}
     for seq, length in sorted(seq_lengths.items()):
         path = path_in(label_dir, seq, ".txt")
         if path.is_file():
-            labelled[seq] = check_label_file(path, length, (length_sources or {}).get(seq, ""))
+            source = (length_sources or {}).get(seq, "")
+            labelled[seq] = check_label_file(path, length, source, all_rows=all_rows)
     return labelled
 
 
