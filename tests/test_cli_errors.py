@@ -794,6 +794,30 @@ def test_a_refused_run_leaves_no_folder_it_made(
     assert not new.exists(), sorted(_tree(new))
 
 
+@pytest.mark.parametrize(
+    ("argv_of", "earlier"), [c[1:] for c in REFUSED], ids=[c[0] for c in REFUSED]
+)
+def test_a_refused_run_keeps_an_earlier_runs_outputs(
+    argv_of: Callable[[F, Path], list[str]],
+    earlier: tuple[str, ...],
+    files: F,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An earlier run's outputs go only once the new run's inputs are accepted."""
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "earlier"
+    for name in earlier:
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text("an earlier run's\n")
+    (out / "notes.txt").write_text("mine\n")
+    before = _tree(out)
+    code, _, err = _run(argv_of(files, out), capsys)
+    assert code == 2, err
+    assert _tree(out) == before
+
+
 def test_only_the_empty_folders_a_run_made_are_removed(tmp_path: Path) -> None:
     """Not a folder that was there before, nor one that holds a file (and so not its parents);
     an output file's folders are made for it too."""
