@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
+from app.common import folders_to_make, remove_made_folders
 from tracker.errors import InputError
 
 # subcommand -> (module, help). Each module has add_arguments(parser) and run(args) -> int,
@@ -269,6 +270,22 @@ def _warm_kernels() -> None:
     print(f"mctrack: kernels compiled in {time.perf_counter() - start:.0f} s", file=sys.stderr)
 
 
+#: The options that name what a command writes: an output folder, or a file (whose folder it
+#: makes). A run that ends in an error leaves no folder it made for them (only empty ones go).
+OUTPUT_OPTIONS = ("--out", "--gt-out", "--json", "--save")
+
+
+def _output_paths(parser: argparse.ArgumentParser, args: argparse.Namespace) -> list[str]:
+    """The paths the command's output options were given (or default to)."""
+    paths = []
+    for action in _command_parser(parser, args)._actions:
+        if set(action.option_strings) & set(OUTPUT_OPTIONS) and action.nargs != 0:  # (a flag)
+            value = getattr(args, action.dest, None)
+            if isinstance(value, str | os.PathLike) and str(value):
+                paths.append(str(value))
+    return paths
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
@@ -278,6 +295,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(levelname)s %(name)s: %(message)s",
     )
+    # commands make --out before they have read all their inputs (a bad --out fails in a
+    # second, not after the work), and some inputs are refused only once read: a run that
+    # ends in an error removes the empty folders it made, never one that was there before
+    made = folders_to_make(_output_paths(parser, args))
+    status = EXIT_BUG  # (if an error escapes, as with --debug)
+    try:
+        status = _run_command(args)
+    finally:
+        if status != 0:
+            remove_made_folders(made)
+    return status
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    """Run the parsed command; an error is one line on stderr and its exit status."""
     try:
         if args.command in TRACKING_COMMANDS:
             _warm_kernels()

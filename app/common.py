@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import os
 import resource
 import shlex
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -159,6 +161,30 @@ def remove_earlier_outputs(folder: Path, patterns: Sequence[str]) -> int:
     if earlier:
         LOG.info("%s: removed %d files of an earlier run", folder, len(earlier))
     return len(earlier)
+
+
+def folders_to_make(paths: Iterable[Path | str]) -> list[Path]:
+    """The folders a run writing ``paths`` (output folders, or output files) may make: each
+    path and its parents that do not exist yet, deepest first. Taken before the run, for
+    :func:`remove_made_folders`."""
+    missing: set[Path] = set()
+    for path in paths:
+        path = Path(path).absolute()  # (still true if the run changes folder)
+        for folder in (path, *path.parents):
+            if os.path.lexists(folder):
+                break
+            missing.add(folder)
+    return sorted(missing, key=lambda p: (-len(p.parts), p))
+
+
+def remove_made_folders(folders: Sequence[Path]) -> None:
+    """After a refused or failed run: remove the folders it made (``folders``, from
+    :func:`folders_to_make`) that are empty, so it leaves no folder of its own behind. A folder
+    that existed before is not among them; one that holds a file (the run's partial output, or
+    anyone's) stays, and so do its parents."""
+    for folder in folders:
+        with contextlib.suppress(OSError):  # not empty, never made (an output file), or gone
+            folder.rmdir()
 
 
 def warn_undetected_classes(detector: str, classes: Sequence[str]) -> None:

@@ -265,8 +265,6 @@ RUN_OUTPUTS = ("summary.json", "tracks.json", "self_profile.toml", "data/*.txt",
 def run(args: argparse.Namespace) -> int:
     out = check_output_folder(args.out)  # before any work: exists as a file, not writable
     refuse_inputs_among_outputs(out, RUN_OUTPUTS, {"INPUT": Path(args.input)})
-    summary_path = out / "summary.json"
-    summary_path.unlink(missing_ok=True)  # written last: its absence marks a run cut short
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     window = parse_frame_range(args.frames)
@@ -286,6 +284,9 @@ def run(args: argparse.Namespace) -> int:
     scene_frames, self_profile = _calibrated(scene_frames, config, args.profile, args.input)
     if args.kitti_results:
         check_camera_models(args.input, scene_frames, "CAM_FRONT")
+    # the inputs are accepted (a refused run keeps the earlier run's summary)
+    summary_path = out / "summary.json"
+    summary_path.unlink(missing_ok=True)  # written last: its absence marks a run cut short
     job = TrackSceneJob(config, out, args.kitti_results)
     parallel = scenes.from_args(args)
     records = scenes.run_scenes(job, list(scene_frames), inputs=scene_frames, parallel=parallel)

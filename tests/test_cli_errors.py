@@ -273,6 +273,11 @@ def files(tmp_path: Path) -> dict[str, Path]:
     bad_calib = tmp_path / "bad_calib"
     shutil.copytree(SAMPLE_KIT, bad_calib)
     (bad_calib / "training" / "calib" / "0001.txt").write_text("P2: 1 2 3\n")
+    bad_detections = tmp_path / "bad_detections"  # found only when the detections are read
+    shutil.copytree(SAMPLE_KIT, bad_detections)
+    (bad_detections / "detections" / "pointrcnn" / "training" / "Car" / "0001.txt").write_text(
+        "0 Car x y z\n"
+    )
     bad_toml = tmp_path / "bad.toml"
     bad_toml.write_text('base = "kitti"\n[defaults]\nno_such_key = 1\n')
     empty = tmp_path / "empty.json"
@@ -299,6 +304,7 @@ def files(tmp_path: Path) -> dict[str, Path]:
         "a_file": a_file,
         "stock": stock,
         "bad_calib": bad_calib,
+        "bad_detections": bad_detections,
         "bad_toml": bad_toml,
         "empty": empty,
         "no_scenes": no_scenes,
@@ -602,6 +608,250 @@ def test_bad_input_is_one_line_naming_the_file(
     _assert_one_line_error(code, err, argv[0], *fragments)
 
 
+# ---------------------------------------------------------------------------------------------
+# errors: a refused run leaves --out as it found it
+
+
+#: (case id, argv from the files and the output folder, an earlier run's files in that folder).
+#: Each is refused (exit 2) after its command used to make --out (or an output file's folder),
+#: late where it can be: a file's contents, a flag read after the kit is checked.
+REFUSED: list[tuple[str, Callable[[F, Path], list[str]], tuple[str, ...]]] = [
+    (
+        "kitti unknown detector",
+        lambda f, out: [
+            *("kitti", "--kitti-root", str(f["stock"]), "--seqs", "0001", "--poses", "none"),
+            *("--detector", "x", "--out", str(out)),
+        ],
+        ("summary.json", "tracks.json", "data/0001.txt"),
+    ),
+    (
+        "kitti bad config",
+        lambda f, out: [
+            *("kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001"),
+            *("--config", str(f["bad_toml"]), "--out", str(out)),
+        ],
+        ("summary.json", "tracks.json", "data/0001.txt"),
+    ),
+    (
+        "robustness malformed detections",
+        lambda f, out: [
+            *("robustness", "--kitti-root", str(f["bad_detections"]), "--seqs", "0001"),
+            *("--levels", "noise", "--seeds", "0", "--out", str(out)),
+        ],
+        ("robustness.json", "robustness.md", "runs/noise/seed0/0001.txt"),
+    ),
+    (
+        "track bad frames",
+        lambda f, out: ["track", str(f["detections"]), "--frames", "x", "--out", str(out)],
+        ("summary.json", "tracks.json"),
+    ),
+    (
+        "nuscenes truncated detections",
+        lambda f, out: [
+            *("nuscenes", "--dataroot", str(f["stock"]), "--version", "v1.0-mini"),
+            *("--detections", str(f["truncated"]), "--out", str(out)),
+        ],
+        ("summary.json", "results.json", "tracks.json"),
+    ),
+    (
+        "waymo data root without ego_info",
+        lambda f, out: [
+            *("waymo", "--data-root", str(f["stock"]), "--detections", str(f["stock"])),
+            *("--out", str(out)),
+        ],
+        ("summary.json", "tracks.json", "results/0/x.npz"),
+    ),
+    (
+        "convert kitti without poses",
+        lambda f, out: ["convert", "kitti", "--kitti-root", str(f["stock"]), "--out", str(out)],
+        ("detections.json", "gt.json"),
+    ),
+    (
+        "convert nuscenes truncated detections",
+        lambda f, out: [
+            *("convert", "nuscenes", "--dataroot", str(f["stock"]), "--version", "v1.0-mini"),
+            *("--detections", str(f["truncated"]), "--out", str(out / "d.json")),
+            *("--gt-out", str(out / "gt" / "gt.json")),
+        ],
+        ("d.json", "gt/gt.json"),
+    ),
+    (
+        "convert waymo data root without ego_info",
+        lambda f, out: [
+            *("convert", "waymo", "--data-root", str(f["stock"]), "--detections", str(f["stock"])),
+            *("--out", str(out / "d.json")),
+        ],
+        ("d.json",),
+    ),
+    (
+        "eval malformed label file",
+        lambda f, out: [
+            *("eval", str(f["detections"]), "--gt", str(f["gt"])),
+            *("--labels", str(f["bad_labels"]), "--out", str(out)),
+        ],
+        ("eval.json", "eval.md"),
+    ),
+    (  # (its own clean-up removed --out, not the folders made on the way to it)
+        "eval nuscenes tracks without sample tokens",
+        lambda f, out: [
+            *("eval", str(f["detections"]), "--dataset", "nuscenes"),
+            *("--dataroot", str(f["stock"]), "--out", str(out)),
+        ],
+        ("eval.json", "eval.md", "eval_results.json", "nuscenes_eval/metrics_summary.json"),
+    ),
+    (
+        "tune too few sequences",
+        lambda f, out: [
+            *("tune", "--kitti-root", str(f["stock"]), "--seqs", "0001", "--folds", "2"),
+            *("--out", str(out)),
+        ],
+        ("tune.json", "best.toml"),
+    ),
+    (
+        "calibrate unknown detector",
+        lambda f, out: [
+            *("calibrate", "--kitti-root", str(f["stock"]), "--seqs", "0001"),
+            *("--detector", "x", "--out", str(out / "x.toml")),
+        ],
+        ("x.toml",),
+    ),
+    (
+        "compare folders no run wrote",
+        lambda f, out: ["compare", str(f["empty_dir"]), str(f["empty_dir"]), "--out", str(out)],
+        ("compare.json", "compare.md"),
+    ),
+    (
+        "report folder no run wrote",
+        lambda f, out: ["report", str(f["empty_dir"]), "--out", str(out)],
+        ("index.html", "plots/hota.svg"),
+    ),
+    (
+        "demo bad frames",
+        lambda f, out: ["demo", "--frames", "1:x", "--out", str(out)],
+        ("demo.rrd",),
+    ),
+    (
+        "view no frames",
+        lambda f, out: ["view", str(f["no_frames"]), "--save", str(out / "x.rrd")],
+        ("x.rrd",),
+    ),
+    (
+        "shots not a recording",
+        lambda f, out: ["shots", str(f["not_rrd"]), "--out", str(out)],
+        ("event0_f10_3d.png",),
+    ),
+    (
+        "bench missing kit",
+        lambda f, out: [
+            *("bench", "--kitti-root", str(f["out"] / "no_kit"), "--repeat", "1"),
+            *("--json", str(out / "bench.json")),
+        ],
+        ("bench.json",),
+    ),
+]
+
+
+def _tree(folder: Path) -> dict[str, bytes | None]:
+    """Every file (its bytes) and folder (None) under ``folder``, by relative path."""
+    return {
+        p.relative_to(folder).as_posix(): p.read_bytes() if p.is_file() else None
+        for p in folder.rglob("*")
+    }
+
+
+def test_every_command_that_writes_has_a_refused_case() -> None:
+    """A command that gains an output option (cli.OUTPUT_OPTIONS) gets a case above."""
+    writing = [
+        " ".join(words)
+        for words, parser in COMMANDS
+        if any(
+            set(a.option_strings) & set(cli.OUTPUT_OPTIONS) and a.nargs != 0  # (not a flag)
+            for a in parser._actions
+        )
+    ]
+    assert len(writing) >= 15
+    for command in writing:
+        assert any(case[0].startswith(f"{command} ") for case in REFUSED), command
+
+
+@pytest.mark.parametrize(
+    ("argv_of", "earlier"), [c[1:] for c in REFUSED], ids=[c[0] for c in REFUSED]
+)
+def test_a_refused_run_leaves_no_folder_it_made(
+    argv_of: Callable[[F, Path], list[str]],
+    earlier: tuple[str, ...],
+    files: F,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """(each left its --out behind, empty, or the folder of its output file: the folders on
+    the way to it too)"""
+    monkeypatch.chdir(tmp_path)
+    new = tmp_path / "new"
+    code, _, err = _run(argv_of(files, new / "deeper" / "out"), capsys)
+    assert code == 2, err
+    assert not new.exists(), sorted(_tree(new))
+
+
+@pytest.mark.parametrize(
+    ("argv_of", "earlier"), [c[1:] for c in REFUSED], ids=[c[0] for c in REFUSED]
+)
+def test_a_refused_run_keeps_an_earlier_runs_outputs(
+    argv_of: Callable[[F, Path], list[str]],
+    earlier: tuple[str, ...],
+    files: F,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """An earlier run's outputs go only once the new run's inputs are accepted."""
+    monkeypatch.chdir(tmp_path)
+    out = tmp_path / "earlier"
+    for name in earlier:
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text("an earlier run's\n")
+    (out / "notes.txt").write_text("mine\n")
+    before = _tree(out)
+    code, _, err = _run(argv_of(files, out), capsys)
+    assert code == 2, err
+    assert _tree(out) == before
+
+
+def test_only_the_empty_folders_a_run_made_are_removed(tmp_path: Path) -> None:
+    """Not a folder that was there before, nor one that holds a file (and so not its parents);
+    an output file's folders are made for it too."""
+    from app.common import folders_to_make, remove_made_folders
+
+    (tmp_path / "there").mkdir()
+    outputs = [tmp_path / "there", tmp_path / "a" / "b" / "out", tmp_path / "c" / "d" / "x.json"]
+    made = folders_to_make([*outputs, tmp_path / "a" / "kept"])
+    assert made[-2:] == [tmp_path / "a", tmp_path / "c"] and tmp_path / "there" not in made
+    for folder in outputs[:2]:
+        folder.mkdir(parents=True, exist_ok=True)
+    (tmp_path / "c" / "d").mkdir(parents=True)
+    (tmp_path / "a" / "kept").mkdir()
+    (tmp_path / "a" / "kept" / "partial.txt").write_text("x")
+    remove_made_folders(made)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a", "there"]
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["kept"]
+
+
+def test_a_run_that_fails_without_an_exception_leaves_no_folder_it_made(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """(a status of its own, as `mctrack shots` returns when the viewer fails)"""
+    import app.shots
+
+    def viewer_failed(args: argparse.Namespace) -> int:
+        Path(args.out).mkdir(parents=True)
+        return app.shots.EXIT_VIEWER_FAILED
+
+    monkeypatch.setattr(app.shots, "run", viewer_failed)
+    code, _, _ = _run(["shots", "x.rrd", "--out", str(tmp_path / "new" / "shots")], capsys)
+    assert code == app.shots.EXIT_VIEWER_FAILED and not (tmp_path / "new").exists()
+
+
 def test_bench_refuses_a_bad_json_path_before_the_benchmark(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -720,7 +970,7 @@ def test_track_writes_nothing_for_an_input_without_frames(
     for name in ("no_scenes", "no_frames"):
         code, printed, _ = _run(["track", str(files[name]), "--out", str(files["out"])], capsys)
         assert code == 2 and printed == ""
-        assert list(files["out"].iterdir()) == []
+        assert not files["out"].exists()  # (was left behind, empty)
 
 
 def test_view_says_which_scenes_it_records_without_labels(
