@@ -7,8 +7,8 @@ import logging
 import os
 import resource
 import shlex
-from collections.abc import Iterable, Mapping, Sequence
-from pathlib import Path
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING
 
 from tracker.errors import InputError
@@ -115,6 +115,11 @@ def _own_file(folder: Path, path: Path) -> bool:
     )
 
 
+def _outputs(folder: Path, patterns: Sequence[str]) -> set[Path]:
+    """The files in ``folder`` matching ``patterns`` (globs relative to it), own files only."""
+    return {p for pattern in patterns for p in folder.glob(pattern) if _own_file(folder, p)}
+
+
 def refuse_inputs_among_outputs(
     folder: Path, patterns: Sequence[str], inputs: Mapping[str, Path | None]
 ) -> None:
@@ -124,9 +129,7 @@ def refuse_inputs_among_outputs(
     or overwritten by the run that reads it. Called before any work."""
     root = folder.resolve()
     # the same glob (and the same files) as remove_earlier_outputs, so the two never disagree
-    written = sorted(
-        {p.resolve() for pattern in patterns for p in folder.glob(pattern) if _own_file(folder, p)}
-    )
+    written = sorted({p.resolve() for p in _outputs(folder, patterns)})
     for option, path in inputs.items():
         if path is None:
             continue
@@ -148,9 +151,7 @@ def remove_earlier_outputs(folder: Path, patterns: Sequence[str]) -> int:
     an earlier one calls this once its inputs are accepted, so the folder never mixes two runs
     (a level or sequence the new run leaves out would keep its old results). Returns how many
     files went."""
-    earlier = sorted(
-        {p for pattern in patterns for p in folder.glob(pattern) if _own_file(folder, p)}
-    )
+    earlier = sorted(_outputs(folder, patterns))
     for path in earlier:
         path.unlink()
     root = folder.resolve()
@@ -185,6 +186,51 @@ def remove_made_folders(folders: Sequence[Path]) -> None:
     for folder in folders:
         with contextlib.suppress(OSError):  # not empty, never made (an output file), or gone
             folder.rmdir()
+
+
+def _pattern_folder(pattern: str) -> str:
+    """The fixed folder a glob's files are in (``eval/*.json``: ``eval``; ``*.json``: ``.``)."""
+    parts = PurePosixPath(pattern).parent.parts
+    fixed = []
+    for part in parts:
+        if any(c in part for c in "*?["):
+            break
+        fixed.append(part)
+    return "/".join(fixed) or "."
+
+
+@contextlib.contextmanager
+def outputs_removed_on_failure(
+    folder: Path, patterns: Sequence[str], folders: Sequence[str] = ()
+) -> Iterator[None]:
+    """If the block fails (an error, Ctrl-C), delete what it wrote in ``folder``: the files
+    matching ``patterns`` (globs relative to it, as for :func:`remove_earlier_outputs`) that
+    are new or rewritten since it began, then the folders it made for them (each pattern's
+    folder, and ``folders``: ones a library makes, relative to ``folder``) that this leaves
+    empty. A failed run so leaves no partial outputs of its own (a results file without the
+    summary that marks a run complete); files it did not write stay."""
+    before = _stamps(_outputs(folder, patterns))
+    made = folders_to_make(
+        [folder / _pattern_folder(p) for p in patterns] + [folder / f for f in folders]
+    )
+    try:
+        yield
+    except BaseException:
+        after = _stamps(_outputs(folder, patterns))
+        for path in sorted(p for p, stamp in after.items() if before.get(p) != stamp):
+            path.unlink(missing_ok=True)
+        remove_made_folders(made)
+        raise
+
+
+def _stamps(paths: Iterable[Path]) -> dict[Path, tuple[int, int]]:
+    """Each file's inode and modification time: a file replaced or rewritten changes them."""
+    stamps = {}
+    for path in paths:
+        with contextlib.suppress(OSError):  # (gone meanwhile)
+            st = path.lstat()
+            stamps[path] = (st.st_ino, st.st_mtime_ns)
+    return stamps
 
 
 def warn_undetected_classes(detector: str, classes: Sequence[str]) -> None:

@@ -10,20 +10,19 @@ metrics of a tracks file."""
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import json
 import logging
-import shutil
 import sys
 import tempfile
 from collections import Counter
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from app.common import outputs_removed_on_failure
 from app.inputs import class_list
 from tracker.categories import CATEGORIES
 from tracker.config import ImageBoxes, load_config
@@ -420,23 +419,6 @@ def _is_submission(path: Path) -> bool:
     return re.match(rb'\s*\{\s*"(meta|results)"', head) is not None
 
 
-@contextlib.contextmanager
-def _removed_on_failure(*paths: Path) -> Iterator[None]:
-    """Remove those of ``paths`` that did not exist before the block if it fails: a refused run
-    leaves no output of its own (a half-written evaluation folder) and never touches what was
-    there before. List a folder before the paths inside it."""
-    new = [p for p in paths if not (p.exists() or p.is_symlink())]
-    try:
-        yield
-    except BaseException:
-        for path in new:
-            if path.is_dir() and not path.is_symlink():
-                shutil.rmtree(path)
-            elif path.exists() or path.is_symlink():
-                path.unlink()
-        raise
-
-
 def _run_nuscenes(args: argparse.Namespace) -> int:
     if not args.dataroot:
         raise InputError("--dataset nuscenes needs --dataroot (the nuScenes tables)")
@@ -448,9 +430,9 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else tracks.parent
     from tracker.eval.motion_eval import MOTION_PLOT
 
-    created = (out, out / "nuscenes_eval", out / EVAL_SUBMISSION, out / "eval.json",
-               out / "eval.md", out / MOTION_PLOT)  # fmt: skip
-    with _removed_on_failure(*created):
+    # a refused evaluation leaves no output of its own (a half-written nuscenes_eval/)
+    written = (EVAL_SUBMISSION, "eval.json", "eval.md", MOTION_PLOT, "nuscenes_eval/*.json")
+    with outputs_removed_on_failure(out, written, folders=("nuscenes_eval/plots",)):
         return _evaluate_nuscenes(args, tracks, out)
 
 

@@ -11,7 +11,12 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.common import peak_rss_mb, refuse_inputs_among_outputs, remove_earlier_outputs
+from app.common import (
+    outputs_removed_on_failure,
+    peak_rss_mb,
+    refuse_inputs_among_outputs,
+    remove_earlier_outputs,
+)
 from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
@@ -39,6 +44,8 @@ RUN_OUTPUTS = (
 )  # fmt: skip
 #: What only a run leaves (its scene parts while it runs; the submission and summary at the end)
 RUN_MARKS = ("summary.json", "results.json", "tracks.json", ".scenes")
+#: Folders the devkit's evaluation makes in --out (empty: mctrack never renders its plots)
+DEVKIT_FOLDERS = ("eval/plots",)
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,75 +199,79 @@ def run_nuscenes(
     if any((out / mark).exists() for mark in RUN_MARKS):  # a refused run keeps the earlier one
         remove_earlier_outputs(out, RUN_OUTPUTS)
 
-    coasting_score = None if config.mode is TrackingMode.OFFLINE else 0.0
-    job = NuscenesSceneJob(
-        config,
-        out,
-        coasting_score=coasting_score,
-        record=record,
-        keep=motion,
-    )
-    t1 = time.perf_counter()
-    gt_of = conv.gt if record and conv.gt else {}
-    inputs = {s: (f, gt_of.get(s)) for s, f in det_scenes.items()}
-    records = scenes.run_scenes(
-        job, list(det_scenes), inputs=inputs, parallel=parallel, quiet=quiet
-    )
-    wall_secs = time.perf_counter() - t1
-    ok = [r for r in records if r.error is None]
-    out.mkdir(parents=True, exist_ok=True)
-    results_path = out / "results.json"
-    write_nuscenes_parts(
-        results_path, [scenes.part_path(out, r.index, "nusc.json") for r in ok], meta=conv.meta
-    )
-    write_tracks_parts(
-        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
-    )
-    scenes.remove_parts(out)
-    load_results_with_devkit(results_path)  # the devkit's own format check
-    n_boxes = sum(r.info["boxes"] for r in ok)
-    tracker_secs = sum(r.tracker_seconds for r in ok)
-    total_frames = sum(len(f) for f in det_scenes.values())
-    recordings = [r.info["recording"] for r in ok if "recording" in r.info]
-
-    summary: dict[str, Any] = {
-        "dataset": "nuscenes",
-        "version": version,
-        "split": split,
-        "detections": str(detections),
-        "scenes": list(det_scenes),
-        "frames": total_frames,
-        "boxes_written": n_boxes,
-        "results": str(results_path),
-        "mode": config.mode.value,
-        "tracker_seconds": round(tracker_secs, 4),
-        "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
-        "convert_seconds": round(convert_secs, 3),
-        "peak_rss_mb": peak_rss_mb(),
-        "skipped_detections": dict(sorted(conv.skipped_detections.items())),
-        **scenes.summary_fields(records, parallel, wall_secs),
-        "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
-        "config": config_to_dict(config),
-    }
-    if recordings:
-        summary["recordings"] = recordings
-    if not evaluate:
-        summary["evaluation"] = "skipped (--no-eval)"
-    elif not has_gt:
-        summary["evaluation"] = "skipped: the test split has no public annotations (submit it)"
-    elif scene_names:
-        summary["evaluation"] = "skipped: --scenes selects part of the split"
-    elif summary["failed"]:
-        summary["evaluation"] = f"skipped: scenes failed: {list(summary['failed'])}"
-    else:
-        summary["metrics"] = evaluate_nuscenes(
-            results_path, dataroot=dataroot, version=version, split=split, out_dir=out / "eval"
+    # from here on the run writes: one that fails (the devkit refuses the submission, an
+    # evaluation error, Ctrl-C) removes what it wrote, so OUT never holds a results.json
+    # without the summary.json that marks a complete run
+    with outputs_removed_on_failure(out, RUN_OUTPUTS, folders=DEVKIT_FOLDERS):
+        coasting_score = None if config.mode is TrackingMode.OFFLINE else 0.0
+        job = NuscenesSceneJob(
+            config,
+            out,
+            coasting_score=coasting_score,
+            record=record,
+            keep=motion,
         )
-    if motion:
-        outputs = {r.scene: r.kept for r in ok}
-        det_ok = {s: det_scenes[s] for s in outputs}
-        summary["motion"] = _motion(det_ok, conv.gt, outputs, config.categories, out)
-    write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
+        t1 = time.perf_counter()
+        gt_of = conv.gt if record and conv.gt else {}
+        inputs = {s: (f, gt_of.get(s)) for s, f in det_scenes.items()}
+        records = scenes.run_scenes(
+            job, list(det_scenes), inputs=inputs, parallel=parallel, quiet=quiet
+        )
+        wall_secs = time.perf_counter() - t1
+        ok = [r for r in records if r.error is None]
+        out.mkdir(parents=True, exist_ok=True)
+        results_path = out / "results.json"
+        write_nuscenes_parts(
+            results_path, [scenes.part_path(out, r.index, "nusc.json") for r in ok], meta=conv.meta
+        )
+        write_tracks_parts(
+            out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
+        )
+        scenes.remove_parts(out)
+        load_results_with_devkit(results_path)  # the devkit's own format check
+        n_boxes = sum(r.info["boxes"] for r in ok)
+        tracker_secs = sum(r.tracker_seconds for r in ok)
+        total_frames = sum(len(f) for f in det_scenes.values())
+        recordings = [r.info["recording"] for r in ok if "recording" in r.info]
+
+        summary: dict[str, Any] = {
+            "dataset": "nuscenes",
+            "version": version,
+            "split": split,
+            "detections": str(detections),
+            "scenes": list(det_scenes),
+            "frames": total_frames,
+            "boxes_written": n_boxes,
+            "results": str(results_path),
+            "mode": config.mode.value,
+            "tracker_seconds": round(tracker_secs, 4),
+            "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
+            "convert_seconds": round(convert_secs, 3),
+            "peak_rss_mb": peak_rss_mb(),
+            "skipped_detections": dict(sorted(conv.skipped_detections.items())),
+            **scenes.summary_fields(records, parallel, wall_secs),
+            "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
+            "config": config_to_dict(config),
+        }
+        if recordings:
+            summary["recordings"] = recordings
+        if not evaluate:
+            summary["evaluation"] = "skipped (--no-eval)"
+        elif not has_gt:
+            summary["evaluation"] = "skipped: the test split has no public annotations (submit it)"
+        elif scene_names:
+            summary["evaluation"] = "skipped: --scenes selects part of the split"
+        elif summary["failed"]:
+            summary["evaluation"] = f"skipped: scenes failed: {list(summary['failed'])}"
+        else:
+            summary["metrics"] = evaluate_nuscenes(
+                results_path, dataroot=dataroot, version=version, split=split, out_dir=out / "eval"
+            )
+        if motion:
+            outputs = {r.scene: r.kept for r in ok}
+            det_ok = {s: det_scenes[s] for s in outputs}
+            summary["motion"] = _motion(det_ok, conv.gt, outputs, config.categories, out)
+        write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
     return summary
 
 

@@ -837,6 +837,35 @@ def test_only_the_empty_folders_a_run_made_are_removed(tmp_path: Path) -> None:
     assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["kept"]
 
 
+def test_a_failed_block_removes_the_outputs_it_wrote_only(tmp_path: Path) -> None:
+    """outputs_removed_on_failure: the files of its globs that the block wrote (new, or
+    rewritten) go with the folders it made for them (and a library's, named); files it did not
+    touch stay, matching or not, and so does a folder that was there; on success, all stay."""
+    from app.common import outputs_removed_on_failure
+
+    out = tmp_path / "out"
+    (out / "recordings").mkdir(parents=True)
+    for name in ("kept.json", "rewritten.json", "recordings/mine.rrd", "notes.txt"):
+        (out / name).write_text("there before\n")
+    patterns = ("*.json", "recordings/*.rrd", "eval/*.json")
+    with pytest.raises(InputError), outputs_removed_on_failure(out, patterns, ["eval/plots"]):
+        (out / "rewritten.json").write_text("the run's\n")
+        (out / "results.json").write_text("the run's\n")
+        (out / "recordings" / "a.rrd").write_text("the run's\n")
+        (out / "eval" / "plots").mkdir(parents=True)
+        (out / "eval" / "metrics.json").write_text("the run's\n")
+        raise InputError("refused after writing")
+    assert _tree(out) == {
+        "kept.json": b"there before\n",
+        "notes.txt": b"there before\n",
+        "recordings": None,
+        "recordings/mine.rrd": b"there before\n",
+    }
+    with outputs_removed_on_failure(out, patterns):
+        (out / "results.json").write_text("the run's\n")
+    assert (out / "results.json").is_file()
+
+
 def test_a_run_that_fails_without_an_exception_leaves_no_folder_it_made(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:

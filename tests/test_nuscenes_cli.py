@@ -137,6 +137,49 @@ def test_nuscenes_run_into_an_earlier_run_replaces_it(
     assert (out / "results.json").is_file() and (out / "notes.txt").read_text() == "mine"
 
 
+@pytest.mark.parametrize(
+    ("refusal", "said"),
+    [("format check", "rejected by the nuScenes devkit"), ("evaluation", "nuScenes TrackingEval")],
+)
+def test_nuscenes_refused_after_the_tracking_leaves_no_partial_outputs(
+    dataset: SyntheticNuScenes,
+    noisy: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    refusal: str,
+    said: str,
+) -> None:
+    """The devkit refusing the submission after the tracking (its format check, or its
+    evaluation: an AssertionError, exit 2) into an earlier run's --out: the run's own outputs
+    go too (results.json, tracks.json and the recordings were left without the summary.json
+    that marks a complete run, the earlier run's outputs already removed); files of other names
+    stay. Into a new --out: nothing is left."""
+    pytest.importorskip("rerun")
+    import nuscenes.eval.common.loaders as loaders
+    import nuscenes.eval.tracking.evaluate as evaluate
+
+    out = tmp_path / "run"
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy)]
+    assert main([*argv, "--no-eval", "--motion", "--out", str(out)]) == 0
+    (out / "notes.txt").write_text("mine")
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise AssertionError("Error: Only <= 500 boxes per sample allowed!")
+
+    if refusal == "format check":  # (load_results_with_devkit's; TrackingEval has its own)
+        monkeypatch.setattr(loaders, "load_prediction", refuse)
+    else:
+        monkeypatch.setattr(evaluate.TrackingEval, "evaluate", refuse)
+    capsys.readouterr()
+    assert main([*argv, "--record", "--out", str(out)]) == 2
+    assert said in capsys.readouterr().err
+    assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*")) == ["notes.txt"]
+    new = tmp_path / "new"
+    assert main([*argv, "--record", "--out", str(new / "out")]) == 2
+    assert not new.exists()
+
+
 def test_eval_names_a_file_that_is_not_a_tracking_submission(
     dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
