@@ -13,7 +13,12 @@ from pathlib import Path
 import numpy as np
 
 from app import scenes
-from app.common import SELF_PROFILE, log_self_profile, refuse_inputs_among_outputs
+from app.common import (
+    SELF_PROFILE,
+    log_self_profile,
+    refuse_inputs_among_outputs,
+    remove_earlier_outputs,
+)
 from app.inputs import add_mode_argument
 from app.scenes import SceneRecord
 from tracker.calibration import (
@@ -258,8 +263,17 @@ def _calibrated(
     return calibrated, fitted
 
 
-#: What a run writes in --out (its scene parts: .scenes/)
-RUN_OUTPUTS = ("summary.json", "tracks.json", "self_profile.toml", "data/*.txt", ".scenes/*")
+#: What a run writes in --out, removed (once the inputs are accepted) when --out holds an earlier
+#: run, so the folder never mixes two (a scene the new run leaves out kept its data/<scene>.txt).
+#: Other files stay. (.<name>.*.tmp: the temporary files of a run stopped by Ctrl-C; .scenes/:
+#: its scene parts)
+RUN_OUTPUTS = (
+    "summary.json", "tracks.json", "self_profile.toml", "data/*.txt",
+    ".summary.json.*.tmp", ".tracks.json.*.tmp", ".self_profile.toml.*.tmp", "data/.*.txt.*.tmp",
+    ".scenes/*",
+)  # fmt: skip
+#: What only a run leaves (its scene parts while it runs; tracks.json and summary.json at the end)
+RUN_MARKS = ("summary.json", "tracks.json", ".scenes")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -284,9 +298,12 @@ def run(args: argparse.Namespace) -> int:
     scene_frames, self_profile = _calibrated(scene_frames, config, args.profile, args.input)
     if args.kitti_results:
         check_camera_models(args.input, scene_frames, "CAM_FRONT")
-    # the inputs are accepted (a refused run keeps the earlier run's summary)
+    # the inputs are accepted (a refused run keeps the earlier run's outputs): the earlier run's
+    # go, summary.json with them (written last: its absence marks a run cut short). Only in a
+    # folder a run has written (data/*.txt alone could be anyone's)
+    if any((out / mark).exists() for mark in RUN_MARKS):
+        remove_earlier_outputs(out, RUN_OUTPUTS)
     summary_path = out / "summary.json"
-    summary_path.unlink(missing_ok=True)  # written last: its absence marks a run cut short
     job = TrackSceneJob(config, out, args.kitti_results)
     parallel = scenes.from_args(args)
     records = scenes.run_scenes(job, list(scene_frames), inputs=scene_frames, parallel=parallel)

@@ -1127,6 +1127,35 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     assert json.loads((out / "summary.json").read_text())["sequences"] == ["0001"]
 
 
+def test_track_into_an_earlier_runs_folder_replaces_that_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """track --kitti-results into the --out of a run of more scenes: the scene the new run
+    leaves out does not keep its data/<scene>.txt beside the new ones (nor the earlier
+    --profile self's self_profile.toml); files of other names stay, and a run refused on its
+    inputs changes nothing."""
+    frames = _sample_frames()[:3]
+    two, one = tmp_path / "two.json", tmp_path / "one.json"
+    two.write_text(json.dumps({"a": frames, "b": frames}))
+    one.write_text(json.dumps({"a": frames}))
+    out = tmp_path / "out"
+    code, _, err = _run(["track", str(two), "--kitti-results", "--profile", "self",
+                         "--out", str(out)], capsys)  # fmt: skip
+    assert code == 0, err
+    (out / "notes.txt").write_text("mine\n")
+    earlier = _tree(out)
+    assert {"data/a.txt", "data/b.txt", "self_profile.toml"} <= set(earlier)
+    argv = ["track", str(one), "--kitti-results", "--out", str(out)]
+    code, _, err = _run([*argv, "--frames", "x"], capsys)
+    assert code == 2 and _tree(out) == earlier, err
+    code, _, err = _run(argv, capsys)
+    assert code == 0, err
+    assert sorted(_tree(out)) == ["data", "data/a.txt", "notes.txt", "summary.json", "tracks.json"]
+    assert (out / "notes.txt").read_text() == "mine\n"
+    listed = [o["path"] for o in json.loads((out / "summary.json").read_text())["outputs"]]
+    assert listed == ["data/a.txt", "tracks.json"]
+
+
 def test_a_folder_no_run_wrote_keeps_its_files(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
