@@ -186,7 +186,7 @@ def run(args: argparse.Namespace) -> int:
     from app.track import parse_frame_range, require_frames, select_scenes
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
-    from tracker.io.fileio import finish_temp
+    from tracker.io.fileio import staged_files
     from viz.layout import debug_blueprint
     from viz.record import new_recording, partial_path, record_scene
 
@@ -207,61 +207,68 @@ def run(args: argparse.Namespace) -> int:
     many = len(scenes) > 1
     live = args.spawn or args.serve_web
     web_url = None
-    for scene, frames in scenes.items():
-        if not frames:
-            print(f"scene {scene}: no frames in range, skipped")
-            continue
-        cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras]
-        images = _images(folders, Path(args.input), cameras[0][0] if cameras else None)
-        for folder in unmatched.get(scene, []):
-            print(f"scene {scene}: no image of its frames in {folder}; recording without them")
-        gt = None
-        if args.gt:
-            wanted = {f.frame_id for f in frames}
-            gt = [f for f in gt_scenes.get(scene, []) if f.frame_id in wanted]
-            if not gt:
-                print(f"scene {scene}: not in {args.gt}; recording without ground truth")
-                gt = None
-        if args.labels and scene not in labelled:
-            print(f"scene {scene}: no label file in {args.labels}; recording without its labels")
-        elif scene in labelled and not cameras:  # the KITTI protocol matches 2D boxes
-            print(f"scene {scene}: no camera in {args.input}; recording without its labels")
-        path = None if live else _save_path(args.save, scene, many)
-        partial = None if path is None else partial_path(path)  # renamed when complete
-        rec = new_recording(scene, path=partial)
-        if args.spawn:
-            rec.spawn(port=args.grpc_port, default_blueprint=debug_blueprint(cameras))
-        elif args.serve_web:
-            url = rec.serve_grpc(
-                grpc_port=args.grpc_port, default_blueprint=debug_blueprint(cameras)
-            )
-            if web_url is None:
-                rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=url)
-                web_url = f"http://localhost:{args.web_port}/?url={url}"
-                print(f"web viewer: {web_url}")
-        first = frames[0].frame_id
-        description = (
-            f"- detections: `{args.input}`, scene `{scene}`, frames {first}..{frames[-1].frame_id}"
-            f" ({len(frames)} frames)\n- ground truth: `{args.gt or 'none'}`"
-            f"\n- labels: `{args.labels or 'none'}`\n- config: `{args.config}`"
-        )
-        result = record_scene(
-            frames,
-            config,
-            gt,
-            rec=rec,
-            labels_dir=args.labels if scene in labelled else None,
-            images=images,
-            input_description=description,
-            motion_metrics=not args.no_motion,
-            live=live,
-        )
-        rec.flush()
-        if not args.serve_web:
-            rec.disconnect()
+    # the recordings are moved into place once every scene is recorded: a run that fails on a
+    # later scene (or is stopped) leaves none of its own, and earlier ones at those paths stay
+    with staged_files() as staged:
+        for scene, frames in scenes.items():
+            if not frames:
+                print(f"scene {scene}: no frames in range, skipped")
+                continue
+            cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras]
+            images = _images(folders, Path(args.input), cameras[0][0] if cameras else None)
+            for folder in unmatched.get(scene, []):
+                print(f"scene {scene}: no image of its frames in {folder}; recording without them")
+            gt = None
+            if args.gt:
+                wanted = {f.frame_id for f in frames}
+                gt = [f for f in gt_scenes.get(scene, []) if f.frame_id in wanted]
+                if not gt:
+                    print(f"scene {scene}: not in {args.gt}; recording without ground truth")
+                    gt = None
+            if args.labels and scene not in labelled:
+                print(
+                    f"scene {scene}: no label file in {args.labels}; recording without its labels"
+                )
+            elif scene in labelled and not cameras:  # the KITTI protocol matches 2D boxes
+                print(f"scene {scene}: no camera in {args.input}; recording without its labels")
+            path = None if live else _save_path(args.save, scene, many)
+            partial = None if path is None else partial_path(path)  # renamed at the end
             if partial is not None and path is not None:
-                finish_temp(partial, path)
-        _print_result(result, path)
+                staged.append((partial, path))
+            rec = new_recording(scene, path=partial)
+            if args.spawn:
+                rec.spawn(port=args.grpc_port, default_blueprint=debug_blueprint(cameras))
+            elif args.serve_web:
+                url = rec.serve_grpc(
+                    grpc_port=args.grpc_port, default_blueprint=debug_blueprint(cameras)
+                )
+                if web_url is None:
+                    rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=url)
+                    web_url = f"http://localhost:{args.web_port}/?url={url}"
+                    print(f"web viewer: {web_url}")
+            first, last = frames[0].frame_id, frames[-1].frame_id
+            description = (
+                f"- detections: `{args.input}`, scene `{scene}`, frames {first}..{last}"
+                f" ({len(frames)} frames)\n- ground truth: `{args.gt or 'none'}`"
+                f"\n- labels: `{args.labels or 'none'}`\n- config: `{args.config}`"
+            )
+            result = record_scene(
+                frames,
+                config,
+                gt,
+                rec=rec,
+                labels_dir=args.labels if scene in labelled else None,
+                images=images,
+                input_description=description,
+                motion_metrics=not args.no_motion,
+                live=live,
+            )
+            rec.flush()
+            if not args.serve_web:
+                rec.disconnect()
+            _print_result(result)
+    for _, saved in staged:
+        print(f"wrote {saved}  (open it with: rerun {saved})")
     if args.serve_web:
         print("serving; press Ctrl-C to stop")
         try:
@@ -272,7 +279,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_result(result: object, path: Path | None) -> None:
+def _print_result(result: object) -> None:
     from viz.record import RecordResult
 
     assert isinstance(result, RecordResult)
@@ -287,5 +294,3 @@ def _print_result(result: object, path: Path | None) -> None:
             for c, n in ev.counts.items()
         )
     print(line)
-    if path is not None:
-        print(f"wrote {path}  (open it with: rerun {path})")

@@ -1064,6 +1064,44 @@ def test_view_says_which_scenes_it_records_without_images(
         assert ("/cameras/CAM_FRONT/image" in entities) is has_images, scene
 
 
+def test_view_of_several_scenes_that_fails_on_a_later_one_leaves_no_recording(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The recordings are moved into place once every scene is recorded: a run that fails on
+    the second scene (a folder where its recording goes; Ctrl-C while it records) leaves
+    neither scene's recording nor a temporary file, and an earlier recording at the first
+    scene's path stays (it was replaced, and the second's temporary file left; the error named
+    that file, not the folder)."""
+    frames = _sample_frames()[:3]
+    two = tmp_path / "two.json"
+    two.write_text(json.dumps({"a": frames, "b": frames}))
+    out = tmp_path / "out"
+    (out / "x_b.rrd").mkdir(parents=True)
+    (out / "x_a.rrd").write_text("an earlier recording\n")
+    argv = ["view", str(two), "--no-motion", "--save", str(out / "x.rrd")]
+    code, printed, err = _run(argv, capsys)
+    _assert_one_line_error(code, err, "view", f"{out / 'x_b.rrd'}: is a folder")
+    assert "wrote" not in printed
+    assert _tree(out) == {"x_a.rrd": b"an earlier recording\n", "x_b.rrd": None}
+
+    import viz.record
+
+    recorded = []
+
+    def stopped_on_the_second(*args: object, **kwargs: object) -> object:
+        if recorded:
+            raise KeyboardInterrupt
+        recorded.append(record_scene(*args, **kwargs))
+        return recorded[-1]
+
+    record_scene = viz.record.record_scene
+    monkeypatch.setattr(viz.record, "record_scene", stopped_on_the_second)
+    new = tmp_path / "new"
+    code, _, err = _run([*argv[:-1], str(new / "x.rrd")], capsys)
+    assert code == 130 and "interrupted" in err and recorded
+    assert not new.exists()
+
+
 def test_view_refuses_two_image_folders_for_one_camera(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -8,6 +8,8 @@ to that folder. Input: ``.npz`` files are read without pickle and with a size ca
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import gzip
 import hashlib
 import io
@@ -341,6 +343,31 @@ def finish_temp(tmp: Path, path: Path) -> None:
         os.fsync(fh.fileno())
     os.replace(tmp, path)
     _fsync_dir(path.parent)
+
+
+@contextlib.contextmanager
+def staged_files() -> Iterator[list[tuple[Path, Path]]]:
+    """Files written as one set: the block appends ``(tmp, path)`` for each file it streams to
+    a temporary name (complete by the end of the block), and they are renamed into place
+    (:func:`finish_temp`) together once it ends. If the block fails, or a rename does, the
+    temporary files go and so do the files already renamed: none of the set is left (an
+    earlier file at a path not yet reached stays)."""
+    staged: list[tuple[Path, Path]] = []
+    placed: list[Path] = []
+    try:
+        yield staged
+        for _, path in staged:  # (the one rename that fails for certain, before any is done)
+            if path.is_dir() and not path.is_symlink():
+                raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
+        for tmp, path in staged:
+            finish_temp(tmp, path)
+            placed.append(path)
+    except BaseException:
+        for tmp, _ in staged:
+            tmp.unlink(missing_ok=True)
+        for path in placed:
+            path.unlink(missing_ok=True)
+        raise
 
 
 def output_manifest(folder: str | Path, paths: list[Path]) -> list[dict[str, Any]]:
