@@ -239,6 +239,42 @@ def test_shots_refuses_a_frame_the_recording_does_not_have(
     assert planned == [PlannedShot(199, "frame")] and not (tmp_path / "shots").exists()
 
 
+def test_shots_max_events_0_takes_the_lag_shot_alone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """docs/debugger.md's ``mctrack shots ref.rrd --max-events 0`` (the lag shot only) was
+    refused as a usage error (--max-events took integers >= 1 only)."""
+    import dataclasses
+
+    from viz import shots
+
+    path, _ = recording()
+    index = read_shot_index(path)
+    assert index.lag_frame is not None and index.event_frames
+    planned: list[PlannedShot] = []
+
+    def take_shots(recording: Path, out: str, *, plan: list[PlannedShot], **kw: object) -> list:
+        planned.extend(plan)
+        return []
+
+    monkeypatch.setattr(shots, "take_shots", take_shots)
+    out = str(tmp_path / "shots")
+    assert main(["shots", str(path), "--max-events", "0", "--out", out]) == 0
+    assert planned == [PlannedShot(index.lag_frame, "lag")]
+    with pytest.raises(SystemExit) as usage:  # argparse: a usage error
+        main(["shots", str(path), "--max-events", "-1", "--out", out])
+    assert usage.value.code == 2
+    assert "--max-events: expected an integer >= 0, got '-1'" in capsys.readouterr().err
+    # events, but no lag: says what is missing (not "no ID switches ... recorded")
+    no_lag = dataclasses.replace(index, lag_frame=None, lag_track_id=None)
+    monkeypatch.setattr(shots, "read_shot_index", lambda _: no_lag)
+    assert main(["shots", str(path), "--max-events", "0", "--out", out]) == 0
+    assert capsys.readouterr().out == (
+        f"{path}: no velocity lag recorded; nothing to capture (--max-events 0)\n"
+    )
+    assert planned == [PlannedShot(index.lag_frame, "lag")]
+
+
 def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> None:
     """``mctrack inspect``'s viewer driving on Rerun's headless native viewer: the viewer's own
     time cursor (read back with ViewerClient.get_state) is on the event's frame and the
