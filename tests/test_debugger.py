@@ -170,6 +170,39 @@ def test_inspect_prints_the_url_and_the_event(capsys: pytest.CaptureFixture[str]
     assert main(["inspect", str(path), "--event", "100000", "--print"]) == 2
 
 
+def test_inspect_without_a_display_says_so_and_names_shots(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without DISPLAY / WAYLAND_DISPLAY (SSH, CI) the viewer's window cannot open: inspect
+    says so in one line with the shots command for the same moment, instead of spawning a
+    viewer that fails with "transport error" after 6 s."""
+    import rerun.experimental
+
+    from app.inspect import EXIT_VIEWER_FAILED, missing_display
+
+    assert missing_display({}, "linux")
+    assert not missing_display({"DISPLAY": ":0"}, "linux")
+    assert not missing_display({"WAYLAND_DISPLAY": "wayland-0"}, "linux")
+    assert not missing_display({}, "darwin") and not missing_display({}, "win32")
+
+    def spawn(*args: object, **kwargs: object) -> None:
+        raise AssertionError("no viewer without a display")
+
+    monkeypatch.setattr(rerun.experimental.ViewerClient, "spawn", spawn)
+    monkeypatch.setattr("sys.platform", "linux")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    path, _ = recording()
+    for what, where in ((["--event", "1"], "--event 1"), (["--frame", "15"], "--frame 15")):
+        assert main(["inspect", str(path), *what]) == EXIT_VIEWER_FAILED
+        err = capsys.readouterr().err
+        assert err == (
+            "mctrack inspect: no display for the viewer's window (DISPLAY and WAYLAND_DISPLAY "
+            f"are unset); on a machine without one, picture the moment with: mctrack shots "
+            f"{path} {where} --out shots/\n"
+        )
+
+
 def test_inspect_refuses_a_frame_the_recording_does_not_have(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
