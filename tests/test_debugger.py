@@ -385,6 +385,14 @@ def test_shots_of_an_event_and_a_frame(tmp_path: Path) -> None:
     assert focus.view == f"{layout.VIEW_FOCUS}#{k}"
     for s in shots:
         assert image_variance(s.path) > 20.0, s.path
+    # the cost views frame the whole matrix: nothing drawn along their bottom edge (the last
+    # row was cut in half: Rerun frames a 2D view on its points and boxes, not on the image)
+    from PIL import Image
+
+    for name in (f"event{k}_f{frame:04d}_cost_bev.png", "frame_f0015_cost_bev.png"):
+        with Image.open(tmp_path / name) as im:
+            rgb = np.asarray(im.convert("RGB"))
+        assert (rgb[-6:] == rgb[-1, 0]).all(), name
 
 
 # ---------------------------------------------------------------------------------------------
