@@ -480,6 +480,31 @@ def test_kitti_0016_pedestrian_switches_explained_and_in_view(kitti_0016) -> Non
     assert (out / "rec" / "causes.md").is_file()
 
 
+def test_causes_md_names_the_sequences_without_events(tmp_path: Path) -> None:
+    """causes.md's header listed only the sequences with an event, so a run of all 11
+    validation sequences read as a run of 10 (0010 has none); a sequence recorded without
+    labels (no evaluation) is not named."""
+    from types import SimpleNamespace
+
+    from app.kitti_record import recording_summary
+    from tracker.config import load_config
+
+    counts = {"car": {"IDSW": {c.value: 0 for c in Cause}, "Frag": {c.value: 0 for c in Cause}}}
+    counts["car"]["Frag"]["missed_no_detection"] = 2
+    records = [
+        SimpleNamespace(scene="0001", info={"recording": "0001.rrd", "causes": counts}),
+        SimpleNamespace(scene="0010", info={"recording": "0010.rrd", "causes": {}}),
+        SimpleNamespace(scene="0020", info={"recording": "0020.rrd"}),  # no labels
+    ]
+    config = load_config("kitti")
+    summary = recording_summary(records, config, tmp_path)
+    assert summary["causes"] == {"0001": counts}  # summary.json as before
+    header = (tmp_path / "causes.md").read_text().splitlines()[2]
+    assert header.startswith(
+        f"Sequences 0001, 0010 (0010: no event); classes {', '.join(config.categories)}; "
+    )
+
+
 def test_fragmentation_cost_table_lists_its_track_once() -> None:
     """A fragmentation back to the same track has one cost row, labelled "old = new"; an ID
     switch has the old and the new track's rows."""
