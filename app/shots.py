@@ -88,6 +88,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"mctrack shots: the headless viewer failed: {exc}", file=sys.stderr)
         return EXIT_VIEWER_FAILED
     for shot in shots:
-        what = f"event #{shot.event} " if shot.event is not None else ""
-        print(f"{shot.path}  ({what}{shot.reason} at frame {shot.frame}: {shot.view})")
+        print(f"{shot.path}  ({shot_caption(shot.reason, shot.frame, shot.event)}: {shot.view})")
     return 0
+
+
+#: How each kind of shot is named on screen (``id_switch`` and "frame at frame 15" read badly).
+_REASON_WORDS = {
+    "id_switch": "ID switch",
+    "fragmentation": "fragmentation",
+    "lag": "largest velocity lag",
+}
+
+
+def shot_caption(reason: str, frame: int, event: int | None) -> str:
+    """``event #3 ID switch at frame 80``, ``largest velocity lag at frame 410``, ``frame 15``."""
+    what = _REASON_WORDS.get(reason)
+    text = f"{what} at frame {frame}" if what else f"frame {frame}"
+    return f"event #{event} {text}" if event is not None else text

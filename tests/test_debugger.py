@@ -308,6 +308,29 @@ def test_shots_max_events_0_takes_the_lag_shot_alone(
     assert planned == [PlannedShot(index.lag_frame, "lag")]
 
 
+def test_shots_lists_each_png_with_a_readable_caption(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The list of PNGs said "(frame at frame 15: viewer)" and "(event #3 id_switch at ...)"."""
+    from viz import shots
+
+    path, _ = recording()
+    made = [
+        shots.Shot(tmp_path / "a.png", 15, "frame", "viewer"),
+        shots.Shot(tmp_path / "b.png", 80, "id_switch", "event", 3),
+        shots.Shot(tmp_path / "c.png", 81, "fragmentation", "focus #4", 4),
+        shots.Shot(tmp_path / "d.png", 410, "lag", "speed vs GT"),
+    ]
+    monkeypatch.setattr(shots, "take_shots", lambda *a, **kw: made)
+    assert main(["shots", str(path), "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        f"{tmp_path / 'a.png'}  (frame 15: viewer)",
+        f"{tmp_path / 'b.png'}  (event #3 ID switch at frame 80: event)",
+        f"{tmp_path / 'c.png'}  (event #4 fragmentation at frame 81: focus #4)",
+        f"{tmp_path / 'd.png'}  (largest velocity lag at frame 410: speed vs GT)",
+    ]
+
+
 def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> None:
     """``mctrack inspect``'s viewer driving on Rerun's headless native viewer: the viewer's own
     time cursor (read back with ViewerClient.get_state) is on the event's frame and the
