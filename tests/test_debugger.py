@@ -203,6 +203,31 @@ def test_inspect_without_a_display_says_so_and_names_shots(
         )
 
 
+def test_view_spawn_without_a_display_is_refused_before_any_work(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``mctrack view INPUT --spawn`` without a display: the viewer died on winit's error and
+    the run then hung with no word (the recording's flush waits for a viewer that never came)."""
+    import rerun as rr
+
+    from tests.test_viz import SAMPLE
+
+    def spawn(*args: object, **kwargs: object) -> None:
+        raise AssertionError("no viewer without a display")
+
+    monkeypatch.setattr(rr.RecordingStream, "spawn", spawn)
+    monkeypatch.setattr("sys.platform", "linux")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    det = SAMPLE / "detections.json.gz"
+    assert main(["view", str(det), "--frames", "0:5", "--spawn"]) == 2
+    assert capsys.readouterr().err == (
+        "mctrack view: error: --spawn: no display for the viewer's window (DISPLAY and "
+        "WAYLAND_DISPLAY are unset); record to a file (--save OUT.rrd, then mctrack shots "
+        "OUT.rrd --out shots/) or serve a web viewer (--serve-web)\n"
+    )
+
+
 def test_inspect_refuses_a_frame_the_recording_does_not_have(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
