@@ -332,6 +332,30 @@ def test_cost_matrix_extent_frames_the_whole_matrix(rrd: Path) -> None:
         assert column_at(extent, "Boxes2D:colors", frame) == [pack_rgb(BACKGROUND_RGB)]
 
 
+def test_all_tracks_view_names_every_curve_it_shows(rrd: Path) -> None:
+    """The "all tracks" view shows every curve under tracks/ (its contents are the whole
+    subtree), but was named "speed [m/s], heading [rad]" over vx, vy, ax and ay as well."""
+    from rerun.chunk import RrdReader
+
+    from viz.layout import VIEW_ALL_TRACKS
+    from viz.paths import SERIES
+
+    prefix = paths.entity(paths.TRACKS) + "/"
+    entities = {
+        str(c.entity_path)
+        for c in RrdReader(str(rrd)).stream().filter(content=prefix + "**").to_chunks()
+    }
+    kinds = {
+        e.rsplit("/", 1)[1].removeprefix(paths.GT_PREFIX) for e in entities if e.count("/") == 3
+    }
+    short = {"speed": "speed", "velocity_x": "vx", "velocity_y": "vy", "heading": "heading"}
+    short |= {"acceleration_x": "ax", "acceleration_y": "ay"}
+    # (ax, ay: constant-acceleration categories only, none with this config)
+    assert set(SERIES) <= kinds <= set(short)  # a new curve: name it in VIEW_ALL_TRACKS too
+    title = VIEW_ALL_TRACKS.split(":", 1)[1]
+    assert all(f" {name}" in title for name in short.values())
+
+
 def test_lifecycle_events_are_logged(rrd: Path, result: RecordResult) -> None:
     table = entity_table(rrd, paths.EVENTS_LIFECYCLE)
     texts = [t[0] for t in table["TextLog:text"].to_pylist() if t]

@@ -21,6 +21,8 @@ VIEW_COST_BEV = "cost BEV"
 VIEW_COST_RV = "cost RV"
 VIEW_SPEED_LAG = "speed vs GT"
 VIEW_ID_EVENTS = "ID switches"
+#: Every curve of every track (and its GT's) shares this view, so its name lists them all.
+VIEW_ALL_TRACKS = "all tracks: speed, vx, vy [m/s], ax, ay [m/s²], heading [rad] (±60 frames)"
 
 #: The cost views' background: the colour of the unseen box that frames each matrix
 #: (``cost/*/extent``), whatever the viewer's theme.
@@ -144,7 +146,7 @@ def debug_blueprint(
     )
     all_tracks = rrb.TimeSeriesView(
         origin=paths.entity(paths.TRACKS),
-        name="all tracks: speed [m/s], heading [rad] (±60 frames)",
+        name=VIEW_ALL_TRACKS,
         time_ranges=rrb.VisibleTimeRange(
             paths.FRAME,
             start=rrb.TimeRangeBoundary.cursor_relative(seq=-SERIES_WINDOW_FRAMES),
