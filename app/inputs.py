@@ -194,6 +194,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0 (argparse prints the message as a usage error, exit 2)."""
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
+    return value
+
+
 #: Printed once when a run has no ego poses.
 NO_POSES_NOTE = (
     "note: --poses none: no ego motion, so positions and velocities are relative to the moving "

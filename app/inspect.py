@@ -18,8 +18,9 @@ frame outside them is an error naming the frames it has.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -137,6 +138,14 @@ def drive_viewer(client: Any, recording: Path, target: InspectTarget, tmp: Path)
     return int(cursor)
 
 
+def missing_display(environ: Mapping[str, str], platform: str = sys.platform) -> bool:
+    """No display server for the viewer's window: on Linux (X11 or Wayland) the viewer would
+    start, print winit's error among its logs and leave only "transport error" to say why."""
+    if not platform.startswith("linux"):
+        return False
+    return not any(environ.get(k) for k in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
+
+
 def run(args: argparse.Namespace) -> int:
     recording = Path(args.recording)
     if not recording.is_file():
@@ -146,6 +155,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"recording: {target.url}")
     if args.print:
         return 0
+    if missing_display(os.environ):
+        where = f"--event {target.event}" if target.event is not None else f"--frame {target.frame}"
+        print(
+            "mctrack inspect: no display for the viewer's window (DISPLAY and WAYLAND_DISPLAY "
+            f"are unset); on a machine without one, picture the moment with: mctrack shots "
+            f"{recording} {where} --out shots/",
+            file=sys.stderr,
+        )
+        return EXIT_VIEWER_FAILED
     import tempfile
 
     from rerun.experimental import ViewerClient

@@ -437,8 +437,9 @@ def run_kitti(
         "image_detector": image_detector,
         "image_boxes": config.image_boxes.value,
         "config_name": str(config_name),
-        "kitti_root": str(kitti_root),
-        "labels": str(label_dir),
+        # absolute: mctrack report / compare read the labels from here, from any directory
+        "kitti_root": str(Path(kitti_root).absolute()),
+        "labels": str(Path(label_dir).absolute()),
         "sequences": [r.scene for r in records],
         "mode": config.mode.value,
         "classes": classes,

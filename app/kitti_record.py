@@ -64,7 +64,7 @@ def record_sequence(
         on_tracked=on_tracked,
     )
     info: dict[str, Any] = {"recording": str(path), "recording_seconds": dict(r.seconds)}
-    if r.id_evaluation is not None and r.causes:
+    if r.id_evaluation is not None:  # {} when evaluated without an event
         info["causes"] = cause_counts(r.causes)
     return r, info
 
@@ -81,7 +81,11 @@ def recording_summary(
     seconds: Counter[str] = Counter()
     for r in records:
         seconds.update(r.info.get("recording_seconds", {}))
+    evaluated = [r.scene for r in records if "causes" in r.info]
     causes = {r.scene: r.info["causes"] for r in records if r.info.get("causes")}
+    # the header names every evaluated sequence: one without events is not left out unsaid
+    quiet = [s for s in evaluated if s not in causes]
+    no_event = f" ({', '.join(quiet)}: no event)" if quiet else ""
     out: dict[str, Any] = {
         "recordings": recordings,
         "recording_seconds": {k: round(v, 2) for k, v in sorted(seconds.items())},
@@ -91,8 +95,8 @@ def recording_summary(
         lines = [
             "# Causes of ID switches and fragmentations",
             "",
-            f"Sequences {', '.join(causes)}; classes {', '.join(config.categories)}; events "
-            "counted by TrackEval's CLEAR (KITTI 2D-box protocol); causes from "
+            f"Sequences {', '.join(evaluated)}{no_event}; classes {', '.join(config.categories)}; "
+            "events counted by TrackEval's CLEAR (KITTI 2D-box protocol); causes from "
             "tracker/eval/id_causes.py.",
             "",
             *cause_table_markdown(causes),

@@ -3,7 +3,8 @@
 What to capture (as listed in the recording's ``summary/index``):
 
 * default: the first 3 ID switches (``--max-events``; the first fragmentations when there are
-  none), each in its focused layout, and the largest velocity lag;
+  none), each in its focused layout, and the largest velocity lag (``--max-events 0``: the
+  lag alone);
 * ``--event K`` (repeatable) or ``--events all``: those events (``#K`` in the summary), focused;
 * ``--frame F``: one frame in the default layout (F within the recording's frames).
 
@@ -18,7 +19,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from app.inputs import positive_int
+from app.inputs import non_negative_int
 from tracker.errors import InputError
 
 EXIT_NO_RENDERER = 3
@@ -35,7 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     what.add_argument("--events", choices=["all"], help="every ID switch and fragmentation")
     what.add_argument("--frame", type=int, help="one frame, in the default layout")
     parser.add_argument(
-        "--max-events", type=positive_int, default=3, help="ID switches captured by default (3)"
+        "--max-events",
+        type=non_negative_int,
+        default=3,
+        help="ID switches captured by default (3; 0: only the largest velocity lag)",
     )
     parser.add_argument("--settle", type=float, default=2.0, help="seconds to wait per frame")
     parser.add_argument("--timeout", type=float, default=120.0, help="seconds to load the file")
@@ -60,6 +64,9 @@ def run(args: argparse.Namespace) -> int:
         )
     except IndexError as exc:
         raise InputError(f"{recording}: --event: {exc}") from None
+    if not plan and index.event_frames:  # events there, none asked for (--max-events 0)
+        print(f"{recording}: no velocity lag recorded; nothing to capture (--max-events 0)")
+        return 0
     if not plan:
         print(
             f"{recording}: no ID switches, fragmentations or velocity lag recorded; nothing "
@@ -81,6 +88,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"mctrack shots: the headless viewer failed: {exc}", file=sys.stderr)
         return EXIT_VIEWER_FAILED
     for shot in shots:
-        what = f"event #{shot.event} " if shot.event is not None else ""
-        print(f"{shot.path}  ({what}{shot.reason} at frame {shot.frame}: {shot.view})")
+        print(f"{shot.path}  ({shot_caption(shot.reason, shot.frame, shot.event)}: {shot.view})")
     return 0
+
+
+#: How each kind of shot is named on screen (``id_switch`` and "frame at frame 15" read badly).
+_REASON_WORDS = {
+    "id_switch": "ID switch",
+    "fragmentation": "fragmentation",
+    "lag": "largest velocity lag",
+}
+
+
+def shot_caption(reason: str, frame: int, event: int | None) -> str:
+    """``event #3 ID switch at frame 80``, ``largest velocity lag at frame 410``, ``frame 15``."""
+    what = _REASON_WORDS.get(reason)
+    text = f"{what} at frame {frame}" if what else f"frame {frame}"
+    return f"event #{event} {text}" if event is not None else text

@@ -8,6 +8,7 @@ velocity curves. ``--save`` streams to disk, so memory stays flat on long sequen
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -182,6 +183,15 @@ def _save_path(save: str | None, scene: str, many: bool) -> Path:
 
 def run(args: argparse.Namespace) -> int:
     import rerun as rr
+
+    from app.inspect import missing_display
+
+    if args.spawn and missing_display(os.environ):  # else the run hangs on a viewer never up
+        raise InputError(
+            "--spawn: no display for the viewer's window (DISPLAY and WAYLAND_DISPLAY are "
+            "unset); record to a file (--save OUT.rrd, then mctrack shots OUT.rrd --out shots/) "
+            "or serve a web viewer (--serve-web)"
+        )
 
     from app.track import parse_frame_range, require_frames, select_scenes
     from tracker.config import load_config

@@ -1194,6 +1194,25 @@ def test_track_into_an_earlier_runs_folder_replaces_that_run(
     assert listed == ["data/a.txt", "tracks.json"]
 
 
+def test_a_run_made_with_a_relative_kit_is_reported_from_anywhere(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """summary.json kept --kitti-root as typed, so 'mctrack report RUN' from another directory
+    looked for the labels relative to it: "labels folder sample_data/.../label_02 not found"."""
+    monkeypatch.chdir(ROOT)
+    run = tmp_path / "run"
+    kit = str(SAMPLE_KIT.relative_to(ROOT))
+    argv = ["kitti", "--kitti-root", kit, "--seqs", "0001", "--classes", "car", "--out", str(run)]
+    code, _, err = _run(argv, capsys)
+    assert code == 0, err
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["kitti_root"] == str(SAMPLE_KIT) and Path(summary["labels"]).is_absolute()
+    monkeypatch.chdir(tmp_path)
+    code, _, err = _run(["report", "run", "--out", "report"], capsys)
+    assert code == 0, err
+    assert (tmp_path / "report" / "index.html").is_file()
+
+
 def test_a_folder_no_run_wrote_keeps_its_files(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -170,6 +170,64 @@ def test_inspect_prints_the_url_and_the_event(capsys: pytest.CaptureFixture[str]
     assert main(["inspect", str(path), "--event", "100000", "--print"]) == 2
 
 
+def test_inspect_without_a_display_says_so_and_names_shots(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Without DISPLAY / WAYLAND_DISPLAY (SSH, CI) the viewer's window cannot open: inspect
+    says so in one line with the shots command for the same moment, instead of spawning a
+    viewer that fails with "transport error" after 6 s."""
+    import rerun.experimental
+
+    from app.inspect import EXIT_VIEWER_FAILED, missing_display
+
+    assert missing_display({}, "linux")
+    assert not missing_display({"DISPLAY": ":0"}, "linux")
+    assert not missing_display({"WAYLAND_DISPLAY": "wayland-0"}, "linux")
+    assert not missing_display({}, "darwin") and not missing_display({}, "win32")
+
+    def spawn(*args: object, **kwargs: object) -> None:
+        raise AssertionError("no viewer without a display")
+
+    monkeypatch.setattr(rerun.experimental.ViewerClient, "spawn", spawn)
+    monkeypatch.setattr("sys.platform", "linux")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    path, _ = recording()
+    for what, where in ((["--event", "1"], "--event 1"), (["--frame", "15"], "--frame 15")):
+        assert main(["inspect", str(path), *what]) == EXIT_VIEWER_FAILED
+        err = capsys.readouterr().err
+        assert err == (
+            "mctrack inspect: no display for the viewer's window (DISPLAY and WAYLAND_DISPLAY "
+            f"are unset); on a machine without one, picture the moment with: mctrack shots "
+            f"{path} {where} --out shots/\n"
+        )
+
+
+def test_view_spawn_without_a_display_is_refused_before_any_work(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``mctrack view INPUT --spawn`` without a display: the viewer died on winit's error and
+    the run then hung with no word (the recording's flush waits for a viewer that never came)."""
+    import rerun as rr
+
+    from tests.test_viz import SAMPLE
+
+    def spawn(*args: object, **kwargs: object) -> None:
+        raise AssertionError("no viewer without a display")
+
+    monkeypatch.setattr(rr.RecordingStream, "spawn", spawn)
+    monkeypatch.setattr("sys.platform", "linux")
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    det = SAMPLE / "detections.json.gz"
+    assert main(["view", str(det), "--frames", "0:5", "--spawn"]) == 2
+    assert capsys.readouterr().err == (
+        "mctrack view: error: --spawn: no display for the viewer's window (DISPLAY and "
+        "WAYLAND_DISPLAY are unset); record to a file (--save OUT.rrd, then mctrack shots "
+        "OUT.rrd --out shots/) or serve a web viewer (--serve-web)\n"
+    )
+
+
 def test_inspect_refuses_a_frame_the_recording_does_not_have(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -237,6 +295,65 @@ def test_shots_refuses_a_frame_the_recording_does_not_have(
             f"mctrack shots: error: {path}: --frame {frame}: the recording has frames 0..199\n"
         )
     assert planned == [PlannedShot(199, "frame")] and not (tmp_path / "shots").exists()
+
+
+def test_shots_max_events_0_takes_the_lag_shot_alone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """docs/debugger.md's ``mctrack shots ref.rrd --max-events 0`` (the lag shot only) was
+    refused as a usage error (--max-events took integers >= 1 only)."""
+    import dataclasses
+
+    from viz import shots
+
+    path, _ = recording()
+    index = read_shot_index(path)
+    assert index.lag_frame is not None and index.event_frames
+    planned: list[PlannedShot] = []
+
+    def take_shots(recording: Path, out: str, *, plan: list[PlannedShot], **kw: object) -> list:
+        planned.extend(plan)
+        return []
+
+    monkeypatch.setattr(shots, "take_shots", take_shots)
+    out = str(tmp_path / "shots")
+    assert main(["shots", str(path), "--max-events", "0", "--out", out]) == 0
+    assert planned == [PlannedShot(index.lag_frame, "lag")]
+    with pytest.raises(SystemExit) as usage:  # argparse: a usage error
+        main(["shots", str(path), "--max-events", "-1", "--out", out])
+    assert usage.value.code == 2
+    assert "--max-events: expected an integer >= 0, got '-1'" in capsys.readouterr().err
+    # events, but no lag: says what is missing (not "no ID switches ... recorded")
+    no_lag = dataclasses.replace(index, lag_frame=None, lag_track_id=None)
+    monkeypatch.setattr(shots, "read_shot_index", lambda _: no_lag)
+    assert main(["shots", str(path), "--max-events", "0", "--out", out]) == 0
+    assert capsys.readouterr().out == (
+        f"{path}: no velocity lag recorded; nothing to capture (--max-events 0)\n"
+    )
+    assert planned == [PlannedShot(index.lag_frame, "lag")]
+
+
+def test_shots_lists_each_png_with_a_readable_caption(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The list of PNGs said "(frame at frame 15: viewer)" and "(event #3 id_switch at ...)"."""
+    from viz import shots
+
+    path, _ = recording()
+    made = [
+        shots.Shot(tmp_path / "a.png", 15, "frame", "viewer"),
+        shots.Shot(tmp_path / "b.png", 80, "id_switch", "event", 3),
+        shots.Shot(tmp_path / "c.png", 81, "fragmentation", "focus #4", 4),
+        shots.Shot(tmp_path / "d.png", 410, "lag", "speed vs GT"),
+    ]
+    monkeypatch.setattr(shots, "take_shots", lambda *a, **kw: made)
+    assert main(["shots", str(path), "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        f"{tmp_path / 'a.png'}  (frame 15: viewer)",
+        f"{tmp_path / 'b.png'}  (event #3 ID switch at frame 80: event)",
+        f"{tmp_path / 'c.png'}  (event #4 fragmentation at frame 81: focus #4)",
+        f"{tmp_path / 'd.png'}  (largest velocity lag at frame 410: speed vs GT)",
+    ]
 
 
 def test_inspect_lands_on_the_event_frame_in_a_real_viewer(tmp_path: Path) -> None:
@@ -316,6 +433,14 @@ def test_shots_of_an_event_and_a_frame(tmp_path: Path) -> None:
     assert focus.view == f"{layout.VIEW_FOCUS}#{k}"
     for s in shots:
         assert image_variance(s.path) > 20.0, s.path
+    # the cost views frame the whole matrix: nothing drawn along their bottom edge (the last
+    # row was cut in half: Rerun frames a 2D view on its points and boxes, not on the image)
+    from PIL import Image
+
+    for name in (f"event{k}_f{frame:04d}_cost_bev.png", "frame_f0015_cost_bev.png"):
+        with Image.open(tmp_path / name) as im:
+            rgb = np.asarray(im.convert("RGB"))
+        assert (rgb[-6:] == rgb[-1, 0]).all(), name
 
 
 # ---------------------------------------------------------------------------------------------
@@ -401,6 +526,31 @@ def test_kitti_0016_pedestrian_switches_explained_and_in_view(kitti_0016) -> Non
         assert _in_view(_eye(target), target + np.array([0.0, 0.0, 2.0]))
         assert index.event_causes[k] != "other"
     assert (out / "rec" / "causes.md").is_file()
+
+
+def test_causes_md_names_the_sequences_without_events(tmp_path: Path) -> None:
+    """causes.md's header listed only the sequences with an event, so a run of all 11
+    validation sequences read as a run of 10 (0010 has none); a sequence recorded without
+    labels (no evaluation) is not named."""
+    from types import SimpleNamespace
+
+    from app.kitti_record import recording_summary
+    from tracker.config import load_config
+
+    counts = {"car": {"IDSW": {c.value: 0 for c in Cause}, "Frag": {c.value: 0 for c in Cause}}}
+    counts["car"]["Frag"]["missed_no_detection"] = 2
+    records = [
+        SimpleNamespace(scene="0001", info={"recording": "0001.rrd", "causes": counts}),
+        SimpleNamespace(scene="0010", info={"recording": "0010.rrd", "causes": {}}),
+        SimpleNamespace(scene="0020", info={"recording": "0020.rrd"}),  # no labels
+    ]
+    config = load_config("kitti")
+    summary = recording_summary(records, config, tmp_path)
+    assert summary["causes"] == {"0001": counts}  # summary.json as before
+    header = (tmp_path / "causes.md").read_text().splitlines()[2]
+    assert header.startswith(
+        f"Sequences 0001, 0010 (0010: no event); classes {', '.join(config.categories)}; "
+    )
 
 
 def test_fragmentation_cost_table_lists_its_track_once() -> None:

@@ -312,6 +312,50 @@ def test_cost_matrix_rows_and_columns_are_labelled(rrd: Path) -> None:
     assert (fmt["height"], fmt["width"]) == (rows, cols)
 
 
+def test_cost_matrix_extent_frames_the_whole_matrix(rrd: Path) -> None:
+    """Rerun frames a 2D view on its points and boxes, not on the image: the box of
+    ``cost/bev/extent`` (in the view's background colour) must reach past the last row, or the
+    view cuts it in half (tests/test_debugger.py checks the screenshots)."""
+    from viz.archetypes import BACKGROUND_RGB, pack_rgb
+
+    extent = entity_table(rrd, f"{paths.COST_BEV}/{paths.COST_EXTENT}")
+    image = entity_table(rrd, paths.COST_BEV)
+    for frame in (20, 50, 120):
+        fmt = column_at(image, "Image:format", frame)[0]
+        (cx, cy), (hx, hy) = (
+            column_at(extent, "Boxes2D:centers", frame)[0],
+            column_at(extent, "Boxes2D:half_sizes", frame)[0],
+        )
+        eps = 1e-5  # float32
+        assert cx - hx <= -1.2 + eps and cx + hx >= fmt["width"] - eps  # row labels to last column
+        assert cy - hy <= -0.8 and cy + hy >= fmt["height"] + 1.5 - eps  # room below the last row
+        assert column_at(extent, "Boxes2D:colors", frame) == [pack_rgb(BACKGROUND_RGB)]
+
+
+def test_all_tracks_view_names_every_curve_it_shows(rrd: Path) -> None:
+    """The "all tracks" view shows every curve under tracks/ (its contents are the whole
+    subtree), but was named "speed [m/s], heading [rad]" over vx, vy, ax and ay as well."""
+    from rerun.chunk import RrdReader
+
+    from viz.layout import VIEW_ALL_TRACKS
+    from viz.paths import SERIES
+
+    prefix = paths.entity(paths.TRACKS) + "/"
+    entities = {
+        str(c.entity_path)
+        for c in RrdReader(str(rrd)).stream().filter(content=prefix + "**").to_chunks()
+    }
+    kinds = {
+        e.rsplit("/", 1)[1].removeprefix(paths.GT_PREFIX) for e in entities if e.count("/") == 3
+    }
+    short = {"speed": "speed", "velocity_x": "vx", "velocity_y": "vy", "heading": "heading"}
+    short |= {"acceleration_x": "ax", "acceleration_y": "ay"}
+    # (ax, ay: constant-acceleration categories only, none with this config)
+    assert set(SERIES) <= kinds <= set(short)  # a new curve: name it in VIEW_ALL_TRACKS too
+    title = VIEW_ALL_TRACKS.split(":", 1)[1]
+    assert all(f" {name}" in title for name in short.values())
+
+
 def test_lifecycle_events_are_logged(rrd: Path, result: RecordResult) -> None:
     table = entity_table(rrd, paths.EVENTS_LIFECYCLE)
     texts = [t[0] for t in table["TextLog:text"].to_pylist() if t]

@@ -57,3 +57,31 @@ def test_ci_artifact_shots_are_not_blank() -> None:
     for png in pngs:
         assert png.stat().st_size > 5_000, png
         assert image_variance(png) > MIN_VARIANCE, png
+
+
+def test_headless_viewer_logs_warnings_only_unless_told(monkeypatch: pytest.MonkeyPatch) -> None:
+    """mctrack shots printed a dozen of the viewer's INFO lines (its gRPC address, "Connect by
+    running rerun --connect ...", each temporary layout file it loaded) under its own output.
+    The spawned viewer now gets RUST_LOG=warn, unless the user set RUST_LOG."""
+    import contextlib
+    import os
+
+    import rerun.experimental
+
+    from viz.shots import headless_viewer
+
+    seen: list[str | None] = []
+
+    def spawn(**kwargs: object) -> contextlib.AbstractContextManager[None]:
+        seen.append(os.environ.get("RUST_LOG"))
+        return contextlib.nullcontext()
+
+    monkeypatch.setattr(rerun.experimental.ViewerClient, "spawn", spawn)
+    monkeypatch.delenv("RUST_LOG", raising=False)
+    with headless_viewer():
+        pass
+    assert seen == ["warn"] and "RUST_LOG" not in os.environ
+    monkeypatch.setenv("RUST_LOG", "debug")
+    with headless_viewer():
+        pass
+    assert seen == ["warn", "debug"] and os.environ["RUST_LOG"] == "debug"

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 import rerun.blueprint as rrb
 
 from viz import paths
+from viz.archetypes import BACKGROUND_RGB
 
 # view names (``mctrack shots`` finds the views by these prefixes)
 VIEW_BEV = "BEV / 3D"
@@ -20,7 +21,12 @@ VIEW_COST_BEV = "cost BEV"
 VIEW_COST_RV = "cost RV"
 VIEW_SPEED_LAG = "speed vs GT"
 VIEW_ID_EVENTS = "ID switches"
+#: Every curve of every track (and its GT's) shares this view, so its name lists them all.
+VIEW_ALL_TRACKS = "all tracks: speed, vx, vy [m/s], ax, ay [m/s²], heading [rad] (±60 frames)"
 
+#: The cost views' background: the colour of the unseen box that frames each matrix
+#: (``cost/*/extent``), whatever the viewer's theme.
+_COST_BACKGROUND = rrb.Background(kind="SolidColor", color=BACKGROUND_RGB)
 #: Frames either side of the cursor shown by the "all tracks" time series.
 SERIES_WINDOW_FRAMES = 60
 #: The BEV eye in the ego frame (metres): behind and above the car, looking ahead of it.
@@ -127,17 +133,20 @@ def debug_blueprint(
 
     costs = rrb.Tabs(
         rrb.Spatial2DView(
-            origin=paths.entity(paths.COST_BEV), name=f"{VIEW_COST_BEV}: tracks (rows) x detections"
+            origin=paths.entity(paths.COST_BEV),
+            name=f"{VIEW_COST_BEV}: tracks (rows) x detections",
+            background=_COST_BACKGROUND,
         ),
         rrb.Spatial2DView(
             origin=paths.entity(paths.COST_RV),
             name=f"{VIEW_COST_RV} (image plane): tracks x detections",
+            background=_COST_BACKGROUND,
         ),
         active_tab=0,
     )
     all_tracks = rrb.TimeSeriesView(
         origin=paths.entity(paths.TRACKS),
-        name="all tracks: speed [m/s], heading [rad] (±60 frames)",
+        name=VIEW_ALL_TRACKS,
         time_ranges=rrb.VisibleTimeRange(
             paths.FRAME,
             start=rrb.TimeRangeBoundary.cursor_relative(seq=-SERIES_WINDOW_FRAMES),
@@ -270,6 +279,7 @@ def focus_blueprint(
         rrb.Spatial2DView(
             origin=paths.entity(paths.COST_BEV),
             name=f"{VIEW_COST_BEV}: tracks (rows) x detections",
+            background=_COST_BACKGROUND,
         ),
         _speed_view(ids, "speed [m/s]: " + " / ".join(f"T{t}" for t in ids)),
         row_shares=[5, 3, 2],

@@ -44,6 +44,7 @@ from tracker.frame import Camera, Frame
 from tracker.image_stage import deferred_image_stage
 from viz import paths
 from viz.archetypes import (
+    BACKGROUND_RGB,
     DETECTION_DROPPED_RGB,
     DETECTION_KEPT_RGB,
     GT_RGB,
@@ -341,6 +342,7 @@ class RerunObserver:
         self._defer(path, rr.Image, part, _build_cost_image)
         self._defer(f"{path}/{paths.COST_LABELS}", rr.Points2D, part, _build_cost_labels)
         self._defer(f"{path}/{paths.COST_MATCHED}", rr.Boxes2D, part, _build_cost_matched)
+        self._defer(f"{path}/{paths.COST_EXTENT}", rr.Boxes2D, part, _build_cost_extent)
 
     def _log_matches_rv(self, state: _FrameState) -> None:
         """The image-plane stage: track box used -> detection box, labelled with the SDIoU."""
@@ -1024,6 +1026,32 @@ def _build_cost_matched(parts: list[_CostPart]) -> Built:
         "radii": np.full(total, -2.0, np.float32),
     }
     return fields, np.bincount(part, minlength=n_parts), {}
+
+
+#: Margin of :func:`_build_cost_extent` below the matrix, in rows, plus a share of its rows:
+#: the last row's labels hang below their points by a fixed number of pixels, which is more
+#: rows the more rows share the view, and the 2D view frames a little less than its content
+#: at the bottom.
+COST_EXTENT_BELOW_ROWS = 1.5
+COST_EXTENT_BELOW_SHARE = 0.1
+
+
+def _build_cost_extent(parts: list[_CostPart]) -> Built:
+    """One box per matrix, drawn in the view's background colour, from the row labels to the
+    last column and from the column labels to below the last row. Rerun frames a 2D view on
+    its points and boxes, not on the image: without it the matrix's last row was cut in half
+    (its label and values below the view's edge)."""
+    t = _cost_tables(parts)
+    x0, y0 = -1.2, -1.0  # the row labels' x, above the column labels
+    x1 = t.n.astype(np.float32)
+    y1 = t.m * (1.0 + COST_EXTENT_BELOW_SHARE) + COST_EXTENT_BELOW_ROWS
+    fields = {
+        "centers": np.column_stack([(x0 + x1) / 2, (y0 + y1) / 2]).astype(np.float32),
+        "half_sizes": np.column_stack([(x1 - x0) / 2, (y1 - y0) / 2]).astype(np.float32),
+        "colors": solid(BACKGROUND_RGB, len(parts)),
+        "radii": np.full(len(parts), -1.0, np.float32),
+    }
+    return fields, np.ones(len(parts), np.int64), {}
 
 
 def _find(keys: IntArray, wanted: IntArray) -> IntArray:

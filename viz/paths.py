@@ -36,6 +36,7 @@ COST_BEV: Final = "cost/bev"
 COST_RV: Final = "cost/rv"
 COST_LABELS: Final = "labels"  # child: row ids "T<track>", column ids "d<row>", cell values
 COST_MATCHED: Final = "matched"  # child: outlines of the accepted pairs
+COST_EXTENT: Final = "extent"  # child: a box in the view's background colour around the matrix
 
 # cameras: the Pinhole is logged at cameras/<name>, so all children share its image plane
 CAMERAS: Final = "cameras"

@@ -260,7 +260,9 @@ def headless_viewer() -> Iterator[Any]:
 @contextlib.contextmanager
 def _private_home() -> Iterator[None]:
     """The viewer and Mesa write state under $HOME; keep screenshots reproducible and the
-    user's home untouched."""
+    user's home untouched. The viewer logs at warning level unless $RUST_LOG says otherwise:
+    its INFO lines (gRPC address, "Connect by running rerun --connect ...", every temporary
+    file it loads) are noise under mctrack shots' own output."""
     keys = (
         "HOME",
         "XDG_DATA_HOME",
@@ -268,6 +270,7 @@ def _private_home() -> Iterator[None]:
         "XDG_CACHE_HOME",
         "XDG_RUNTIME_DIR",
         "RERUN_ANALYTICS",
+        "RUST_LOG",
     )
     saved = {k: os.environ.get(k) for k in keys}
     with tempfile.TemporaryDirectory(prefix="mctrack-viewer-") as home:
@@ -278,6 +281,7 @@ def _private_home() -> Iterator[None]:
             XDG_CACHE_HOME=f"{home}/cache",
             XDG_RUNTIME_DIR=home,
             RERUN_ANALYTICS="false",
+            RUST_LOG=saved["RUST_LOG"] or "warn",
         )
         try:
             yield
