@@ -14,7 +14,7 @@ from pathlib import Path
 from app.inputs import add_mode_argument
 from tracker.errors import InputError
 from tracker.frame import Frame
-from tracker.io.fileio import path_in, safe_filename
+from tracker.io.fileio import check_output_file, path_in, safe_filename
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -180,6 +180,16 @@ def _save_path(save: str | None, scene: str, many: bool) -> Path:
     return path.with_name(f"{path.stem}_{safe_filename(scene)}{path.suffix}") if many else path
 
 
+def _save_paths(save: str | None, scenes: dict[str, list[Frame]]) -> dict[str, Path]:
+    """Each recorded scene's recording file, checked before any recording (not a folder, its
+    folder writable): a bad one failed only once every scene was recorded."""
+    many = len(scenes) > 1
+    paths = {scene: _save_path(save, scene, many) for scene, frames in scenes.items() if frames}
+    for path in paths.values():
+        check_output_file(path, "--save")
+    return paths
+
+
 def run(args: argparse.Namespace) -> int:
     import rerun as rr
 
@@ -196,6 +206,8 @@ def run(args: argparse.Namespace) -> int:
     scenes = read_baseversion(args.input, fallback_frame_rate_hz=rate)
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
     require_frames(scenes, args.input, "record", args.scenes)  # else nothing is recorded
+    live = args.spawn or args.serve_web
+    saves = {} if live else _save_paths(args.save, scenes)
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
     if args.gt and not any(gt_scenes.values()):  # else every scene "is not in" it
         raise InputError(f"{args.gt}: --gt holds no frames of ground truth")
@@ -204,8 +216,6 @@ def run(args: argparse.Namespace) -> int:
     )
     folders = _image_folders(args.images)
     unmatched = _check_images(folders, args.input, {s: f for s, f in scenes.items() if f})
-    many = len(scenes) > 1
-    live = args.spawn or args.serve_web
     web_url = None
     # the recordings are moved into place once every scene is recorded: a run that fails on a
     # later scene (or is stopped) leaves none of its own, and earlier ones at those paths stay
@@ -231,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
                 )
             elif scene in labelled and not cameras:  # the KITTI protocol matches 2D boxes
                 print(f"scene {scene}: no camera in {args.input}; recording without its labels")
-            path = None if live else _save_path(args.save, scene, many)
+            path = saves.get(scene)
             partial = None if path is None else partial_path(path)  # renamed at the end
             if partial is not None and path is not None:
                 staged.append((partial, path))

@@ -1071,7 +1071,7 @@ def test_view_of_several_scenes_that_fails_on_a_later_one_leaves_no_recording(
     the second scene (a folder where its recording goes; Ctrl-C while it records) leaves
     neither scene's recording nor a temporary file, and an earlier recording at the first
     scene's path stays (it was replaced, and the second's temporary file left; the error named
-    that file, not the folder)."""
+    that file, not the folder). (The folder is now refused before any recording.)"""
     frames = _sample_frames()[:3]
     two = tmp_path / "two.json"
     two.write_text(json.dumps({"a": frames, "b": frames}))
@@ -1100,6 +1100,33 @@ def test_view_of_several_scenes_that_fails_on_a_later_one_leaves_no_recording(
     code, _, err = _run([*argv[:-1], str(new / "x.rrd")], capsys)
     assert code == 130 and "interrupted" in err and recorded
     assert not new.exists()
+
+
+@pytest.mark.parametrize("scenes", [("0001",), ("a", "b")])
+def test_view_refuses_a_folder_at_a_recordings_path_before_recording(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    scenes: tuple[str, ...],
+) -> None:
+    """--save naming a folder (or, with several scenes, a folder at one scene's file name) is
+    one line naming it before any scene is tracked (every scene was recorded first, then the
+    run failed)."""
+    import viz.record
+
+    frames = _sample_frames()[:3]
+    data = tmp_path / "in.json"
+    data.write_text(json.dumps(dict.fromkeys(scenes, frames)))
+    out = tmp_path / "out"
+    folder = out / ("x.rrd" if len(scenes) == 1 else f"x_{scenes[-1]}.rrd")
+    folder.mkdir(parents=True)
+    recorded: list[object] = []
+    monkeypatch.setattr(viz.record, "record_scene", lambda *a, **k: recorded.append(a))
+    argv = ["view", str(data), "--no-motion", "--save", str(out / "x.rrd")]
+    code, printed, err = _run(argv, capsys)
+    _assert_one_line_error(code, err, "view", f"--save {folder}: is a folder, expected a file")
+    assert printed == "" and not recorded
+    assert _tree(out) == {folder.name: None}
 
 
 def test_view_refuses_two_image_folders_for_one_camera(
