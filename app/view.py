@@ -151,6 +151,36 @@ def _images(
     return images
 
 
+def _refuse_unreadable_images(
+    scene_images: dict[str, dict[str, Path]], scenes: dict[str, list[Frame]]
+) -> None:
+    """An image file of a recorded frame that cannot be read (a broken link, a folder by an
+    image's name, no permission) is an error naming it, before any recording: Rerun only warned
+    and the frame went without its image, exit 0. A frame without an image file is no error
+    (a folder may hold some frames' images only)."""
+    from viz.observer import list_images
+
+    listed: dict[Path, dict[int, Path]] = {}
+    for scene, frames in scenes.items():
+        for camera, folder in scene_images.get(scene, {}).items():
+            if folder not in listed:
+                listed[folder] = list_images(folder)
+            for frame in frames:
+                path = listed[folder].get(frame.frame_id)
+                if path is None or frame.camera_index(camera) < 0:
+                    continue  # (not recorded: the observer logs a frame's own cameras)
+                try:
+                    with open(path, "rb") as fh:
+                        fh.read(1)
+                except OSError as exc:
+                    broken = path.is_symlink() and not path.exists()
+                    why = "a link to a missing file" if broken else exc.strerror or str(exc)
+                    raise InputError(
+                        f"{path}: image of frame {frame.frame_id} (camera {camera}) cannot be "
+                        f"read: {why}"
+                    ) from None
+
+
 def _check_labels(folder: str, scenes: list[str]) -> set[str]:
     """The ``scenes`` with a label file in ``--labels`` ``folder``, each checked up front (a bad
     one is its file, line and field, not a TrackEval error after the tracking). A missing
@@ -216,6 +246,12 @@ def run(args: argparse.Namespace) -> int:
     )
     folders = _image_folders(args.images)
     unmatched = _check_images(folders, args.input, {s: f for s, f in scenes.items() if f})
+    scene_images = {
+        scene: _images(folders, Path(args.input), f[0].cameras[0].name if f[0].cameras else None)
+        for scene, f in scenes.items()
+        if f
+    }
+    _refuse_unreadable_images(scene_images, scenes)
     web_url = None
     # the recordings are moved into place once every scene is recorded: a run that fails on a
     # later scene (or is stopped) leaves none of its own, and earlier ones at those paths stay
@@ -225,7 +261,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"scene {scene}: no frames in range, skipped")
                 continue
             cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras]
-            images = _images(folders, Path(args.input), cameras[0][0] if cameras else None)
+            images = scene_images[scene]
             for folder in unmatched.get(scene, []):
                 print(f"scene {scene}: no image of its frames in {folder}; recording without them")
             gt = None

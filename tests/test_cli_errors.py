@@ -1129,6 +1129,36 @@ def test_view_refuses_a_folder_at_a_recordings_path_before_recording(
     assert _tree(out) == {folder.name: None}
 
 
+@pytest.mark.parametrize("bad", ["broken link", "folder"])
+@pytest.mark.parametrize("given", ["--images", "image_02 beside the input"])
+def test_view_refuses_an_unreadable_image_of_a_recorded_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], bad: str, given: str
+) -> None:
+    """An image file of a recorded frame that cannot be read (a broken link, a folder by an
+    image's name) is one line naming it, before any recording (Rerun warned, the frame went
+    without its image, exit 0); the same file at a frame outside --frames is not read."""
+    data = tmp_path / "kit"
+    shutil.copytree(SAMPLE / "image_02", data / "image_02")  # images of frames 10, 15, 20
+    shutil.copy(SAMPLE / "detections.json.gz", data)
+    image = data / "image_02" / "000012.png"
+    if bad == "broken link":
+        image.symlink_to(data / "image_02" / "missing.png")
+    else:
+        image.mkdir()
+    why = "a link to a missing file" if bad == "broken link" else "Is a directory"
+    argv = ["view", str(data / "detections.json.gz"), "--no-motion"]
+    if given == "--images":
+        argv += ["--images", str(data / "image_02")]
+    path = tmp_path / "x.rrd"
+    code, printed, err = _run([*argv, "--frames", "8:14", "--save", str(path)], capsys)
+    _assert_one_line_error(
+        code, err, "view", f"{image}: image of frame 12 (camera CAM_FRONT) cannot be read: {why}"
+    )
+    assert printed == "" and not path.exists()
+    code, printed, err = _run([*argv, "--frames", "8:12", "--save", str(path)], capsys)
+    assert code == 0 and path.is_file(), err
+
+
 def test_view_refuses_two_image_folders_for_one_camera(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
