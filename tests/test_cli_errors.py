@@ -1222,6 +1222,33 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     assert json.loads((out / "summary.json").read_text())["sequences"] == ["0001"]
 
 
+def test_kitti_refused_after_the_tracking_leaves_no_partial_outputs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The motion metrics refusing after the tracking (an InputError, exit 2) into an earlier
+    run's --out: the run's own outputs go too (data/*.txt, tracks.json and the recordings were
+    left without the summary.json that marks a complete run, the earlier run's outputs already
+    removed); files of other names stay. Into a new --out: nothing is left."""
+    import tracker.eval.motion_eval
+
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001"]
+    code, _, err = _run([*argv, "--no-eval", "--out", str(out)], capsys)
+    assert code == 0 and (out / "summary.json").is_file(), err
+    (out / "notes.txt").write_text("mine\n")
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise InputError("refused by the motion metrics")
+
+    monkeypatch.setattr(tracker.eval.motion_eval, "evaluate_motion", refuse)
+    code, _, err = _run([*argv, "--motion", "--record", "--out", str(out)], capsys)
+    _assert_one_line_error(code, err, "kitti", "refused by the motion metrics")
+    assert _tree(out) == {"notes.txt": b"mine\n"}
+    new = tmp_path / "new"
+    code, _, err = _run([*argv, "--motion", "--out", str(new / "out")], capsys)
+    assert code == 2 and not new.exists(), err
+
+
 def test_track_into_an_earlier_runs_folder_replaces_that_run(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
