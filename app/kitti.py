@@ -16,6 +16,7 @@ from app import scenes
 from app.common import (
     NO_PROFILE,
     log_self_profile,
+    outputs_removed_on_failure,
     peak_rss_mb,
     profile_argument,
     remove_earlier_outputs,
@@ -371,146 +372,153 @@ def run_kitti(
     # Only in a folder a run has written (data/*.txt alone could be anyone's)
     if any((out / mark).exists() for mark in RUN_MARKS):
         remove_earlier_outputs(out, RUN_OUTPUTS)
-    job = KittiSceneJob(
-        kitti_root=kitti_root,
-        detector=detector,
-        poses=poses,
-        classes=tuple(classes),
-        config=config,
-        out=out,
-        label_dir=label_dir,
-        with_gt=motion or record is not None,
-        keep=motion,
-        record=record,
-        calibrate=calibrate,
-        profile=found,
-        evaluate=evaluate,
-        eval_classes=tuple(c for c in classes if c in SUPPORTED_CLASSES),
-        image_detector=image_detector,
-    )
-    t0 = time.perf_counter()
-    records = scenes.run_scenes(job, seqs, parallel=parallel, quiet=quiet)
-    wall_secs = time.perf_counter() - t0
-    ok = [r for r in records if r.error is None]
-    write_tracks_parts(
-        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
-    )
-    scenes.remove_parts(out)
-
-    skipped: dict[str, Counter[str]] = {
-        "unknown": Counter(), "not_tracked": Counter(), "duplicates": Counter()
-    }  # fmt: skip
-    for r in ok:
-        for kind, counts in r.info["skipped"].items():
-            skipped[kind].update(counts)
-    if found is not None:  # scores beyond the profile's knots, over the whole run
-        outside: dict[str, list[int]] = {}
-        for r in ok:
-            for name, (n_out, n) in (r.info["outside_profile"] or {}).items():
-                total = outside.setdefault(name, [0, 0])
-                total[0], total[1] = total[0] + n_out, total[1] + n
-        warn_scores_outside(found, detector, outside)
-    fed = Counter()  # detections the tracker was given, per class
-    for r in ok:
-        for per_class in r.info["fates"]["per_fate_and_class"].values():
-            fed.update(per_class)
-    if found is not None and self_profile is None:  # (the self-calibration logs its classes)
-        warn_classes_without_map(found, detector, fed, str(profile or f"{detector} (shipped)"))
-    if ok:
-        warn_undetected_classes(detector, [c for c in classes if not fed[c]])
-    born = Counter()
-    for r in ok:
-        born.update(r.info["fates"]["per_fate_and_class"].get("born", {}))
-    for name in (c for c in classes if fed[c] and not born[c]):
-        LOG.warning(
-            "not one of the %d %s detections scored enough to start a track (%s): check the "
-            "scores' calibration (--profile)",
-            fed[name],
-            name,
-            calibration,
+    # from here on the run writes: one that fails after the tracking (the motion metrics or
+    # the recordings refuse, Ctrl-C) removes what it wrote, so OUT never holds data/*.txt and
+    # tracks.json without the summary.json that marks a complete run
+    with outputs_removed_on_failure(out, RUN_OUTPUTS):
+        job = KittiSceneJob(
+            kitti_root=kitti_root,
+            detector=detector,
+            poses=poses,
+            classes=tuple(classes),
+            config=config,
+            out=out,
+            label_dir=label_dir,
+            with_gt=motion or record is not None,
+            keep=motion,
+            record=record,
+            calibrate=calibrate,
+            profile=found,
+            evaluate=evaluate,
+            eval_classes=tuple(c for c in classes if c in SUPPORTED_CLASSES),
+            image_detector=image_detector,
         )
-    total_frames = sum(r.frames for r in ok)
-    tracker_secs = sum(r.tracker_seconds for r in ok)
-    summary: dict[str, Any] = {
-        "dataset": "kitti",
-        "detector": detector,
-        "image_detector": image_detector,
-        "image_boxes": config.image_boxes.value,
-        "config_name": str(config_name),
-        # absolute: mctrack report / compare read the labels from here, from any directory
-        "kitti_root": str(Path(kitti_root).absolute()),
-        "labels": str(Path(label_dir).absolute()),
-        "sequences": [r.scene for r in records],
-        "mode": config.mode.value,
-        "classes": classes,
-        "frames": total_frames,
-        "tracker_seconds": round(tracker_secs, 4),
-        "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
-        "tracker_timing": "tracker with the recording's observers (--record tracks once)"
-        if record is not None
-        else "tracker alone",
-        "score_calibration": calibration,
-        "convert_seconds": round(sum(r.info["convert_seconds"] for r in ok), 3),
-        "write_seconds": round(sum(r.info["write_seconds"] for r in ok), 3),
-        "evaluate_seconds": round(sum(r.info.get("evaluate_seconds", 0.0) for r in ok), 3),
-        "peak_rss_mb": peak_rss_mb(),
-        **scenes.summary_fields(records, parallel, wall_secs),
-        "detection_fates": combine_fates([r.info["fates"] for r in ok], skipped["unknown"]),
-        "skipped_at_load": {
-            "unknown_classes": dict(sorted(skipped["unknown"].items())),
-            "classes_not_tracked": dict(sorted(skipped["not_tracked"].items())),
-            "duplicate_rows": dict(sorted(skipped["duplicates"].items())),
-        },
-        "offline_removed_tracks": sum(r.info["offline_removed_tracks"] for r in ok),
-        "config": config_to_dict(config),
-    }
-    if evaluate:
-        scored = [r for r in ok if "evaluation" in r.info]
-        missing = [r.scene for r in ok if "evaluation" not in r.info]
-        if summary["failed"]:
-            summary["evaluation"] = f"skipped: sequences failed: {list(summary['failed'])}"
-        elif not scored:
-            summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
-            LOG.warning("not evaluated: no labels for %s in %s", missing, label_dir)
-        else:
-            if missing:  # the labelled ones are scored; the run says which are not
-                summary["evaluation"] = (
-                    f"scored on {[r.scene for r in scored]}; no labels for {missing} in {label_dir}"
-                )
-                LOG.warning("scored without %s: no labels for them in %s", missing, label_dir)
-            summary["evaluated_sequences"] = [r.scene for r in scored]
-            # each task evaluated its own sequence (TrackEval, once); combined here as
-            # TrackEval's Evaluator combines them
-            per_seq: dict[str, dict[str, dict[str, float]]] = {}
-            metrics = combine_sequences(
-                [r.info["evaluation"] for r in scored], job.eval_classes, per_sequence=per_seq
-            )
-            absent = absent_class_notes(metrics)
-            summary["metrics"] = {c: m for c, m in metrics.items() if c not in absent}
-            if absent:
-                summary["metrics_absent"] = absent
-            summary["evaluator"] = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
-            summary["per_sequence"] = {
-                seq: {c: {k: m[k] for k in ("IDSW", "Frag")} for c, m in per.items()}
-                for seq, per in per_seq.items()
-            }
-            summary["per_sequence_metrics"] = {  # for mctrack compare / report
-                seq: {c: {k: m[k] for k in PER_SEQUENCE_METRICS} for c, m in per.items()}
-                for seq, per in per_seq.items()
-            }
-    if record is not None:
-        from app.kitti_record import recording_summary
+        t0 = time.perf_counter()
+        records = scenes.run_scenes(job, seqs, parallel=parallel, quiet=quiet)
+        wall_secs = time.perf_counter() - t0
+        ok = [r for r in records if r.error is None]
+        write_tracks_parts(
+            out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
+        )
+        scenes.remove_parts(out)
 
-        summary.update(recording_summary(ok, config, record))
-    if motion:
-        detections = {r.scene: r.kept[0] for r in ok}
-        gt = {r.scene: r.kept[1] for r in ok if r.kept[1] is not None}
-        outputs = {r.scene: r.kept[2] for r in ok}
-        summary["motion"] = _motion(detections, gt or None, outputs, classes, out)
-    out.mkdir(parents=True, exist_ok=True)
-    if self_profile is not None:
-        write_text_atomic(out / "self_profile.toml", [profile_toml(self_profile)])
-    write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
+        skipped: dict[str, Counter[str]] = {
+            "unknown": Counter(), "not_tracked": Counter(), "duplicates": Counter()
+        }  # fmt: skip
+        for r in ok:
+            for kind, counts in r.info["skipped"].items():
+                skipped[kind].update(counts)
+        if found is not None:  # scores beyond the profile's knots, over the whole run
+            outside: dict[str, list[int]] = {}
+            for r in ok:
+                for name, (n_out, n) in (r.info["outside_profile"] or {}).items():
+                    total = outside.setdefault(name, [0, 0])
+                    total[0], total[1] = total[0] + n_out, total[1] + n
+            warn_scores_outside(found, detector, outside)
+        fed = Counter()  # detections the tracker was given, per class
+        for r in ok:
+            for per_class in r.info["fates"]["per_fate_and_class"].values():
+                fed.update(per_class)
+        if found is not None and self_profile is None:  # (the self-calibration logs its classes)
+            warn_classes_without_map(found, detector, fed, str(profile or f"{detector} (shipped)"))
+        if ok:
+            warn_undetected_classes(detector, [c for c in classes if not fed[c]])
+        born = Counter()
+        for r in ok:
+            born.update(r.info["fates"]["per_fate_and_class"].get("born", {}))
+        for name in (c for c in classes if fed[c] and not born[c]):
+            LOG.warning(
+                "not one of the %d %s detections scored enough to start a track (%s): check the "
+                "scores' calibration (--profile)",
+                fed[name],
+                name,
+                calibration,
+            )
+        total_frames = sum(r.frames for r in ok)
+        tracker_secs = sum(r.tracker_seconds for r in ok)
+        summary: dict[str, Any] = {
+            "dataset": "kitti",
+            "detector": detector,
+            "image_detector": image_detector,
+            "image_boxes": config.image_boxes.value,
+            "config_name": str(config_name),
+            # absolute: mctrack report / compare read the labels from here, from any directory
+            "kitti_root": str(Path(kitti_root).absolute()),
+            "labels": str(Path(label_dir).absolute()),
+            "sequences": [r.scene for r in records],
+            "mode": config.mode.value,
+            "classes": classes,
+            "frames": total_frames,
+            "tracker_seconds": round(tracker_secs, 4),
+            "tracker_fps": round(total_frames / tracker_secs, 1) if tracker_secs > 0 else None,
+            "tracker_timing": "tracker with the recording's observers (--record tracks once)"
+            if record is not None
+            else "tracker alone",
+            "score_calibration": calibration,
+            "convert_seconds": round(sum(r.info["convert_seconds"] for r in ok), 3),
+            "write_seconds": round(sum(r.info["write_seconds"] for r in ok), 3),
+            "evaluate_seconds": round(sum(r.info.get("evaluate_seconds", 0.0) for r in ok), 3),
+            "peak_rss_mb": peak_rss_mb(),
+            **scenes.summary_fields(records, parallel, wall_secs),
+            "detection_fates": combine_fates([r.info["fates"] for r in ok], skipped["unknown"]),
+            "skipped_at_load": {
+                "unknown_classes": dict(sorted(skipped["unknown"].items())),
+                "classes_not_tracked": dict(sorted(skipped["not_tracked"].items())),
+                "duplicate_rows": dict(sorted(skipped["duplicates"].items())),
+            },
+            "offline_removed_tracks": sum(r.info["offline_removed_tracks"] for r in ok),
+            "config": config_to_dict(config),
+        }
+        if evaluate:
+            scored = [r for r in ok if "evaluation" in r.info]
+            missing = [r.scene for r in ok if "evaluation" not in r.info]
+            if summary["failed"]:
+                summary["evaluation"] = f"skipped: sequences failed: {list(summary['failed'])}"
+            elif not scored:
+                summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
+                LOG.warning("not evaluated: no labels for %s in %s", missing, label_dir)
+            else:
+                if missing:  # the labelled ones are scored; the run says which are not
+                    summary["evaluation"] = (
+                        f"scored on {[r.scene for r in scored]}; no labels for {missing} in "
+                        f"{label_dir}"
+                    )
+                    LOG.warning("scored without %s: no labels for them in %s", missing, label_dir)
+                summary["evaluated_sequences"] = [r.scene for r in scored]
+                # each task evaluated its own sequence (TrackEval, once); combined here as
+                # TrackEval's Evaluator combines them
+                per_seq: dict[str, dict[str, dict[str, float]]] = {}
+                metrics = combine_sequences(
+                    [r.info["evaluation"] for r in scored], job.eval_classes, per_sequence=per_seq
+                )
+                absent = absent_class_notes(metrics)
+                summary["metrics"] = {c: m for c, m in metrics.items() if c not in absent}
+                if absent:
+                    summary["metrics_absent"] = absent
+                summary["evaluator"] = (
+                    "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
+                )
+                summary["per_sequence"] = {
+                    seq: {c: {k: m[k] for k in ("IDSW", "Frag")} for c, m in per.items()}
+                    for seq, per in per_seq.items()
+                }
+                summary["per_sequence_metrics"] = {  # for mctrack compare / report
+                    seq: {c: {k: m[k] for k in PER_SEQUENCE_METRICS} for c, m in per.items()}
+                    for seq, per in per_seq.items()
+                }
+        if record is not None:
+            from app.kitti_record import recording_summary
+
+            summary.update(recording_summary(ok, config, record))
+        if motion:
+            detections = {r.scene: r.kept[0] for r in ok}
+            gt = {r.scene: r.kept[1] for r in ok if r.kept[1] is not None}
+            outputs = {r.scene: r.kept[2] for r in ok}
+            summary["motion"] = _motion(detections, gt or None, outputs, classes, out)
+        out.mkdir(parents=True, exist_ok=True)
+        if self_profile is not None:
+            write_text_atomic(out / "self_profile.toml", [profile_toml(self_profile)])
+        write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2)])
     return summary
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from app.inputs import add_mode_argument
 from tracker.errors import InputError
 from tracker.frame import Frame
-from tracker.io.fileio import path_in, safe_filename
+from tracker.io.fileio import check_output_file, path_in, safe_filename
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -152,6 +152,36 @@ def _images(
     return images
 
 
+def _refuse_unreadable_images(
+    scene_images: dict[str, dict[str, Path]], scenes: dict[str, list[Frame]]
+) -> None:
+    """An image file of a recorded frame that cannot be read (a broken link, a folder by an
+    image's name, no permission) is an error naming it, before any recording: Rerun only warned
+    and the frame went without its image, exit 0. A frame without an image file is no error
+    (a folder may hold some frames' images only)."""
+    from viz.observer import list_images
+
+    listed: dict[Path, dict[int, Path]] = {}
+    for scene, frames in scenes.items():
+        for camera, folder in scene_images.get(scene, {}).items():
+            if folder not in listed:
+                listed[folder] = list_images(folder)
+            for frame in frames:
+                path = listed[folder].get(frame.frame_id)
+                if path is None or frame.camera_index(camera) < 0:
+                    continue  # (not recorded: the observer logs a frame's own cameras)
+                try:
+                    with open(path, "rb") as fh:
+                        fh.read(1)
+                except OSError as exc:
+                    broken = path.is_symlink() and not path.exists()
+                    why = "a link to a missing file" if broken else exc.strerror or str(exc)
+                    raise InputError(
+                        f"{path}: image of frame {frame.frame_id} (camera {camera}) cannot be "
+                        f"read: {why}"
+                    ) from None
+
+
 def _check_labels(folder: str, scenes: list[str]) -> set[str]:
     """The ``scenes`` with a label file in ``--labels`` ``folder``, each checked up front (a bad
     one is its file, line and field, not a TrackEval error after the tracking). A missing
@@ -181,6 +211,16 @@ def _save_path(save: str | None, scene: str, many: bool) -> Path:
     return path.with_name(f"{path.stem}_{safe_filename(scene)}{path.suffix}") if many else path
 
 
+def _save_paths(save: str | None, scenes: dict[str, list[Frame]]) -> dict[str, Path]:
+    """Each recorded scene's recording file, checked before any recording (not a folder, its
+    folder writable): a bad one failed only once every scene was recorded."""
+    many = len(scenes) > 1
+    paths = {scene: _save_path(save, scene, many) for scene, frames in scenes.items() if frames}
+    for path in paths.values():
+        check_output_file(path, "--save")
+    return paths
+
+
 def run(args: argparse.Namespace) -> int:
     import rerun as rr
 
@@ -206,6 +246,8 @@ def run(args: argparse.Namespace) -> int:
     scenes = read_baseversion(args.input, fallback_frame_rate_hz=rate)
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
     require_frames(scenes, args.input, "record", args.scenes)  # else nothing is recorded
+    live = args.spawn or args.serve_web
+    saves = {} if live else _save_paths(args.save, scenes)
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
     if args.gt and not any(gt_scenes.values()):  # else every scene "is not in" it
         raise InputError(f"{args.gt}: --gt holds no frames of ground truth")
@@ -214,8 +256,12 @@ def run(args: argparse.Namespace) -> int:
     )
     folders = _image_folders(args.images)
     unmatched = _check_images(folders, args.input, {s: f for s, f in scenes.items() if f})
-    many = len(scenes) > 1
-    live = args.spawn or args.serve_web
+    scene_images = {
+        scene: _images(folders, Path(args.input), f[0].cameras[0].name if f[0].cameras else None)
+        for scene, f in scenes.items()
+        if f
+    }
+    _refuse_unreadable_images(scene_images, scenes)
     web_url = None
     # the recordings are moved into place once every scene is recorded: a run that fails on a
     # later scene (or is stopped) leaves none of its own, and earlier ones at those paths stay
@@ -225,7 +271,7 @@ def run(args: argparse.Namespace) -> int:
                 print(f"scene {scene}: no frames in range, skipped")
                 continue
             cameras = [(c.name, c.width_px, c.height_px) for c in frames[0].cameras]
-            images = _images(folders, Path(args.input), cameras[0][0] if cameras else None)
+            images = scene_images[scene]
             for folder in unmatched.get(scene, []):
                 print(f"scene {scene}: no image of its frames in {folder}; recording without them")
             gt = None
@@ -241,7 +287,7 @@ def run(args: argparse.Namespace) -> int:
                 )
             elif scene in labelled and not cameras:  # the KITTI protocol matches 2D boxes
                 print(f"scene {scene}: no camera in {args.input}; recording without its labels")
-            path = None if live else _save_path(args.save, scene, many)
+            path = saves.get(scene)
             partial = None if path is None else partial_path(path)  # renamed at the end
             if partial is not None and path is not None:
                 staged.append((partial, path))

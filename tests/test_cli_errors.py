@@ -1071,7 +1071,7 @@ def test_view_of_several_scenes_that_fails_on_a_later_one_leaves_no_recording(
     the second scene (a folder where its recording goes; Ctrl-C while it records) leaves
     neither scene's recording nor a temporary file, and an earlier recording at the first
     scene's path stays (it was replaced, and the second's temporary file left; the error named
-    that file, not the folder)."""
+    that file, not the folder). (The folder is now refused before any recording.)"""
     frames = _sample_frames()[:3]
     two = tmp_path / "two.json"
     two.write_text(json.dumps({"a": frames, "b": frames}))
@@ -1100,6 +1100,63 @@ def test_view_of_several_scenes_that_fails_on_a_later_one_leaves_no_recording(
     code, _, err = _run([*argv[:-1], str(new / "x.rrd")], capsys)
     assert code == 130 and "interrupted" in err and recorded
     assert not new.exists()
+
+
+@pytest.mark.parametrize("scenes", [("0001",), ("a", "b")])
+def test_view_refuses_a_folder_at_a_recordings_path_before_recording(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    scenes: tuple[str, ...],
+) -> None:
+    """--save naming a folder (or, with several scenes, a folder at one scene's file name) is
+    one line naming it before any scene is tracked (every scene was recorded first, then the
+    run failed)."""
+    import viz.record
+
+    frames = _sample_frames()[:3]
+    data = tmp_path / "in.json"
+    data.write_text(json.dumps(dict.fromkeys(scenes, frames)))
+    out = tmp_path / "out"
+    folder = out / ("x.rrd" if len(scenes) == 1 else f"x_{scenes[-1]}.rrd")
+    folder.mkdir(parents=True)
+    recorded: list[object] = []
+    monkeypatch.setattr(viz.record, "record_scene", lambda *a, **k: recorded.append(a))
+    argv = ["view", str(data), "--no-motion", "--save", str(out / "x.rrd")]
+    code, printed, err = _run(argv, capsys)
+    _assert_one_line_error(code, err, "view", f"--save {folder}: is a folder, expected a file")
+    assert printed == "" and not recorded
+    assert _tree(out) == {folder.name: None}
+
+
+@pytest.mark.parametrize("bad", ["broken link", "folder"])
+@pytest.mark.parametrize("given", ["--images", "image_02 beside the input"])
+def test_view_refuses_an_unreadable_image_of_a_recorded_frame(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], bad: str, given: str
+) -> None:
+    """An image file of a recorded frame that cannot be read (a broken link, a folder by an
+    image's name) is one line naming it, before any recording (Rerun warned, the frame went
+    without its image, exit 0); the same file at a frame outside --frames is not read."""
+    data = tmp_path / "kit"
+    shutil.copytree(SAMPLE / "image_02", data / "image_02")  # images of frames 10, 15, 20
+    shutil.copy(SAMPLE / "detections.json.gz", data)
+    image = data / "image_02" / "000012.png"
+    if bad == "broken link":
+        image.symlink_to(data / "image_02" / "missing.png")
+    else:
+        image.mkdir()
+    why = "a link to a missing file" if bad == "broken link" else "Is a directory"
+    argv = ["view", str(data / "detections.json.gz"), "--no-motion"]
+    if given == "--images":
+        argv += ["--images", str(data / "image_02")]
+    path = tmp_path / "x.rrd"
+    code, printed, err = _run([*argv, "--frames", "8:14", "--save", str(path)], capsys)
+    _assert_one_line_error(
+        code, err, "view", f"{image}: image of frame 12 (camera CAM_FRONT) cannot be read: {why}"
+    )
+    assert printed == "" and not path.exists()
+    code, printed, err = _run([*argv, "--frames", "8:12", "--save", str(path)], capsys)
+    assert code == 0 and path.is_file(), err
 
 
 def test_view_refuses_two_image_folders_for_one_camera(
@@ -1163,6 +1220,33 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     assert (out / ".notes.tmp").read_text() == "mine\n"  # a hidden file of another name stays
     assert (out / "notes.txt").read_text() == "mine\n"
     assert json.loads((out / "summary.json").read_text())["sequences"] == ["0001"]
+
+
+def test_kitti_refused_after_the_tracking_leaves_no_partial_outputs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The motion metrics refusing after the tracking (an InputError, exit 2) into an earlier
+    run's --out: the run's own outputs go too (data/*.txt, tracks.json and the recordings were
+    left without the summary.json that marks a complete run, the earlier run's outputs already
+    removed); files of other names stay. Into a new --out: nothing is left."""
+    import tracker.eval.motion_eval
+
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001"]
+    code, _, err = _run([*argv, "--no-eval", "--out", str(out)], capsys)
+    assert code == 0 and (out / "summary.json").is_file(), err
+    (out / "notes.txt").write_text("mine\n")
+
+    def refuse(*args: object, **kwargs: object) -> None:
+        raise InputError("refused by the motion metrics")
+
+    monkeypatch.setattr(tracker.eval.motion_eval, "evaluate_motion", refuse)
+    code, _, err = _run([*argv, "--motion", "--record", "--out", str(out)], capsys)
+    _assert_one_line_error(code, err, "kitti", "refused by the motion metrics")
+    assert _tree(out) == {"notes.txt": b"mine\n"}
+    new = tmp_path / "new"
+    code, _, err = _run([*argv, "--motion", "--out", str(new / "out")], capsys)
+    assert code == 2 and not new.exists(), err
 
 
 def test_track_into_an_earlier_runs_folder_replaces_that_run(
