@@ -256,8 +256,9 @@ def _static_metrics(
         length = 1 + max(ids + gt_ids)
         # the ground truth says how long the sequence is: labels beyond it are another's
         labelled = check_label_file(
-            path_in(labels, s, ".txt"), length if gt_ids else None, "the frames of --gt"
-        )
+            path_in(labels, s, ".txt"), length if gt_ids else None, "the frames of --gt",
+            classes=static_classes,
+        )  # fmt: skip
         lo, hi = min(ids), max(ids)
         if lo > 0 or hi + 1 < max(length, labelled):  # (mctrack track --frames): score those
             first_frames[s], lengths[s], windows[s] = lo, hi - lo + 1, [lo, hi]
@@ -276,7 +277,7 @@ def _static_metrics(
     if said:
         notes["evaluation"] = "; ".join(said)
         LOG.warning("%s", notes["evaluation"])
-    kept, others = _of_classes(outputs, static_classes)
+    kept, others = _of_classes({s: outputs[s] for s in scored}, static_classes)
     if others:  # (a KITTI result file holds KITTI types alone: TrackEval refuses any other)
         LOG.warning(
             "%s: boxes of classes the KITTI metrics do not score, left out of them: %s",

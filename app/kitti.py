@@ -349,11 +349,13 @@ def run_kitti(
         # the image detector's boxes are what the run is for: written where a track has one
         config = load_config(config_name, overrides={**overrides, "image_boxes": "auto"})
     label_dir = labels or kitti_root / "training" / "label_02"
-    if evaluate:  # a bad label file stops the run here, not once every sequence is tracked
+    if evaluate or motion:  # a bad label file stops the run here, not once every sequence is
+        # tracked; the motion metrics follow every labelled object, the static ones the scored
         names = [_normalise_seq(s) for s in seqs]  # as the converter names them
         lengths = {seq: _pose_count(kitti_root, seq, poses) for seq in names}
         sources = {seq: f"the pose lines of {_pose_file(kitti_root, seq, poses)}" for seq in names}
-        check_kitti_labels(label_dir, lengths, sources, all_rows=motion)
+        scored = [c for c in classes if c in SUPPORTED_CLASSES]
+        check_kitti_labels(label_dir, lengths, sources, all_rows=motion, classes=scored)
     unscored = [c for c in classes if c not in SUPPORTED_CLASSES]
     if evaluate and unscored:
         LOG.warning(

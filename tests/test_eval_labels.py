@@ -117,22 +117,77 @@ def test_a_repeat_trackeval_does_not_score_is_accepted_as_trackeval_accepts_it(
     assert metrics["car"]["HOTA"] > 99  # (the labels scored against themselves)
 
 
+@pytest.mark.parametrize(
+    "repeat",
+    [
+        " ".join([*GOOD_ROW.split()[:4], "3", *GOOD_ROW.split()[5:]]),  # an occluded car
+        GOOD_ROW.replace(" Car ", " Van ", 1),  # the same id on a Van
+    ],
+    ids=["occluded", "another type"],
+)
+@pytest.mark.parametrize("no_eval", [False, True])
 def test_kitti_motion_refuses_an_object_twice_in_a_frame_that_trackeval_would_not_score(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    repeat: str, no_eval: bool, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """The motion metrics follow every labelled object, so a repeat TrackEval does not score
-    (an occluded car) stops a `--motion` run at once, naming the label file (it was a ValueError
-    of the motion metrics after the tracking); the static metrics alone score it as TrackEval
-    does."""
-    occluded = " ".join([*GOOD_ROW.split()[:4], "3", *GOOD_ROW.split()[5:]])
+    """The motion metrics follow every labelled object by its id alone, so a repeat TrackEval
+    does not score (an occluded car, the id on a row of another type) stops a `--motion` run at
+    once, with or without the static metrics, naming the label file (it was a ValueError of the
+    motion metrics after the tracking); the static metrics alone score it as TrackEval does."""
     kit = tmp_path / "kit"
     shutil.copytree(SAMPLE_KIT, kit)
-    labels = _labels(kit / "training" / "label_02", occluded)
+    labels = _labels(kit / "training" / "label_02", repeat)
     argv = ["kitti", "--kitti-root", str(kit), "--seqs", "0001", "--classes", "car"]
-    code, err = _run([*argv, "--motion", "--out", str(tmp_path / "m")], capsys)
+    extra = ["--no-eval"] if no_eval else []
+    code, err = _run([*argv, "--motion", *extra, "--out", str(tmp_path / "m")], capsys)
     _one_line_error(code, err, f"{labels / '0001.txt'}:{N_LINES + 1}: field 'track_id'")
-    code, err = _run([*argv, "--out", str(tmp_path / "s")], capsys)
+    code, err = _run([*argv, *extra, "--out", str(tmp_path / "s")], capsys)
     assert code == 0, err
+
+
+def test_a_repeat_in_a_class_the_run_does_not_score_is_accepted(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """TrackEval looks for a repeated id in the classes it scores alone: a run of cars accepts
+    labels with one pedestrian twice in a frame; a run of pedestrians refuses them."""
+    ped = GOOD_ROW.replace(" 0 Car ", " 900 Pedestrian ", 1)
+    labels = _labels(tmp_path / "labels", f"{ped}\n{ped}")
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--labels", str(labels)]
+    code, err = _run([*argv, "--classes", "car", "--out", str(tmp_path / "car")], capsys)
+    assert code == 0, err
+    code, err = _run([*argv, "--classes", "pedestrian", "--out", str(tmp_path / "ped")], capsys)
+    _one_line_error(code, err, f"0001.txt:{N_LINES + 2}: field 'track_id'")
+
+
+def test_repeated_track_id_scopes(tmp_path: Path) -> None:
+    """Where a repeat counts: per type over every row (result files), per type among the rows
+    TrackEval scores for the classes asked (labels), over every type (the motion metrics)."""
+    from tracker.eval.kitti import repeated_track_id
+    from tracker.io.convert.kitti import read_kitti_labels
+
+    def rows(*lines: str) -> object:
+        path = tmp_path / "labels.txt"
+        path.write_text("".join(f"{line}\n" for line in lines))
+        return read_kitti_labels(path)
+
+    car = "0 5 Car 0 0 -1 10 20 110 80 1.5 1.6 3.9 2.9 1.6 6.4 0.1"
+    occluded = car.replace(" Car 0 0 ", " Car 0 3 ")
+    truncated = car.replace(" Car 0 0 ", " Car 1 0 ")
+    ped = car.replace(" Car ", " Pedestrian ")
+    for first, second, per_type, scored, any_type in [
+        (car, car, True, True, True),
+        (car, car.replace(" Car ", " Car_2 "), True, True, True),  # (Car_2 is a Car)
+        (car, occluded, True, False, True),
+        (car, truncated, True, False, True),
+        (car, car.replace(" Car ", " Van "), False, False, True),
+        (ped, ped, True, True, True),
+        (car, "1" + car[1:], False, False, False),  # (another frame)
+    ]:
+        objects = rows(first, second)
+        assert (repeated_track_id(objects) is not None) == per_type, (first, second)
+        assert (repeated_track_id(objects, "scored") is not None) == scored, (first, second)
+        assert (repeated_track_id(objects, "any") is not None) == any_type, (first, second)
+    assert repeated_track_id(rows(ped, ped), "scored", ["car"]) is None  # (not scored)
+    assert repeated_track_id(rows(car, ped, car), "type") == (2, 0)
 
 
 def test_eval_motion_refuses_ground_truth_with_an_object_twice_in_a_frame(

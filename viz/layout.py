@@ -21,14 +21,17 @@ VIEW_COST_BEV = "cost BEV"
 VIEW_COST_RV = "cost RV"
 VIEW_SPEED_LAG = "speed vs GT"
 VIEW_ID_EVENTS = "ID switches"
+#: Frames either side of the cursor shown by the "all tracks" time series.
+SERIES_WINDOW_FRAMES = 60
 #: Every curve of every track (and its GT's) shares this view, so its name lists them all.
-VIEW_ALL_TRACKS = "all tracks: speed, vx, vy [m/s], ax, ay [m/s²], heading [rad] (±60 frames)"
+VIEW_ALL_TRACKS = (
+    "all tracks: speed, vx, vy [m/s], ax, ay [m/s²], heading [rad]"
+    f" (±{SERIES_WINDOW_FRAMES} frames)"
+)
 
 #: The cost views' background: the colour of the unseen box that frames each matrix
 #: (``cost/*/extent``), whatever the viewer's theme.
 _COST_BACKGROUND = rrb.Background(kind="SolidColor", color=BACKGROUND_RGB)
-#: Frames either side of the cursor shown by the "all tracks" time series.
-SERIES_WINDOW_FRAMES = 60
 #: The BEV eye in the ego frame (metres): behind and above the car, looking ahead of it.
 BEV_EYE_POSITION_M = (-16.0, 0.0, 26.0)
 BEV_EYE_TARGET_M = (16.0, 0.0, 0.0)

@@ -68,7 +68,12 @@ class SequenceEvaluation:
 
 
 def check_label_file(
-    path: Path, num_frames: int | None = None, length_source: str = "", *, all_rows: bool = False
+    path: Path,
+    num_frames: int | None = None,
+    length_source: str = "",
+    *,
+    all_rows: bool = False,
+    classes: Sequence[str] = SUPPORTED_CLASSES,
 ) -> int:
     """Raise :class:`InputError` (file, line, field) unless TrackEval can score ``path``: a
     KITTI label file (:func:`~tracker.io.convert.kitti.read_kitti_labels`), of types TrackEval
@@ -77,8 +82,8 @@ def check_label_file(
     TrackEval itself fails on these with a traceback, a ValueError, "invalid timesteps" or
     "Ground-truth has the same ID more than once", and only once the tracking is done. Returns
     the frames the labels span (their last frame + 1). A repeated id is looked for where
-    TrackEval looks, among the rows it scores, unless ``all_rows`` (the motion metrics' ground
-    truth, which follows every labelled object)."""
+    TrackEval looks, among the rows it scores for ``classes``, unless ``all_rows`` (the motion
+    metrics' ground truth, which follows every labelled object by its id)."""
     from tracker.io.convert.kitti import read_kitti_labels
 
     labels = read_kitti_labels(path)
@@ -90,7 +95,7 @@ def check_label_file(
             " Pedestrian, Person, Cyclist, Tram, Misc, DontCare)",
             path=path, line=labels.where(row)[1], field="type",
         )  # fmt: skip
-    twice = repeated_track_id(labels, scored_only=not all_rows)
+    twice = repeated_track_id(labels, "any" if all_rows else "scored", classes)
     if twice is not None:
         row, earlier = twice
         raise InputError(
@@ -109,20 +114,27 @@ def check_label_file(
     return int(labels.frame.max(initial=-1)) + 1
 
 
-def repeated_track_id(objects: KittiObjects, scored_only: bool = False) -> tuple[int, int] | None:
-    """(row, an earlier row) of the first row (in file order) whose frame, track id and type an
-    earlier row has, DontCare regions (all id -1) aside; None if there is none. TrackEval
-    refuses a file with one id twice in a frame within a class it scores (Car_2 is a Car).
+def repeated_track_id(
+    objects: KittiObjects, scope: str = "type", classes: Sequence[str] = SUPPORTED_CLASSES
+) -> tuple[int, int] | None:
+    """(row, an earlier row) of the first row (in file order) whose frame and track id an
+    earlier row has, DontCare regions (all id -1) aside; None if there is none. ``scope``:
 
-    ``scored_only``: only among the ground-truth rows TrackEval scores (a scored class, occluded
-    at most 2, not truncated; Kitti2DBox's preprocessing), where it checks them, so that a label
-    file TrackEval accepts is never refused."""
+    - ``"type"``: an earlier row of the same type (Car_2 is a Car); TrackEval refuses a file
+      with one id twice in a frame within a class it scores;
+    - ``"scored"``: the same, only among the ground-truth rows TrackEval scores for ``classes``
+      (occluded at most 2, not truncated: Kitti2DBox's preprocessing), where it checks them, so
+      that a label file TrackEval accepts for those classes is not refused;
+    - ``"any"``: an earlier row of any type (the motion metrics' ground truth follows every
+      labelled object by its id alone)."""
     kind = np.char.lower(objects.type_name.astype(str))
     kind = np.where(kind == "car_2", "car", kind)
     codes = np.unique(kind, return_inverse=True)[1].reshape(-1)
+    if scope == "any":
+        codes = np.zeros_like(codes)
     candidate = kind != "dontcare"
-    if scored_only:
-        candidate &= np.isin(kind, SUPPORTED_CLASSES)
+    if scope == "scored":
+        candidate &= np.isin(kind, list(classes))
         candidate &= (objects.occluded <= _MAX_OCCLUSION) & (objects.truncated <= _MAX_TRUNCATION)
     rows = np.flatnonzero(candidate)
     frame, tid = objects.frame[rows], objects.track_id[rows]
@@ -144,17 +156,20 @@ def check_kitti_labels(
     length_sources: Mapping[str, str] | None = None,
     *,
     all_rows: bool = False,
+    classes: Sequence[str] = SUPPORTED_CLASSES,
 ) -> dict[str, int]:
     """The sequences of ``seq_lengths`` with a label file in ``label_dir``, each checked by
-    :func:`check_label_file` (``all_rows`` passed on) against its length (None: unknown), with
-    the frames its labels span (0: an empty file). Run before tracking or evaluating, so that a
-    bad label file stops the run at once with its file and line."""
+    :func:`check_label_file` (``all_rows`` and ``classes`` passed on) against its length (None:
+    unknown), with the frames its labels span (0: an empty file). Run before tracking or
+    evaluating, so that a bad label file stops the run at once with its file and line."""
     labelled: dict[str, int] = {}
     for seq, length in sorted(seq_lengths.items()):
         path = path_in(label_dir, seq, ".txt")
         if path.is_file():
             source = (length_sources or {}).get(seq, "")
-            labelled[seq] = check_label_file(path, length, source, all_rows=all_rows)
+            labelled[seq] = check_label_file(
+                path, length, source, all_rows=all_rows, classes=classes
+            )
     return labelled
 
 
