@@ -10,6 +10,7 @@ import json
 import logging
 import os
 import pickle
+import time
 import zipfile
 from pathlib import Path
 from typing import Any
@@ -408,8 +409,25 @@ def test_stranded_temp_of_a_dead_run_is_removed(tmp_path: Path) -> None:
     live.write_bytes(b"being written")
     write_bytes_atomic(tmp_path / "x.json", b"{}")
     assert not stranded.exists() and live.exists()
-    assert remove_stale_temps(tmp_path, older_than_secs=-1) == 1  # an old one goes too
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["x.json"]
+    assert remove_stale_temps(tmp_path, older_than_secs=-1) == 0  # a live run's temp stays
+    assert sorted(p.name for p in tmp_path.iterdir()) == [live.name, "x.json"]
+
+
+def test_an_old_temp_of_a_live_run_is_kept_and_one_without_a_pid_goes(tmp_path: Path) -> None:
+    # mctrack view holds each finished recording under its temporary name until the last
+    # scene is recorded: a run over an hour must not lose its first scene's recording
+    long_ago = time.time() - 2 * 3600
+    held = tmp_path / f".0001.rrd.{os.getpid()}.abc12345.tmp"
+    held.write_bytes(b"a finished recording")
+    no_pid = tmp_path / ".0001.rrd.tmp"  # not one of our names: only its age tells
+    no_pid.write_bytes(b"?")
+    fresh = tmp_path / ".0002.rrd.tmp"
+    fresh.write_bytes(b"?")
+    for p in (held, no_pid):
+        os.utime(p, (long_ago, long_ago))
+    write_bytes_atomic(tmp_path / "x.json", b"{}")  # removes the stale temps of its folder
+    assert held.read_bytes() == b"a finished recording"
+    assert sorted(p.name for p in tmp_path.iterdir()) == [held.name, fresh.name, "x.json"]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -31,7 +31,9 @@ from tracker.errors import InputError
 TEMP_SUFFIX = ".tmp"
 # Temp names are ``.<name>.<pid>.<random>.tmp``: a temp of a process that no longer runs is
 # stranded (killed run) and removed by the next write to the folder; one of a live process
-# (another run writing there now) is kept unless older than this.
+# (another run writing there now, or holding finished files until its set is complete, see
+# :func:`staged_files`) is kept however old. Only a temp without a readable pid is removed by
+# age, once older than this.
 STALE_TEMP_SECS = 3600.0
 
 
@@ -53,7 +55,11 @@ def _pid_alive(pid: int) -> bool:
 
 
 def remove_stale_temps(folder: str | Path, *, older_than_secs: float = STALE_TEMP_SECS) -> int:
-    """Delete temporary files a killed run left in ``folder``; returns how many."""
+    """Delete temporary files a killed run left in ``folder``; returns how many.
+
+    A temp whose pid (in its name) is alive here is never deleted, however old: a long run may
+    hold a finished file under its temporary name until the rest of its set is done. A temp
+    without a readable pid goes once older than ``older_than_secs``."""
     folder = Path(folder)
     if not folder.is_dir():
         return 0
@@ -61,12 +67,16 @@ def remove_stale_temps(folder: str | Path, *, older_than_secs: float = STALE_TEM
     removed = 0
     for p in folder.glob(f".*{TEMP_SUFFIX}"):
         parts = p.name.rsplit(".", 3)  # ['.<name>', '<pid>', '<random>', 'tmp']
-        pid = int(parts[1]) if len(parts) == 4 and parts[1].isdigit() else None
+        ours = len(parts) == 4 and len(parts[0]) > 1 and parts[1].isdigit()  # (".1.x.tmp": no)
+        pid = int(parts[1]) if ours else None
         try:
             if not p.is_file():
                 continue
-            dead = pid is not None and not _pid_alive(pid)
-            if dead or now - p.stat().st_mtime > older_than_secs:
+            if pid is not None:
+                stale = not _pid_alive(pid)
+            else:
+                stale = now - p.stat().st_mtime > older_than_secs
+            if stale:
                 p.unlink()
                 removed += 1
         except OSError:
