@@ -19,6 +19,7 @@ from app.common import (
     outputs_removed_on_failure,
     peak_rss_mb,
     profile_argument,
+    refuse_inputs_among_outputs,
     remove_earlier_outputs,
     score_source,
     self_calibrated_note,
@@ -163,9 +164,18 @@ def run(args: argparse.Namespace) -> int:
     poses = None if args.poses == "none" else args.poses
     check_kitti_root(root, seqs=seqs, poses=poses, detector=args.detector)
     check_image_detector(root, args.image_detector)
+    out = Path(args.out)
+    profile = profile_argument(args.profile)
+    # an input among the outputs would be deleted with an earlier run's, or by a failed run's
+    # clean-up (--labels OUT/data: label files are <seq>.txt; --profile OUT/self_profile.toml)
+    inputs = {
+        "--labels": Path(args.labels) if args.labels else None,
+        "--profile": profile if isinstance(profile, Path) else None,
+        "--poses": Path(poses) if poses not in (None, "orbslam3") else None,
+    }
+    refuse_inputs_among_outputs(out, RUN_OUTPUTS, inputs)
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
-    out = Path(args.out)
     summary = run_kitti(
         kitti_root=root,
         seqs=seqs,
@@ -174,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
         mode=args.mode,
         detector=args.detector,
         image_detector=args.image_detector,
-        profile=profile_argument(args.profile),
+        profile=profile,
         labels=Path(args.labels) if args.labels else None,
         poses=poses,
         evaluate=not args.no_eval,

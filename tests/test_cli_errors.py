@@ -1436,6 +1436,40 @@ def test_track_refuses_an_input_it_would_overwrite(
     assert code == 0, err
 
 
+def test_kitti_refuses_inputs_among_its_outputs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack kitti --labels OUT/data --out OUT`: the run wrote its data/<seq>.txt over the
+    label files (and scored its tracks against themselves); --profile OUT/self_profile.toml
+    was deleted with the earlier run's outputs, --poses OUT/data overwritten too. Each refused
+    before any work, the files kept."""
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--out", str(out)]
+    code, _, err = _run([*argv, "--no-eval", "--profile", "self"], capsys)
+    assert code == 0 and (out / "self_profile.toml").is_file(), err
+    shutil.copy(SAMPLE_KIT / "training" / "label_02" / "0001.txt", out / "data" / "0001.txt")
+    earlier = _tree(out)
+    pose_dir = SAMPLE_KIT / "training" / "pose_orbslam3"
+    for option, value, what in (
+        ("--labels", out / "data", "holds data/0001.txt,"),
+        ("--profile", out / "self_profile.toml", "is"),
+        ("--poses", out / "data", "holds data/0001.txt,"),
+    ):
+        code, _, err = _run([*argv, option, str(value)], capsys)
+        _assert_one_line_error(
+            code, err, "kitti", f"{value}: {option} {what} a file this run writes in {out}"
+        )
+        assert _tree(out) == earlier
+    # the same files outside --out are inputs as any other
+    labels, profile, poses = tmp_path / "labels", tmp_path / "p.toml", tmp_path / "poses"
+    shutil.copytree(out / "data", labels)
+    shutil.copy(out / "self_profile.toml", profile)
+    shutil.copytree(pose_dir, poses)
+    extra = ["--labels", str(labels), "--profile", str(profile), "--poses", str(poses)]
+    code, _, err = _run([*argv, *extra], capsys)
+    assert code == 0 and (labels / "0001.txt").read_bytes() == earlier["data/0001.txt"], err
+
+
 def test_track_says_which_scenes_have_no_frames(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
