@@ -239,7 +239,12 @@ def run_robustness(
     lengths = {seq: len(frames) for seq, frames in detections.items()}
     # a bad label file stops the run here, not after the clean level is tracked (and the
     # earlier run's outputs are gone)
-    check_kitti_labels(label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines"))
+    labelled = check_kitti_labels(
+        label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines")
+    )
+    # checked as evaluate_kitti checks them (every scored class, these lengths), so each job's
+    # evaluation need not read them again; one not found here is left to its check to name
+    labels_checked = labelled.keys() >= lengths.keys()
     options = [
         ("--kitti-root", kitti_root), ("--detector", detector), ("--seqs", ",".join(seqs)),
         ("--classes", ",".join(classes)), ("--config", config_name),
@@ -273,7 +278,11 @@ def run_robustness(
                 )
                 bar.update(len(frames))
             metrics = evaluate_kitti(
-                label_dir=label_dir, result_dir=run_dir, seq_lengths=lengths, classes=classes
+                label_dir=label_dir,
+                result_dir=run_dir,
+                seq_lengths=lengths,
+                classes=classes,
+                labels_checked=labels_checked,
             )
             runs[name].append(
                 {

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -324,6 +325,30 @@ def test_robustness_command_on_the_sample(
     )
     assert clean["runs"][0]["metrics"]["car"]["HOTA"] == plain["metrics"]["car"]["HOTA"]
     assert clean["summary"]["car"]["HOTA_mean"] == round(plain["metrics"]["car"]["HOTA"], 3)
+
+
+def test_robustness_reads_each_label_file_once(
+    sample_kit: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The labels are checked up front; every level and seed's evaluation re-read and re-checked
+    each label file (once per job), though checked as strictly already."""
+    import tracker.eval.kitti
+    from app.robustness import run_robustness
+
+    checked: list[Path] = []
+    check_label_file = tracker.eval.kitti.check_label_file
+
+    def counting(path: Path, *args: Any, **kwargs: Any) -> int:
+        checked.append(path)
+        return check_label_file(path, *args, **kwargs)
+
+    monkeypatch.setattr(tracker.eval.kitti, "check_label_file", counting)
+    report = run_robustness(
+        kitti_root=sample_kit, seqs=["0001"], classes=["car"], levels=["noise"], seeds=[0, 1],
+        out=tmp_path / "r", quiet=True,
+    )  # fmt: skip
+    assert [len(level["runs"]) for level in report["levels"].values()] == [1, 2]  # 3 evaluations
+    assert checked == [sample_kit / "training" / "label_02" / "0001.txt"]
 
 
 def test_robustness_calibrates_a_detector_without_a_profile_as_kitti_does(
