@@ -423,6 +423,7 @@ class Objective:
     base: dict[str, Any]
     cls: str
     label_dir: str
+    labels_checked: bool = False  # (by the caller, as evaluate_kitti would: not read per trial)
 
     @property
     def runs(self) -> list[tuple[str, str]]:
@@ -435,7 +436,7 @@ class Objective:
         and writing ``work/<detector>/<level>``."""
         overrides = {**self.base, **settings_to_overrides(self.cls, params)}  # disjoint keys
         return [((det, key, level), list(seqs), self.config_name, overrides,
-                 str(work / det / level), self.label_dir, self.cls, evaluate)
+                 str(work / det / level), self.label_dir, self.cls, evaluate, self.labels_checked)
                 for det, level in self.runs]  # fmt: skip
 
     def metrics(
@@ -479,12 +480,13 @@ def record_seeds(record: dict[str, Any]) -> tuple[int, ...]:
 
 def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
     """One detector: track ``seqs`` with the overrides, write KITTI files to ``result_dir``,
-    and (when ``evaluate``) score them. Runs in a forked worker reading ``_FRAMES``."""
+    and (when ``evaluate``) score them (``labels_checked``: see :func:`evaluate_kitti`). Runs in
+    a forked worker reading ``_FRAMES``."""
     from tracker.eval.kitti import evaluate_kitti
     from tracker.io.writers import write_kitti_sequence
     from tracker.pipeline import run_scene
 
-    key, seqs, config_name, overrides, result_dir, label_dir, cls, evaluate = task
+    key, seqs, config_name, overrides, result_dir, label_dir, cls, evaluate, checked = task
     config = load_config(config_name, overrides=overrides)
     frames = _FRAMES[key]
     result_dir = Path(result_dir)
@@ -504,6 +506,7 @@ def _track_and_score(task: tuple[Any, ...]) -> dict[str, Any]:
         result_dir=result_dir,
         seq_lengths={s: len(frames[s]) for s in seqs},
         classes=[cls],
+        labels_checked=checked,
     )[cls]
 
 
@@ -592,7 +595,12 @@ def _run(args: argparse.Namespace) -> int:
             )
     lengths = {s: len(f) for s, f in raw[detectors[0]].items()}
     # a bad label file stops the search here, not in its first trial (Optuna's traceback)
-    check_kitti_labels(label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines"))
+    labelled = check_kitti_labels(
+        label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines")
+    )
+    # checked as evaluate_kitti checks them (every scored class, these lengths), so no trial's
+    # evaluation reads them again; one not found here is left to its check to name
+    labels_checked = labelled.keys() >= lengths.keys()
     folds = folds_by_frames(lengths, args.folds)
 
     # calibrated frames per (detector, fold): profiles fitted on the fold's training sequences;
@@ -628,7 +636,9 @@ def _run(args: argparse.Namespace) -> int:
                 _FRAMES[(det, key, level)] = frames
 
     runs = tuple(draw_levels(levels, args.noise_seed))
-    objective = Objective(tuple(detectors), runs, config_name, base, cls, str(label_dir))
+    objective = Objective(
+        tuple(detectors), runs, config_name, base, cls, str(label_dir), labels_checked
+    )
     first = _current(config_name, base, cls, space)
     n_startup = startup_trials(args.trials)
     work = Path(tempfile.mkdtemp(prefix="mctrack-tune-"))
@@ -692,7 +702,9 @@ def _run(args: argparse.Namespace) -> int:
                                      "train_objective": round(value, 3),
                                      "trials": _trial_list(trials)})  # fmt: skip
             heldout = {
-                (det, level): _evaluate_dir(work / "heldout" / det / level, label_dir, lengths, cls)
+                (det, level): _evaluate_dir(
+                    work / "heldout" / det / level, label_dir, lengths, cls, labels_checked
+                )
                 for det, level in objective.runs
             }
             record["cross_validated"] = {det: heldout[(det, CLEAN)] for det in detectors}
@@ -878,12 +890,20 @@ def _by_level(
 
 
 def _evaluate_dir(
-    result_dir: Path, label_dir: Path, lengths: dict[str, int], cls: str
+    result_dir: Path,
+    label_dir: Path,
+    lengths: dict[str, int],
+    cls: str,
+    labels_checked: bool = False,
 ) -> dict[str, Any]:
     from tracker.eval.kitti import evaluate_kitti
 
     return evaluate_kitti(
-        label_dir=label_dir, result_dir=result_dir, seq_lengths=lengths, classes=[cls]
+        label_dir=label_dir,
+        result_dir=result_dir,
+        seq_lengths=lengths,
+        classes=[cls],
+        labels_checked=labels_checked,
     )[cls]
 
 

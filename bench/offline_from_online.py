@@ -206,11 +206,11 @@ def held_out(
                         overrides = {"categories": [cls], **settings_to_overrides(cls, settings)}
                         where = str(work / run / det)
                         tasks.append(((det, f"fold{k}", CLEAN), fold["test"], config, overrides,
-                                      where, str(label_dir), cls, False))  # fmt: skip
+                                      where, str(label_dir), cls, False, False))  # fmt: skip
                         for level in noisy if run in judged else []:
                             tasks.append(((det, f"fold{k}", level), fold["test"], config,
                                           overrides, str(work / f"{run}@@{level}" / det),
-                                          str(label_dir), cls, False))  # fmt: skip
+                                          str(label_dir), cls, False, False))  # fmt: skip
             pool.map(_track_and_score, tasks)
             for det in dets:
                 out[det] = {

@@ -4,6 +4,7 @@ from searched values to config overrides (the search itself runs on real data: d
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -335,6 +336,37 @@ def test_a_detector_without_a_profile_is_tuned_on_a_profile_fitted_on_the_sequen
     plain = run_kitti(kitti_root=kit, seqs=["0006", "0010"], classes=["car"], detector="mydet",
                       profile=profile, out=tmp_path / "k", quiet=True)  # fmt: skip
     assert record["final"]["in_sample"]["mydet"]["HOTA"] == plain["metrics"]["car"]["HOTA"]
+
+
+def test_the_search_reads_each_label_file_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The labels are checked before the search; every trial's evaluation (in the pool's
+    workers) and each held-out fold's re-read and re-checked them, though checked as strictly
+    already."""
+    import shutil
+
+    import tracker.eval.kitti
+
+    kit = tmp_path / "kit"  # the sample's sequence 0001, and a copy as 0002 (two folds)
+    shutil.copytree(Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001" / "raw", kit)
+    for path in list(kit.rglob("0001.txt")):
+        shutil.copy(path, path.with_name("0002.txt"))
+    checked = tmp_path / "checked.txt"  # (a file: the trials run in forked workers)
+    check_label_file = tracker.eval.kitti.check_label_file
+
+    def counting(path: Path, *args: Any, **kwargs: Any) -> int:
+        with open(checked, "a") as fh:
+            fh.write(f"{Path(path).name}\n")
+        return check_label_file(path, *args, **kwargs)
+
+    monkeypatch.setattr(tracker.eval.kitti, "check_label_file", counting)
+    code = main(["tune", "--kitti-root", str(kit), "--class", "car", "--detectors", "pointrcnn",
+                 "--seqs", "0001,0002", "--folds", "2", "--trials", "1", "--noise", "none",
+                 "--workers", "1", "--out", str(tmp_path / "t")])  # fmt: skip
+    assert code == 0, capsys.readouterr().err
+    assert (tmp_path / "t" / "tune.json").is_file()  # 3 trials and 2 held-out folds scored
+    assert sorted(checked.read_text().split()) == ["0001.txt", "0002.txt"]
 
 
 def test_a_class_whose_boxes_all_score_the_same_is_said_before_the_search_and_recorded(
