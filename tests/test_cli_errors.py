@@ -691,7 +691,8 @@ REFUSED: list[tuple[str, Callable[[F, Path], list[str]], tuple[str, ...]]] = [
         ],
         ("eval.json", "eval.md"),
     ),
-    (  # (its own clean-up removed --out, not the folders made on the way to it)
+    (  # (refused after it made --out itself: its outputs_removed_on_failure removes --out and
+        # the folders on the way to it, before the CLI's own clean-up would)
         "eval nuscenes tracks without sample tokens",
         lambda f, out: [
             *("eval", str(f["detections"]), "--dataset", "nuscenes"),
@@ -1067,11 +1068,10 @@ def test_view_says_which_scenes_it_records_without_images(
 def test_view_of_several_scenes_that_fails_on_a_later_one_leaves_no_recording(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """The recordings are moved into place once every scene is recorded: a run that fails on
-    the second scene (a folder where its recording goes; Ctrl-C while it records) leaves
-    neither scene's recording nor a temporary file, and an earlier recording at the first
-    scene's path stays (it was replaced, and the second's temporary file left; the error named
-    that file, not the folder). (The folder is now refused before any recording.)"""
+    """A run of two scenes that fails on the second leaves neither scene's recording: a folder
+    where the second's goes is refused (naming it) before any recording, an earlier recording
+    at the first scene's path kept; Ctrl-C while the second records leaves no recording, no
+    temporary file and no folder of its own."""
     frames = _sample_frames()[:3]
     two = tmp_path / "two.json"
     two.write_text(json.dumps({"a": frames, "b": frames}))
