@@ -67,7 +67,7 @@ from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS, _normalise_seq
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
-from tracker.io.writers import tracks_scene_json, write_kitti_sequence, write_tracks_parts
+from tracker.io.writers import tracks_scene_json, write_kitti_sequence
 from tracker.pipeline import run_scene
 
 #: The per-sequence metrics kept in summary.json "per_sequence_metrics".
@@ -409,10 +409,7 @@ def run_kitti(
         records = scenes.run_scenes(job, seqs, parallel=parallel, quiet=quiet)
         wall_secs = time.perf_counter() - t0
         ok = [r for r in records if r.error is None]
-        write_tracks_parts(
-            out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
-        )
-        scenes.remove_parts(out)
+        scenes.write_tracks(out, ok)
 
         skipped: dict[str, Counter[str]] = {
             "unknown": Counter(), "not_tracked": Counter(), "duplicates": Counter()

@@ -169,7 +169,6 @@ def run_nuscenes(
     from tracker.eval.nuscenes import evaluate_nuscenes, load_results_with_devkit
     from tracker.io.convert.nuscenes import convert_nuscenes, load_nuscenes
     from tracker.io.nuscenes_writer import write_nuscenes_parts
-    from tracker.io.writers import write_tracks_parts
 
     refuse_inputs_among_outputs(out, RUN_OUTPUTS, {"--detections": detections})
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
@@ -224,10 +223,7 @@ def run_nuscenes(
         write_nuscenes_parts(
             results_path, [scenes.part_path(out, r.index, "nusc.json") for r in ok], meta=conv.meta
         )
-        write_tracks_parts(
-            out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
-        )
-        scenes.remove_parts(out)
+        scenes.write_tracks(out, ok)
         load_results_with_devkit(results_path)  # the devkit's own format check
         n_boxes = sum(r.info["boxes"] for r in ok)
         tracker_secs = sum(r.tracker_seconds for r in ok)

@@ -293,6 +293,17 @@ def print_failures(command: str, failed: Mapping[str, str]) -> int:
     return 2 if failed else 0
 
 
+def write_tracks(out: Path, ok: Sequence[SceneRecord]) -> None:
+    """``out/tracks.json`` from the finished scenes' parts (in their order), then the parts
+    folder removed."""
+    from tracker.io.writers import write_tracks_parts
+
+    write_tracks_parts(
+        out / "tracks.json", [(r.scene, part_path(out, r.index, "json")) for r in ok]
+    )
+    remove_parts(out)
+
+
 def remove_parts(out: Path) -> None:
     parts = out / PARTS_DIR
     if parts.is_dir():

@@ -43,11 +43,7 @@ from tracker.io.fileio import (
     write_bytes_atomic,
     write_text_atomic,
 )
-from tracker.io.writers import (
-    tracks_scene_json,
-    write_kitti_sequence,
-    write_tracks_parts,
-)
+from tracker.io.writers import tracks_scene_json, write_kitti_sequence
 from tracker.pipeline import run_scene
 
 LOG = logging.getLogger("mctrack.track")
@@ -308,10 +304,7 @@ def run(args: argparse.Namespace) -> int:
     parallel = scenes.from_args(args)
     records = scenes.run_scenes(job, list(scene_frames), inputs=scene_frames, parallel=parallel)
     ok = [r for r in records if r.error is None]
-    write_tracks_parts(
-        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
-    )
-    scenes.remove_parts(out)
+    scenes.write_tracks(out, ok)
     frames = sum(r.frames for r in ok)
     secs = sum(r.tracker_seconds for r in ok)
     fate_summary = combine_fates([r.info["fates"] for r in ok], report.skipped_categories)

@@ -28,7 +28,7 @@ from tracker.io.fileio import (
     write_text_atomic,
 )
 from tracker.io.waymo_writer import RESULT_TYPES
-from tracker.io.writers import tracks_scene_json, write_tracks_parts
+from tracker.io.writers import tracks_scene_json
 
 #: What a run writes in --out, removed (once the inputs are accepted) when --out holds an earlier
 #: run, so the folder never mixes two: pred_bin.py reads every file of results/, and a segment
@@ -157,10 +157,7 @@ def run_waymo(
     records = scenes.run_scenes(job, names, parallel=parallel, quiet=quiet)
     wall_secs = time.perf_counter() - t0
     ok = [r for r in records if r.error is None]
-    write_tracks_parts(
-        out / "tracks.json", [(r.scene, scenes.part_path(out, r.index, "json")) for r in ok]
-    )
-    scenes.remove_parts(out)
+    scenes.write_tracks(out, ok)
     written = dict.fromkeys(RESULT_TYPES, 0)
     skipped: Counter[int] = Counter()
     for r in ok:
