@@ -270,14 +270,10 @@ def test_inspect_refuses_a_frame_the_recording_does_not_have(
         assert err.count("\n") == 1
 
 
-def test_shots_refuses_a_frame_the_recording_does_not_have(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """shots --frame outside the recording is inspect's one-line error, before any viewer (it
-    was a screenshot of an empty scene at that frame, or 'cannot render' without a driver)."""
+def _planned_shots(monkeypatch: pytest.MonkeyPatch) -> list[PlannedShot]:
+    """The shots `mctrack shots` plans, collected instead of taken (no viewer)."""
     from viz import shots
 
-    path, _ = recording()  # frames 0-199
     planned: list[PlannedShot] = []
 
     def take_shots(recording: Path, out: str, *, plan: list[PlannedShot], **kw: object) -> list:
@@ -285,6 +281,16 @@ def test_shots_refuses_a_frame_the_recording_does_not_have(
         return []
 
     monkeypatch.setattr(shots, "take_shots", take_shots)
+    return planned
+
+
+def test_shots_refuses_a_frame_the_recording_does_not_have(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """shots --frame outside the recording is inspect's one-line error, before any viewer (it
+    was a screenshot of an empty scene at that frame, or 'cannot render' without a driver)."""
+    path, _ = recording()  # frames 0-199
+    planned = _planned_shots(monkeypatch)
     out = str(tmp_path / "shots")
     assert main(["shots", str(path), "--frame", "199", "--out", out]) == 0
     assert planned == [PlannedShot(199, "frame")]
@@ -309,13 +315,7 @@ def test_shots_max_events_0_takes_the_lag_shot_alone(
     path, _ = recording()
     index = read_shot_index(path)
     assert index.lag_frame is not None and index.event_frames
-    planned: list[PlannedShot] = []
-
-    def take_shots(recording: Path, out: str, *, plan: list[PlannedShot], **kw: object) -> list:
-        planned.extend(plan)
-        return []
-
-    monkeypatch.setattr(shots, "take_shots", take_shots)
+    planned = _planned_shots(monkeypatch)
     out = str(tmp_path / "shots")
     assert main(["shots", str(path), "--max-events", "0", "--out", out]) == 0
     assert planned == [PlannedShot(index.lag_frame, "lag")]
