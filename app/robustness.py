@@ -240,9 +240,9 @@ def run_robustness(
     # a bad label file stops the run here, not after the clean level is tracked (and the
     # earlier run's outputs are gone)
     labelled = check_kitti_labels(
-        label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines")
+        label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines"), classes=classes
     )
-    # checked as evaluate_kitti checks them (every scored class, these lengths), so each job's
+    # checked as evaluate_kitti checks them (the classes scored, these lengths), so each job's
     # evaluation need not read them again; one not found here is left to its check to name
     labels_checked = labelled.keys() >= lengths.keys()
     options = [

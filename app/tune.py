@@ -596,9 +596,9 @@ def _run(args: argparse.Namespace) -> int:
     lengths = {s: len(f) for s, f in raw[detectors[0]].items()}
     # a bad label file stops the search here, not in its first trial (Optuna's traceback)
     labelled = check_kitti_labels(
-        label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines")
+        label_dir, lengths, dict.fromkeys(lengths, "the kit's pose lines"), classes=[cls]
     )
-    # checked as evaluate_kitti checks them (every scored class, these lengths), so no trial's
+    # checked as evaluate_kitti checks them (the classes scored, these lengths), so no trial's
     # evaluation reads them again; one not found here is left to its check to name
     labels_checked = labelled.keys() >= lengths.keys()
     folds = folds_by_frames(lengths, args.folds)

@@ -144,14 +144,19 @@ def test_kitti_motion_refuses_an_object_twice_in_a_frame_that_trackeval_would_no
     assert code == 0, err
 
 
+@pytest.mark.parametrize("command", ["kitti", "robustness"])
 def test_a_repeat_in_a_class_the_run_does_not_score_is_accepted(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """TrackEval looks for a repeated id in the classes it scores alone: a run of cars accepts
     labels with one pedestrian twice in a frame; a run of pedestrians refuses them."""
     ped = GOOD_ROW.replace(" 0 Car ", " 900 Pedestrian ", 1)
-    labels = _labels(tmp_path / "labels", f"{ped}\n{ped}")
-    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--labels", str(labels)]
+    kit = tmp_path / "kit"
+    shutil.copytree(SAMPLE_KIT, kit)
+    _labels(kit / "training" / "label_02", f"{ped}\n{ped}")
+    argv = [command, "--kitti-root", str(kit), "--seqs", "0001"]
+    if command == "robustness":
+        argv += ["--levels", "clean", "--seeds", "0"]
     code, err = _run([*argv, "--classes", "car", "--out", str(tmp_path / "car")], capsys)
     assert code == 0, err
     code, err = _run([*argv, "--classes", "pedestrian", "--out", str(tmp_path / "ped")], capsys)

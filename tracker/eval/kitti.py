@@ -216,7 +216,9 @@ def evaluate_kitti_sequence(
     if unknown:
         raise ValueError(f"cannot evaluate classes {unknown}; supported: {SUPPORTED_CLASSES}")
     if not label_checked:  # (evaluate_kitti checks every file first)
-        check_label_file(label_file, None if first_frame is not None else num_timesteps)
+        check_label_file(
+            label_file, None if first_frame is not None else num_timesteps, classes=classes
+        )
     seq = label_file.stem
     results: dict[str, dict[str, Any]] = {}
     id_inputs: dict[str, IdInputs] = {}
@@ -418,7 +420,8 @@ def evaluate_kitti(
     firsts = first_frames or {}
     if not labels_checked:
         for seq, length in sorted(seq_lengths.items()):
-            check_label_file(path_in(label_dir, seq, ".txt"), None if seq in firsts else length)
+            length_or_none = None if seq in firsts else length
+            check_label_file(path_in(label_dir, seq, ".txt"), length_or_none, classes=classes)
     names = name_refused_results if isinstance(name_refused_results, Mapping) else {}
     evaluations = []
     for seq, length in sorted(seq_lengths.items()):
