@@ -132,8 +132,8 @@ def run(args: argparse.Namespace) -> int:
     check_unique_track_ids(outputs, args.tracks)
     if args.motion:  # (the static metrics read the labels, checked as TrackEval checks them)
         check_unique_track_ids(gt, args.gt, "object")
-    boxes = [o.boxes.track_id for frames in outputs.values() for o in frames]
-    if any(len(ids) for ids in boxes) and not any((ids >= 0).any() for ids in boxes):
+    track_ids = [o.boxes.track_id for frames in outputs.values() for o in frames]
+    if any(len(ids) for ids in track_ids) and not any((ids >= 0).any() for ids in track_ids):
         raise InputError(
             f"{args.tracks}: no box has a track_id (a detections file? eval scores a tracker's"
             " output: `mctrack track` writes one)"
