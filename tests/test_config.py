@@ -412,3 +412,19 @@ def test_a_missing_base_is_named_with_the_file_whose_base_it_is(tmp_path: Path) 
     child.write_text(f'base = "{tmp_path / "nope.toml"}"\n')
     with pytest.raises(InputError, match=rf"^{child}: base '.*nope.toml': config not found"):
         load_config(child)
+
+
+def test_the_bench_configs_differ_from_kitti_only_in_the_written_2d_box() -> None:
+    """docs/detectors.md section 5 compares the written 2D box rules with these files: each must
+    load, and change nothing but what it says (the rule, and the bearing fusion for the old one)."""
+    bench = Path(__file__).resolve().parents[1] / "bench"
+
+    def settings(name: str | Path) -> dict:
+        return {k: v for k, v in config_to_dict(load_config(name)).items() if k != "source"}
+
+    kitti = settings("kitti")
+    detection = settings(bench / "kitti_detection_boxes.toml")
+    projection = settings(bench / "kitti_projection_boxes.toml")
+    assert kitti["image_boxes"] == "auto" and kitti["image_bearing"] is True
+    assert detection == {**kitti, "image_boxes": "detection"}
+    assert projection == {**kitti, "image_boxes": "projection", "image_bearing": False}
