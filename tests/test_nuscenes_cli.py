@@ -281,7 +281,8 @@ def test_a_bad_ground_truth_annotation_is_one_error_line(
 
     root = _edited_dataset(dataset, tmp_path / "data", edit)
     table = root / dataset.version / "sample_annotation.json"
-    line = f"error: {table}: sample_annotation '{ann_token}': field {said}"
+    sample = token("sample", "scene-0916", 4)
+    line = f"error: {table}: sample_annotation '{ann_token}' of sample '{sample}': field {said}"
     common = ["--dataroot", str(root), "--version", dataset.version, "--split", "mini_val"]
     out, gt = tmp_path / "dets.json", tmp_path / "gt.json"
     argv = ["convert", "nuscenes", *common, "--detections", str(noisy), "--out", str(out)]

@@ -52,6 +52,7 @@ from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import corners_3d, wrap_angle
+from tracker.io.bounds import BOUND_NOTE, beyond_bound
 from tracker.io.nuscenes_writer import DEFAULT_META
 
 log = logging.getLogger(__name__)
@@ -391,7 +392,7 @@ def _detection_boxes(
             raise InputError(f"{at}: field 'detection_score' = {score} is outside [0, 1]")
         if score < score_min:
             continue
-        _check_numbers(box["translation"], "translation", 3, at)
+        _check_translation(box["translation"], at)
         _check_numbers(box["rotation"], "rotation", 4, at)
         _check_size(box["size"], at)
         velocity, known = _velocity(box.get("velocity"), at)
@@ -447,10 +448,24 @@ def _check_quaternions(rotation: FloatArray, at: Callable[[int], str]) -> None:
 
 def _check_size(value: Any, at: str) -> None:
     """InputError (``at``: the file and record) unless ``value`` is a box's ``size`` (w, l, h):
-    3 finite numbers, width and length > 0, height >= 0 (as a BaseVersion box's lwh)."""
-    width, length, height = _check_numbers(value, "size", 3, at)
+    3 finite numbers, width and length > 0, height >= 0, none beyond the bound of
+    :mod:`tracker.io.bounds` (as a BaseVersion box's lwh)."""
+    size = _check_numbers(value, "size", 3, at)
+    width, length, height = size
     if not (width > 0 and length > 0 and height >= 0):
         raise InputError(f"{at}: field 'size' = {value}: width and length must be > 0, height >= 0")
+    _check_bound(size, "size", at)
+
+
+def _check_translation(value: Any, at: str) -> None:
+    """InputError (``at``: the file and record) unless ``value`` is a box's ``translation``: 3
+    finite numbers within the bound of :mod:`tracker.io.bounds` (as a BaseVersion box's xyz)."""
+    _check_bound(_check_numbers(value, "translation", 3, at), "translation", at)
+
+
+def _check_bound(values: FloatArray, key: str, at: str) -> None:
+    if beyond_bound(values[None])[0]:
+        raise InputError(f"{at}: field '{key}' = {values.tolist()}: {BOUND_NOTE}")
 
 
 def _numeric(value: Any) -> bool:
@@ -642,22 +657,20 @@ def _check_annotations(nusc: Any, samples: Sequence[dict[str, Any]]) -> None:
     failed the writing, a short one the velocity). Those without points too: the velocity of
     an annotation reads its neighbours' translations, and the official evaluation loads all."""
     table = Path(nusc.dataroot) / nusc.version / "sample_annotation.json"
-    tokens: list[str] = []
+    where: list[str] = []
     rotations: list[FloatArray] = []
     for sample in samples:
         for token in sample["anns"]:
             ann = nusc.get("sample_annotation", token)
             if ann["category_name"] not in CATEGORY_TO_TRACKING_NAME:
                 continue
-            at = f"{table}: sample_annotation {token!r}"
-            _check_numbers(ann.get("translation"), "translation", 3, at)
+            at = f"{table}: sample_annotation {token!r} of sample {sample['token']!r}"
+            _check_translation(ann.get("translation"), at)
             rotations.append(_check_numbers(ann.get("rotation"), "rotation", 4, at))
             _check_size(ann.get("size"), at)
-            tokens.append(token)
+            where.append(at)
     if rotations:
-        _check_quaternions(
-            np.array(rotations), lambda row: f"{table}: sample_annotation {tokens[row]!r}"
-        )
+        _check_quaternions(np.array(rotations), lambda row: where[row])
 
 
 def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxes, int]:

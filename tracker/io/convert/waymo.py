@@ -59,6 +59,7 @@ from tracker.boxes import Boxes, FloatArray
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
+from tracker.io.bounds import BOUND_NOTE, beyond_bound
 from tracker.io.convert.nuscenes import assign_cameras, overflowing_boxes
 from tracker.io.fileio import SafeNpz, load_npz
 
@@ -339,6 +340,14 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
         raise InputError(
             f"{path}: frame_index row {k}: frame {frame_index[k]}, but ts_info has {n_frames}"
         )
+    for columns, names in ((slice(0, 3), "x, y, z"), (slice(4, 7), "l, w, h")):
+        far = np.flatnonzero(beyond_bound(bboxes[:, columns]))
+        if len(far):
+            k = far[0]
+            raise InputError(
+                f"{path}: bboxes row {k} (frame {frame_index[k]}): {names} = "
+                f"{bboxes[k, columns].tolist()}: {BOUND_NOTE}"
+            )
     order = np.argsort(frame_index, kind="stable")
     bounds = np.searchsorted(frame_index[order], np.arange(n_frames + 1))
     ids = velos = None
@@ -394,6 +403,13 @@ def _segment_boxes(
         raise InputError(
             f"{path}: bboxes row {row}: {table.bboxes[k, :7].tolist()} with ego2global[{i}] "
             "is not finite in the world or camera frames (too large)"
+        )
+    far = np.flatnonzero(beyond_bound(xyz))  # (the file's row is within it: a far pose)
+    if len(far):
+        k = np.arange(a, b)[keep][far[0]]
+        raise InputError(
+            f"{path}: bboxes row {int(table.rows[k])} (frame {i}) with ego2global[{i}]: x, y, z "
+            f"= {xyz[far[0]].tolist()} in the world frame: {BOUND_NOTE}"
         )
     velocity = None
     track_id = None
