@@ -253,13 +253,18 @@ def test_nuscenes_refuses_detections_it_would_overwrite(
     assert detections.read_bytes() == before and sorted(out.iterdir()) == [detections]
 
 
+FAR = "beyond ±1e+08 m (farther or larger than anything on Earth)"
+
+
 @pytest.mark.parametrize(
     ("fields", "said"),
     [
         ({"translation": [1.0, float("nan"), 0.8]}, "'translation' must be 3 finite numbers"),
         ({"rotation": [0.0, 0.0, 0.0, 0.0]}, "'rotation' is the zero quaternion (no heading)"),
+        ({"translation": [1.0, 2.0]}, "'translation' must be 3 finite numbers"),
+        ({"size": [1.9, 1e300, 1.6]}, f"'size' = [1.9, 1e+300, 1.6]: {FAR}"),
     ],
-    ids=["nan_translation", "zero_rotation"],
+    ids=["nan_translation", "zero_rotation", "short_translation", "far_size"],
 )
 def test_a_bad_ground_truth_annotation_is_one_error_line(
     dataset: SyntheticNuScenes,
@@ -273,7 +278,10 @@ def test_a_bad_ground_truth_annotation_is_one_error_line(
     nuscenes --gt-out` and `mctrack nuscenes` (its evaluation reads the annotations) stop with
     one line naming the table, the annotation and the field, writing nothing (convert wrote the
     detections, then failed with 'unexpected error'; the evaluation blamed its results.json for
-    the NaN, and took the zero quaternion). A run that reads no annotation is not refused."""
+    the NaN, and took the zero quaternion). A run that reads no annotation is not refused.
+    `mctrack eval --dataset nuscenes` checks them the same way before the devkit reads them, of a
+    tracks file or a submission, writing nothing (it handed them to the devkit: a traceback for a
+    short translation, the results file blamed for a NaN, a size of 1e300 scored)."""
     ann_token = token("ann", "scene-0916", 4, 0)  # object 0, a car, in sample 4
 
     def edit(tables: dict[str, list[Any]]) -> None:
@@ -295,3 +303,10 @@ def test_a_bad_ground_truth_annotation_is_one_error_line(
     assert not any((tmp_path / "run").glob("*"))  # the folder is made before any work
     assert main([*argv]) == 0  # the detections alone
     assert main([*run, "--no-eval"]) == 0
+    capsys.readouterr()
+    for tracks in ("tracks.json", "results.json"):
+        evaluated = tmp_path / "eval"
+        argv = ["eval", str(tmp_path / "run" / tracks), "--dataset", "nuscenes", *common]
+        assert main([*argv, "--out", str(evaluated)]) == 2
+        assert capsys.readouterr().err.splitlines() == [f"mctrack eval: {line}"], tracks
+        assert not evaluated.exists()

@@ -757,28 +757,15 @@ def convert_nuscenes(
         require_devkit()
     det_path = Path(detections)
     results, meta = read_detection_results(det_path)
-    scene_names = split_scene_names(nusc, split)
-    wanted = set(scene_names)
-    by_name = {s["name"]: s for s in nusc.scene}
-    absent = [n for n in scene_names if n not in by_name]
-    if absent and len(absent) == len(scene_names):
-        raise InputError(
-            f"split {split!r}: none of its {len(scene_names)} scenes is in {nusc.version} at "
-            f"{nusc.dataroot} (e.g. {absent[0]!r})"
-        )
-    if absent:
-        log.warning("split %s: %d scenes not in the tables, skipped", split, len(absent))
-
-    _check_result_tokens(nusc, results, wanted, split, det_path)
+    scenes = split_scenes(nusc, split)
+    _check_result_tokens(nusc, results, {s["name"] for s in scenes}, split, det_path)
     skipped: Counter[str] = Counter()
     det_scenes: Scenes = {}
     gt_scenes: Scenes | None = {} if with_gt else None
     unknown_velocity = 0
     velocity_nan = 0
     missing_samples = 0
-    for scene in nusc.scene:  # table order, as the devkit
-        if scene["name"] not in wanted:
-            continue
+    for scene in scenes:
         det_frames: list[Frame] = []
         gt_frames: list[Frame] = []
         samples = _scene_samples(nusc, scene)
@@ -820,6 +807,35 @@ def convert_nuscenes(
             velocity_nan,
         )
     return NuScenesConversion(det_scenes, gt_scenes, meta, skipped, unknown_velocity, velocity_nan)
+
+
+def split_scenes(nusc: Any, split: str) -> list[dict[str, Any]]:
+    """The scene records of a split in table order (as the devkit); scenes of the split absent
+    from the tables are skipped (logged), none present is an error."""
+    names = split_scene_names(nusc, split)
+    present = {s["name"] for s in nusc.scene}
+    absent = [n for n in names if n not in present]
+    if absent and len(absent) == len(names):
+        raise InputError(
+            f"split {split!r}: none of its {len(names)} scenes is in {nusc.version} at "
+            f"{nusc.dataroot} (e.g. {absent[0]!r})"
+        )
+    if absent:
+        log.warning("split %s: %d scenes not in the tables, skipped", split, len(absent))
+    wanted = set(names)
+    return [s for s in nusc.scene if s["name"] in wanted]
+
+
+def check_ground_truth(nusc: Any, split: str) -> None:
+    """Check a split's tables as :func:`convert_nuscenes` does (``check_gt``) before the official
+    evaluation reads them unchecked: each scene's sample chain, its samples' poses and its
+    tracking-class annotations' box fields. Raises the same :class:`InputError`, naming the
+    table, the record and the field (the devkit ended in a traceback, or scored them)."""
+    for scene in split_scenes(nusc, split):
+        samples = _scene_samples(nusc, scene)
+        _check_annotations(nusc, samples)
+        for sample in samples:
+            _sample_geometry(nusc, sample)
 
 
 def _check_result_tokens(
