@@ -370,6 +370,27 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
         assert main([*argv, *run]) == 2, name
 
 
+def test_ground_truth_without_velos_has_an_unknown_velocity(segment: Path, tmp_path: Path) -> None:
+    """GT without ``velos``: velocity unknown (NaN, null in gt.json; it was 0, which the motion
+    metrics took for measured standstills as soon as another segment had velos), and --motion
+    derives it from the GT positions."""
+    path = segment / "gt" / f"{SEGMENT}.npz"
+    np.savez_compressed(path, **{k: v for k, v in np.load(path).items() if k != "velos"})
+    conv = convert_waymo(segment, segment / "dets", gt=segment / "gt")
+    assert conv.gt is not None
+    velocities = np.concatenate([g.boxes.velocity for g in conv.gt[SEGMENT]])
+    assert len(velocities) and np.isnan(velocities).all()
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--motion", "--out", str(run)]) == 0
+    gt = json.loads((run / "gt.json").read_text())[SEGMENT]
+    assert {str(b["global_velocity"]) for f in gt for b in f["bboxes"]} == {"None"}
+    motion = json.loads((run / "summary.json").read_text())["motion"]
+    assert motion["protocol"]["gt_velocity"].startswith("GT world positions")
+    kalman = motion["metrics"]["kalman"]["all"]
+    assert kalman["n_samples"] > 0 and kalman["n_gt_velocity_unknown"] == 0
+
+
 def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
     (segment / "ts_info" / f"{SEGMENT}.json").unlink()
     with pytest.raises(InputError, match=rf"ts_info/{SEGMENT}\.json: ts_info file not found"):

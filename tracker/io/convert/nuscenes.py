@@ -30,7 +30,9 @@ Output (one :class:`~tracker.frame.Frame` per sample, scenes in split order)
 * Ground truth (optional): the sample annotations of the tracking classes with at least one
   lidar or radar point (the official evaluation drops the others), ``track_id`` = the index of
   the instance in the ``instance`` table (stable across runs), the devkit's ``box_velocity``
-  (centred difference; [0, 0] where the devkit returns NaN, i.e. single-annotation instances).
+  (centred difference; unknown, NaN, where the devkit returns NaN: an instance annotated once,
+  or its neighbouring annotations too far apart in time. BaseVersion writes null, and the
+  motion metrics leave the box out and count it).
 """
 
 from __future__ import annotations
@@ -140,7 +142,7 @@ class NuScenesConversion:
     gt: Scenes | None
     meta: dict[str, Any]  # the detection file's "meta" (copied into the tracking submission)
     skipped_detections: Counter[str] = field(default_factory=Counter)  # per detection_name
-    gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (written as 0)
+    gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (kept NaN)
     velocity_unknown: int = 0  # detections without a velocity (absent, null, NaN: kept NaN)
 
 
@@ -675,7 +677,8 @@ def _check_annotations(nusc: Any, samples: Sequence[dict[str, Any]]) -> None:
 
 def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxes, int]:
     """GT boxes of one sample (its annotations checked by :func:`_check_annotations`) and the
-    number whose velocity was unknown (set to 0)."""
+    number whose velocity is unknown (the devkit's NaN, kept: 0 would be a measured standstill
+    in the motion metrics)."""
     rows: list[dict[str, Any]] = []
     for ann_token in sample["anns"]:
         ann = nusc.get("sample_annotation", ann_token)
@@ -689,7 +692,7 @@ def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxe
         return Boxes.empty(), 0
     velocity = np.array([nusc.box_velocity(a["token"])[:2] for a in rows], dtype=np.float64)
     unknown = ~np.isfinite(velocity).all(axis=1)
-    velocity[unknown] = 0.0
+    velocity[unknown] = np.nan  # (a half-known velocity is no measurement either)
     size = np.array([a["size"] for a in rows], dtype=np.float64)
     boxes = Boxes.create(
         xyz=np.array([a["translation"] for a in rows], dtype=np.float64),
@@ -798,6 +801,13 @@ def convert_nuscenes(
             det_path,
             missing_samples,
             split,
+        )
+    if unknown_velocity:
+        log.info(
+            "%d ground-truth boxes have no velocity (the devkit's NaN: an instance annotated "
+            "once, or its annotations too far apart): kept unknown (null), left out of the "
+            "motion metrics' velocity errors",
+            unknown_velocity,
         )
     if velocity_nan:
         log.warning(

@@ -21,7 +21,9 @@ once.
   heading, l, w, h(, score)]`` in the **vehicle (ego) frame**, ``types`` (N,) Waymo type codes
   (1 vehicle, 2 pedestrian, 3 sign, 4 cyclist) and ``frame_index`` (N,) the frame of each row
   (0-based, into ``ts_info``). Ground truth has the same plus ``ids`` (N,) object ids (fixed-width
-  strings ``<U..`` or integers) and optionally ``velos`` (N, 2) vehicle-frame speed_x, speed_y.
+  strings ``<U..`` or integers) and optionally ``velos`` (N, 2) vehicle-frame speed_x, speed_y
+  (without it the GT velocity is unknown, NaN: the motion metrics then derive it from the GT
+  positions, as for KITTI).
 
 Output
 ------
@@ -417,6 +419,8 @@ def _segment_boxes(
         track_id = [ids.setdefault(str(v), len(ids)) for v in table.ids[a:b][keep]]
         if table.velos is not None:
             velocity = table.velos[a:b][keep] @ world_from_ego[:2, :2].T  # vehicle → world axes
+        else:  # unknown, not 0: the motion metrics would score a measured standstill
+            velocity = np.full((int(keep.sum()), 2), np.nan)
     score = arr[:, 7] if arr.shape[1] == 8 and ids is None else np.ones(len(arr))
     if ((score < 0) | (score > 1)).any():
         raise InputError(f"{path}: frame {i}: scores must be in [0, 1]")
