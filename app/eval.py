@@ -429,12 +429,25 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
     if not tracks.is_file():
         raise InputError(f"{tracks}: file not found")
     out = Path(args.out) if args.out else tracks.parent
+    _check_nuscenes_ground_truth(args)
     from tracker.eval.motion_eval import MOTION_PLOT
 
     # a refused evaluation leaves no output of its own (a half-written nuscenes_eval/)
     written = (EVAL_SUBMISSION, "eval.json", "eval.md", MOTION_PLOT, "nuscenes_eval/*.json")
     with outputs_removed_on_failure(out, written, folders=("nuscenes_eval/plots",)):
         return _evaluate_nuscenes(args, tracks, out)
+
+
+def _check_nuscenes_ground_truth(args: argparse.Namespace) -> None:
+    """The devkit reads the split's annotations unchecked (a bad one was a devkit traceback, or
+    blamed on the results file): check them as `mctrack nuscenes` does, before any output."""
+    from tracker.eval.nuscenes import check_split_has_ground_truth
+    from tracker.io.convert.nuscenes import check_ground_truth, load_nuscenes
+
+    check_split_has_ground_truth(args.split)
+    nusc = load_nuscenes(args.dataroot, args.version)
+    check_ground_truth(nusc, args.split)
+    del nusc  # several GB on v1.0-trainval; the evaluation loads its own copy
 
 
 def _evaluate_nuscenes(args: argparse.Namespace, tracks: Path, out: Path) -> int:

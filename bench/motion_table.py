@@ -298,9 +298,11 @@ def motion_page(
         c = counts.get(name)
         lines += [f"## {name}", ""]
         if c:
+            unknown = c.get("gt_velocity_unknown", 0)  # (one-sample GT segments on KITTI)
             lines += [
-                f"{c['samples']} matched samples, {c['gt_tracks']} GT tracks, "
-                f"{c['output_tracks']} output tracks.",
+                f"{c['samples']} matched samples"
+                + (f" ({unknown} with an unknown GT velocity: left out)" if unknown else "")
+                + f", {c['gt_tracks']} GT tracks, {c['output_tracks']} output tracks.",
                 "",
             ]
         lines += [*_table(rows, absent), ""]

@@ -54,6 +54,13 @@ BAD_LABELS = {  # (the line appended, what the error names)
         (f"0001.txt:{N_LINES + 1}", "'type'", "Person_sitting"),
     ),
     "an object twice in one frame": (GOOD_ROW, (f"0001.txt:{N_LINES + 1}", "'track_id'")),
+    "a location beyond the bound": (  # (finite: 1e300 m overflowed the motion metrics)
+        " ".join([*GOOD_ROW.split()[:13], "1e300", *GOOD_ROW.split()[14:]]),
+        (
+            f"0001.txt:{N_LINES + 1}: field 'x': 1e300 (frame {GOOD_ROW.split()[0]}) is beyond "
+            "±1e+08 m",
+        ),
+    ),
 }
 #: The error on the sample's labels with GOOD_ROW appended, after "<label file>:".
 TWICE = (
@@ -214,6 +221,31 @@ def test_eval_motion_refuses_ground_truth_with_an_object_twice_in_a_frame(
         f"{bad}: scene 0001 frame {frame['frame_id']}: track id"
         f" {frame['bboxes'][0]['track_id']} is on 2 boxes: one object twice in one frame",
     )
+
+
+@pytest.mark.parametrize("field", ["global_xyz", "lwh"])
+def test_eval_refuses_ground_truth_beyond_the_bound_detections_have(
+    field: str, sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A GT box at (or as large as) 1e300 m, finite but farther than anything on Earth: one line
+    naming the file, scene, frame, box and field, as for a detection (was scored: numpy overflow
+    warnings and the box's samples silently lost)."""
+    import gzip
+
+    gt = json.loads(gzip.open(SAMPLE / "gt.json.gz").read())
+    gt["0001"][5]["bboxes"][1][field] = [3.0, 1e300, 1.5]
+    bad = tmp_path / "gt.json"
+    bad.write_text(json.dumps(gt))
+    for motion in ([], ["--motion"]):
+        argv = ["eval", str(sample_tracks["all"]), "--gt", str(bad), *motion]
+        code, err = _run([*argv, "--out", str(tmp_path / "o")], capsys)
+        _one_line_error(
+            code,
+            err,
+            f"{bad}: scene '0001', frame index 5, box 1: field '{field}' = [3.0, 1e+300, 1.5]: "
+            "beyond ±1e+08 m",
+        )
+        assert not (tmp_path / "o").exists()
 
 
 @pytest.mark.parametrize("command", ["eval", "view", "compare", "robustness", "tune"])

@@ -22,6 +22,7 @@ from tracker.io.convert.kitti import (
     boxes_rect_to_world,
     boxes_world_to_rect,
     convert_kitti,
+    read_ab3dmot_detections,
     read_kitti_calib,
     read_kitti_labels,
     read_kitti_object_detections,
@@ -514,6 +515,36 @@ def test_a_box_size_not_above_zero_names_file_line_and_field(
         _read_layout(layout, path)
     assert str(excinfo.value) == (
         f"{path}:3: field '{field}': box dimension must be > 0, got {float(value)}"
+    )
+
+
+@pytest.mark.parametrize(("field", "value"), [("x", "1e300"), ("z", "-2e8"), ("l", "1e300")])
+@pytest.mark.parametrize("layout", [*_LAYOUTS, "ab3dmot"])
+def test_a_box_beyond_the_bound_names_file_line_frame_and_field(
+    tmp_path: Path, layout: str, field: str, value: str
+) -> None:
+    """A location or size beyond the bound of every box reader (tracker.io.bounds; finite, but
+    farther than anything on Earth), in the labels (ground truth) as in every detection layout:
+    one line naming the file, the line, the field and the frame (was converted, and overflowed
+    the motion metrics)."""
+    column = {**_HWL, "x": 11, "y": 12, "z": 13}[field]
+    bad = _replace_column(_CAR, " ", column, value)
+    if layout == "ab3dmot":  # (frame, type code, 2D box, score, h, w, l, x, y, z, ry, alpha)
+        row = bad.split()
+        path = tmp_path / "Car" / "0001.txt"
+        path.parent.mkdir()
+        path.write_text(f"{_GOOD_DET}\n4," + ",".join(["2", *row[4:8], "0.9", *row[8:15], "0"]))
+        with pytest.raises(InputError) as excinfo:
+            read_ab3dmot_detections([path])
+        line, frame = 2, 4
+    else:
+        path = _write_layout(layout, [_DONTCARE, _CAR, bad], tmp_path)
+        with pytest.raises(InputError) as excinfo:
+            _read_layout(layout, path)
+        line, frame = 3, 0
+    assert str(excinfo.value) == (
+        f"{path}:{line}: field '{field}': {value} (frame {frame}) is beyond ±1e+08 m (farther or "
+        "larger than anything on Earth)"
     )
 
 

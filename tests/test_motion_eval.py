@@ -370,6 +370,49 @@ def test_an_unknown_detection_velocity_is_no_estimate() -> None:
     assert metrics_of(some, "difference", "all").n_samples == kalman.n_samples
 
 
+def test_an_unknown_gt_velocity_is_left_out_of_every_estimator_and_reported() -> None:
+    """NaN GT velocities (BaseVersion null: nuScenes' single-annotation instances) leave their
+    samples out of every estimator's metrics, counted per estimator and class and said in the
+    report (they were written as 0 and scored as measured standstills). All unknown is a GT
+    without velocities (derived from the positions, as all zeros; it was taken as annotated and
+    every sample dropped)."""
+    dets, gts, outputs = tracked()
+
+    def gt_with(unknown: Any) -> list[Frame]:
+        return [
+            replace(
+                g, boxes=g.boxes.replace(velocity=np.where(unknown(i), np.nan, g.boxes.velocity))
+            )
+            for i, g in enumerate(gts)
+        ]
+
+    def evaluate(gt_frames: list[Frame]) -> dict[str, Any]:
+        scenes = {"synthetic": gt_frames}
+        return evaluate_motion({"synthetic": dets}, scenes, {"synthetic": outputs}, classes=CLASSES)
+
+    known = evaluate(gts)
+    some = evaluate(gt_with(lambda i: i % 3 == 0))
+    assert some["protocol"]["gt_velocity"] == known["protocol"]["gt_velocity"]
+    unknown = some["counts"]["all"]["gt_velocity_unknown"]
+    assert 0 < unknown < some["counts"]["all"]["samples"] == known["counts"]["all"]["samples"]
+    for estimator in ("kalman", "difference", "curve_fit"):
+        m = metrics_of(some, estimator, "all")
+        assert m.n_gt_velocity_unknown == unknown and m.n_dropped_samples == 0, estimator
+        assert m.n_samples + unknown == metrics_of(known, estimator, "all").n_samples, estimator
+    assert (
+        f"Samples whose GT velocity is unknown, left out of the velocity metrics: {unknown}."
+        in motion_markdown(some)
+    )
+    assert "GT velocity is unknown" not in motion_markdown(known)
+    none = evaluate(gt_with(lambda i: True))
+    zeros = evaluate(
+        [replace(g, boxes=g.boxes.replace(velocity=0 * g.boxes.velocity)) for g in gts]
+    )
+    assert none["protocol"]["gt_velocity"] == zeros["protocol"]["gt_velocity"]
+    assert none["protocol"]["gt_velocity"].startswith("GT world positions")
+    assert_metrics_close(metrics_of(none, "kalman", "all"), metrics_of(zeros, "kalman", "all"))
+
+
 def test_frame_order_does_not_matter() -> None:
     dets, gts, outputs = tracked(num_frames=60)
     rng = np.random.default_rng(7)

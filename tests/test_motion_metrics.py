@@ -510,7 +510,27 @@ def test_non_finite_velocities_are_dropped_and_counted() -> None:
     dropped, clean = motion_metrics(**with_nan).as_dict(), motion_metrics(**samples).as_dict()
     assert dropped.pop("n_dropped_samples") == 1
     assert clean.pop("n_dropped_samples") == 0
+    assert dropped["n_gt_velocity_unknown"] == 0
     np.testing.assert_equal(dropped, clean)
+
+
+def test_an_unknown_gt_velocity_is_left_out_and_counted_apart() -> None:
+    """A NaN GT velocity (unknown: nuScenes' single-annotation instances) leaves its row out of
+    every metric, counted in n_gt_velocity_unknown, not in n_dropped_samples (an estimate's
+    NaN); read as 0 it was scored as a measured standstill."""
+    samples = three_track_scene(13)
+    rows = np.array([5, 6, 7])
+    with_nan = concat(samples, take(samples, rows))
+    with_nan["times_secs"][-3:] += 1000.0
+    with_nan["gt_velocity"][-3:] = np.nan
+    with_nan["est_velocity"][-1] = np.nan  # (both unknown: the GT's count)
+    unknown, clean = motion_metrics(**with_nan).as_dict(), motion_metrics(**samples).as_dict()
+    assert unknown.pop("n_gt_velocity_unknown") == 3 and unknown["n_dropped_samples"] == 0
+    assert clean.pop("n_gt_velocity_unknown") == 0
+    np.testing.assert_equal(unknown, clean)
+    as_zero = {**with_nan, "gt_velocity": np.nan_to_num(with_nan["gt_velocity"])}
+    as_zero["est_velocity"] = np.nan_to_num(as_zero["est_velocity"])
+    assert motion_metrics(**as_zero).n_samples == clean["n_samples"] + 3  # (what 0 did)
 
 
 def test_shape_and_key_validation() -> None:

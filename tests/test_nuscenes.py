@@ -572,7 +572,10 @@ def test_a_ground_truth_size_is_checked_as_a_detection_size(
                 root, version=dataset.version, detections=clean_path, split="mini_val", with_gt=True
             )
         table = root / dataset.version / "sample_annotation.json"
-        assert str(err.value) == f"{table}: sample_annotation '{ann['token']}': field 'size' {said}"
+        assert str(err.value) == (
+            f"{table}: sample_annotation '{ann['token']}' of sample '{ann['sample_token']}': "
+            f"field 'size' {said}"
+        )
 
 
 def _tracked_annotation(dataset: SyntheticNuScenes, nusc: Any) -> dict[str, Any]:
@@ -594,6 +597,7 @@ def _set_annotation(tables: dict[str, list[Any]], token: str, **fields: Any) -> 
 
 _EMPTY = {"num_lidar_pts": 0, "num_radar_pts": 0}
 _MUST = "must be {} finite numbers"
+_FAR = "beyond ±1e+08 m (farther or larger than anything on Earth)"
 
 
 @needs_devkit
@@ -609,9 +613,14 @@ _MUST = "must be {} finite numbers"
         ({"rotation": [1.0, 0.0, 0.0]}, f"'rotation' {_MUST.format(4)}"),
         ({"rotation": [0.0] * 4}, "'rotation' is the zero quaternion (no heading)"),
         ({"rotation": [1e-170] * 4}, "'rotation' is the zero quaternion (no heading)"),
+        # finite, as a detection's: beyond the bound of every box reader (tracker.io.bounds)
+        ({"translation": [1e300, 2.0, 0.8]}, f"'translation' = [1e+300, 2.0, 0.8]: {_FAR}"),
+        ({"translation": [1.0, -1e9, 0.8], **_EMPTY}, f"'translation' = [1.0, -1000000000.0, "
+                                                      f"0.8]: {_FAR}"),
+        ({"size": [1.9, 1e300, 1.6]}, f"'size' = [1.9, 1e+300, 1.6]: {_FAR}"),
     ],
     ids=["t_nan", "t_inf", "t_short", "t_text", "t_short_no_points", "r_nan", "r_short",
-         "r_zero", "r_tiny"],
+         "r_zero", "r_tiny", "t_far", "t_far_no_points", "s_far"],
 )  # fmt: skip
 def test_a_ground_truth_translation_or_rotation_is_checked_as_a_detection_one(
     dataset: SyntheticNuScenes,
@@ -625,7 +634,9 @@ def test_a_ground_truth_translation_or_rotation_is_checked_as_a_detection_one(
     is not 4 or is the zero quaternion: one error naming the table, the annotation and the
     field (a NaN translation or a zero quaternion failed the GT writing after the detections
     were written, a short translation or rotation was an 'unexpected error'). One without points
-    too: its translation is read for its neighbours' velocity (a short one was a crash)."""
+    too: its translation is read for its neighbours' velocity (a short one was a crash). A
+    translation or size beyond the bound a detection's has (1e300: finite) is refused as a
+    detection's (was converted, and overflowed the motion metrics)."""
     ann = _tracked_annotation(dataset, nusc)
     root = _edited_dataset(dataset, tmp_path, lambda t: _set_annotation(t, ann["token"], **fields))
     table = root / dataset.version / "sample_annotation.json"
@@ -635,7 +646,10 @@ def test_a_ground_truth_translation_or_rotation_is_checked_as_a_detection_one(
             convert_nuscenes(
                 root, version=dataset.version, detections=clean_path, split="mini_val", **flags
             )
-        assert str(err.value) == f"{table}: sample_annotation '{ann['token']}': field {said}"
+        assert str(err.value) == (
+            f"{table}: sample_annotation '{ann['token']}' of sample '{ann['sample_token']}': "
+            f"field {said}"
+        )
 
 
 @needs_devkit
@@ -770,6 +784,8 @@ def test_detection_fields_are_read_strictly(
         ({"detection_name": None}, "'detection_name' must be a string, got None"),
         ({"velocity": [1.0, 2.0, 0.5]}, "'velocity' must be [vx, vy], got [1.0, 2.0, 0.5]"),
         ({"velocity": [math.inf, 0.0]}, "'velocity' = [inf, 0.0] is infinite"),
+        ({"translation": [1e300, 0.0, 1.0]}, f"'translation' = [1e+300, 0.0, 1.0]: {_FAR}"),
+        ({"size": [1e9, 4.5, 1.6]}, f"'size' = [1000000000.0, 4.5, 1.6]: {_FAR}"),
     ):
         with pytest.raises(InputError) as err:
             convert(**fields)
@@ -797,9 +813,10 @@ def test_detection_fields_are_read_strictly(
 def test_coordinates_that_overflow_the_transforms_are_named(
     dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
 ) -> None:
-    """A detection or an ego pose so far away (1e308) that the camera or pose transforms
-    overflow: one error naming the file and the record (was converted with numpy overflow
-    warnings: the box in no camera, NaN matrices in the transforms)."""
+    """A detection beyond the bound of every box reader (1e308: tracker.io.bounds), or an ego
+    pose so far away (1.7e308) that the camera or pose transforms overflow: one error naming
+    the file and the record (was converted with numpy overflow warnings: the box in no camera,
+    NaN matrices in the transforms)."""
     import warnings
 
     results = json.loads(clean_path.read_text())
@@ -828,8 +845,10 @@ def test_coordinates_that_overflow_the_transforms_are_named(
                 dataset.dataroot, version=dataset.version, detections=path, split="mini_val",
                 nusc=nusc,
             )  # fmt: skip
-        assert str(err.value).startswith(f"{path}: results['{token}'][2]: fields 'translation'")
-        assert "not finite in the world or camera frames" in str(err.value)
+        assert str(err.value) == (
+            f"{path}: results['{token}'][2]: field 'translation' = [1e+308, 1e+308, 0.0]: "
+            "beyond ±1e+08 m (farther or larger than anything on Earth)"
+        )
         with pytest.raises(InputError) as err:
             convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
         table = root / dataset.version / "ego_pose.json"

@@ -11,7 +11,7 @@ from typing import Any
 import pytest
 
 from app.cli import main
-from tests.test_nuscenes import NOISY, _devkit_missing, _edited_dataset
+from tests.test_nuscenes import NOISY, _devkit_missing, _edited_dataset, _set_annotation
 from tests.test_nuscenes_fixture import (
     SyntheticNuScenes,
     make_detections,
@@ -253,13 +253,18 @@ def test_nuscenes_refuses_detections_it_would_overwrite(
     assert detections.read_bytes() == before and sorted(out.iterdir()) == [detections]
 
 
+FAR = "beyond ±1e+08 m (farther or larger than anything on Earth)"
+
+
 @pytest.mark.parametrize(
     ("fields", "said"),
     [
         ({"translation": [1.0, float("nan"), 0.8]}, "'translation' must be 3 finite numbers"),
         ({"rotation": [0.0, 0.0, 0.0, 0.0]}, "'rotation' is the zero quaternion (no heading)"),
+        ({"translation": [1.0, 2.0]}, "'translation' must be 3 finite numbers"),
+        ({"size": [1.9, 1e300, 1.6]}, f"'size' = [1.9, 1e+300, 1.6]: {FAR}"),
     ],
-    ids=["nan_translation", "zero_rotation"],
+    ids=["nan_translation", "zero_rotation", "short_translation", "far_size"],
 )
 def test_a_bad_ground_truth_annotation_is_one_error_line(
     dataset: SyntheticNuScenes,
@@ -273,7 +278,10 @@ def test_a_bad_ground_truth_annotation_is_one_error_line(
     nuscenes --gt-out` and `mctrack nuscenes` (its evaluation reads the annotations) stop with
     one line naming the table, the annotation and the field, writing nothing (convert wrote the
     detections, then failed with 'unexpected error'; the evaluation blamed its results.json for
-    the NaN, and took the zero quaternion). A run that reads no annotation is not refused."""
+    the NaN, and took the zero quaternion). A run that reads no annotation is not refused.
+    `mctrack eval --dataset nuscenes` checks them the same way before the devkit reads them, of a
+    tracks file or a submission, writing nothing (it handed them to the devkit: a traceback for a
+    short translation, the results file blamed for a NaN, a size of 1e300 scored)."""
     ann_token = token("ann", "scene-0916", 4, 0)  # object 0, a car, in sample 4
 
     def edit(tables: dict[str, list[Any]]) -> None:
@@ -281,7 +289,8 @@ def test_a_bad_ground_truth_annotation_is_one_error_line(
 
     root = _edited_dataset(dataset, tmp_path / "data", edit)
     table = root / dataset.version / "sample_annotation.json"
-    line = f"error: {table}: sample_annotation '{ann_token}': field {said}"
+    sample = token("sample", "scene-0916", 4)
+    line = f"error: {table}: sample_annotation '{ann_token}' of sample '{sample}': field {said}"
     common = ["--dataroot", str(root), "--version", dataset.version, "--split", "mini_val"]
     out, gt = tmp_path / "dets.json", tmp_path / "gt.json"
     argv = ["convert", "nuscenes", *common, "--detections", str(noisy), "--out", str(out)]
@@ -294,3 +303,58 @@ def test_a_bad_ground_truth_annotation_is_one_error_line(
     assert not any((tmp_path / "run").glob("*"))  # the folder is made before any work
     assert main([*argv]) == 0  # the detections alone
     assert main([*run, "--no-eval"]) == 0
+    capsys.readouterr()
+    for tracks in ("tracks.json", "results.json"):
+        evaluated = tmp_path / "eval"
+        argv = ["eval", str(tmp_path / "run" / tracks), "--dataset", "nuscenes", *common]
+        assert main([*argv, "--out", str(evaluated)]) == 2
+        assert capsys.readouterr().err.splitlines() == [f"mctrack eval: {line}"], tracks
+        assert not evaluated.exists()
+
+
+def test_an_unknown_ground_truth_velocity_stays_unknown_and_is_counted(
+    dataset: SyntheticNuScenes, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """An annotation whose devkit velocity is NaN (annotated once: no prev, no next) is kept
+    unknown: null in --gt-out and gt.json, logged, and its motion sample left out of the
+    velocity metrics with its count in summary.json and motion.md (it was written as [0, 0]
+    and scored as a measured standstill of a car driving 8 m/s)."""
+    ann_token = token("ann", "scene-0916", 4, 0)  # object 0, a car, in sample 4
+    root = _edited_dataset(
+        dataset,
+        tmp_path / "data",
+        lambda tables: _set_annotation(tables, ann_token, prev="", next=""),
+    )
+    clean = tmp_path / "clean.json"
+    clean.write_text(json.dumps(make_detections(dataset, seed=1)))
+    common = ["--dataroot", str(root), "--version", dataset.version, "--split", "mini_val"]
+    gt_out = tmp_path / "gt.json"
+    argv = ["convert", "nuscenes", *common, "--detections", str(clean)]
+    with caplog.at_level("INFO"):
+        assert main([*argv, "--out", str(tmp_path / "dets.json"), "--gt-out", str(gt_out)]) == 0
+    assert "1 ground-truth boxes have no velocity (the devkit's NaN" in caplog.text
+
+    def unknown(path: Path) -> list[tuple[str, int]]:
+        scenes = json.loads(path.read_text())
+        return [
+            (scene, f["frame_id"])
+            for scene, frames in scenes.items()
+            for f in frames
+            for b in f["bboxes"]
+            if b["global_velocity"] is None
+        ]
+
+    assert unknown(gt_out) == [("scene-0916", 4)]
+    out = tmp_path / "run"
+    run = ["nuscenes", *common, "--detections", str(clean), "--motion", "--no-eval"]
+    assert main([*run, "--out", str(out)]) == 0
+    assert unknown(out / "gt.json") == [("scene-0916", 4)]
+    motion = json.loads((out / "summary.json").read_text())["motion"]
+    assert motion["counts"]["car"]["gt_velocity_unknown"] == 1
+    for estimator, rows in motion["metrics"].items():
+        assert rows["car"]["n_gt_velocity_unknown"] == 1, estimator
+        assert rows["all"]["n_gt_velocity_unknown"] == 1, estimator
+    car = motion["metrics"]["kalman"]["car"]
+    assert car["n_samples"] + car["n_dropped_samples"] == motion["counts"]["car"]["samples"] - 1
+    report = (out / "motion.md").read_text()
+    assert "Samples whose GT velocity is unknown, left out of the velocity metrics: 1." in report

@@ -334,7 +334,29 @@ MALFORMED: list[tuple[str, str | bytes, str]] = [
     ("score true", json.dumps({"s": [frame(boxes=[box(detection_score=True)])]}), "score"),
     ("not UTF-8", b'{"s\xff": []}', "UTF-8"),
     ("1e400 coordinate", '{"s":[{"frame_id":0,"bboxes":[' + _box_text("1e400") + "]}]}", "xyz"),
+    # finite, but beyond any place on Earth: its squares overflowed downstream
+    (
+        "1e300 coordinate",
+        json.dumps({"s": [frame(boxes=[box(), box(global_xyz=[1e300, 0, 0.8])])]}),
+        "frame index 0, box 1: field 'global_xyz' = [1e+300, 0.0, 0.8]: beyond ±1e+08 m",
+    ),
+    (
+        "1e300 size",
+        json.dumps({"s": [frame(boxes=[box(lwh=[3.9, 1.6, 1e300])])]}),
+        "box 0: field 'lwh' = [3.9, 1.6, 1e+300]: beyond ±1e+08 m",
+    ),
 ]
+
+
+def test_the_box_bound_per_row() -> None:
+    """tracker.io.bounds.beyond_bound: per row of (N, k) or (N,), inf beyond, NaN not (refused as
+    not finite elsewhere), no rows no error (a frame without boxes, an empty label file)."""
+    from tracker.io.bounds import MAX_BOX_METRES, beyond_bound
+
+    rows = np.array([[0.0, -MAX_BOX_METRES], [1.0, -2e8], [np.inf, 0.0], [np.nan, 0.0]])
+    assert beyond_bound(rows).tolist() == [False, True, True, False]
+    assert beyond_bound(rows[:, 1]).tolist() == [False, True, False, False]
+    assert beyond_bound(np.zeros((0, 3))).shape == beyond_bound(np.zeros(0)).shape == (0,)
 
 
 @pytest.mark.parametrize(("case", "text", "expected"), MALFORMED, ids=[c[0] for c in MALFORMED])

@@ -339,19 +339,26 @@ def test_ego_info_poses_and_cameras_are_checked(segment: Path, tmp_path: Path) -
 def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Path) -> None:
     """An object twice in one frame, or a NaN velocity, in the ground truth: one error naming
     the file and the row (mctrack waymo --motion ended in an unexpected error, after tracking:
-    'GT track 0 has two samples', or NaN in gt.json)."""
+    'GT track 0 has two samples', or NaN in gt.json). A box beyond the bound a detection's has
+    (1e300: finite; tracker.io.bounds) is refused as a detection's, naming its frame too."""
     path = segment / "gt" / f"{SEGMENT}.npz"
     good = dict(np.load(path))
-    ids, velos = good["ids"].copy(), good["velos"].copy()
+    ids, velos, bboxes = good["ids"].copy(), good["velos"].copy(), good["bboxes"].copy()
     frame0 = np.flatnonzero(good["frame_index"] == 0)
     ids[frame0[1]] = ids[frame0[0]]
     velos[3] = np.nan
+    bboxes[5, 1] = 1e300
     cases = {
         "object twice in a frame": (
             {"ids": ids},
             rf"ids row {frame0[1]}: object '{ids[0]}' is in frame 0 twice",
         ),
         "NaN velocity": ({"velos": velos}, r"velos row 3: must be finite"),
+        "box beyond the bound": (
+            {"bboxes": bboxes},
+            rf"bboxes row 5 \(frame {good['frame_index'][5]}\): x, y, z = \[.*, 1e\+300, .*\]: "
+            r"beyond ±1e\+08 m",
+        ),
     }
     argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
     for name, (arrays, match) in cases.items():
@@ -361,6 +368,27 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
         assert str(path) in str(err.value), name
         run = ["--gt", str(segment / "gt"), "--motion", "--out", str(tmp_path / "run")]
         assert main([*argv, *run]) == 2, name
+
+
+def test_ground_truth_without_velos_has_an_unknown_velocity(segment: Path, tmp_path: Path) -> None:
+    """GT without ``velos``: velocity unknown (NaN, null in gt.json; it was 0, which the motion
+    metrics took for measured standstills as soon as another segment had velos), and --motion
+    derives it from the GT positions."""
+    path = segment / "gt" / f"{SEGMENT}.npz"
+    np.savez_compressed(path, **{k: v for k, v in np.load(path).items() if k != "velos"})
+    conv = convert_waymo(segment, segment / "dets", gt=segment / "gt")
+    assert conv.gt is not None
+    velocities = np.concatenate([g.boxes.velocity for g in conv.gt[SEGMENT]])
+    assert len(velocities) and np.isnan(velocities).all()
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--motion", "--out", str(run)]) == 0
+    gt = json.loads((run / "gt.json").read_text())[SEGMENT]
+    assert {str(b["global_velocity"]) for f in gt for b in f["bboxes"]} == {"None"}
+    motion = json.loads((run / "summary.json").read_text())["motion"]
+    assert motion["protocol"]["gt_velocity"].startswith("GT world positions")
+    kalman = motion["metrics"]["kalman"]["all"]
+    assert kalman["n_samples"] > 0 and kalman["n_gt_velocity_unknown"] == 0
 
 
 def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
@@ -443,9 +471,10 @@ def test_waymo_refuses_inputs_among_its_outputs(
 
 
 def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> None:
-    """A box or an ego translation so large (1e308) that the pose or camera transforms overflow:
-    one error naming the file and the row or entry (was converted with numpy overflow warnings,
-    the box in no camera, or NaN poses)."""
+    """A box beyond the bound of every box reader (1e308: tracker.io.bounds), or an ego
+    translation so large that the pose transforms overflow (1.7e308) or that put the frame's
+    boxes beyond the bound (1e300): one error naming the file and the row or entry (was converted
+    with numpy overflow warnings, the box in no camera, or NaN poses)."""
     import warnings
 
     dets, ego = segment / "dets" / f"{SEGMENT}.npz", segment / "ego_info" / f"{SEGMENT}.npz"
@@ -454,10 +483,17 @@ def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> No
     row = int(np.flatnonzero(good_dets["frame_index"] == 3)[1])
     bboxes[row, :3] = 1e308
     poses[2, :3, 3] = 1.7e308
+    far_poses = good_ego["ego2global"].copy()
+    far_poses[3, :3, 3] = 1e300
+    first = int(np.flatnonzero(good_dets["frame_index"] == 3)[0])
     cases = (
         (dets, {**good_dets, "bboxes": bboxes},
-         rf"bboxes row {row}: .* with ego2global\[3\] is not finite"),
+         rf"bboxes row {row} \(frame 3\): x, y, z = \[1e\+308, 1e\+308, 1e\+308\]: beyond "
+         r"±1e\+08 m"),
         (ego, {**good_ego, "ego2global": poses}, r"ego2global\[2\]: its inverse is not finite"),
+        (ego, {**good_ego, "ego2global": far_poses},
+         rf"dets/.*: bboxes row {first} \(frame 3\) with ego2global\[3\]: x, y, z = \[1e\+300, "
+         r".* in the world frame: beyond ±1e\+08 m"),
     )  # fmt: skip
     for path, arrays, match in cases:
         np.savez_compressed(path, **arrays)
@@ -465,6 +501,6 @@ def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> No
             warnings.simplefilter("error")  # said once, as an error: no numpy warnings first
             with pytest.raises(InputError, match=match) as err:
                 convert_waymo(segment, segment / "dets")
-        assert str(err.value).startswith(f"{path}: "), match
+        assert str(err.value).startswith(f"{dets if 'world' in match else path}: "), match
         np.savez_compressed(dets, **good_dets)
         np.savez_compressed(ego, **good_ego)

@@ -6,11 +6,16 @@ and tracker output, like for like for every estimator, and formats the result.
 Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4, are deliberate):
 
 1. **Ground-truth velocity.** A dataset whose GT boxes carry a velocity (nuScenes) uses it. A
-   dataset whose GT velocities are all exactly zero (KITTI: none is annotated) gets it from the GT
-   world positions, per (scene, GT track), over real time with
-   :func:`~tracker.eval.motion_metrics.gt_velocity_central` (zero lag, 5-sample window). A GT track
+   dataset whose GT velocities are all exactly zero or unknown (KITTI: none is annotated) gets it
+   from the GT world positions, per (scene, GT track), over real time with
+   :func:`~tracker.eval.motion_metrics.gt_velocity_central` (zero lag, 5-sample window; a
+   track's first and last samples get the one-sided second-order difference, not 0). A GT track
    is split into segments where it skips a frame (Δt > 1.5 × the scene's median frame step); a
-   one-sample segment has an unknown (NaN) velocity and its samples are dropped and counted.
+   one-sample segment has an unknown (NaN) velocity. A sample whose GT velocity is unknown (that,
+   or NaN in the annotations: nuScenes' single-annotation instances, Waymo GT without ``velos``)
+   is left out of every estimator's metrics and counted (``n_gt_velocity_unknown``, and
+   ``counts[class]["gt_velocity_unknown"]``); it is never read as 0, which would score a
+   standstill.
    On KITTI the world frame comes from estimated (ORB-SLAM3) ego poses, so the "GT" velocity also
    carries the pose error.
 2. **Association**, per scene, per frame, per class: the output boxes, in descending score order,
@@ -310,7 +315,10 @@ def derive_gt_velocity(
 
 
 def _gt_has_velocity(gt_scenes: Mapping[str, Sequence[Frame]]) -> bool:
-    return any(np.any(f.boxes.velocity != 0.0) for frames in gt_scenes.values() for f in frames)
+    def given(v: FloatArray) -> bool:  # (NaN: unknown, not an annotated velocity)
+        return bool(np.any(np.isfinite(v) & (v != 0.0)))
+
+    return any(given(f.boxes.velocity) for frames in gt_scenes.values() for f in frames)
 
 
 def _detector_has_velocity(
@@ -644,6 +652,8 @@ def _metrics_dict(m: MotionMetrics) -> dict[str, float | int | None]:
 
 def metrics_from_dict(values: Mapping[str, Any]) -> MotionMetrics:
     """A :class:`MotionMetrics` back from its JSON form (None -> NaN; extra keys ignored)."""
+    # (results written before n_gt_velocity_unknown counted those rows in n_dropped_samples)
+    values = {"n_gt_velocity_unknown": 0, **values}
     return MotionMetrics(
         **{
             f.name: float("nan") if values[f.name] is None else values[f.name]
@@ -728,6 +738,8 @@ def evaluate_samples(
             "matched": s.n_matched,
             "matched_coasting": s.n_matched_coasting,
             "samples": len(s),
+            # (samples left out of every estimator's velocity metrics, not scored as 0)
+            "gt_velocity_unknown": int((~np.isfinite(s.gt_velocity).all(axis=1)).sum()),
             "gt_tracks": int(np.unique(s.gt_key).size),
             "output_tracks": int(np.unique(s.est_key).size),
         }
@@ -833,10 +845,17 @@ def motion_markdown(result: Mapping[str, Any], *, heading_level: int = 3) -> str
         counts = result.get("counts", {}).get(cls, {})
         lines += [f"{h} Motion metrics: {cls}", ""]
         if counts:
+            unknown = counts.get("gt_velocity_unknown", 0)
             lines += [
                 f"{counts['samples']} samples ({counts['gt_tracks']} GT tracks with samples, "
                 f"{counts['output_tracks']} output tracks); {counts['matched']} matched boxes of "
-                f"which {counts['matched_coasting']} coasting (not samples).",
+                f"which {counts['matched_coasting']} coasting (not samples)."
+                + (
+                    " Samples whose GT velocity is unknown, left out of the velocity metrics: "
+                    f"{unknown}."
+                    if unknown
+                    else ""
+                ),
                 "",
             ]
         lines += [header, rule]

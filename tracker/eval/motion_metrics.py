@@ -14,6 +14,7 @@ Differences from the reference ``evaluation/eval_motion.py`` (spec §4.4), all d
 - The curve-fit velocity is in m/s (the reference's was in m/frame).
 - The VSE filter never degenerates into an exact fit (which would report a fake zero).
 - A metric with no samples is NaN, never 0.
+- A sample whose GT velocity is unknown (NaN) is left out and counted, never scored as 0.
 """
 
 from __future__ import annotations
@@ -133,7 +134,10 @@ class MotionMetrics:
     n_vse_samples : samples that entered VSE.
     n_vse_sequences, n_vse_skipped_sequences : output tracks smoothed, and too short to smooth.
     n_vde_candidates : delays averaged in VDE.
-    n_dropped_samples : input rows dropped because a velocity was not finite.
+    n_dropped_samples : input rows left out because the estimated velocity was not finite (no
+        estimate), their GT velocity known.
+    n_gt_velocity_unknown : input rows left out because the GT velocity was not finite
+        (unknown: never read as 0, which would count as a measured standstill).
     """
 
     vae_deg: float
@@ -150,6 +154,7 @@ class MotionMetrics:
     n_vse_skipped_sequences: int
     n_vde_candidates: int
     n_dropped_samples: int
+    n_gt_velocity_unknown: int
 
     def as_dict(self) -> dict[str, float | int]:
         """Field name -> value, in declaration order (NaN kept as NaN)."""
@@ -482,7 +487,9 @@ def motion_metrics(
 
     One row per matched (GT box, output box) pair. Rows are sorted by time inside each GT track
     (static test, VDE) and inside each output track (VSE) here, so shuffled input gives identical
-    metrics. Rows whose GT or estimated velocity is not finite are dropped and counted.
+    metrics. Rows whose GT velocity is unknown (not finite) are left out and counted
+    (``n_gt_velocity_unknown``), as are the other rows whose estimate is not finite
+    (``n_dropped_samples``).
 
     Parameters
     ----------
@@ -520,8 +527,10 @@ def motion_metrics(
     if not (np.isfinite(t).all() and np.isfinite(xy).all()):
         raise ValueError("times_secs and gt_xy must be finite")
 
-    finite = np.isfinite(vg).all(axis=1) & np.isfinite(ve).all(axis=1)
-    n_dropped = int(s - finite.sum())
+    gt_known = np.isfinite(vg).all(axis=1)
+    finite = gt_known & np.isfinite(ve).all(axis=1)
+    n_gt_unknown = int(s - gt_known.sum())
+    n_dropped = int(gt_known.sum() - finite.sum())
     gk, ek, t, vg, ve, xy = gk[finite], ek[finite], t[finite], vg[finite], ve[finite], xy[finite]
 
     # Canonical order: by GT track, then time. Everything below is computed from it.
@@ -582,6 +591,7 @@ def motion_metrics(
         n_vse_skipped_sequences=n_skipped,
         n_vde_candidates=int(delays.shape[0]),
         n_dropped_samples=n_dropped,
+        n_gt_velocity_unknown=n_gt_unknown,
     )
 
 
@@ -618,6 +628,7 @@ def combine_motion_metrics(parts: Sequence[MotionMetrics]) -> MotionMetrics:
         n_vse_skipped_sequences=sum(m.n_vse_skipped_sequences for m in parts),
         n_vde_candidates=sum(m.n_vde_candidates for m in parts),
         n_dropped_samples=sum(m.n_dropped_samples for m in parts),
+        n_gt_velocity_unknown=sum(m.n_gt_velocity_unknown for m in parts),
     )
 
 

@@ -76,8 +76,7 @@ def evaluate_nuscenes(
     """
     require_devkit()
     check_tables(dataroot, version)
-    if split == "test" or SPLIT_VERSION_SUFFIX.get(split) == "test":
-        raise InputError("the nuScenes test split has no public ground truth: submit instead")
+    check_split_has_ground_truth(split)
     from nuscenes.eval.common.config import config_factory
     from nuscenes.eval.tracking.evaluate import TrackingEval
 
@@ -127,6 +126,12 @@ def evaluate_nuscenes(
     }
     write_text_atomic(out / "metrics_summary.json", [json.dumps(result, indent=2) + "\n"])
     return result
+
+
+def check_split_has_ground_truth(split: str) -> None:
+    """InputError for the test split: it has no public annotations to evaluate against."""
+    if split == "test" or SPLIT_VERSION_SUFFIX.get(split) == "test":
+        raise InputError("the nuScenes test split has no public ground truth: submit instead")
 
 
 def load_results_with_devkit(results_path: str | Path) -> tuple[Any, dict[str, Any]]:

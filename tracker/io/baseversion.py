@@ -25,6 +25,7 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
+from tracker.io.bounds import BOUND_NOTE, beyond_bound
 from tracker.io.fileio import (
     MAX_INPUT_BYTES_ENV,
     max_input_bytes,
@@ -614,6 +615,8 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         and np.isfinite(vel[[b.get("global_velocity") is not None for b in bboxes]]).all()
         and (lwh[:, :2] > 0).all()
         and (lwh[:, 2] >= 0).all()
+        and not beyond_bound(xyz).any()
+        and not beyond_bound(lwh).any()
         and ((score >= 0) & (score <= 1)).all()
         and np.isfinite(xyxy[[v is not None for v in given]]).all()
         and not np.isinf(raw).any()
@@ -662,12 +665,15 @@ def _check_box(b: Any, at: str) -> None:
             raise InputError(f"{at}: missing key '{key}'")
     if not isinstance(b["category"], str):
         raise InputError(f"{at}: field 'category' must be a string, got {_short(b['category'])}")
-    _vector(b, "global_xyz", 3, at)
+    xyz = _vector(b, "global_xyz", 3, at)
     lwh = _vector(b, "lwh", 3, at)
     if not ((lwh[:2] > 0).all() and lwh[2] >= 0):
         raise InputError(
             f"{at}: field 'lwh' = {lwh.tolist()}: length and width must be > 0, height >= 0"
         )
+    for key, value in (("global_xyz", xyz), ("lwh", lwh)):
+        if beyond_bound([value])[0]:
+            raise InputError(f"{at}: field '{key}' = {value.tolist()}: {BOUND_NOTE}")
     _vector(b, "global_yaw", None, at)
     score = _vector(b, "detection_score", None, at)
     if not 0.0 <= float(score) <= 1.0:

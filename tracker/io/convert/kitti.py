@@ -57,6 +57,7 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
+from tracker.io.bounds import BOUND_NOTE, beyond_bound
 
 LOG = logging.getLogger(__name__)
 
@@ -513,6 +514,7 @@ def _objects_from_label_columns(
     has_score = len(table.tokens) > offset + 15
     score_raw = table.floats([offset + 15])[:, 0] if has_score and n else np.full(n, np.nan)
     _check_positive(table, numbers[:, 7:10], [offset + 8, offset + 9, offset + 10], type_name)
+    _check_bound(table, numbers[:, 7:13], list(range(offset + 8, offset + 14)), frame)
     occluded = numbers[:, 1]
     return KittiObjects(
         frame=frame,
@@ -546,6 +548,19 @@ def _check_positive(
         path, line = table.where(int(row))
         raise InputError(
             f"box dimension must be > 0, got {values[row, j]}",
+            path=path, line=line, field=table.columns[columns[j]],
+        )  # fmt: skip
+
+
+def _check_bound(table: _Table, values: FloatArray, columns: list[int], frame: IntArray) -> None:
+    """Box sizes and locations must lie within the bound of :mod:`tracker.io.bounds`."""
+    far = beyond_bound(values)
+    if far.any():
+        row = int(np.argmax(far))
+        j = int(np.argmax(beyond_bound(values[row])))
+        path, line = table.where(row)
+        raise InputError(
+            f"{table.tokens[columns[j]][row].strip()} (frame {frame[row]}) is {BOUND_NOTE}",
             path=path, line=line, field=table.columns[columns[j]],
         )  # fmt: skip
 
@@ -604,6 +619,7 @@ def read_ab3dmot_detections(paths: Sequence[str | Path]) -> KittiObjects:
         code_to_category[code] = category_index(name)
     numbers = table.floats([2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13])  # x1 .. rot_y
     _check_positive(table, numbers[:, 5:8], [7, 8, 9], None)
+    _check_bound(table, numbers[:, 5:11], list(range(7, 13)), frame)
     category = code_to_category[codes]
     return KittiObjects(
         frame=frame,

@@ -30,7 +30,9 @@ Output (one :class:`~tracker.frame.Frame` per sample, scenes in split order)
 * Ground truth (optional): the sample annotations of the tracking classes with at least one
   lidar or radar point (the official evaluation drops the others), ``track_id`` = the index of
   the instance in the ``instance`` table (stable across runs), the devkit's ``box_velocity``
-  (centred difference; [0, 0] where the devkit returns NaN, i.e. single-annotation instances).
+  (centred difference; unknown, NaN, where the devkit returns NaN: an instance annotated once,
+  or its neighbouring annotations too far apart in time. BaseVersion writes null, and the
+  motion metrics leave the box out and count it).
 """
 
 from __future__ import annotations
@@ -52,6 +54,7 @@ from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import corners_3d, wrap_angle
+from tracker.io.bounds import BOUND_NOTE, beyond_bound
 from tracker.io.nuscenes_writer import DEFAULT_META
 
 log = logging.getLogger(__name__)
@@ -139,7 +142,7 @@ class NuScenesConversion:
     gt: Scenes | None
     meta: dict[str, Any]  # the detection file's "meta" (copied into the tracking submission)
     skipped_detections: Counter[str] = field(default_factory=Counter)  # per detection_name
-    gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (written as 0)
+    gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (kept NaN)
     velocity_unknown: int = 0  # detections without a velocity (absent, null, NaN: kept NaN)
 
 
@@ -391,7 +394,7 @@ def _detection_boxes(
             raise InputError(f"{at}: field 'detection_score' = {score} is outside [0, 1]")
         if score < score_min:
             continue
-        _check_numbers(box["translation"], "translation", 3, at)
+        _check_translation(box["translation"], at)
         _check_numbers(box["rotation"], "rotation", 4, at)
         _check_size(box["size"], at)
         velocity, known = _velocity(box.get("velocity"), at)
@@ -447,10 +450,24 @@ def _check_quaternions(rotation: FloatArray, at: Callable[[int], str]) -> None:
 
 def _check_size(value: Any, at: str) -> None:
     """InputError (``at``: the file and record) unless ``value`` is a box's ``size`` (w, l, h):
-    3 finite numbers, width and length > 0, height >= 0 (as a BaseVersion box's lwh)."""
-    width, length, height = _check_numbers(value, "size", 3, at)
+    3 finite numbers, width and length > 0, height >= 0, none beyond the bound of
+    :mod:`tracker.io.bounds` (as a BaseVersion box's lwh)."""
+    size = _check_numbers(value, "size", 3, at)
+    width, length, height = size
     if not (width > 0 and length > 0 and height >= 0):
         raise InputError(f"{at}: field 'size' = {value}: width and length must be > 0, height >= 0")
+    _check_bound(size, "size", at)
+
+
+def _check_translation(value: Any, at: str) -> None:
+    """InputError (``at``: the file and record) unless ``value`` is a box's ``translation``: 3
+    finite numbers within the bound of :mod:`tracker.io.bounds` (as a BaseVersion box's xyz)."""
+    _check_bound(_check_numbers(value, "translation", 3, at), "translation", at)
+
+
+def _check_bound(values: FloatArray, key: str, at: str) -> None:
+    if beyond_bound(values[None])[0]:
+        raise InputError(f"{at}: field '{key}' = {values.tolist()}: {BOUND_NOTE}")
 
 
 def _numeric(value: Any) -> bool:
@@ -642,27 +659,26 @@ def _check_annotations(nusc: Any, samples: Sequence[dict[str, Any]]) -> None:
     failed the writing, a short one the velocity). Those without points too: the velocity of
     an annotation reads its neighbours' translations, and the official evaluation loads all."""
     table = Path(nusc.dataroot) / nusc.version / "sample_annotation.json"
-    tokens: list[str] = []
+    where: list[str] = []
     rotations: list[FloatArray] = []
     for sample in samples:
         for token in sample["anns"]:
             ann = nusc.get("sample_annotation", token)
             if ann["category_name"] not in CATEGORY_TO_TRACKING_NAME:
                 continue
-            at = f"{table}: sample_annotation {token!r}"
-            _check_numbers(ann.get("translation"), "translation", 3, at)
+            at = f"{table}: sample_annotation {token!r} of sample {sample['token']!r}"
+            _check_translation(ann.get("translation"), at)
             rotations.append(_check_numbers(ann.get("rotation"), "rotation", 4, at))
             _check_size(ann.get("size"), at)
-            tokens.append(token)
+            where.append(at)
     if rotations:
-        _check_quaternions(
-            np.array(rotations), lambda row: f"{table}: sample_annotation {tokens[row]!r}"
-        )
+        _check_quaternions(np.array(rotations), lambda row: where[row])
 
 
 def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxes, int]:
     """GT boxes of one sample (its annotations checked by :func:`_check_annotations`) and the
-    number whose velocity was unknown (set to 0)."""
+    number whose velocity is unknown (the devkit's NaN, kept: 0 would be a measured standstill
+    in the motion metrics)."""
     rows: list[dict[str, Any]] = []
     for ann_token in sample["anns"]:
         ann = nusc.get("sample_annotation", ann_token)
@@ -676,7 +692,7 @@ def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxe
         return Boxes.empty(), 0
     velocity = np.array([nusc.box_velocity(a["token"])[:2] for a in rows], dtype=np.float64)
     unknown = ~np.isfinite(velocity).all(axis=1)
-    velocity[unknown] = 0.0
+    velocity[unknown] = np.nan  # (a half-known velocity is no measurement either)
     size = np.array([a["size"] for a in rows], dtype=np.float64)
     boxes = Boxes.create(
         xyz=np.array([a["translation"] for a in rows], dtype=np.float64),
@@ -744,28 +760,15 @@ def convert_nuscenes(
         require_devkit()
     det_path = Path(detections)
     results, meta = read_detection_results(det_path)
-    scene_names = split_scene_names(nusc, split)
-    wanted = set(scene_names)
-    by_name = {s["name"]: s for s in nusc.scene}
-    absent = [n for n in scene_names if n not in by_name]
-    if absent and len(absent) == len(scene_names):
-        raise InputError(
-            f"split {split!r}: none of its {len(scene_names)} scenes is in {nusc.version} at "
-            f"{nusc.dataroot} (e.g. {absent[0]!r})"
-        )
-    if absent:
-        log.warning("split %s: %d scenes not in the tables, skipped", split, len(absent))
-
-    _check_result_tokens(nusc, results, wanted, split, det_path)
+    scenes = split_scenes(nusc, split)
+    _check_result_tokens(nusc, results, {s["name"] for s in scenes}, split, det_path)
     skipped: Counter[str] = Counter()
     det_scenes: Scenes = {}
     gt_scenes: Scenes | None = {} if with_gt else None
     unknown_velocity = 0
     velocity_nan = 0
     missing_samples = 0
-    for scene in nusc.scene:  # table order, as the devkit
-        if scene["name"] not in wanted:
-            continue
+    for scene in scenes:
         det_frames: list[Frame] = []
         gt_frames: list[Frame] = []
         samples = _scene_samples(nusc, scene)
@@ -799,6 +802,13 @@ def convert_nuscenes(
             missing_samples,
             split,
         )
+    if unknown_velocity:
+        log.info(
+            "%d ground-truth boxes have no velocity (the devkit's NaN: an instance annotated "
+            "once, or its annotations too far apart): kept unknown (null), left out of the "
+            "motion metrics' velocity errors",
+            unknown_velocity,
+        )
     if velocity_nan:
         log.warning(
             "%s: %d detections without a velocity estimate (absent, null or NaN) are tracked "
@@ -807,6 +817,35 @@ def convert_nuscenes(
             velocity_nan,
         )
     return NuScenesConversion(det_scenes, gt_scenes, meta, skipped, unknown_velocity, velocity_nan)
+
+
+def split_scenes(nusc: Any, split: str) -> list[dict[str, Any]]:
+    """The scene records of a split in table order (as the devkit); scenes of the split absent
+    from the tables are skipped (logged), none present is an error."""
+    names = split_scene_names(nusc, split)
+    present = {s["name"] for s in nusc.scene}
+    absent = [n for n in names if n not in present]
+    if absent and len(absent) == len(names):
+        raise InputError(
+            f"split {split!r}: none of its {len(names)} scenes is in {nusc.version} at "
+            f"{nusc.dataroot} (e.g. {absent[0]!r})"
+        )
+    if absent:
+        log.warning("split %s: %d scenes not in the tables, skipped", split, len(absent))
+    wanted = set(names)
+    return [s for s in nusc.scene if s["name"] in wanted]
+
+
+def check_ground_truth(nusc: Any, split: str) -> None:
+    """Check a split's tables as :func:`convert_nuscenes` does (``check_gt``) before the official
+    evaluation reads them unchecked: each scene's sample chain, its samples' poses and its
+    tracking-class annotations' box fields. Raises the same :class:`InputError`, naming the
+    table, the record and the field (the devkit ended in a traceback, or scored them)."""
+    for scene in split_scenes(nusc, split):
+        samples = _scene_samples(nusc, scene)
+        _check_annotations(nusc, samples)
+        for sample in samples:
+            _sample_geometry(nusc, sample)
 
 
 def _check_result_tokens(

@@ -21,7 +21,9 @@ once.
   heading, l, w, h(, score)]`` in the **vehicle (ego) frame**, ``types`` (N,) Waymo type codes
   (1 vehicle, 2 pedestrian, 3 sign, 4 cyclist) and ``frame_index`` (N,) the frame of each row
   (0-based, into ``ts_info``). Ground truth has the same plus ``ids`` (N,) object ids (fixed-width
-  strings ``<U..`` or integers) and optionally ``velos`` (N, 2) vehicle-frame speed_x, speed_y.
+  strings ``<U..`` or integers) and optionally ``velos`` (N, 2) vehicle-frame speed_x, speed_y
+  (without it the GT velocity is unknown, NaN: the motion metrics then derive it from the GT
+  positions, as for KITTI).
 
 Output
 ------
@@ -59,6 +61,7 @@ from tracker.boxes import Boxes, FloatArray
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
+from tracker.io.bounds import BOUND_NOTE, beyond_bound
 from tracker.io.convert.nuscenes import assign_cameras, overflowing_boxes
 from tracker.io.fileio import SafeNpz, load_npz
 
@@ -339,6 +342,14 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
         raise InputError(
             f"{path}: frame_index row {k}: frame {frame_index[k]}, but ts_info has {n_frames}"
         )
+    for columns, names in ((slice(0, 3), "x, y, z"), (slice(4, 7), "l, w, h")):
+        far = np.flatnonzero(beyond_bound(bboxes[:, columns]))
+        if len(far):
+            k = far[0]
+            raise InputError(
+                f"{path}: bboxes row {k} (frame {frame_index[k]}): {names} = "
+                f"{bboxes[k, columns].tolist()}: {BOUND_NOTE}"
+            )
     order = np.argsort(frame_index, kind="stable")
     bounds = np.searchsorted(frame_index[order], np.arange(n_frames + 1))
     ids = velos = None
@@ -395,12 +406,21 @@ def _segment_boxes(
             f"{path}: bboxes row {row}: {table.bboxes[k, :7].tolist()} with ego2global[{i}] "
             "is not finite in the world or camera frames (too large)"
         )
+    far = np.flatnonzero(beyond_bound(xyz))  # (the file's row is within it: a far pose)
+    if len(far):
+        k = np.arange(a, b)[keep][far[0]]
+        raise InputError(
+            f"{path}: bboxes row {int(table.rows[k])} (frame {i}) with ego2global[{i}]: x, y, z "
+            f"= {xyz[far[0]].tolist()} in the world frame: {BOUND_NOTE}"
+        )
     velocity = None
     track_id = None
     if ids is not None and table.ids is not None:
         track_id = [ids.setdefault(str(v), len(ids)) for v in table.ids[a:b][keep]]
         if table.velos is not None:
             velocity = table.velos[a:b][keep] @ world_from_ego[:2, :2].T  # vehicle → world axes
+        else:  # unknown, not 0: the motion metrics would score a measured standstill
+            velocity = np.full((int(keep.sum()), 2), np.nan)
     score = arr[:, 7] if arr.shape[1] == 8 and ids is None else np.ones(len(arr))
     if ((score < 0) | (score > 1)).any():
         raise InputError(f"{path}: frame {i}: scores must be in [0, 1]")

@@ -1,0 +1,31 @@
+"""The plausibility bound of a box's centre and size, one for every reader of boxes.
+
+A finite number can still be absurd: a centre at 1e300 m passes every finiteness check, then
+its squared distances, areas and covariances overflow downstream (inf, NaN, numpy warnings, a
+silently surprising metric). Every reader of boxes, detections and ground truth alike
+(BaseVersion, the KITTI, nuScenes and Waymo converters), refuses a centre coordinate or a size
+beyond :data:`MAX_BOX_METRES` with :func:`beyond_bound`, in an error naming the file, the record
+and the field that ends in :data:`BOUND_NOTE`.
+"""
+
+from __future__ import annotations
+
+from typing import Final
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+#: 100 000 km: every georeferenced frame on Earth stays below it (UTM northings < 1e7 m, ECEF and
+#: Web Mercator < 2.1e7 m), and squares of it (1e16) are far from float64's overflow.
+MAX_BOX_METRES: Final = 1e8
+#: The end of a bound error: what the bound is and why a value beyond it is refused.
+BOUND_NOTE: Final = f"beyond ±{MAX_BOX_METRES:g} m (farther or larger than anything on Earth)"
+
+
+def beyond_bound(values: ArrayLike) -> NDArray[np.bool_]:
+    """(N,) whether each row of (N, k) or (N,) values has an entry beyond ±:data:`MAX_BOX_METRES`
+    (inf included; NaN is not: the readers refuse it as not finite)."""
+    magnitude = np.abs(np.asarray(values, dtype=np.float64))
+    if magnitude.ndim == 1:
+        magnitude = magnitude[:, None]
+    return (magnitude > MAX_BOX_METRES).any(axis=1)
