@@ -166,21 +166,18 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_VIEWER_FAILED
     import tempfile
 
-    from rerun.experimental import ViewerClient
+    from viz.rerun_process import stop_rerun, viewer_client
 
-    from viz.shots import _free_port, _rerun_executable
-
+    process = None
     try:
-        client = ViewerClient.spawn(
-            headless=False,
-            port=_free_port(),
-            hide_welcome_screen=True,
-            detach_process=True,
-            executable_path=_rerun_executable(),
-        )
+        # the viewer listens on 127.0.0.1 (ViewerClient.spawn's would listen on all interfaces)
+        # and keeps running after this command, until its window is closed
+        client, process = viewer_client(headless=False)
         with tempfile.TemporaryDirectory(prefix="mctrack-inspect-") as tmp:
             frame = drive_viewer(client, recording, target, Path(tmp))
     except (RuntimeError, TimeoutError, OSError, ConnectionError) as exc:
+        if process is not None:
+            stop_rerun(process)
         print(f"mctrack inspect: could not start or drive the viewer: {exc}", file=sys.stderr)
         return EXIT_VIEWER_FAILED
     print(f"viewer started at frame {frame} (close its window to quit)")

@@ -176,9 +176,8 @@ def test_inspect_without_a_display_says_so_and_names_shots(
     """Without DISPLAY / WAYLAND_DISPLAY (SSH, CI) the viewer's window cannot open: inspect
     says so in one line with the shots command for the same moment, instead of spawning a
     viewer that fails with "transport error" after 6 s."""
-    import rerun.experimental
-
     from app.inspect import EXIT_VIEWER_FAILED, missing_display
+    from viz import rerun_process
 
     assert missing_display({}, "linux")
     assert not missing_display({"DISPLAY": ":0"}, "linux")
@@ -188,7 +187,7 @@ def test_inspect_without_a_display_says_so_and_names_shots(
     def spawn(*args: object, **kwargs: object) -> None:
         raise AssertionError("no viewer without a display")
 
-    monkeypatch.setattr(rerun.experimental.ViewerClient, "spawn", spawn)
+    monkeypatch.setattr(rerun_process, "start_rerun", spawn)
     monkeypatch.setattr("sys.platform", "linux")
     for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(name, raising=False)
@@ -208,14 +207,13 @@ def test_view_spawn_without_a_display_is_refused_before_any_work(
 ) -> None:
     """``mctrack view INPUT --spawn`` without a display: the viewer died on winit's error and
     the run then hung with no word (the recording's flush waits for a viewer that never came)."""
-    import rerun as rr
-
     from tests.test_viz import SAMPLE
+    from viz import rerun_process
 
     def spawn(*args: object, **kwargs: object) -> None:
         raise AssertionError("no viewer without a display")
 
-    monkeypatch.setattr(rr.RecordingStream, "spawn", spawn)
+    monkeypatch.setattr(rerun_process, "start_rerun", spawn)
     monkeypatch.setattr("sys.platform", "linux")
     for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(name, raising=False)
