@@ -170,6 +170,67 @@ def test_inspect_prints_the_url_and_the_event(capsys: pytest.CaptureFixture[str]
     assert main(["inspect", str(path), "--event", "100000", "--print"]) == 2
 
 
+def test_inspect_list_prints_each_event_without_a_display(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``inspect REC --list``: one line per event --event opens (sequence, #K, frame, kind,
+    tracks), by frame; no viewer, no display. A run folder lists each of its recordings."""
+    from viz import rerun_process
+
+    def spawn(*args: object, **kwargs: object) -> None:
+        raise AssertionError("no viewer for --list")
+
+    monkeypatch.setattr(rerun_process, "start_rerun", spawn)
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    path, result = recording()
+    events = result.id_evaluation.events
+    assert main(["inspect", str(path), "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == len(events) > 5
+    order = sorted(range(len(events)), key=lambda k: (events[k].frame_id, k))
+    for line, k in zip(lines, order, strict=True):
+        e = events[k]
+        kind = "ID switch" if e.kind.value == "id_switch" else "fragmentation"
+        assert line.split() == [
+            "0001",
+            f"#{k}",
+            "frame",
+            str(e.frame_id),
+            *kind.split(),
+            f"T{e.old_track_id}",
+            "->",
+            f"T{e.new_track_id}",
+            "(GT",
+            f"{e.gt_id})",
+        ]
+    # a run folder: its recordings/ (here two sequences), by sequence then frame
+    run = tmp_path / "run"
+    (run / "recordings").mkdir(parents=True)
+    shutil.copy(path, run / "recordings" / "0001.rrd")
+    empty = _tiny_recording(run / "recordings" / "0000.rrd")
+    assert main(["inspect", str(run), "--list"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.splitlines() == lines
+    assert f"{empty}: no ID events (ID switches or fragmentations) recorded" in captured.err
+    assert main(["inspect", str(tmp_path), "--list"]) == 2  # no recordings there
+    assert "no recordings (.rrd)" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as usage:  # one or the other
+        main(["inspect", str(path), "--list", "--event", "1"])
+    assert usage.value.code == 2
+
+
+def _tiny_recording(path: Path) -> Path:
+    """A recording without ID events (nor ground truth): a few frames of the sample."""
+    from tests.test_viz import sample_frames
+    from tracker.config import load_config
+    from viz.record import record_scene
+
+    det, _ = sample_frames()
+    record_scene(det[:3], load_config("kitti"), None, path, motion_metrics=False)
+    return path
+
+
 def test_inspect_without_a_display_says_so_and_names_shots(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -139,6 +139,29 @@ def read_shot_index(recording: str | Path) -> ShotIndex:
     )
 
 
+#: The recording's name as :func:`viz.record.new_recording` sends it: this + the scene.
+RECORDING_NAME_PREFIX = "MCTrack "
+
+
+def read_scene_name(recording: str | Path) -> str | None:
+    """The scene (sequence) a recording is of, from its recording name (None: no name)."""
+    from rerun.chunk import RrdReader
+
+    chunks = (
+        RrdReader(str(recording))
+        .stream()
+        .filter(content="/__properties/**", is_static=True)
+        .to_chunks()
+    )
+    for chunk in chunks:
+        batch = chunk.to_record_batch()
+        if "RecordingInfo:name" in batch.schema.names:
+            names = [v for row in batch.column("RecordingInfo:name").to_pylist() for v in row or []]
+            if names:
+                return str(names[-1]).removeprefix(RECORDING_NAME_PREFIX)
+    return None
+
+
 def read_frame_range(recording: str | Path) -> tuple[int, int] | None:
     """The first and last frame id on the recording's ``frame`` timeline (None: no frames).
 
