@@ -451,6 +451,71 @@ def test_focused_blueprint_of_an_event_targets_it(monkeypatch: pytest.MonkeyPatc
     assert seen["target_xyz"] == index.event_xyz_m[0]
     assert seen["track_ids"] == (index.event_old_track_ids[0], index.event_new_track_ids[0])
     assert seen["cams"] == [("CAM_FRONT", 1242, 375)]
+    assert seen["gt_id"] == index.event_gt_ids[0]
+
+
+def _speed_views(blueprint: object) -> list:
+    """The TimeSeriesViews of a blueprint whose name starts with "speed [m/s]: T"."""
+    import rerun.blueprint as rrb
+
+    found, todo = [], [blueprint.root_container]  # type: ignore[attr-defined]
+    while todo:
+        item = todo.pop()
+        if isinstance(item, rrb.TimeSeriesView):
+            if str(item.name).startswith("speed [m/s]: T"):
+                found.append(item)
+        else:
+            todo += list(getattr(item, "contents", []) or [])
+    return found
+
+
+def test_event_speed_view_draws_the_gt_curve_once() -> None:
+    """Both tracks of an ID switch matched the one GT object: the event's speed view (focused
+    layout, and the default layout's first-switch view) drew its curve twice, as each track's
+    matched-GT curve. Now it draws the GT object's own curve (event_gt/<id>/speed), which holds
+    both tracks' pieces."""
+    from viz import shots
+
+    path, result = recording()
+    index = read_shot_index(path)
+    k = index.event_kinds.index(0)  # an ID switch
+    old, new, gt = (
+        index.event_old_track_ids[k],
+        index.event_new_track_ids[k],
+        index.event_gt_ids[k],
+    )
+    views = _speed_views(shots.focus_blueprint_for(path, index, k))
+    first = result.id_evaluation.id_switches[0]
+    views += _speed_views(
+        layout.debug_blueprint(
+            [], switch_track_ids=[first.old_track_id, first.new_track_id], switch_gt_id=first.gt_id
+        )
+    )
+    assert len(views) == 2
+    for view, (a, b, g) in zip(
+        views, [(old, new, gt), (first.old_track_id, first.new_track_id, first.gt_id)], strict=True
+    ):
+        contents = [str(c) for c in view.contents]
+        assert [c for c in contents if "gt" in c] == [paths.entity(paths.event_gt_series(g))]
+        assert {paths.entity(paths.track_series(t, paths.SPEED)) for t in (a, b)} <= set(contents)
+    # the one curve holds the pieces the two tracks' matched-GT curves had
+    curve = entity_table(path, paths.event_gt_series(gt))
+    speed = dict(
+        zip(curve[paths.FRAME].to_pylist(), curve["Scalars:scalars"].to_pylist(), strict=True)
+    )
+    assert curve["SeriesLines:names"].to_pylist()[0] == [f"GT {gt} speed"]
+    pieces = 0
+    for t in (old, new):
+        piece = entity_table(path, paths.track_series(t, paths.GT_PREFIX + paths.SPEED))
+        at_event_gt = [
+            (f, v)
+            for f, v in zip(
+                piece[paths.FRAME].to_pylist(), piece["Scalars:scalars"].to_pylist(), strict=True
+            )
+            if f in speed and speed[f] == v
+        ]
+        pieces += len(at_event_gt) > 0
+    assert pieces == 2
 
 
 def test_shot_plans() -> None:

@@ -414,6 +414,7 @@ def focus_blueprint_for(recording: str | Path, index: ShotIndex, event: int) -> 
         event_index=event,
         target_xyz=index.event_xyz_m[event],
         track_ids=(index.event_old_track_ids[event], index.event_new_track_ids[event]),
+        gt_id=index.event_gt_ids[event] if event < len(index.event_gt_ids) else None,
     )
 
 
