@@ -321,10 +321,15 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
     if args.spawn:
         if port_open(local_address(host), port):  # a viewer there already: as rr.spawn, use it
             print(f"viewer: {url} (already running)")
-            process = None
-        else:
+            return None, url
+        try:
             process, url = start_viewer(headless=False, host=host, port=port)
+        except (RuntimeError, TimeoutError, OSError) as exc:
+            raise InputError(f"--spawn: the viewer did not start on {host}: {exc}") from None
     else:
+        for option, taken in (("--grpc-port", port), ("--web-port", args.web_port)):
+            if port_open(local_address(host), taken):  # (else that server would answer)
+                raise InputError(f"{option} {taken}: in use on {host}; choose another port")
         process = start_rerun(
             ["--serve-web", "--port", str(port), "--web-viewer-port", str(args.web_port)],
             host=host,
@@ -333,6 +338,9 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
         )
         try:
             wait_listening(process, host, [port, args.web_port])
+        except (RuntimeError, TimeoutError, OSError) as exc:
+            stop_rerun(process)
+            raise InputError(f"--serve-web: the server did not start on {host}: {exc}") from None
         except BaseException:
             stop_rerun(process)
             raise

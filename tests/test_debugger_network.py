@@ -210,3 +210,21 @@ def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
     out = capsys.readouterr().out
     assert "note: --host 0.0.0.0 exposes the recording to the network" in out
     assert "web viewer: http://127.0.0.1:9002/?url=rerun+http://127.0.0.1:9001/proxy" in out
+
+
+def test_view_serve_web_refuses_a_port_in_use(capsys: pytest.CaptureFixture[str]) -> None:
+    """A --grpc-port or --web-port another server holds: one line, before any recording (the
+    other server would have answered the viewer instead)."""
+    import socket
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        taken = held.getsockname()[1]
+        det = SAMPLE / "detections.json.gz"
+        argv = ["view", str(det), "--frames", "0:5", "--serve-web", "--web-port", str(taken)]
+        assert main([*argv, "--grpc-port", str(rerun_process.free_port())]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"mctrack view: error: --web-port {taken}: in use on 127.0.0.1; choose another port\n"
+    )
