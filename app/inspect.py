@@ -11,8 +11,10 @@ cursor stays at 0). What works is ``rerun.experimental.ViewerClient.set_time`` o
 this command spawns: :func:`drive_viewer` opens the recording, applies the focused layout, sets
 the cursor and reads the viewer's own cursor back, failing loudly when it is not on the frame.
 ``--print`` only prints the target (the event, its frame, the recording) without starting
-anything. ``--frame F`` must lie within the recording's frames (default: its first frame); a
-frame outside them is an error naming the frames it has.
+anything; ``--list`` prints the events ``--event`` can open (of a recording, or of each recording
+of a ``mctrack kitti --record`` run folder), one per line, without a viewer or a display.
+``--frame F`` must lie within the recording's frames (default: its first frame); a frame
+outside them is an error naming the frames it has.
 """
 
 from __future__ import annotations
@@ -33,7 +35,11 @@ _T = TypeVar("_T")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("recording", help="an .rrd written by mctrack view / demo / kitti --record")
+    parser.add_argument(
+        "recording",
+        help="an .rrd written by mctrack view / demo / kitti --record (with --list also a "
+        "mctrack kitti --record --out folder)",
+    )
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--event", type=int, default=None, help="event #K of the summary")
     what.add_argument(
@@ -41,6 +47,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         help="a frame, in the default layout (default: the first)",
+    )
+    what.add_argument(
+        "--list",
+        action="store_true",
+        help="print the events --event opens, one per line (sequence, #K, frame, kind, "
+        "tracks); no viewer, no display needed",
     )
     parser.add_argument(
         "--print", action="store_true", help="print the URL and the target; start nothing"
@@ -146,8 +158,67 @@ def missing_display(environ: Mapping[str, str], platform: str = sys.platform) ->
     return not any(environ.get(k) for k in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"))
 
 
+def _listed_recordings(given: Path) -> list[Path]:
+    """The recordings ``--list`` reads: the file, or a run folder's ``recordings/*.rrd`` (or
+    a folder of recordings itself)."""
+    if given.is_file():
+        return [given]
+    if not given.is_dir():
+        raise InputError(f"{given}: file or folder not found")
+    folder = given / "recordings" if (given / "recordings").is_dir() else given
+    found = sorted(p for p in folder.glob("*.rrd") if p.is_file())
+    if not found:
+        raise InputError(
+            f"{given}: no recordings (.rrd) in it or in its recordings/ folder; record with "
+            "mctrack kitti --record or mctrack view --save"
+        )
+    return found
+
+
+def event_lines(recording: Path) -> tuple[str, list[str]]:
+    """(the recording's sequence, one line per ID event): ``#K`` as ``--event K`` takes it,
+    sorted by frame then number; sequence, #K, frame, kind, old -> new track, the GT object."""
+    from viz.shots import read_scene_name, read_shot_index
+
+    index = read_recording(recording, read_shot_index)
+    scene = read_recording(recording, read_scene_name) or recording.stem
+    n = len(index.event_frames)
+    lines = []
+    for k in sorted(range(n), key=lambda k: (index.event_frames[k], k)):
+        kind = "fragmentation" if index.event_kinds[k] else "ID switch"
+        lines.append(
+            f"{scene}  #{k:<3}  frame {index.event_frames[k]:>5}  {kind:<13}  "
+            f"T{index.event_old_track_ids[k]} -> T{index.event_new_track_ids[k]}  "
+            f"(GT {index.event_gt_ids[k]})"
+        )
+    return scene, lines
+
+
+def list_events(given: Path) -> int:
+    """``--list``: the events of each recording, by sequence, then frame. Reads the recordings
+    only: no viewer, no display."""
+    listed = []
+    for rec in _listed_recordings(given):
+        scene, lines = event_lines(rec)
+        listed.append((scene, str(rec), lines))
+        if not lines:  # said, so that an empty listing is not taken for a failure
+            print(f"{rec}: no ID events (ID switches or fragmentations) recorded", file=sys.stderr)
+    for _, _, lines in sorted(listed):
+        for line in lines:
+            print(line)
+    if len(listed) > 1 and any(lines for _, _, lines in listed):
+        print(
+            f"open one: mctrack inspect RECORDING --event K (the sequence's recording in "
+            f"{Path(listed[0][1]).parent})",
+            file=sys.stderr,
+        )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     recording = Path(args.recording)
+    if args.list:
+        return list_events(recording)
     if not recording.is_file():
         raise InputError(f"{recording}: file not found")
     target = inspect_target(recording, args.event, args.frame)
@@ -166,21 +237,18 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_VIEWER_FAILED
     import tempfile
 
-    from rerun.experimental import ViewerClient
+    from viz.rerun_process import stop_rerun, viewer_client
 
-    from viz.shots import _free_port, _rerun_executable
-
+    process = None
     try:
-        client = ViewerClient.spawn(
-            headless=False,
-            port=_free_port(),
-            hide_welcome_screen=True,
-            detach_process=True,
-            executable_path=_rerun_executable(),
-        )
+        # the viewer listens on 127.0.0.1 (ViewerClient.spawn's would listen on all interfaces)
+        # and keeps running after this command, until its window is closed
+        client, process = viewer_client(headless=False)
         with tempfile.TemporaryDirectory(prefix="mctrack-inspect-") as tmp:
             frame = drive_viewer(client, recording, target, Path(tmp))
     except (RuntimeError, TimeoutError, OSError, ConnectionError) as exc:
+        if process is not None:
+            stop_rerun(process)
         print(f"mctrack inspect: could not start or drive the viewer: {exc}", file=sys.stderr)
         return EXIT_VIEWER_FAILED
     print(f"viewer started at frame {frame} (close its window to quit)")

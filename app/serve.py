@@ -22,7 +22,6 @@ import json
 import mimetypes
 import re
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -77,22 +76,15 @@ SEEK_SCRIPT = """<script>
 class ViewerAssets:
     """Rerun's web viewer files, from the wheel's ``rerun`` binary on a private loopback port."""
 
-    def __init__(self, executable: str, port: int) -> None:
-        self.base = f"http://127.0.0.1:{port}"
+    def __init__(self, port: int) -> None:
+        from viz.rerun_process import LOOPBACK, start_rerun
+
+        self.base = f"http://{LOOPBACK}:{port}"
         # With a URL to show the binary hosts the web viewer only (no gRPC server). The URL is
         # never fetched by it: the page's own ?url= replaces it.
-        self.process = subprocess.Popen(
-            [
-                executable,
-                "--serve-web",
-                "--bind",
-                "127.0.0.1",
-                "--web-viewer-port",
-                str(port),
-                "http://127.0.0.1:9/none.rrd",
-            ],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
+        self.process = start_rerun(
+            ["--serve-web", "--web-viewer-port", str(port), "http://127.0.0.1:9/none.rrd"],
+            host=LOOPBACK,
         )
         self._cache: dict[str, tuple[bytes, str]] = {}
         self._lock = threading.Lock()
@@ -133,13 +125,9 @@ class ViewerAssets:
         return data, ctype
 
     def stop(self) -> None:
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait(timeout=10)
+        from viz.rerun_process import stop_rerun
+
+        stop_rerun(self.process)
 
 
 def _handler(root: Path, recordings: Mapping[str, Path], viewer: ViewerAssets | None) -> type:
@@ -221,12 +209,9 @@ def report_server(
     on exit."""
     viewer = None
     if with_viewer:
-        from viz.shots import _free_port, _rerun_executable
+        from viz.rerun_process import free_port
 
-        exe = _rerun_executable()
-        if exe is None:
-            raise RuntimeError("the rerun binary of rerun-sdk is not installed")
-        viewer = ViewerAssets(exe, _free_port())
+        viewer = ViewerAssets(free_port())
     server = None
     thread = None
     try:
@@ -254,14 +239,17 @@ def _interrupt(signum: int, frame: Any) -> None:
 
 def serve_report(root: Path, recordings: Mapping[str, Path], *, host: str, port: int) -> int:
     """Serve until Ctrl-C or SIGTERM."""
+    from viz.rerun_process import exposure_note
+
     # SIGTERM (kill, a CI timeout, docker stop) stops it as Ctrl-C does: by default it ended
     # the process at once, and the rerun web viewer it started kept running, holding its port
     previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
         with report_server(root, recordings, host=host, port=port) as (_, url):
             print(f"serving the report at {url} (Ctrl-C to stop)", flush=True)
-            if host not in ("127.0.0.1", "localhost", "::1"):
-                print(f"note: --host {host} exposes the report and recordings to the network")
+            note = exposure_note(host, "the report and recordings")
+            if note:
+                print(note)
             while True:
                 time.sleep(3600)
     except KeyboardInterrupt:

@@ -9,13 +9,16 @@ from __future__ import annotations
 
 import argparse
 import os
+import subprocess
 import time
 from pathlib import Path
 
 from app.inputs import add_mode_argument
+from tracker.config import TrackerConfig
 from tracker.errors import InputError
 from tracker.frame import Frame
 from tracker.io.fileio import check_output_file, path_in, safe_filename
+from viz.rerun_process import LOOPBACK
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,6 +58,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=9876,
         help="port the viewer connects to (--spawn, --serve-web)",
+    )
+    parser.add_argument(
+        "--host",
+        default=LOOPBACK,
+        help="address the viewer's servers listen on (--spawn, --serve-web; default "
+        "127.0.0.1); 0.0.0.0 exposes the recording to the network: do it deliberately",
     )
 
 
@@ -156,30 +165,51 @@ def _refuse_unreadable_images(
     scene_images: dict[str, dict[str, Path]], scenes: dict[str, list[Frame]]
 ) -> None:
     """An image file of a recorded frame that cannot be read (a broken link, a folder by an
-    image's name, no permission) is an error naming it, before any recording: Rerun only warned
-    and the frame went without its image, exit 0. A frame without an image file is no error
-    (a folder may hold some frames' images only)."""
+    image's name, no permission) or decoded (a truncated or corrupt PNG or JPEG, which opens
+    but has no picture) is an error naming it, before any recording: Rerun only warned, or the
+    viewer showed nothing, and the frame went without its image, exit 0. A frame without an
+    image file is no error (a folder may hold some frames' images only)."""
     from viz.observer import list_images
 
     listed: dict[Path, dict[int, Path]] = {}
+    checked: set[Path] = set()
     for scene, frames in scenes.items():
         for camera, folder in scene_images.get(scene, {}).items():
             if folder not in listed:
                 listed[folder] = list_images(folder)
             for frame in frames:
                 path = listed[folder].get(frame.frame_id)
-                if path is None or frame.camera_index(camera) < 0:
+                if path is None or frame.camera_index(camera) < 0 or path in checked:
                     continue  # (not recorded: the observer logs a frame's own cameras)
+                what = f"{path}: image of frame {frame.frame_id} (camera {camera})"
                 try:
                     with open(path, "rb") as fh:
                         fh.read(1)
                 except OSError as exc:
                     broken = path.is_symlink() and not path.exists()
                     why = "a link to a missing file" if broken else exc.strerror or str(exc)
-                    raise InputError(
-                        f"{path}: image of frame {frame.frame_id} (camera {camera}) cannot be "
-                        f"read: {why}"
-                    ) from None
+                    raise InputError(f"{what} cannot be read: {why}") from None
+                why = _undecodable(path)
+                if why is not None:
+                    raise InputError(f"{what} cannot be decoded: {why}")
+                checked.add(path)
+
+
+def _undecodable(path: Path) -> str | None:
+    """Why the image at ``path`` does not decode to a picture (None: it does). Every pixel is
+    decoded (~10 ms for a KITTI PNG): a truncated body opens fine and fails only there."""
+    import struct
+
+    from PIL import Image
+
+    try:
+        with Image.open(path) as image:
+            image.load()
+    except Image.DecompressionBombError as exc:
+        return str(exc)
+    except (OSError, SyntaxError, ValueError, EOFError, struct.error) as exc:
+        return str(exc) or type(exc).__name__
+    return None
 
 
 def _check_labels(folder: str, scenes: list[str]) -> set[str]:
@@ -222,8 +252,6 @@ def _save_paths(save: str | None, scenes: dict[str, list[Frame]]) -> dict[str, P
 
 
 def run(args: argparse.Namespace) -> int:
-    import rerun as rr
-
     from app.inspect import missing_display
 
     if args.spawn and missing_display(os.environ):  # else the run hangs on a viewer never up
@@ -236,9 +264,6 @@ def run(args: argparse.Namespace) -> int:
     from app.track import parse_frame_range, require_frames, select_scenes
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
-    from tracker.io.fileio import staged_files
-    from viz.layout import debug_blueprint
-    from viz.record import new_recording, partial_path, record_scene
 
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
@@ -262,7 +287,102 @@ def run(args: argparse.Namespace) -> int:
         if f
     }
     _refuse_unreadable_images(scene_images, scenes)
-    web_url = None
+    server, url = _start_viewer(args) if live else (None, "")
+    try:
+        _record(args, config, scenes, gt_scenes, labelled, scene_images, unmatched, saves, url)
+        if args.serve_web:
+            _serve_until_stopped()
+    finally:
+        if server is not None and args.serve_web:  # (a spawned viewer stays, with its window)
+            from viz.rerun_process import stop_rerun
+
+            stop_rerun(server)
+    return 0
+
+
+def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | None, str]:
+    """The viewer (--spawn) or the gRPC server and web viewer (--serve-web), started as the
+    ``rerun`` binary on ``--host``: Rerun's Python API would listen on all interfaces.
+    Returns (the process started, None when --spawn found a viewer already listening on the
+    port; the gRPC URL the recordings connect to)."""
+    from viz.rerun_process import (
+        exposure_note,
+        local_address,
+        port_open,
+        start_rerun,
+        start_viewer,
+        stop_rerun,
+        wait_listening,
+    )
+
+    host, port = args.host, args.grpc_port
+    url = f"rerun+http://{local_address(host)}:{port}/proxy"
+    note = exposure_note(host, "the recording")
+    if args.spawn:
+        if port_open(local_address(host), port):  # a viewer there already: as rr.spawn, use it
+            print(f"viewer: {url} (already running)")
+            return None, url
+        try:
+            process, url = start_viewer(headless=False, host=host, port=port)
+        except (RuntimeError, TimeoutError, OSError) as exc:
+            raise InputError(f"--spawn: the viewer did not start on {host}: {exc}") from None
+    else:
+        for option, taken in (("--grpc-port", port), ("--web-port", args.web_port)):
+            if port_open(local_address(host), taken):  # (else that server would answer)
+                raise InputError(f"{option} {taken}: in use on {host}; choose another port")
+        process = start_rerun(
+            ["--serve-web", "--port", str(port), "--web-viewer-port", str(args.web_port)],
+            host=host,
+            quiet=False,
+            env={"RUST_LOG": os.environ.get("RUST_LOG") or "warn"},  # (not its INFO lines)
+        )
+        try:
+            wait_listening(process, host, [port, args.web_port])
+        except (RuntimeError, TimeoutError, OSError) as exc:
+            stop_rerun(process)
+            raise InputError(f"--serve-web: the server did not start on {host}: {exc}") from None
+        except BaseException:
+            stop_rerun(process)
+            raise
+        print(f"web viewer: http://{local_address(host)}:{args.web_port}/?url={url}")
+    if note:
+        print(note)
+    return process, url
+
+
+def _serve_until_stopped() -> None:
+    """Until Ctrl-C or SIGTERM (which ends it as Ctrl-C does, so the server is stopped)."""
+    import signal
+
+    from app.serve import _interrupt
+
+    previous = signal.signal(signal.SIGTERM, _interrupt)
+    print("serving; press Ctrl-C to stop", flush=True)
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        print("stopped")
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _record(
+    args: argparse.Namespace,
+    config: TrackerConfig,
+    scenes: dict[str, list[Frame]],
+    gt_scenes: dict[str, list[Frame]],
+    labelled: set[str],
+    scene_images: dict[str, dict[str, Path]],
+    unmatched: dict[str, list[str]],
+    saves: dict[str, Path],
+    url: str,
+) -> None:
+    """Each scene recorded: to its file, or to the viewer at ``url``."""
+    from tracker.io.fileio import staged_files
+    from viz.layout import debug_blueprint
+    from viz.record import new_recording, partial_path, record_scene
+
     # the recordings are moved into place once every scene is recorded: a run that fails on a
     # later scene (or is stopped) leaves none of its own, and earlier ones at those paths stay
     with staged_files() as staged:
@@ -292,16 +412,8 @@ def run(args: argparse.Namespace) -> int:
             if partial is not None and path is not None:
                 staged.append((partial, path))
             rec = new_recording(scene, path=partial)
-            if args.spawn:
-                rec.spawn(port=args.grpc_port, default_blueprint=debug_blueprint(cameras))
-            elif args.serve_web:
-                url = rec.serve_grpc(
-                    grpc_port=args.grpc_port, default_blueprint=debug_blueprint(cameras)
-                )
-                if web_url is None:
-                    rr.serve_web_viewer(web_port=args.web_port, open_browser=False, connect_to=url)
-                    web_url = f"http://localhost:{args.web_port}/?url={url}"
-                    print(f"web viewer: {web_url}")
+            if url:
+                rec.connect_grpc(url, default_blueprint=debug_blueprint(cameras))
             first, last = frames[0].frame_id, frames[-1].frame_id
             description = (
                 f"- detections: `{args.input}`, scene `{scene}`, frames {first}..{last}"
@@ -317,22 +429,13 @@ def run(args: argparse.Namespace) -> int:
                 images=images,
                 input_description=description,
                 motion_metrics=not args.no_motion,
-                live=live,
+                live=bool(url),
             )
             rec.flush()
-            if not args.serve_web:
-                rec.disconnect()
+            rec.disconnect()  # (the server keeps what it got for the viewers)
             _print_result(result)
     for _, saved in staged:
         print(f"wrote {saved}  (open it with: rerun {saved})")
-    if args.serve_web:
-        print("serving; press Ctrl-C to stop")
-        try:
-            while True:
-                time.sleep(1.0)
-        except KeyboardInterrupt:
-            return 0
-    return 0
 
 
 def _print_result(result: object) -> None:

@@ -1159,6 +1159,40 @@ def test_view_refuses_an_unreadable_image_of_a_recorded_frame(
     assert code == 0 and path.is_file(), err
 
 
+@pytest.mark.parametrize("bad", ["truncated PNG", "truncated JPEG", "not an image"])
+def test_view_refuses_an_image_that_does_not_decode(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], bad: str
+) -> None:
+    """An image of a recorded frame that reads but does not decode (a PNG or JPEG cut short,
+    which still opens; bytes that are no image) is one line naming it, before any recording
+    (the viewer showed nothing for that frame, exit 0); outside --frames it is not decoded."""
+    from PIL import Image
+
+    data = tmp_path / "kit"
+    shutil.copytree(SAMPLE / "image_02", data / "image_02")  # images of frames 10, 15, 20
+    shutil.copy(SAMPLE / "detections.json.gz", data)
+    good = data / "image_02" / "000010.png"
+    image = data / "image_02" / ("000012.jpg" if bad == "truncated JPEG" else "000012.png")
+    if bad == "not an image":
+        image.write_text("not an image\n")
+    else:
+        with Image.open(good) as im:
+            im.convert("RGB").save(image, format="JPEG" if bad == "truncated JPEG" else "PNG")
+        body = image.read_bytes()
+        image.write_bytes(body[: len(body) // 2])
+        with Image.open(image) as im:  # it opens (its header is whole)
+            assert im.size == (1242, 375)
+    argv = ["view", str(data / "detections.json.gz"), "--no-motion"]
+    path = tmp_path / "x.rrd"
+    code, printed, err = _run([*argv, "--frames", "8:14", "--save", str(path)], capsys)
+    prefix = f"{image}: image of frame 12 (camera CAM_FRONT) cannot be decoded: "
+    assert err.startswith("mctrack view: error: " + prefix), err
+    _assert_one_line_error(code, err, "view", err.split("error: ", 1)[1].rstrip("\n"))
+    assert printed == "" and not path.exists()
+    code, printed, err = _run([*argv, "--frames", "8:12", "--save", str(path)], capsys)
+    assert code == 0 and path.is_file(), err
+
+
 def test_view_refuses_two_image_folders_for_one_camera(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -170,15 +170,75 @@ def test_inspect_prints_the_url_and_the_event(capsys: pytest.CaptureFixture[str]
     assert main(["inspect", str(path), "--event", "100000", "--print"]) == 2
 
 
+def test_inspect_list_prints_each_event_without_a_display(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``inspect REC --list``: one line per event --event opens (sequence, #K, frame, kind,
+    tracks), by frame; no viewer, no display. A run folder lists each of its recordings."""
+    from viz import rerun_process
+
+    def spawn(*args: object, **kwargs: object) -> None:
+        raise AssertionError("no viewer for --list")
+
+    monkeypatch.setattr(rerun_process, "start_rerun", spawn)
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
+        monkeypatch.delenv(name, raising=False)
+    path, result = recording()
+    events = result.id_evaluation.events
+    assert main(["inspect", str(path), "--list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == len(events) > 5
+    order = sorted(range(len(events)), key=lambda k: (events[k].frame_id, k))
+    for line, k in zip(lines, order, strict=True):
+        e = events[k]
+        kind = "ID switch" if e.kind.value == "id_switch" else "fragmentation"
+        assert line.split() == [
+            "0001",
+            f"#{k}",
+            "frame",
+            str(e.frame_id),
+            *kind.split(),
+            f"T{e.old_track_id}",
+            "->",
+            f"T{e.new_track_id}",
+            "(GT",
+            f"{e.gt_id})",
+        ]
+    # a run folder: its recordings/ (here two sequences), by sequence then frame
+    run = tmp_path / "run"
+    (run / "recordings").mkdir(parents=True)
+    shutil.copy(path, run / "recordings" / "0001.rrd")
+    empty = _tiny_recording(run / "recordings" / "0000.rrd")
+    assert main(["inspect", str(run), "--list"]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.splitlines() == lines
+    assert f"{empty}: no ID events (ID switches or fragmentations) recorded" in captured.err
+    assert main(["inspect", str(tmp_path), "--list"]) == 2  # no recordings there
+    assert "no recordings (.rrd)" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as usage:  # one or the other
+        main(["inspect", str(path), "--list", "--event", "1"])
+    assert usage.value.code == 2
+
+
+def _tiny_recording(path: Path) -> Path:
+    """A recording without ID events (nor ground truth): a few frames of the sample."""
+    from tests.test_viz import sample_frames
+    from tracker.config import load_config
+    from viz.record import record_scene
+
+    det, _ = sample_frames()
+    record_scene(det[:3], load_config("kitti"), None, path, motion_metrics=False)
+    return path
+
+
 def test_inspect_without_a_display_says_so_and_names_shots(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Without DISPLAY / WAYLAND_DISPLAY (SSH, CI) the viewer's window cannot open: inspect
     says so in one line with the shots command for the same moment, instead of spawning a
     viewer that fails with "transport error" after 6 s."""
-    import rerun.experimental
-
     from app.inspect import EXIT_VIEWER_FAILED, missing_display
+    from viz import rerun_process
 
     assert missing_display({}, "linux")
     assert not missing_display({"DISPLAY": ":0"}, "linux")
@@ -188,7 +248,7 @@ def test_inspect_without_a_display_says_so_and_names_shots(
     def spawn(*args: object, **kwargs: object) -> None:
         raise AssertionError("no viewer without a display")
 
-    monkeypatch.setattr(rerun.experimental.ViewerClient, "spawn", spawn)
+    monkeypatch.setattr(rerun_process, "start_rerun", spawn)
     monkeypatch.setattr("sys.platform", "linux")
     for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(name, raising=False)
@@ -208,14 +268,13 @@ def test_view_spawn_without_a_display_is_refused_before_any_work(
 ) -> None:
     """``mctrack view INPUT --spawn`` without a display: the viewer died on winit's error and
     the run then hung with no word (the recording's flush waits for a viewer that never came)."""
-    import rerun as rr
-
     from tests.test_viz import SAMPLE
+    from viz import rerun_process
 
     def spawn(*args: object, **kwargs: object) -> None:
         raise AssertionError("no viewer without a display")
 
-    monkeypatch.setattr(rr.RecordingStream, "spawn", spawn)
+    monkeypatch.setattr(rerun_process, "start_rerun", spawn)
     monkeypatch.setattr("sys.platform", "linux")
     for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(name, raising=False)
@@ -392,6 +451,71 @@ def test_focused_blueprint_of_an_event_targets_it(monkeypatch: pytest.MonkeyPatc
     assert seen["target_xyz"] == index.event_xyz_m[0]
     assert seen["track_ids"] == (index.event_old_track_ids[0], index.event_new_track_ids[0])
     assert seen["cams"] == [("CAM_FRONT", 1242, 375)]
+    assert seen["gt_id"] == index.event_gt_ids[0]
+
+
+def _speed_views(blueprint: object) -> list:
+    """The TimeSeriesViews of a blueprint whose name starts with "speed [m/s]: T"."""
+    import rerun.blueprint as rrb
+
+    found, todo = [], [blueprint.root_container]  # type: ignore[attr-defined]
+    while todo:
+        item = todo.pop()
+        if isinstance(item, rrb.TimeSeriesView):
+            if str(item.name).startswith("speed [m/s]: T"):
+                found.append(item)
+        else:
+            todo += list(getattr(item, "contents", []) or [])
+    return found
+
+
+def test_event_speed_view_draws_the_gt_curve_once() -> None:
+    """Both tracks of an ID switch matched the one GT object: the event's speed view (focused
+    layout, and the default layout's first-switch view) drew its curve twice, as each track's
+    matched-GT curve. Now it draws the GT object's own curve (event_gt/<id>/speed), which holds
+    both tracks' pieces."""
+    from viz import shots
+
+    path, result = recording()
+    index = read_shot_index(path)
+    k = index.event_kinds.index(0)  # an ID switch
+    old, new, gt = (
+        index.event_old_track_ids[k],
+        index.event_new_track_ids[k],
+        index.event_gt_ids[k],
+    )
+    views = _speed_views(shots.focus_blueprint_for(path, index, k))
+    first = result.id_evaluation.id_switches[0]
+    views += _speed_views(
+        layout.debug_blueprint(
+            [], switch_track_ids=[first.old_track_id, first.new_track_id], switch_gt_id=first.gt_id
+        )
+    )
+    assert len(views) == 2
+    for view, (a, b, g) in zip(
+        views, [(old, new, gt), (first.old_track_id, first.new_track_id, first.gt_id)], strict=True
+    ):
+        contents = [str(c) for c in view.contents]
+        assert [c for c in contents if "gt" in c] == [paths.entity(paths.event_gt_series(g))]
+        assert {paths.entity(paths.track_series(t, paths.SPEED)) for t in (a, b)} <= set(contents)
+    # the one curve holds the pieces the two tracks' matched-GT curves had
+    curve = entity_table(path, paths.event_gt_series(gt))
+    speed = dict(
+        zip(curve[paths.FRAME].to_pylist(), curve["Scalars:scalars"].to_pylist(), strict=True)
+    )
+    assert curve["SeriesLines:names"].to_pylist()[0] == [f"GT {gt} speed"]
+    pieces = 0
+    for t in (old, new):
+        piece = entity_table(path, paths.track_series(t, paths.GT_PREFIX + paths.SPEED))
+        at_event_gt = [
+            (f, v)
+            for f, v in zip(
+                piece[paths.FRAME].to_pylist(), piece["Scalars:scalars"].to_pylist(), strict=True
+            )
+            if f in speed and speed[f] == v
+        ]
+        pieces += len(at_event_gt) > 0
+    assert pieces == 2
 
 
 def test_shot_plans() -> None:

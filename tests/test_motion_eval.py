@@ -515,6 +515,51 @@ def test_largest_delay_tracks_finds_the_delayed_one() -> None:
     assert delay == pytest.approx(0.5)
 
 
+def test_velocity_plot_marks_where_the_largest_delay_is(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The plot's title gave the largest delay but not where: the GT speed peak it was
+    measured at (frame 30, t = 3.0 s) is marked on the curve and named in the title."""
+    import matplotlib.figure
+
+    from tracker.eval.motion_eval import plot_velocity_curves
+
+    n, dt = 80, 0.1
+    i = np.arange(n)
+    speed = 5.0 + 3.0 * np.exp(-(((i - 30) / 5.0) ** 2))
+    positions = np.cumsum(speed) * dt
+    gt_frames = [
+        frame(f, xy=[[positions[f], 0.0]], category=[CAR], track_id=[1], velocity=[[speed[f], 0]])
+        for f in range(n)
+    ]
+    outs = [
+        output(
+            f,
+            xy=[[positions[f], 0.0]],
+            track_id=[1],
+            category=[CAR],
+            velocity=[[speed[max(f - 5, 0)], 0.0]],
+        )
+        for f in range(n)
+    ]
+    samples = collect_motion_samples(None, {"s": gt_frames}, {"s": outs}, classes=["car"])
+    figures: list = []
+    save = matplotlib.figure.Figure.savefig
+    monkeypatch.setattr(
+        matplotlib.figure.Figure,
+        "savefig",
+        lambda fig, *a, **k: (figures.append(fig), save(fig, *a, **k)),
+    )
+    plotted = plot_velocity_curves(samples, tmp_path / "v.png", count=1)
+    assert plotted[0]["kalman_delay_frame"] == 30
+    ax = figures[0].axes[0]
+    assert "Kalman delay 0.5 s at frame 30 (t = 3.0 s, marked)" in ax.get_title()
+    marks = [ln for ln in ax.lines if list(ln.get_xdata()) == [3.0, 3.0]]  # the peak's time
+    assert len(marks) == 1
+    points = [ln for ln in ax.lines if ln.get_marker() == "o"]
+    assert [list(p.get_xydata()[0]) for p in points] == [pytest.approx([3.0, 8.0])]
+
+
 # --------------------------------------------------------------------------------------------
 # Tracks file round trip and the `mctrack eval` command
 # --------------------------------------------------------------------------------------------

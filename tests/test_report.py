@@ -481,9 +481,9 @@ def test_serve_stops_the_viewer_on_sigterm(tmp_path: Path) -> None:
     import subprocess
     import sys
 
-    from viz.shots import _rerun_executable
+    from viz.rerun_process import rerun_executable
 
-    if _rerun_executable() is None:
+    if rerun_executable() is None:
         pytest.skip("the rerun binary of rerun-sdk is not installed")
     a, _, _ = make_runs(tmp_path)
     root = Path(__file__).resolve().parents[1]

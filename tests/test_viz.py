@@ -301,15 +301,29 @@ def test_id_switch_markers_sit_at_the_objects(rrd: Path, result: RecordResult) -
 
 
 def test_cost_matrix_rows_and_columns_are_labelled(rrd: Path) -> None:
+    """Every row and column of a small matrix is labelled; of a large one every k-th (see
+    tests/test_viz.py::test_cost_labels_never_overlap)."""
     labels = entity_table(rrd, f"{paths.COST_BEV}/{paths.COST_LABELS}")
-    frame = 50
-    texts = column_at(labels, "Points2D:labels", frame)
-    assert any(t.startswith("T") for t in texts) and any(t.startswith("d") for t in texts)
     image = entity_table(rrd, paths.COST_BEV)
-    fmt = column_at(image, "Image:format", frame)[0]
-    rows = sum(t.startswith("T") and t[1:].isdigit() for t in texts)
-    cols = sum(t.startswith("d") and t[1:].isdigit() for t in texts)
-    assert (fmt["height"], fmt["width"]) == (rows, cols)
+    seen = set()
+    formats = dict(
+        zip(image[paths.FRAME].to_pylist(), image["Image:format"].to_pylist(), strict=True)
+    )
+    for frame, texts in zip(
+        labels[paths.FRAME].to_pylist(), labels["Points2D:labels"].to_pylist(), strict=True
+    ):
+        if not texts or not formats.get(frame):
+            continue
+        fmt = formats[frame][0]
+        rows = sum(t.startswith("T") and t[1:].isdigit() for t in texts)
+        cols = sum(t.startswith("d") and t[1:].isdigit() for t in texts)
+        if fmt["height"] <= 6 and fmt["width"] <= 8:
+            assert (rows, cols) == (fmt["height"], fmt["width"]), frame
+            seen.add("small")
+        elif fmt["height"] >= 12:
+            assert 0 < rows < fmt["height"] and 0 < cols <= fmt["width"], frame
+            seen.add("large")
+    assert seen == {"small", "large"}
 
 
 def test_cost_matrix_extent_frames_the_whole_matrix(rrd: Path) -> None:
@@ -327,9 +341,89 @@ def test_cost_matrix_extent_frames_the_whole_matrix(rrd: Path) -> None:
             column_at(extent, "Boxes2D:half_sizes", frame)[0],
         )
         eps = 1e-5  # float32
-        assert cx - hx <= -1.2 + eps and cx + hx >= fmt["width"] - eps  # row labels to last column
-        assert cy - hy <= -0.8 and cy + hy >= fmt["height"] + 1.5 - eps  # room below the last row
+        labels = entity_table(rrd, f"{paths.COST_BEV}/{paths.COST_LABELS}")
+        points = np.array(column_at(labels, "Points2D:positions", frame))
+        # from the row labels and the note above the column labels to the last column, and
+        # room below the last row
+        assert cx - hx <= points[:, 0].min() + eps and cx + hx >= fmt["width"] - eps
+        assert cy - hy <= points[:, 1].min() + eps and cy + hy >= fmt["height"] + 1.5 - eps
         assert column_at(extent, "Boxes2D:colors", frame) == [pack_rgb(BACKGROUND_RGB)]
+
+
+#: Rerun's labels in a 2D view, as measured on its screenshots: text of a fixed size in a box
+#: ~6 px/character + 13 px wide and ~16 px tall (text and margin), from ~6 px below its point.
+LABEL_PX = {"char": 6.0, "pad": 13.0, "height": 16.0, "below": 6.0}
+#: The smallest cost view (the focused layout's, 1920x1080 viewer): plot area, px.
+SMALL_COST_VIEW_PX = (700.0, 240.0)
+
+
+def _label_boxes(positions: np.ndarray, labels: list[str], extent: tuple) -> np.ndarray:
+    """(x0, y0, x1, y1) px of each label in the small cost view, which Rerun frames on the
+    points and boxes (the extent box and the labels' points)."""
+    (cx, cy), (hx, hy) = extent
+    lo = np.minimum(positions.min(axis=0), [cx - hx, cy - hy])
+    hi = np.maximum(positions.max(axis=0), [cx + hx, cy + hy])
+    width, height = SMALL_COST_VIEW_PX
+    px = min(width / (hi[0] - lo[0]), height / (hi[1] - lo[1]))
+    w = LABEL_PX["char"] * np.array([len(t) for t in labels]) + LABEL_PX["pad"]
+    x, y = positions[:, 0] * px, positions[:, 1] * px + LABEL_PX["below"]
+    return np.column_stack([x - w / 2, y, x + w / 2, y + LABEL_PX["height"]])
+
+
+def _overlaps(boxes: np.ndarray, labels: list[str]) -> list[tuple[str, str]]:
+    found = []
+    for i in range(len(boxes)):
+        for j in range(i + 1, len(boxes)):
+            a, b = boxes[i], boxes[j]
+            dx = min(a[2], b[2]) - max(a[0], b[0])
+            dy = min(a[3], b[3]) - max(a[1], b[1])
+            if dx > 0.5 and dy > 0.5:
+                found.append((labels[i], labels[j]))
+    return found
+
+
+@pytest.mark.parametrize(("rows", "cols"), [(3, 4), (8, 6), (12, 10), (20, 18), (40, 9), (6, 30)])
+def test_cost_labels_never_overlap(rows: int, cols: int) -> None:
+    """A matrix of 12 or more rows had a label per row, one row (~8 px in the focused layout's
+    small view) apart for ~16 px of text: they ran into each other. The labels the builders
+    lay out (rows, staggered columns, values of every feasible cell, the note) must not
+    overlap at that view's scale, which follows from the extent box; a small matrix keeps
+    every row and column label."""
+    from tracker.events import CostComputed, Matched, Stage
+    from viz.observer import _build_cost_extent, _build_cost_labels, _CostPart
+
+    rng = np.random.default_rng(rows * 100 + cols)
+    cost = rng.uniform(0.0, 1.0, (rows + 3, cols))
+    cost[-3:] = np.inf  # rows without a comparable pair: left out, the note says so
+    cost[0, 0] = 0.79  # accepted, the dearest feasible value around: drawn first all the same
+    tracks = np.arange(100, 100 + rows + 3) * 7
+    event = CostComputed(Stage.BEV, cost, tracks, np.arange(cols) + 3, np.full(rows + 3, 0.8))
+    matched = Matched(
+        Stage.BEV, tracks[:2], np.array([3, 4]), cost[:2, :2].diagonal(), tracks[:0], tracks[:0]
+    )
+    part = _CostPart(event, matched)
+    fields, _, _ = _build_cost_labels([part])
+    ext, _, _ = _build_cost_extent([part])
+    labels = list(fields["labels"])
+    boxes = _label_boxes(
+        np.asarray(fields["positions"], np.float64),
+        labels,
+        (ext["centers"][0], ext["half_sizes"][0]),
+    )
+    assert not _overlaps(boxes, labels)
+    row_labels = [t for t in labels if t.startswith("T")]
+    col_labels = [t for t in labels if t.startswith("d")]
+    assert row_labels[0] == f"T{tracks[0]}" and col_labels[0] == "d3"
+    assert "+3 tracks without a feasible pair" in labels
+    if rows <= 8 and cols <= 6:
+        assert len(row_labels) == rows and len(col_labels) == cols
+    # thinned no more than needed: the next row label is less than two labels' height away
+    tops = np.sort(boxes[[t.startswith("T") for t in labels], 1])
+    assert len(row_labels) == rows or (np.diff(tops) < 2 * LABEL_PX["height"]).all()
+    values = [t for t in labels if t[0].isdigit()]
+    assert values
+    if cols <= 12:  # (beyond, only each row's cheapest value is drawn)
+        assert "0.79" in values
 
 
 def test_all_tracks_view_names_every_curve_it_shows(rrd: Path) -> None:

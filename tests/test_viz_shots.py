@@ -66,8 +66,7 @@ def test_headless_viewer_logs_warnings_only_unless_told(monkeypatch: pytest.Monk
     import contextlib
     import os
 
-    import rerun.experimental
-
+    from viz import shots
     from viz.shots import headless_viewer
 
     seen: list[str | None] = []
@@ -76,7 +75,7 @@ def test_headless_viewer_logs_warnings_only_unless_told(monkeypatch: pytest.Monk
         seen.append(os.environ.get("RUST_LOG"))
         return contextlib.nullcontext()
 
-    monkeypatch.setattr(rerun.experimental.ViewerClient, "spawn", spawn)
+    monkeypatch.setattr(shots, "running_viewer_client", spawn)
     monkeypatch.delenv("RUST_LOG", raising=False)
     with headless_viewer():
         pass

@@ -38,13 +38,21 @@ BEV_EYE_TARGET_M = (16.0, 0.0, 0.0)
 
 
 def _speed_view(
-    track_ids: Sequence[int], name: str, speed_max_mps: float | None = None
+    track_ids: Sequence[int],
+    name: str,
+    speed_max_mps: float | None = None,
+    gt_id: int | None = None,
 ) -> rrb.TimeSeriesView:
-    contents = [
-        paths.entity(paths.track_series(t, s))
-        for t in track_ids
-        for s in (paths.SPEED, paths.GT_PREFIX + paths.SPEED)
-    ]
+    """The tracks' speed with their matched GT's (``tracks/<id>/gt_speed``), or, for an ID
+    event's tracks (``gt_id``), with that one GT object's curve (``event_gt/<id>/speed``): both
+    tracks matched it, so their GT curves were two pieces of it, drawn as two curves."""
+    own = [paths.entity(paths.track_series(t, paths.SPEED)) for t in track_ids]
+    if gt_id is None:
+        gt_speed = paths.GT_PREFIX + paths.SPEED
+        gts = [paths.entity(paths.track_series(t, gt_speed)) for t in track_ids]
+    else:
+        gts = [paths.entity(paths.event_gt_series(gt_id))]
+    contents = [*own, *gts]
     axis = rrb.ScalarAxis(range=(0.0, speed_max_mps)) if speed_max_mps else None
     return rrb.TimeSeriesView(
         origin=paths.entity(paths.TRACKS), contents=contents, name=name, axis_y=axis
@@ -85,6 +93,7 @@ def debug_blueprint(
     *,
     lag_track_ids: Sequence[int] = (),
     switch_track_ids: Sequence[int] = (),
+    switch_gt_id: int | None = None,
     lag_speed_max_mps: float | None = None,
     noise_view: bool = False,
     gate_view: bool = False,
@@ -98,6 +107,7 @@ def debug_blueprint(
     lag_track_ids : tracks whose speed / velocity / heading curves (with their matched GT's) get
         their own views: the largest velocity lag. Known only after the run.
     switch_track_ids : tracks of the first ID switch, compared in one speed view.
+    switch_gt_id : its GT object, whose speed that view shows once (None: each track's GT).
     lag_speed_max_mps : top of the lag speed view's y axis (m/s; None: fit all data).
     noise_view : a view of the position filter's r per class over time (a config with
         ``pose.r_scale``: r follows the detections' estimated noise).
@@ -169,7 +179,11 @@ def debug_blueprint(
         ]
     if switch_track_ids:
         label = " / ".join(f"T{t}" for t in switch_track_ids)
-        series.append(_speed_view(switch_track_ids, f"speed [m/s]: {label} (first ID switch)"))
+        series.append(
+            _speed_view(
+                switch_track_ids, f"speed [m/s]: {label} (first ID switch)", gt_id=switch_gt_id
+            )
+        )
     series.append(all_tracks)
     if noise_view:
         series.append(
@@ -238,6 +252,7 @@ def focus_blueprint(
     event_index: int,
     target_xyz: Sequence[float],
     track_ids: Sequence[int],
+    gt_id: int | None = None,
 ) -> rrb.Blueprint:
     """One ID event, focused: a world-frame 3D view centred on the event with the old/new tracks'
     trails, the GT path and their three boxes bright (``focus/e<K>``) and everything else dimmed,
@@ -284,7 +299,13 @@ def focus_blueprint(
             name=f"{VIEW_COST_BEV}: tracks (rows) x detections",
             background=_COST_BACKGROUND,
         ),
-        _speed_view(ids, "speed [m/s]: " + " / ".join(f"T{t}" for t in ids)),
+        _speed_view(
+            ids,
+            "speed [m/s]: "
+            + " / ".join(f"T{t}" for t in ids)
+            + (f" and GT {gt_id}" if gt_id is not None else ""),
+            gt_id=gt_id,
+        ),
         row_shares=[5, 3, 2],
     )
     return _paused(rrb.Horizontal(left, right, column_shares=[3, 2]))

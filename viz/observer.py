@@ -936,11 +936,122 @@ def _build_cost_image(parts: list[_CostPart]) -> Built:
     return {}, np.zeros(len(parts), np.int64), {"buffer": [buffers], "format": formats}
 
 
+#: The cost views' labels are laid out for the smallest of those views, the focused layout's
+#: in a 1920x1080 viewer (px, plot area; a larger view only gives them more room). Rerun draws
+#: a label's text at a fixed size, its box from a little below its point, and frames a 2D view
+#: on the points and boxes: so the matrix's scale (px per cell) follows from the extent the
+#: labels need, and how many labels fit from that scale.
+COST_VIEW_PX = (700.0, 240.0)
+#: Labels are lifted to centre their text on their row at the scale of a view this tall (px):
+#: between the focused layout's cost view and the default layout's (~330 px), so that in
+#: either the text sits within a third of a row of its row (it hung 1-2 rows below it).
+COST_VIEW_LIFT_HEIGHT_PX = 290.0
+LABEL_LINE_PX = 16.0  # a label's box: its text, with a margin (backgrounds may just touch)
+LABEL_BELOW_PX = 6.0  # from a label's point down to the top of its box
+LABEL_CHAR_PX = 6.0
+LABEL_PAD_PX = 13.0  # a label box's width beyond its characters
+LABEL_GAP_PX = 2.0
+VALUE_LABEL_CHARS = 5  # "12.34", "-0.50": the widest cell value drawn
+
+
+def label_width_px(chars: Any) -> Any:
+    """Width of a label of ``chars`` characters (px)."""
+    return LABEL_CHAR_PX * np.asarray(chars, dtype=np.float64) + LABEL_PAD_PX
+
+
+@dataclass(frozen=True, slots=True)
+class CostLabelLayout:
+    """Where the labels of cost matrices go, one entry per matrix (positions in cells, the
+    matrix from (0, 0) to (columns, rows)); at :data:`COST_VIEW_PX` none overlaps another.
+
+    Every ``row_step``-th row is labelled (from the first) and every ``col_step``-th column,
+    in one line or two staggered ones; cell values are thinned to ``value_rows`` x
+    ``value_cols`` apart (:func:`_thinned_values`). A label's point sits ``lift`` above where
+    its text is to be centred, since Rerun draws the text below the point."""
+
+    px: FloatArray  # pixels per cell
+    row_step: IntArray
+    row_x: FloatArray  # x of the row labels' points
+    col_step: IntArray
+    col_lines: IntArray  # 1, or 2 staggered
+    line_y: FloatArray  # (matrices, 3): y of the points of column line 0, line 1, the note
+    lift: FloatArray
+    value_rows: IntArray
+    value_cols: IntArray
+    top: FloatArray  # the extent: from the note's point
+    bottom: FloatArray  # to below the last row
+
+    @property
+    def left(self) -> FloatArray:
+        return self.row_x
+
+
+def cost_label_layout(
+    rows: IntArray, cols: IntArray, row_chars: IntArray, col_chars: IntArray
+) -> CostLabelLayout:
+    """The label layout of matrices of ``rows`` x ``cols`` cells whose row and column labels
+    have up to ``row_chars`` and ``col_chars`` characters."""
+    m = np.asarray(rows, dtype=np.float64)
+    n = np.maximum(np.asarray(cols, dtype=np.float64), 1.0)
+    width, height = COST_VIEW_PX
+    line, gap = LABEL_LINE_PX, LABEL_GAP_PX
+    w_row, w_col = label_width_px(row_chars), label_width_px(col_chars)
+    w_val = float(label_width_px(VALUE_LABEL_CHARS))
+    to_centre = LABEL_BELOW_PX + line / 2  # a label's point -> the centre of its box (px)
+    # above the matrix: column line 0, line 1, the note (box centres, px; a value of the first
+    # row may reach half a line above the matrix when the cells are small)
+    centres = -(line + gap + line / 2 + line * np.arange(3.0))
+    bottom = m * (1.0 + COST_EXTENT_BELOW_SHARE) + COST_EXTENT_BELOW_ROWS
+    across = (width - w_row - w_val / 2 - 2 * gap) / n
+    # the view spans from the note's point (lifted by to_centre at px_lift) to ``bottom``
+    above = -centres[2]
+    lift_fit = (COST_VIEW_LIFT_HEIGHT_PX - above - to_centre) / bottom
+    px_lift = np.maximum(np.minimum(lift_fit, across), 1.0)
+    px = np.maximum(np.minimum((height - above) / (bottom + to_centre / px_lift), across), 1.0)
+    # row labels right-aligned left of the first column's values (a value is wider than a cell)
+    row_right = np.minimum(0.0, px / 2 - w_val / 2) - gap
+    one_line = w_col + gap <= px
+    col_step = np.where(one_line, 1, np.ceil((w_col + gap) / (2 * px)))
+    lift = to_centre / px_lift
+    return CostLabelLayout(
+        px=px,
+        row_step=np.ceil(line / px - 1e-9).astype(np.int64).clip(1),
+        row_x=(row_right - w_row / 2) / px,
+        col_step=col_step.astype(np.int64).clip(1),
+        col_lines=np.where(one_line, 1, 2).astype(np.int64),
+        line_y=centres[None, :] / px[:, None] - lift[:, None],
+        lift=lift,
+        value_rows=np.ceil(line / px - 1e-9).astype(np.int64).clip(1),
+        value_cols=np.ceil((w_val + gap) / px - 1e-9).astype(np.int64).clip(1),
+        top=centres[2] / px - lift,
+        bottom=bottom,
+    )
+
+
+def _cost_layout(t: _CostTables) -> CostLabelLayout:
+    """:func:`cost_label_layout` of the shown matrices (their labels' lengths)."""
+    n_parts = len(t.m)
+    row_chars = np.zeros(n_parts, np.int64)
+    col_chars = np.zeros(n_parts, np.int64)
+    if len(t.row_track):
+        np.maximum.at(row_chars, t.row_part, _digits(t.row_track) + 1)  # "T<id>"
+    if len(t.col_det):
+        np.maximum.at(col_chars, t.col_part, _digits(t.col_det) + 1)  # "d<row>"
+    return cost_label_layout(t.m, t.n, row_chars, col_chars)
+
+
+def _digits(values: IntArray) -> IntArray:
+    v = np.abs(np.asarray(values, dtype=np.int64))
+    return np.floor(np.log10(np.maximum(v, 1))).astype(np.int64) + 1 + (values < 0)
+
+
 def _build_cost_labels(parts: list[_CostPart]) -> Built:
-    """Row ids "T<track>" left of the matrix, column ids "d<detection row>" above it (in two
-    staggered lines when there are many, so they do not run together), cell values, and a
-    note on the rows and columns not shown (above the matrix, where the view never clips)."""
+    """Row ids "T<track>" left of the matrix, column ids "d<detection row>" above it, cell
+    values, and a note on the rows and columns not shown (above the column ids), laid out by
+    :func:`cost_label_layout`: with many rows or columns, every second (third, ...) one is
+    labelled and the values are thinned (matched pairs first), so that no two overlap."""
     t = _cost_tables(parts)
+    lay = _cost_layout(t)
     n_parts = len(parts)
     # values only where a match was allowed: dark red cells (over the threshold) say enough,
     # and their numbers would crowd out the ones that decide; with many columns only each
@@ -954,10 +1065,15 @@ def _build_cost_labels(parts: list[_CostPart]) -> Built:
         ok &= ~many | (t.cost == best[t.cell_row])
     per_part = np.bincount(t.cell_part[ok], minlength=n_parts)
     ok &= per_part[t.cell_part] <= MAX_CELL_LABELS
-    values = t.cost[ok]
-    r, k = t.cell_pos[0][ok], t.cell_pos[1][ok]
-    value_part = t.cell_part[ok]
-    stagger = (t.n[t.col_part] > 8) & (t.col_pos % 2 == 1)
+    cells = _thinned_values(parts, t, lay, np.flatnonzero(ok))
+    values = t.cost[cells]
+    r, k = t.cell_pos[0][cells], t.cell_pos[1][cells]
+    value_part = t.cell_part[cells]
+    row_kept = t.row_pos % lay.row_step[t.row_part] == 0
+    row_part, row_pos, row_track = t.row_part[row_kept], t.row_pos[row_kept], t.row_track[row_kept]
+    col_kept = t.col_pos % lay.col_step[t.col_part] == 0
+    col_part, col_pos, col_det = t.col_part[col_kept], t.col_pos[col_kept], t.col_det[col_kept]
+    col_line = np.where(lay.col_lines[col_part] > 1, (col_pos // lay.col_step[col_part]) % 2, 0)
     has_note = (t.hidden_rows > 0) | (t.hidden_cols > 0)
     note_part = np.flatnonzero(has_note)
     notes = []
@@ -966,28 +1082,28 @@ def _build_cost_labels(parts: list[_CostPart]) -> Built:
         note = ([f"+{hr} tracks"] if hr else []) + ([f"+{hc} detections"] if hc else [])
         notes.append(" and ".join(note) + " without a feasible pair")
     # order per matrix: row ids, column ids, cell values, then the note on what is not shown
-    kind_part = np.concatenate([t.row_part, t.col_part, value_part, note_part])
-    kind = np.repeat(np.arange(4), [len(t.row_part), len(t.col_part), len(values), len(notes)])
+    kind_part = np.concatenate([row_part, col_part, value_part, note_part])
+    kind = np.repeat(np.arange(4), [len(row_part), len(col_part), len(values), len(notes)])
     order = np.lexsort((np.arange(len(kind)), kind, kind_part))
     positions = np.concatenate(
         [
-            np.column_stack([np.full(len(t.row_pos), -1.2), t.row_pos + 0.5]),
-            np.column_stack([t.col_pos + 0.5, np.where(stagger, -1.7, -0.8)]),
-            np.column_stack([k + 0.5, r + 0.5]),
-            np.column_stack([t.n[note_part] / 2.0, np.full(len(notes), -2.8)]),
+            np.column_stack([lay.row_x[row_part], row_pos + 0.5 - lay.lift[row_part]]),
+            np.column_stack([col_pos + 0.5, lay.line_y[col_part, col_line]]),
+            np.column_stack([k + 0.5, r + 0.5 - lay.lift[value_part]]),
+            np.column_stack([t.n[note_part] / 2.0, lay.line_y[note_part, 2]]),
         ]
     )
     colors = np.concatenate(
         [
-            track_colors_u32(t.row_track),
-            solid(DETECTION_KEPT_RGB, len(t.col_part)),
+            track_colors_u32(row_track),
+            solid(DETECTION_KEPT_RGB, len(col_part)),
             solid((255, 255, 255), len(values)),
             solid((190, 190, 190), len(notes)),
         ]
     )
     labels = (
-        [f"T{i}" for i in t.row_track.tolist()]
-        + [f"d{i}" for i in t.col_det.tolist()]
+        [f"T{i}" for i in row_track.tolist()]
+        + [f"d{i}" for i in col_det.tolist()]
         + [f"{v:.2f}" for v in values.tolist()]
         + notes
     )
@@ -999,6 +1115,49 @@ def _build_cost_labels(parts: list[_CostPart]) -> Built:
         "labels": [labels[i] for i in order.tolist()],
     }
     return fields, np.bincount(kind_part, minlength=n_parts), {"show_labels": [True] * n_parts}
+
+
+def _thinned_values(
+    parts: list[_CostPart], t: _CostTables, lay: CostLabelLayout, cells: IntArray
+) -> IntArray:
+    """The ``cells`` whose values are drawn: in a matrix whose cells are smaller than a value's
+    label, none closer than ``value_rows`` rows and ``value_cols`` columns to another (closer,
+    their labels overlap), chosen greedily, the accepted pairs first, then the cheapest."""
+    part = t.cell_part[cells]
+    crowded = ((lay.value_rows > 1) | (lay.value_cols > 1))[part]
+    if not crowded.any():
+        return cells
+    crowd = cells[crowded]
+    part = part[crowded]
+    col_start = np.cumsum(t.n) - t.n
+    rows, cols = t.cell_pos[0][crowd], t.cell_pos[1][crowd]
+    # (part, detection row) as one int32: a buffer holds at most a few hundred frames
+    where = part * (1 << 20) + t.col_det[col_start[part] + cols]
+    pairs = [
+        (np.full(len(p.matched.track_ids), i) * (1 << 20) + p.matched.det_rows, p.matched.track_ids)
+        for i, p in enumerate(parts)
+        if p.matched is not None and len(p.matched.track_ids)
+    ]
+    accepted = np.zeros(len(crowd), bool)
+    if pairs:
+        at, ids = zip(*pairs, strict=True)
+        keys = pair_key(np.concatenate(at), np.concatenate(ids))
+        accepted = np.isin(pair_key(where, t.row_track[t.cell_row[crowd]]), keys)
+    priority = np.where(accepted, -np.inf, t.cost[crowd])
+    order = np.lexsort((np.arange(len(crowd)), priority, part))
+    min_rows, min_cols = lay.value_rows[part].tolist(), lay.value_cols[part].tolist()
+    r_list, c_list, p_list = rows.tolist(), cols.tolist(), part.tolist()
+    keep: list[int] = []
+    taken: list[tuple[int, int]] = []
+    current = -1
+    for i in order.tolist():
+        if p_list[i] != current:
+            current, taken = p_list[i], []
+        r, c, dr, dc = r_list[i], c_list[i], min_rows[i], min_cols[i]
+        if all(abs(r - r2) >= dr or abs(c - c2) >= dc for r2, c2 in taken):
+            taken.append((r, c))
+            keep.append(i)
+    return np.sort(np.concatenate([cells[~crowded], crowd[np.array(keep, dtype=np.int64)]]))
 
 
 def _build_cost_matched(parts: list[_CostPart]) -> Built:
@@ -1042,9 +1201,10 @@ def _build_cost_extent(parts: list[_CostPart]) -> Built:
     its points and boxes, not on the image: without it the matrix's last row was cut in half
     (its label and values below the view's edge)."""
     t = _cost_tables(parts)
-    x0, y0 = -1.2, -1.0  # the row labels' x, above the column labels
-    x1 = t.n.astype(np.float32)
-    y1 = t.m * (1.0 + COST_EXTENT_BELOW_SHARE) + COST_EXTENT_BELOW_ROWS
+    lay = _cost_layout(t)
+    x0, y0 = lay.left, lay.top  # the row labels' x, the note's y (cost_label_layout)
+    x1 = t.n.astype(np.float64)
+    y1 = lay.bottom
     fields = {
         "centers": np.column_stack([(x0 + x1) / 2, (y0 + y1) / 2]).astype(np.float32),
         "half_sizes": np.column_stack([(x1 - x0) / 2, (y1 - y0) / 2]).astype(np.float32),

@@ -51,6 +51,9 @@ ACCELERATION_X: Final = "acceleration_x"  # filtered, CA tracks only (no GT coun
 ACCELERATION_Y: Final = "acceleration_y"
 GT_PREFIX: Final = "gt_"  # tracks/<id>/gt_speed ... : the matched GT's curve
 SERIES: Final = (SPEED, VELOCITY_X, VELOCITY_Y, HEADING)
+# event_gt/<gt id>/speed: the speed of each ID event's GT object over all its frames, one curve
+# (the old and new tracks' tracks/<id>/gt_speed are two pieces of it, one per track)
+EVENT_GT: Final = "event_gt"
 # noise/<class>: the position filter's measurement variance r (m², x and y), which follows the
 # detections' estimated centre noise with pose.r_scale (tracker/noise.py)
 NOISE: Final = "noise"
@@ -90,6 +93,11 @@ def camera_matches_rv(name: str) -> str:
 def track_series(track_id: int, series: str) -> str:
     """``tracks/<id>/<series>``; series is one of :data:`SERIES` or ``gt_`` + one of them."""
     return f"{TRACKS}/{track_id}/{series}"
+
+
+def event_gt_series(gt_id: int, series: str = SPEED) -> str:
+    """``event_gt/<gt id>/<series>``: an ID event's GT object's own curve."""
+    return f"{EVENT_GT}/{gt_id}/{series}"
 
 
 def entity(path: str) -> str:

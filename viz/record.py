@@ -385,6 +385,7 @@ def record_scene(
             # the y axis fits the pair after the warm-up: a birth spike would squash the curves
             lag_speed_max_mps=1.15 * result.lag.speed_max_mps if result.lag else None,
             switch_track_ids=[e for s in first_switch for e in (s.old_track_id, s.new_track_id)],
+            switch_gt_id=first_switch[0].gt_id if first_switch and gt_index is not None else None,
             noise_view=any(c.pose.r_scale > 0 for c in config.per_category.values()),
             gate_view=any(
                 math.isfinite(config.per_category[name].bev.gate_motion_m)
@@ -808,7 +809,49 @@ def _log_id_events(
         shown = bool(items)
     buffer.flush()
     static.send(rec)
+    if gt is not None:
+        _log_event_gt_speed(rec, sorted({e.gt_id for e in evaluation.events}), gt, times)
     return focus
+
+
+def _log_event_gt_speed(
+    rec: rr.RecordingStream, gt_ids: Sequence[int], gt: _GtIndex, times: Mapping[int, float]
+) -> None:
+    """``event_gt/<id>/speed``: each event GT object's speed at its recorded frames, one
+    curve for the event's speed views (the tracks' ``gt_speed`` curves are pieces of it, one
+    per track, and showed it twice)."""
+    rows = np.flatnonzero(np.isin(gt.boxes.track_id, np.asarray(gt_ids, dtype=np.int64)))
+    frames = gt.frame_id[rows]
+    known = np.isin(frames, np.fromiter(times, np.int64, len(times)))
+    speed = np.hypot(gt.velocity[rows, 0], gt.velocity[rows, 1])
+    rows = rows[known & np.isfinite(speed)]
+    ids = gt.boxes.track_id[rows]
+    order = np.lexsort((gt.frame_id[rows], ids))
+    rows, ids = rows[order], ids[order]
+    if not len(rows):
+        return
+    starts = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1]])
+    counts = np.diff(np.r_[starts, len(rows)])
+    f = gt.frame_id[rows]
+    series = SeriesColumns(f, np.array([times[int(x)] for x in f.tolist()]), starts, counts)
+    scalars = unit_lists(np.hypot(gt.velocity[rows, 0], gt.velocity[rows, 1]), pa.float64())
+    colors = unit_lists(np.full(len(rows), GT_SERIES_U32, np.uint32), pa.uint32())
+    names = unit_lists(pa.array([f"GT {i} speed" for i in ids.tolist()], pa.utf8()))
+    for k, gid in enumerate(ids[starts].tolist()):
+        series.add_group(
+            k,
+            [
+                (
+                    paths.event_gt_series(gid),
+                    [
+                        (rr.Scalars.descriptor_scalars(), scalars),
+                        (rr.SeriesLines.descriptor_colors(), colors),
+                        (rr.SeriesLines.descriptor_names(), names),
+                    ],
+                )
+            ],
+        )
+    series.send(rec)
 
 
 def _shot_frame(frame_id: int, image_frames: IntArray) -> int:

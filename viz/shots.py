@@ -14,7 +14,6 @@ import ctypes.util
 import glob
 import os
 import re
-import socket
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
@@ -25,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from viz import layout, paths
+from viz.rerun_process import running_viewer_client
 
 INSTALL_HINT = "apt-get install -y mesa-vulkan-drivers libvulkan1"
 _ICD_GLOBS = (
@@ -139,6 +139,29 @@ def read_shot_index(recording: str | Path) -> ShotIndex:
     )
 
 
+#: The recording's name as :func:`viz.record.new_recording` sends it: this + the scene.
+RECORDING_NAME_PREFIX = "MCTrack "
+
+
+def read_scene_name(recording: str | Path) -> str | None:
+    """The scene (sequence) a recording is of, from its recording name (None: no name)."""
+    from rerun.chunk import RrdReader
+
+    chunks = (
+        RrdReader(str(recording))
+        .stream()
+        .filter(content="/__properties/**", is_static=True)
+        .to_chunks()
+    )
+    for chunk in chunks:
+        batch = chunk.to_record_batch()
+        if "RecordingInfo:name" in batch.schema.names:
+            names = [v for row in batch.column("RecordingInfo:name").to_pylist() for v in row or []]
+            if names:
+                return str(names[-1]).removeprefix(RECORDING_NAME_PREFIX)
+    return None
+
+
 def read_frame_range(recording: str | Path) -> tuple[int, int] | None:
     """The first and last frame id on the recording's ``frame`` timeline (None: no frames).
 
@@ -222,38 +245,11 @@ VIEWS_BY_REASON: dict[str, tuple[str, ...]] = {
 FOCUS_VIEWS = (layout.VIEW_FOCUS, layout.VIEW_EXPLAIN, layout.VIEW_CAMERA, layout.VIEW_COST_BEV)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _rerun_executable() -> str | None:
-    """The viewer binary itself (the ``rerun`` console script is a Python shim around it)."""
-    with contextlib.suppress(ImportError):
-        import rerun_cli
-
-        binary = Path(rerun_cli.__file__).with_name("rerun")
-        if binary.is_file():
-            return str(binary)
-    return None
-
-
 @contextlib.contextmanager
 def headless_viewer() -> Iterator[Any]:
-    """A headless native Rerun viewer (``ViewerClient``) on a free loopback port, with a
+    """A headless native Rerun viewer (``ViewerClient``) on a free port of 127.0.0.1, with a
     private $HOME; closed on exit."""
-    from rerun.experimental import ViewerClient
-
-    with (
-        _private_home(),
-        ViewerClient.spawn(
-            headless=True,
-            port=_free_port(),
-            hide_welcome_screen=True,
-            executable_path=_rerun_executable(),
-        ) as client,
-    ):
+    with _private_home(), running_viewer_client(headless=True) as client:
         yield client
 
 
@@ -418,6 +414,7 @@ def focus_blueprint_for(recording: str | Path, index: ShotIndex, event: int) -> 
         event_index=event,
         target_xyz=index.event_xyz_m[event],
         track_ids=(index.event_old_track_ids[event], index.event_new_track_ids[event]),
+        gt_id=index.event_gt_ids[event] if event < len(index.event_gt_ids) else None,
     )
 
 

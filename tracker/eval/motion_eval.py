@@ -84,7 +84,7 @@ from tracker.eval.motion_metrics import (
     motion_metrics,
     static_gt_mask,
     velocity_curve_fit,
-    velocity_delay_secs,
+    velocity_delays_at_peaks,
     velocity_differencing,
 )
 from tracker.events import TrackOutput
@@ -911,7 +911,6 @@ def largest_delay_tracks(
     """
     ranked: list[tuple[float, int, str, int]] = []
     for cls, s in samples_by_class.items():
-        v = s.velocity[estimator]
         keys = s.gt_key
         if moving_only:
             known = np.isfinite(s.gt_velocity).all(axis=1)
@@ -920,21 +919,31 @@ def largest_delay_tracks(
             )
             keys = s.gt_key[known][~static]
         for key in np.unique(keys):
-            rows = np.flatnonzero(s.gt_key == key)
-            rows = rows[np.argsort(s.times_secs[rows], kind="stable")]
-            ok = rows[np.isfinite(s.gt_velocity[rows]).all(axis=1) & np.isfinite(v[rows]).all(1)]
-            if ok.size < 2:
-                continue
-            delays = velocity_delay_secs(
-                s.times_secs[ok],
-                np.linalg.norm(s.gt_velocity[ok], axis=1),
-                np.linalg.norm(v[ok], axis=1),
-                params=params,
-            )
+            ok, _, delays = _track_delays(s, int(key), estimator, params)
             if delays.size:
                 ranked.append((float(delays.max()), int(ok.size), cls, int(key)))
     ranked.sort(key=lambda r: (-r[0], -r[1], r[2], r[3]))
     return [(cls, key, delay) for delay, _, cls, key in ranked[:count]]
+
+
+def _track_delays(
+    s: MotionSamples, key: int, estimator: Estimator, params: MotionMetricParams | None
+) -> tuple[IntArray, IntArray, FloatArray]:
+    """(the GT track's sample rows with both speeds known, in time order; the row of each
+    delay's GT speed peak; the delays, s) of ``estimator`` behind the GT track ``key``."""
+    v = s.velocity[estimator]
+    rows = np.flatnonzero(s.gt_key == key)
+    rows = rows[np.argsort(s.times_secs[rows], kind="stable")]
+    ok = rows[np.isfinite(s.gt_velocity[rows]).all(axis=1) & np.isfinite(v[rows]).all(1)]
+    if ok.size < 2:
+        return ok, np.zeros(0, np.int64), np.zeros(0)
+    at, delays = velocity_delays_at_peaks(
+        s.times_secs[ok],
+        np.linalg.norm(s.gt_velocity[ok], axis=1),
+        np.linalg.norm(v[ok], axis=1),
+        params=params,
+    )
+    return ok, ok[at], delays
 
 
 def _break_gaps(times_secs: FloatArray, values: FloatArray) -> FloatArray:
@@ -998,14 +1007,36 @@ def plot_velocity_curves(
                 lw=1.2,
                 label=e.value,
             )
+        # where the delay is: the GT speed peak it was measured at (the first of the largest),
+        # and an arrow from there to where the Kalman curve reaches it that much later
+        _, peaks, delays = _track_delays(s, key, Estimator.KALMAN, params)
+        peak = int(peaks[int(np.argmax(delays))])
+        t_peak, v_peak = float(s.times_secs[peak]), float(np.linalg.norm(s.gt_velocity[peak]))
+        frame = int(s.frame_id[peak])
+        ax.axvline(t_peak, color="tab:blue", ls=":", lw=1.0)
+        ax.plot([t_peak], [v_peak], "o", ms=7, mfc="none", mec="tab:blue", mew=1.5)
+        ax.annotate(
+            "",
+            xy=(t_peak + delay, v_peak),
+            xytext=(t_peak, v_peak),
+            arrowprops={"arrowstyle": "->", "color": "tab:blue", "lw": 1.2},
+        )
         ax.set_title(
-            f"{cls}, scene {scene}, GT track {gt_id}: Kalman delay {delay:.1f} s", fontsize=9
+            f"{cls}, scene {scene}, GT track {gt_id}: Kalman delay {delay:.1f} s at frame "
+            f"{frame} (t = {t_peak:.1f} s, marked)",
+            fontsize=9,
         )
         ax.set_ylabel("speed (m/s)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, ncol=5, loc="upper right")
         plotted.append(
-            {"class": cls, "scene": scene, "gt_track_id": gt_id, "kalman_delay_secs": delay}
+            {
+                "class": cls,
+                "scene": scene,
+                "gt_track_id": gt_id,
+                "kalman_delay_secs": delay,
+                "kalman_delay_frame": frame,
+            }
         )
     if not chosen:
         axes[0, 0].text(0.5, 0.5, "no GT track qualifies for VDE", ha="center", va="center")

@@ -41,6 +41,7 @@ __all__ = [
     "static_gt_mask",
     "velocity_curve_fit",
     "velocity_delay_secs",
+    "velocity_delays_at_peaks",
     "velocity_differencing",
     "vse_filter_shape",
 ]
@@ -392,6 +393,17 @@ def velocity_delay_secs(
     *,
     params: MotionMetricParams | None = None,
 ) -> FloatArray:
+    """:func:`velocity_delays_at_peaks`' delays alone."""
+    return velocity_delays_at_peaks(times_secs, gt_speed_mps, est_speed_mps, params=params)[1]
+
+
+def velocity_delays_at_peaks(
+    times_secs: ArrayLike,
+    gt_speed_mps: ArrayLike,
+    est_speed_mps: ArrayLike,
+    *,
+    params: MotionMetricParams | None = None,
+) -> tuple[IntArray, FloatArray]:
     """Delays of the estimated speed behind the GT speed at the GT speed peaks of one GT track.
 
     The paper's VDE: at each candidate peak t, the GT speed window [t-L, t+R] is compared with
@@ -413,8 +425,9 @@ def velocity_delay_secs(
 
     Returns
     -------
-    (K,) delays in seconds, K <= ``vde_max_candidates``; empty if the track has fewer than
-    ``vde_min_samples`` samples or a speed range below ``vde_min_speed_range_mps``.
+    (K,) sample index of each peak and (K,) its delay in seconds, K <= ``vde_max_candidates``;
+    empty if the track has fewer than ``vde_min_samples`` samples or a speed range below
+    ``vde_min_speed_range_mps``.
     """
     params = params or MotionMetricParams()
     t = np.asarray(times_secs, dtype=np.float64)
@@ -426,7 +439,7 @@ def velocity_delay_secs(
         raise ValueError("times_secs must be strictly increasing within a track")
     n = t.shape[0]
     if n < params.vde_min_samples or np.ptp(gt) < params.vde_min_speed_range_mps:
-        return np.zeros(0)
+        return np.zeros(0, np.int64), np.zeros(0)
 
     w, max_shift = params.vde_half_window_samples, params.vde_max_shift_samples
     dt_secs = float(np.median(np.diff(t)))
@@ -440,6 +453,7 @@ def velocity_delay_secs(
     )
     shifts = np.arange(max_shift + 1)
     delays: list[float] = []
+    at: list[int] = []
     for peak in peaks:
         left, right = min(w, peak), min(w, n - 1 - peak - max_shift)
         if right < 0 or left + right + 1 < w + 1:
@@ -450,9 +464,10 @@ def velocity_delay_secs(
         abs_diff = np.abs(est_windows - gt_window)
         score = abs_diff.mean(axis=1) + abs_diff.std(axis=1)
         delays.append(int(np.argmin(score)) * dt_secs)
+        at.append(int(peak))
         if len(delays) == params.vde_max_candidates:
             break
-    return np.asarray(delays, dtype=np.float64)
+    return np.asarray(at, dtype=np.int64), np.asarray(delays, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------------------------

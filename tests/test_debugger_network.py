@@ -1,0 +1,230 @@
+"""The viewers and servers the CLI starts listen on 127.0.0.1 unless told otherwise (--host).
+
+Rerun's Python API (0.41) listens on all interfaces and has no bind address; each test looks
+at the sockets the started processes really listen on (psutil), so that a viewer started the
+old way (0.0.0.0) fails it."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import psutil
+import pytest
+
+from app.cli import main
+from tests.test_viz import SAMPLE, recording
+from viz import rerun_process
+from viz.shots import renderer_available
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def listening(pid: int) -> list[tuple[str, int]]:
+    """(address, port) of every listening TCP socket of the process and its children."""
+    proc = psutil.Process(pid)
+    found = []
+    for p in [proc, *proc.children(recursive=True)]:
+        with_sockets = p.net_connections(kind="inet")
+        found += [(c.laddr.ip, c.laddr.port) for c in with_sockets if c.status == "LISTEN"]
+    return sorted(found)
+
+
+def _needs_renderer() -> None:
+    ok, why = renderer_available()
+    if not ok:
+        pytest.skip(f"no software renderer: {why}")
+    if rerun_process.rerun_executable() is None:
+        pytest.skip("the rerun binary of rerun-sdk is not installed")
+
+
+@pytest.fixture
+def started(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[list]:
+    """The rerun processes a command starts, headless instead of windowed (no display here),
+    stopped at the end (inspect and view --spawn leave theirs running, as for a person)."""
+    _needs_renderer()
+    procs: list[subprocess.Popen[bytes]] = []
+    real_start, real_args = rerun_process.start_rerun, rerun_process.viewer_args
+
+    def spy(args: list[str], **kwargs: object) -> subprocess.Popen[bytes]:
+        proc = real_start(args, **kwargs)  # type: ignore[arg-type]
+        procs.append(proc)
+        return proc
+
+    monkeypatch.setattr(rerun_process, "start_rerun", spy)
+    monkeypatch.setattr(
+        rerun_process, "viewer_args", lambda port, headless: real_args(port, headless=True)
+    )
+    monkeypatch.setenv("HOME", str(tmp_path))  # the viewer's state, not the user's
+    monkeypatch.setenv("DISPLAY", ":mctrack-test")  # (inspect and --spawn check for one)
+    yield procs
+    for proc in procs:
+        rerun_process.stop_rerun(proc)
+
+
+def test_loopback_and_exposure_note() -> None:
+    assert rerun_process.is_loopback("127.0.0.1") and rerun_process.is_loopback("127.0.0.2")
+    assert rerun_process.is_loopback("::1") and rerun_process.is_loopback("localhost")
+    assert not rerun_process.is_loopback("0.0.0.0") and not rerun_process.is_loopback("::")
+    assert not rerun_process.is_loopback("192.168.1.5")
+    assert rerun_process.exposure_note("127.0.0.1", "it") is None
+    assert rerun_process.exposure_note("0.0.0.0", "it") == (
+        "note: --host 0.0.0.0 exposes it to the network"
+    )
+    assert rerun_process.local_address("0.0.0.0") == "127.0.0.1"
+    assert rerun_process.local_address("::") == "[::1]"
+
+
+def test_shots_viewer_listens_on_loopback_only() -> None:
+    """`mctrack shots` and `report --shots`: the headless viewer (ViewerClient.spawn's
+    listened on 0.0.0.0)."""
+    _needs_renderer()
+    from viz.shots import headless_viewer
+
+    with headless_viewer() as client:
+        pids = [p.pid for p in psutil.process_iter(["cmdline"]) if _ours(p, client.url)]
+        assert len(pids) == 1
+        sockets = listening(pids[0])
+        assert sockets and all(ip == "127.0.0.1" for ip, _ in sockets), sockets
+
+
+def _ours(proc: psutil.Process, url: str) -> bool:
+    """Is ``proc`` the viewer behind ``url`` (its --port)?"""
+    port = url.rsplit(":", 1)[1].split("/")[0]
+    cmd = proc.info.get("cmdline") or []
+    return bool(cmd) and cmd[0].endswith("rerun") and f"--port={port}" in cmd
+
+
+def test_inspect_viewer_listens_on_loopback_only(
+    started: list, capsys: pytest.CaptureFixture[str]
+) -> None:
+    path, _ = recording()
+    assert main(["inspect", str(path), "--frame", "12"]) == 0
+    assert "viewer started at frame 12" in capsys.readouterr().out
+    assert len(started) == 1 and started[0].poll() is None  # left running for the person
+    sockets = listening(started[0].pid)
+    assert sockets and all(ip == "127.0.0.1" for ip, _ in sockets), sockets
+
+
+def test_view_spawn_viewer_listens_on_loopback_and_gets_the_recording(
+    started: list, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from rerun.experimental import ViewerClient
+
+    port = rerun_process.free_port()
+    det = SAMPLE / "detections.json.gz"
+    argv = ["view", str(det), "--frames", "0:5", "--spawn", "--grpc-port", str(port)]
+    assert main(argv) == 0
+    assert "scene 0001: 5 frames" in capsys.readouterr().out
+    assert len(started) == 1 and started[0].poll() is None
+    sockets = listening(started[0].pid)
+    assert sockets == [("127.0.0.1", port)]
+    client = ViewerClient.connect(f"rerun+http://127.0.0.1:{port}/proxy")
+    deadline = time.monotonic() + 30
+    while not client.get_state().recordings and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert client.get_state().recordings  # the scene reached the viewer
+
+
+def test_view_serve_web_listens_on_loopback_and_stops_on_sigterm(tmp_path: Path) -> None:
+    """`mctrack view --serve-web`: the gRPC server and the web viewer (rr.serve_grpc and
+    rr.serve_web_viewer listened on 0.0.0.0), stopped with the command."""
+    if rerun_process.rerun_executable() is None:
+        pytest.skip("the rerun binary of rerun-sdk is not installed")
+    grpc, web = rerun_process.free_port(), rerun_process.free_port()
+    det = SAMPLE / "detections.json.gz"
+    argv = ["view", str(det), "--frames", "0:5", "--serve-web"]
+    argv += ["--grpc-port", str(grpc), "--web-port", str(web)]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", *argv],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1", "HOME": str(tmp_path)},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert proc.stdout is not None
+        lines = []
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith("serving"):
+                break
+        else:
+            pytest.fail(f"not served: {lines} {proc.stderr.read() if proc.stderr else ''}")
+        sockets = listening(proc.pid)
+        assert sorted(port for _, port in sockets) == sorted([grpc, web])
+        assert all(ip == "127.0.0.1" for ip, _ in sockets), sockets
+        assert lines[0] == (
+            f"web viewer: http://127.0.0.1:{web}/?url=rerun+http://127.0.0.1:{grpc}/proxy\n"
+        )
+        servers = psutil.Process(proc.pid).children(recursive=True)
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0 and out.strip().endswith("stopped")
+    _, alive = psutil.wait_procs(servers, timeout=10)
+    for p in alive:
+        p.kill()
+    assert not alive
+    assert not rerun_process.port_open("127.0.0.1", grpc)
+
+
+def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--host 0.0.0.0 (exposing it, deliberately) reaches the binary's --bind, with a note;
+    nothing is bound here (the binary is not started)."""
+    seen: list[list[str]] = []
+
+    class Fake:
+        pid = -1
+        returncode = 0
+
+        def poll(self) -> int:
+            return 0
+
+    def start(args: list[str], *, host: str, **kwargs: object) -> Fake:
+        seen.append(rerun_process.rerun_command(args, host=host, executable="rerun"))
+        return Fake()
+
+    monkeypatch.setattr(rerun_process, "start_rerun", start)
+    monkeypatch.setattr(rerun_process, "wait_listening", lambda *a, **k: None)
+    monkeypatch.setattr(rerun_process, "stop_rerun", lambda p: None)
+    monkeypatch.setattr("app.view._record", lambda *a, **k: None)
+    monkeypatch.setattr("app.view._serve_until_stopped", lambda: None)
+    det = SAMPLE / "detections.json.gz"
+    argv = ["view", str(det), "--frames", "0:5", "--serve-web", "--host", "0.0.0.0"]
+    assert main([*argv, "--grpc-port", "9001", "--web-port", "9002"]) == 0
+    assert seen == [
+        ["rerun", "--bind", "0.0.0.0", "--serve-web", "--port", "9001", "--web-viewer-port", "9002"]
+    ]
+    out = capsys.readouterr().out
+    assert "note: --host 0.0.0.0 exposes the recording to the network" in out
+    assert "web viewer: http://127.0.0.1:9002/?url=rerun+http://127.0.0.1:9001/proxy" in out
+
+
+def test_view_serve_web_refuses_a_port_in_use(capsys: pytest.CaptureFixture[str]) -> None:
+    """A --grpc-port or --web-port another server holds: one line, before any recording (the
+    other server would have answered the viewer instead)."""
+    import socket
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        taken = held.getsockname()[1]
+        det = SAMPLE / "detections.json.gz"
+        argv = ["view", str(det), "--frames", "0:5", "--serve-web", "--web-port", str(taken)]
+        assert main([*argv, "--grpc-port", str(rerun_process.free_port())]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"mctrack view: error: --web-port {taken}: in use on 127.0.0.1; choose another port\n"
+    )

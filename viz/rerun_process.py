@@ -1,0 +1,190 @@
+"""The ``rerun`` binary of the rerun-sdk wheel, started with the address it listens on.
+
+Rerun's Python API starts every server on all interfaces (0.0.0.0) and takes no bind address
+(0.41: ``rr.serve_grpc``, ``rr.serve_web_viewer``, ``RecordingStream.spawn``,
+``ViewerClient.spawn``); the binary takes ``--bind``. So every viewer and server the CLI starts
+(``mctrack view --spawn / --serve-web``, ``inspect``, ``shots``, ``report --shots / --serve``)
+is this binary, started here, on 127.0.0.1 unless the user asks for another address (``--host``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import ipaddress
+import os
+import signal
+import socket
+import subprocess
+import time
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+LOOPBACK = "127.0.0.1"
+
+
+def rerun_executable() -> str | None:
+    """The viewer binary itself (the ``rerun`` console script is a Python shim around it)."""
+    with contextlib.suppress(ImportError):
+        import rerun_cli
+
+        binary = Path(rerun_cli.__file__).with_name("rerun")
+        if binary.is_file():
+            return str(binary)
+    return None
+
+
+def free_port(host: str = LOOPBACK) -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def is_loopback(host: str) -> bool:
+    """``localhost`` or an address in 127.0.0.0/8 or ::1."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def exposure_note(host: str, what: str) -> str | None:
+    """The line that says a server on ``host`` is reachable from other machines (None: it
+    is not; it listens on loopback only)."""
+    if is_loopback(host):
+        return None
+    return f"note: --host {host} exposes {what} to the network"
+
+
+def local_address(host: str) -> str:
+    """The address a client on this machine uses for a server bound to ``host`` (a wildcard
+    address is not one to connect to), bracketed when IPv6 (for a URL)."""
+    if host in ("0.0.0.0", ""):
+        return LOOPBACK
+    if host == "::":
+        return "[::1]"
+    return f"[{host}]" if ":" in host else host
+
+
+def rerun_command(
+    args: Sequence[str], *, host: str = LOOPBACK, executable: str | None = None
+) -> list[str]:
+    """The binary's argv with ``--bind host`` first."""
+    exe = executable or rerun_executable()
+    if exe is None:
+        raise RuntimeError("the rerun binary of rerun-sdk is not installed")
+    return [exe, "--bind", host, *args]
+
+
+def start_rerun(
+    args: Sequence[str],
+    *,
+    host: str = LOOPBACK,
+    quiet: bool = True,
+    env: Mapping[str, str] | None = None,
+) -> subprocess.Popen[bytes]:
+    """The binary started with ``args`` on ``host``, in a process group of its own (so that
+    :func:`stop_rerun` ends it and nothing else, and Ctrl-C in the terminal does not reach a
+    viewer left running on purpose). ``RERUN_APP_ONLY`` skips its analytics banner, as
+    ``ViewerClient.spawn`` does."""
+    return subprocess.Popen(
+        rerun_command(args, host=host),
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL if quiet else None,
+        stderr=subprocess.DEVNULL if quiet else None,
+        env={**os.environ, **(env or {}), "RERUN_APP_ONLY": "true"},
+        start_new_session=True,
+    )
+
+
+def port_open(host: str, port: int) -> bool:
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as s:
+        s.settimeout(1.0)
+        return s.connect_ex((host.strip("[]"), port)) == 0
+
+
+def wait_listening(
+    process: subprocess.Popen[bytes], host: str, ports: Sequence[int], timeout: float = 30.0
+) -> None:
+    """Until each of ``ports`` accepts a connection on ``host``; RuntimeError when the process
+    exits first (a port taken, a bad option), TimeoutError after ``timeout`` seconds."""
+    address = local_address(host)
+    deadline = time.monotonic() + timeout
+    waiting = list(ports)
+    while waiting:
+        if process.poll() is not None:
+            raise RuntimeError(
+                f"the rerun viewer exited (status {process.returncode}); is port "
+                f"{waiting[0]} in use?"
+            )
+        if port_open(address, waiting[0]):
+            waiting.pop(0)
+            continue
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"the rerun viewer did not listen on port {waiting[0]}")
+        time.sleep(0.1)
+
+
+def stop_rerun(process: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
+    """End the process (its whole group: it may have started helpers) and wait for it."""
+    if process.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(process.pid, signal.SIGTERM)
+        try:
+            process.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(process.pid, signal.SIGKILL)
+            process.wait(timeout=timeout)
+
+
+def viewer_args(port: int, *, headless: bool) -> list[str]:
+    """A native viewer's options, as ``ViewerClient.spawn`` gives them (plus no welcome
+    screen)."""
+    args = [
+        f"--port={port}",
+        "--memory-limit=75%",
+        "--server-memory-limit=1GiB",
+        "--expect-data-soon",
+        "--hide-welcome-screen",
+    ]
+    return [*args, "--headless"] if headless else args
+
+
+def start_viewer(
+    *, headless: bool, host: str = LOOPBACK, port: int | None = None, timeout: float = 30.0
+) -> tuple[subprocess.Popen[bytes], str]:
+    """A native viewer on ``host``, listening: (its process, its ``rerun+http`` URL)."""
+    port = free_port(host) if port is None else port
+    process = start_rerun(viewer_args(port, headless=headless), host=host, quiet=headless)
+    try:
+        wait_listening(process, host, [port], timeout)
+    except BaseException:
+        stop_rerun(process)
+        raise
+    return process, f"rerun+http://{local_address(host)}:{port}/proxy"
+
+
+def viewer_client(*, headless: bool, host: str = LOOPBACK) -> tuple[Any, subprocess.Popen[bytes]]:
+    """A native viewer started on ``host`` and a ``ViewerClient`` connected to it:
+    (client, process). The viewer keeps running until :func:`stop_rerun` of the process."""
+    from rerun.experimental import ViewerClient
+
+    process, url = start_viewer(headless=headless, host=host)
+    try:
+        return ViewerClient.connect(url), process
+    except BaseException:
+        stop_rerun(process)
+        raise
+
+
+@contextlib.contextmanager
+def running_viewer_client(*, headless: bool, host: str = LOOPBACK) -> Iterator[Any]:
+    """:func:`viewer_client`, stopped on exit."""
+    client, process = viewer_client(headless=headless, host=host)
+    try:
+        yield client
+    finally:
+        stop_rerun(process)
