@@ -7,7 +7,6 @@ old way (0.0.0.0) fails it."""
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -18,6 +17,7 @@ import psutil
 import pytest
 
 from app.cli import main
+from tests.test_report import stopped_by_sigterm
 from tests.test_viz import SAMPLE, recording
 from viz import rerun_process
 from viz.shots import renderer_available
@@ -164,12 +164,8 @@ def test_view_serve_web_listens_on_loopback_and_stops_on_sigterm(tmp_path: Path)
             f"web viewer: http://127.0.0.1:{web}/?url=rerun+http://127.0.0.1:{grpc}/proxy\n"
         )
         servers = psutil.Process(proc.pid).children(recursive=True)
-        proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        out = stopped_by_sigterm(proc)
     assert proc.returncode == 0 and out.strip().endswith("stopped")
     _, alive = psutil.wait_procs(servers, timeout=10)
     for p in alive:

@@ -11,6 +11,8 @@ import html
 import json
 import os
 import shutil
+import signal
+import subprocess
 import time
 import urllib.error
 import urllib.request
@@ -477,8 +479,6 @@ def _running(pid: int) -> bool:
 def test_serve_stops_the_viewer_on_sigterm(tmp_path: Path) -> None:
     """`kill` (SIGTERM) of `mctrack report --serve` stops the server and the rerun web viewer
     it started, as Ctrl-C does (the viewer process was left running, holding its port)."""
-    import signal
-    import subprocess
     import sys
 
     from viz.rerun_process import rerun_executable
@@ -505,12 +505,8 @@ def test_serve_stops_the_viewer_on_sigterm(tmp_path: Path) -> None:
             pytest.fail(f"not served: {proc.stderr.read() if proc.stderr else ''}")
         viewers = _children(proc.pid)
         assert viewers and all(_running(v) for v in viewers)
-        proc.send_signal(signal.SIGTERM)
-        out, _ = proc.communicate(timeout=30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        out = stopped_by_sigterm(proc)
     deadline = time.monotonic() + 10  # (an orphan would be re-parented and keep running)
     while any(_running(v) for v in viewers) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -519,3 +515,17 @@ def test_serve_stops_the_viewer_on_sigterm(tmp_path: Path) -> None:
         os.kill(v, signal.SIGKILL)
     assert not left
     assert proc.returncode == 0 and out.strip().endswith("stopped")
+
+
+def stopped_by_sigterm(proc: subprocess.Popen[str]) -> str:
+    """SIGTERM to a server run, then its remaining stdout; killed if it does not stop (a failing
+    test leaves nothing running)."""
+    try:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return out
