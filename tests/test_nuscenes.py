@@ -517,27 +517,33 @@ def test_sample_timestamps_out_of_order_are_named_at_conversion(
 
 
 @needs_devkit
-def test_a_pose_without_a_rotation_is_named(
+def test_a_pose_without_a_rotation_or_beyond_the_bound_is_named(
     dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
 ) -> None:
-    """A zero or short quaternion in ego_pose / calibrated_sensor: one error naming the table,
-    the record and the field (a zero one made NaN matrices: 'unexpected error' at writing)."""
-    pose, sensor = {}, {}
+    """A zero or short quaternion, or a translation beyond the bound of tracker.io.bounds, in
+    ego_pose / calibrated_sensor: one error naming the table, the record and the field (a zero
+    quaternion made NaN matrices: 'unexpected error' at writing; a translation of 1e300 was
+    converted: the cameras and the ego there, every box in no camera)."""
+    records: dict[str, dict[str, Any]] = {}
 
-    def zero_pose(tables: dict[str, list[Any]]) -> None:
-        pose.update(tables["ego_pose"][0])
-        tables["ego_pose"][0]["rotation"] = [0.0, 0.0, 0.0, 0.0]
+    def edit_record(table: str, index: int, key: str, value: list[float]) -> Any:
+        def edit(tables: dict[str, list[Any]]) -> None:
+            records[table] = dict(tables[table][index])
+            tables[table][index][key] = value
 
-    def short_rotation(tables: dict[str, list[Any]]) -> None:
-        sensor.update(tables["calibrated_sensor"][-1])
-        tables["calibrated_sensor"][-1]["rotation"] = [1.0, 0.0, 0.0]
+        return edit
 
-    for edit, table, record, field in (
-        (zero_pose, "ego_pose", pose, "'rotation' is the zero quaternion"),
-        (short_rotation, "calibrated_sensor", sensor, "'rotation' must be 4 finite numbers"),
-    ):
-        _, error = _conversion_error(dataset, tmp_path / table, edit, clean_path)
-        assert f"{table}.json: {table} '{record['token']}': field {field}" in error
+    for table, index, key, value, said in (
+        ("ego_pose", 0, "rotation", [0.0] * 4, "'rotation' is the zero quaternion"),
+        ("calibrated_sensor", -1, "rotation", [1.0, 0.0, 0.0], "'rotation' must be 4 finite"),
+        ("ego_pose", 0, "translation", [1e300, 0.0, 0.0],
+         f"'translation' = [1e+300, 0.0, 0.0]: {_FAR}"),
+        ("calibrated_sensor", -1, "translation", [0.5, -2e8, 1.8],
+         f"'translation' = [0.5, -200000000.0, 1.8]: {_FAR}"),
+    ):  # fmt: skip
+        edit = edit_record(table, index, key, value)
+        _, error = _conversion_error(dataset, tmp_path / f"{table}_{key}", edit, clean_path)
+        assert f"{table}.json: {table} '{records[table]['token']}': field {said}" in error
 
 
 @needs_devkit
@@ -852,5 +858,7 @@ def test_coordinates_that_overflow_the_transforms_are_named(
         with pytest.raises(InputError) as err:
             convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
         table = root / dataset.version / "ego_pose.json"
-        assert str(err.value).startswith(f"{table}: ego_pose '{pose['token']}' with ")
-        assert "(LIDAR_TOP): ego_from_world is not finite" in str(err.value)
+        assert str(err.value) == (
+            f"{table}: ego_pose '{pose['token']}': field 'translation' = [1.7e+308, 1.7e+308, "
+            f"0.0]: {_FAR}"
+        )

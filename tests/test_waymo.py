@@ -471,10 +471,11 @@ def test_waymo_refuses_inputs_among_its_outputs(
 
 
 def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> None:
-    """A box beyond the bound of every box reader (1e308: tracker.io.bounds), or an ego
-    translation so large that the pose transforms overflow (1.7e308) or that put the frame's
-    boxes beyond the bound (1e300): one error naming the file and the row or entry (was converted
-    with numpy overflow warnings, the box in no camera, or NaN poses)."""
+    """A box beyond the bound of every box reader (1e308: tracker.io.bounds), an ego or camera
+    translation beyond it (1.7e308 overflowed the pose transforms, 1e300 put the frame's boxes
+    there), or a box and an ego pose each within it whose sum is not: one error naming the file
+    and the row or entry (was converted with numpy overflow warnings, the box in no camera, or
+    NaN poses)."""
     import warnings
 
     dets, ego = segment / "dets" / f"{SEGMENT}.npz", segment / "ego_info" / f"{SEGMENT}.npz"
@@ -485,22 +486,36 @@ def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> No
     poses[2, :3, 3] = 1.7e308
     far_poses = good_ego["ego2global"].copy()
     far_poses[3, :3, 3] = 1e300
+    far_camera = good_ego["cam_extrinsics"].copy()
+    far_camera[2, 1, :3, 3] = [1.0, 1e300, 2.0]
+    # (each within the bound, the box 2e6 m ahead of an ego 9.9e7 m out is not)
+    edge_poses, edge_boxes = good_ego["ego2global"].copy(), good_dets["bboxes"].copy()
+    edge_poses[3, :3, 3] = [9.9e7, 9.9e7, 0.0]
     first = int(np.flatnonzero(good_dets["frame_index"] == 3)[0])
+    edge_boxes[first, :3] = edge_poses[3, :3, :3].T @ [2e6, 2e6, 0.0]
     cases = (
-        (dets, {**good_dets, "bboxes": bboxes},
+        ({dets: {**good_dets, "bboxes": bboxes}},
          rf"bboxes row {row} \(frame 3\): x, y, z = \[1e\+308, 1e\+308, 1e\+308\]: beyond "
-         r"±1e\+08 m"),
-        (ego, {**good_ego, "ego2global": poses}, r"ego2global\[2\]: its inverse is not finite"),
-        (ego, {**good_ego, "ego2global": far_poses},
-         rf"dets/.*: bboxes row {first} \(frame 3\) with ego2global\[3\]: x, y, z = \[1e\+300, "
-         r".* in the world frame: beyond ±1e\+08 m"),
+         r"±1e\+08 m", dets),
+        ({ego: {**good_ego, "ego2global": poses}},
+         r"ego2global\[2\]: translation \[1\.7e\+308, 1\.7e\+308, 1\.7e\+308\]: beyond "
+         r"±1e\+08 m \(farther or larger than anything on Earth\)$", ego),
+        ({ego: {**good_ego, "ego2global": far_poses}},
+         r"ego2global\[3\]: translation \[1e\+300, 1e\+300, 1e\+300\]: beyond ±1e\+08 m", ego),
+        ({ego: {**good_ego, "cam_extrinsics": far_camera}},
+         r"cam_extrinsics\[2, 1\] \(CAM_FRONT_LEFT\): translation \[1\.0, 1e\+300, 2\.0\]: "
+         r"beyond ±1e\+08 m", ego),
+        ({dets: {**good_dets, "bboxes": edge_boxes}, ego: {**good_ego, "ego2global": edge_poses}},
+         rf"bboxes row {first} \(frame 3\) with ego2global\[3\]: x, y, z = \[101000000\.0, "
+         r".* in the world frame: beyond ±1e\+08 m", dets),
     )  # fmt: skip
-    for path, arrays, match in cases:
-        np.savez_compressed(path, **arrays)
+    for files, match, named in cases:
+        for path, arrays in files.items():
+            np.savez_compressed(path, **arrays)
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # said once, as an error: no numpy warnings first
             with pytest.raises(InputError, match=match) as err:
                 convert_waymo(segment, segment / "dets")
-        assert str(err.value).startswith(f"{dets if 'world' in match else path}: "), match
+        assert str(err.value).startswith(f"{named}: "), match
         np.savez_compressed(dets, **good_dets)
         np.savez_compressed(ego, **good_ego)

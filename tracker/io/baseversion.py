@@ -441,15 +441,32 @@ def _matrix(value: Any, shapes: tuple[tuple[int, int], ...], at: str, name: str)
     return arr
 
 
+def _pose(value: Any, at: str, name: str) -> FloatArray:
+    """A 4x4 pose of ``transform_matrix`` whose translation is within the bound of
+    :mod:`tracker.io.bounds` (at 1e300 m, the ego or a camera is no place on Earth, and the
+    distances and projections from it overflow)."""
+    pose = _matrix(value, ((4, 4),), at, name)
+    if beyond_bound(pose[None, :3, 3])[0]:
+        raise InputError(
+            f"{at}: field '{name}' has translation {pose[:3, 3].tolist()}: {BOUND_NOTE}"
+        )
+    return pose
+
+
 def _world_from_ego(transform: dict[str, Any] | None, at: str) -> FloatArray:
     if transform and transform.get("global2ego") is not None:
-        ego_from_world = _matrix(transform["global2ego"], ((4, 4),), at, "global2ego")
+        ego_from_world = _pose(transform["global2ego"], at, "global2ego")
         try:
             world_from_ego = np.linalg.inv(ego_from_world)
         except np.linalg.LinAlgError:
             raise InputError(f"{at}: field 'global2ego' is singular (not a pose)") from None
         if not np.isfinite(world_from_ego).all():
             raise InputError(f"{at}: field 'global2ego' is singular (not a pose)")
+        if beyond_bound(world_from_ego[None, :3, 3])[0]:  # (nearly singular: a far ego)
+            raise InputError(
+                f"{at}: field 'global2ego' puts the ego at {world_from_ego[:3, 3].tolist()}: "
+                f"{BOUND_NOTE}"
+            )
         return world_from_ego
     return np.full((4, 4), np.nan)
 
@@ -482,20 +499,23 @@ def _read_cameras(transform: dict[str, Any] | None, at: str) -> list[Camera]:
         image_from_camera = np.zeros((3, 4))
         image_from_camera[:, : intr.shape[1]] = intr[:3, :]
         if cam.get("global2camera") is not None:
-            cam_from_world = _matrix(
-                cam["global2camera"], ((4, 4),), at, f"{field_at}.global2camera"
-            )
+            cam_from_world = _pose(cam["global2camera"], at, f"{field_at}.global2camera")
         elif cam.get("lidar2camera") is not None and transform.get("global2lidar") is not None:
-            cam_from_world = _matrix(
-                cam["lidar2camera"], ((4, 4),), at, f"{field_at}.lidar2camera"
-            ) @ _matrix(transform["global2lidar"], ((4, 4),), at, "global2lidar")
+            cam_from_world = _pose(cam["lidar2camera"], at, f"{field_at}.lidar2camera") @ _pose(
+                transform["global2lidar"], at, "global2lidar"
+            )
         elif cam.get("ego2camera") is not None and transform.get("global2ego") is not None:
-            cam_from_world = _matrix(
-                cam["ego2camera"], ((4, 4),), at, f"{field_at}.ego2camera"
-            ) @ _matrix(transform["global2ego"], ((4, 4),), at, "global2ego")
+            cam_from_world = _pose(cam["ego2camera"], at, f"{field_at}.ego2camera") @ _pose(
+                transform["global2ego"], at, "global2ego"
+            )
         else:
             log.debug("%s: camera %s has no extrinsics; left out", at, name)
             continue
+        if beyond_bound(cam_from_world[None, :3, 3])[0]:  # (each within it, not the chain)
+            raise InputError(
+                f"{at}: field '{field_at}': camera_from_world has translation "
+                f"{cam_from_world[:3, 3].tolist()}: {BOUND_NOTE}"
+            )
         shape = cam.get("image_shape") or [0, 0]
         if not (isinstance(shape, list) and len(shape) == 2):
             raise InputError(f"{at}: field '{field_at}.image_shape' must be [width, height]")

@@ -1,11 +1,14 @@
-"""The plausibility bound of a box's centre and size, one for every reader of boxes.
+"""The plausibility bounds of boxes and poses, one for every reader of them.
 
 A finite number can still be absurd: a centre at 1e300 m passes every finiteness check, then
 its squared distances, areas and covariances overflow downstream (inf, NaN, numpy warnings, a
 silently surprising metric). Every reader of boxes, detections and ground truth alike
 (BaseVersion, the KITTI, nuScenes and Waymo converters), refuses a centre coordinate or a size
 beyond :data:`MAX_BOX_METRES` with :func:`beyond_bound`, in an error naming the file, the record
-and the field that ends in :data:`BOUND_NOTE`.
+and the field that ends in :data:`BOUND_NOTE`. Every reader of poses (KITTI pose and calib
+files, nuScenes ego_pose and calibrated_sensor, BaseVersion ``transform_matrix``, Waymo
+``ego_info``) refuses a translation beyond the same bound (a pose at 1e300 m puts every box of
+its frame there).
 """
 
 from __future__ import annotations

@@ -507,7 +507,8 @@ class _SampleGeometry:
 
 def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
     """``pose_matrix`` of an ego_pose or calibrated_sensor record, its fields checked: a zero
-    or non-finite quaternion has no rotation (it made NaN matrices, found much later)."""
+    or non-finite quaternion has no rotation (it made NaN matrices, found much later), a
+    translation beyond the bound of :mod:`tracker.io.bounds` is no place on Earth."""
 
     def where() -> str:  # built only for an error (this runs for every sample's records)
         return (
@@ -525,6 +526,8 @@ def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
         values[key] = array
     if not np.linalg.norm(values["rotation"]) > 0:
         raise InputError(f"{where()}: field 'rotation' is the zero quaternion (no rotation)")
+    if beyond_bound(values["translation"][None])[0]:  # every box of the sample would be there
+        _check_bound(values["translation"], "translation", where())
     return pose_matrix(values["translation"], values["rotation"])
 
 
