@@ -604,6 +604,7 @@ def _set_annotation(tables: dict[str, list[Any]], token: str, **fields: Any) -> 
 _EMPTY = {"num_lidar_pts": 0, "num_radar_pts": 0}
 _MUST = "must be {} finite numbers"
 _FAR = "beyond ±1e+08 m (farther or larger than anything on Earth)"
+_FAST = "beyond ±10000 m/s (faster than anything on or near Earth)"
 
 
 @needs_devkit
@@ -656,6 +657,34 @@ def test_a_ground_truth_translation_or_rotation_is_checked_as_a_detection_one(
             f"{table}: sample_annotation '{ann['token']}' of sample '{ann['sample_token']}': "
             f"field {said}"
         )
+
+
+@needs_devkit
+def test_a_ground_truth_velocity_beyond_the_bound_is_named(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
+) -> None:
+    """An annotation moved 9e7 m away (within the box bound) gives its previous one a devkit
+    velocity of ~1e8 m/s, beyond the velocity bound of tracker.io.bounds: one error naming the
+    table, the annotation whose velocity it is, its sample and what that velocity comes from
+    (was written into --gt-out, and overflowed the motion metrics)."""
+    ann = _tracked_annotation(dataset, nusc)
+    prev = nusc.get("sample_annotation", ann["prev"])
+    far = [9e7, *ann["translation"][1:]]
+    root = _edited_dataset(
+        dataset, tmp_path, lambda t: _set_annotation(t, ann["token"], translation=far)
+    )
+    table = root / dataset.version / "sample_annotation.json"
+    with pytest.raises(InputError) as err:
+        convert_nuscenes(
+            root, version=dataset.version, detections=clean_path, split="mini_val", with_gt=True
+        )
+    message = str(err.value)
+    assert message.startswith(
+        f"{table}: sample_annotation '{prev['token']}' of sample '{prev['sample_token']}': its "
+        "velocity (the devkit's box_velocity, from the translations and times of the instance's "
+        "neighbouring annotations) = ["
+    )
+    assert message.endswith(f"]: {_FAST}")
 
 
 @needs_devkit
@@ -792,6 +821,9 @@ def test_detection_fields_are_read_strictly(
         ({"velocity": [math.inf, 0.0]}, "'velocity' = [inf, 0.0] is infinite"),
         ({"translation": [1e300, 0.0, 1.0]}, f"'translation' = [1e+300, 0.0, 1.0]: {_FAR}"),
         ({"size": [1e9, 4.5, 1.6]}, f"'size' = [1000000000.0, 4.5, 1.6]: {_FAR}"),
+        # finite, but faster than anything on Earth (tracker.io.bounds): it overflowed downstream
+        ({"velocity": [1e300, 0.0]}, f"'velocity' = [1e+300, 0.0]: {_FAST}"),
+        ({"velocity": [2.0, -2e4]}, f"'velocity' = [2.0, -20000.0]: {_FAST}"),
     ):
         with pytest.raises(InputError) as err:
             convert(**fields)

@@ -367,6 +367,12 @@ MALFORMED: list[tuple[str, str | bytes, str]] = [
         json.dumps({"s": [frame(boxes=[box(lwh=[3.9, 1.6, 1e300])])]}),
         "box 0: field 'lwh' = [3.9, 1.6, 1e+300]: beyond ±1e+08 m",
     ),
+    # a velocity (detection or ground truth) at 1e300 m/s: finite, but it overflowed downstream
+    (
+        "1e300 velocity",
+        json.dumps({"s": [frame(boxes=[box(), box(global_velocity=[0.5, 1e300])])]}),
+        "box 1: field 'global_velocity' = [0.5, 1e+300]: beyond ±10000 m/s (faster than",
+    ),
     # a pose at 1e300 m: the ego (ranges, score calibration) or a camera (projections) there
     (
         "1e300 global2ego",
@@ -400,13 +406,17 @@ MALFORMED: list[tuple[str, str | bytes, str]] = [
 
 def test_the_box_bound_per_row() -> None:
     """tracker.io.bounds.beyond_bound: per row of (N, k) or (N,), inf beyond, NaN not (refused as
-    not finite elsewhere), no rows no error (a frame without boxes, an empty label file)."""
-    from tracker.io.bounds import MAX_BOX_METRES, beyond_bound
+    not finite elsewhere, or an unknown velocity), no rows no error (a frame without boxes, an
+    empty label file); the velocity bound is a bound of its own."""
+    from tracker.io.bounds import MAX_BOX_METRES, MAX_SPEED_MPS, beyond_bound
 
     rows = np.array([[0.0, -MAX_BOX_METRES], [1.0, -2e8], [np.inf, 0.0], [np.nan, 0.0]])
     assert beyond_bound(rows).tolist() == [False, True, True, False]
     assert beyond_bound(rows[:, 1]).tolist() == [False, True, False, False]
     assert beyond_bound(np.zeros((0, 3))).shape == beyond_bound(np.zeros(0)).shape == (0,)
+    # velocities: their own bound (NaN: unknown, not beyond)
+    speeds = np.array([[MAX_SPEED_MPS, -MAX_SPEED_MPS], [0.0, 1.5e4], [np.nan, np.nan]])
+    assert beyond_bound(speeds, MAX_SPEED_MPS).tolist() == [False, True, False]
 
 
 @pytest.mark.parametrize(("case", "text", "expected"), MALFORMED, ids=[c[0] for c in MALFORMED])

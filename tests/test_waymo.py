@@ -340,13 +340,17 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
     """An object twice in one frame, or a NaN velocity, in the ground truth: one error naming
     the file and the row (mctrack waymo --motion ended in an unexpected error, after tracking:
     'GT track 0 has two samples', or NaN in gt.json). A box beyond the bound a detection's has
-    (1e300: finite; tracker.io.bounds) is refused as a detection's, naming its frame too."""
+    (1e300: finite; tracker.io.bounds) is refused as a detection's, naming its frame too, and a
+    velocity beyond the velocity bound (2e4 m/s: was converted, and overflowed downstream at
+    1e300) likewise."""
     path = segment / "gt" / f"{SEGMENT}.npz"
     good = dict(np.load(path))
     ids, velos, bboxes = good["ids"].copy(), good["velos"].copy(), good["bboxes"].copy()
     frame0 = np.flatnonzero(good["frame_index"] == 0)
     ids[frame0[1]] = ids[frame0[0]]
     velos[3] = np.nan
+    fast = good["velos"].copy()
+    fast[7] = [1.5, 2e4]
     bboxes[5, 1] = 1e300
     cases = {
         "object twice in a frame": (
@@ -354,6 +358,11 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
             rf"ids row {frame0[1]}: object '{ids[0]}' is in frame 0 twice",
         ),
         "NaN velocity": ({"velos": velos}, r"velos row 3: must be finite"),
+        "velocity beyond the bound": (
+            {"velos": fast},
+            rf"velos row 7 \(frame {good['frame_index'][7]}\): vx, vy = \[1\.5, 20000\.0\]: "
+            r"beyond ±10000 m/s \(faster than anything on or near Earth\)$",
+        ),
         "box beyond the bound": (
             {"bboxes": bboxes},
             rf"bboxes row 5 \(frame {good['frame_index'][5]}\): x, y, z = \[.*, 1e\+300, .*\]: "

@@ -25,7 +25,7 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
-from tracker.io.bounds import BOUND_NOTE, beyond_bound
+from tracker.io.bounds import BOUND_NOTE, MAX_SPEED_MPS, SPEED_NOTE, beyond_bound
 from tracker.io.fileio import (
     MAX_INPUT_BYTES_ENV,
     max_input_bytes,
@@ -637,6 +637,7 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         and (lwh[:, 2] >= 0).all()
         and not beyond_bound(xyz).any()
         and not beyond_bound(lwh).any()
+        and not beyond_bound(vel, MAX_SPEED_MPS).any()
         and ((score >= 0) & (score <= 1)).all()
         and np.isfinite(xyxy[[v is not None for v in given]]).all()
         and not np.isinf(raw).any()
@@ -699,7 +700,9 @@ def _check_box(b: Any, at: str) -> None:
     if not 0.0 <= float(score) <= 1.0:
         raise InputError(f"{at}: field 'detection_score' = {float(score)} is outside [0, 1]")
     if b.get("global_velocity") is not None:
-        _vector(b, "global_velocity", 2, at)
+        velocity = _vector(b, "global_velocity", 2, at)
+        if beyond_bound([velocity], MAX_SPEED_MPS)[0]:
+            raise InputError(f"{at}: field 'global_velocity' = {velocity.tolist()}: {SPEED_NOTE}")
     if b.get("detection_score_raw") is not None:
         _vector(b, "detection_score_raw", None, at, allow_nan=True)
     if "track_id" in b:

@@ -61,7 +61,7 @@ from tracker.boxes import Boxes, FloatArray
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
-from tracker.io.bounds import BOUND_NOTE, beyond_bound
+from tracker.io.bounds import BOUND_NOTE, MAX_SPEED_MPS, SPEED_NOTE, beyond_bound
 from tracker.io.convert.nuscenes import assign_cameras, overflowing_boxes
 from tracker.io.fileio import SafeNpz, load_npz
 
@@ -378,6 +378,13 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
             bad = np.flatnonzero(~np.isfinite(velos).all(axis=1))
             if len(bad):
                 raise InputError(f"{path}: velos row {bad[0]}: must be finite [vx, vy]")
+            far = np.flatnonzero(beyond_bound(velos, MAX_SPEED_MPS))
+            if len(far):
+                k = far[0]
+                raise InputError(
+                    f"{path}: velos row {k} (frame {frame_index[k]}): vx, vy = "
+                    f"{velos[k].tolist()}: {SPEED_NOTE}"
+                )
             velos = velos[order]
     return _BoxTable(bboxes[order], types[order], bounds, order, ids, velos)
 
