@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 from pathlib import Path
@@ -630,10 +631,18 @@ def test_cli_convert_kitti(
     detections = read_baseversion(out / "detections.json")
     gt = read_baseversion(out / "gt.json")
     assert sorted(detections) == ["0012", "0014"] == sorted(gt)
-    direct, _ = convert_kitti(kitti_root, seqs=["0014"])
+    direct, direct_gt = convert_kitti(kitti_root, seqs=["0014"])
     for a, b in zip(direct["0014"], detections["0014"], strict=True):
         assert a.boxes.equals(b.boxes)
         np.testing.assert_allclose(a.cameras[0].camera_from_world, b.cameras[0].camera_from_world)
+    # KITTI annotates no velocity: unknown in the ground truth (null, read back as NaN), not 0,
+    # which is a measured standstill; the detections' stays 0 (no detector velocity)
+    assert direct_gt is not None
+    raw = json.loads((out / "gt.json").read_text())
+    assert {repr(b["global_velocity"]) for f in raw["0014"] for b in f["bboxes"]} == {"None"}
+    for a, b in zip(direct_gt["0014"], gt["0014"], strict=True):
+        assert a.boxes.equals(b.boxes) and np.isnan(b.boxes.velocity).all()
+    assert all((f.boxes.velocity == 0).all() for f in detections["0014"])
 
     assert main([*argv, "--poses", "none", "--no-gt", "--out", str(tmp_path / "no_poses")]) == 0
     assert not (tmp_path / "no_poses" / "gt.json").exists()

@@ -36,6 +36,14 @@ Scores
 ``score_raw`` is the detector's value as written in the file (PointRCNN: a logit in about
 -0.85..16.3). ``score = sigmoid(score_raw)``, as in the reference, which applies the sigmoid to
 every KITTI detector; the tracker's score thresholds apply to this calibrated ``score``.
+
+Velocity
+--------
+KITTI annotates none and its detectors estimate none. Ground-truth velocities are unknown (NaN,
+``global_velocity: null`` in BaseVersion; they were 0, which reads as a measured standstill): the
+motion metrics derive them from the GT positions. Detections keep 0 (the tracker measures no
+KITTI detector velocity, and the motion metrics take a detector whose velocities are all 0 as
+one without a velocity).
 """
 
 from __future__ import annotations
@@ -872,8 +880,10 @@ def _frames_from_objects(
     cameras: Sequence[Camera],
     score: FloatArray,
     ignore: KittiObjects | None = None,
+    velocity: FloatArray | None = None,
 ) -> list[Frame]:
-    """One Frame per frame index, boxes grouped with one argsort + np.split per field."""
+    """One Frame per frame index, boxes grouped with one argsort + np.split per field
+    (``velocity``: (N, 2), else 0)."""
     xyz, lwh, yaw = boxes_rect_to_world(objects, world_from_rect)
     order, bounds = _split_by_frame(objects.frame, num_frames)
     values_by_name = {
@@ -881,6 +891,8 @@ def _frames_from_objects(
         "category": objects.category, "xyxy_image": objects.xyxy_image,
         "track_id": objects.track_id,
     }  # fmt: skip
+    if velocity is not None:
+        values_by_name["velocity"] = velocity
     split = {name: np.split(values[order], bounds) for name, values in values_by_name.items()}
     ignore_xyxy: list[FloatArray] = []
     if ignore is not None:
@@ -1251,5 +1263,6 @@ def _convert_sequence(
         cameras=cameras,
         score=np.ones(len(objects)),
         ignore=labels.select(labels.type_name == DONTCARE),
+        velocity=np.full((len(objects), 2), np.nan),  # not annotated: unknown, not 0 (standing)
     )
     return det_frames_out, gt_frames
