@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 from pathlib import Path
@@ -319,6 +320,63 @@ def test_a_pose_that_is_not_rigid_is_refused_naming_its_line(
     assert str(excinfo.value).startswith(f"{pose}:10: field 'pose': not a rigid motion")
 
 
+@pytest.mark.parametrize(("column", "value"), [(3, "1e300"), (11, "-2e8")])
+def test_a_pose_beyond_the_bound_is_refused_naming_its_line_frame_and_field(
+    kitti_root: Path, tmp_path: Path, column: int, value: str
+) -> None:
+    """A pose translation beyond the bound of tracker.io.bounds (finite, but no place on Earth):
+    one line naming the file, the line, the field and the frame (was converted: every box of
+    that frame at 1e300 in the world frame)."""
+    root = _kit_copy(kitti_root, tmp_path)
+    pose = root / "training" / "pose_orbslam3" / "0001.txt"
+    lines = pose.read_text().splitlines()
+    values = lines[9].split()
+    values[column] = value
+    pose.write_text("\n".join([*lines[:9], " ".join(values), *lines[10:]]) + "\n")
+    with pytest.raises(InputError) as excinfo:
+        convert_kitti(root, seqs=["0001"])
+    assert str(excinfo.value) == (
+        f"{pose}:10: field 'pose[{column // 4},3]': {value} (frame 9) is beyond ±1e+08 m "
+        "(farther or larger than anything on Earth)"
+    )
+
+
+@pytest.mark.parametrize(
+    ("key", "column", "value", "said"),
+    [
+        ("Tr_velo_to_cam", 3, "1e300", "translation [1e+300, "),
+        ("Tr_imu_to_velo", 11, "-3e8", "translation ["),
+        ("P2", 3, "1e300", "the camera's translation K⁻¹ P2[:, 3] [1.38"),
+        ("P2", 0, "0", "its left 3x3 (the intrinsics) is singular: not a camera"),
+    ],
+)
+def test_a_calib_translation_beyond_the_bound_or_a_singular_camera_is_refused(
+    kitti_root: Path, tmp_path: Path, key: str, column: int, value: str, said: str
+) -> None:
+    """The calib translations applied to every box (the velodyne's in the camera, camera 2's
+    from P2) beyond the bound of tracker.io.bounds, or a P2 whose intrinsics are singular: one
+    line naming the calib file, the line and the key (the translation was applied: every box at
+    1e300; the singular P2 ended in a LinAlgError traceback)."""
+    root = _kit_copy(kitti_root, tmp_path)
+    calib = root / "training" / "calib" / "0001.txt"
+    lines = calib.read_text().splitlines()
+    line = next(i for i, text in enumerate(lines) if text.split()[0].rstrip(":") == key)
+    values = lines[line].split()
+    values[1 + column] = value
+    lines[line] = " ".join(values)
+    if key == "P2" and column == 0:
+        values[1 + 5] = "0"  # fy too: the first two rows of K are zero
+        lines[line] = " ".join(values)
+    calib.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as excinfo:
+        convert_kitti(root, seqs=["0001"])
+    message = str(excinfo.value)
+    assert message.startswith(f"{calib}:{line + 1}: field '{key}': {said}")
+    assert "singular" in said or message.endswith(
+        "is beyond ±1e+08 m (farther or larger than anything on Earth)"
+    )
+
+
 def test_poses_of_a_longer_sequence_are_a_warning(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -573,10 +631,18 @@ def test_cli_convert_kitti(
     detections = read_baseversion(out / "detections.json")
     gt = read_baseversion(out / "gt.json")
     assert sorted(detections) == ["0012", "0014"] == sorted(gt)
-    direct, _ = convert_kitti(kitti_root, seqs=["0014"])
+    direct, direct_gt = convert_kitti(kitti_root, seqs=["0014"])
     for a, b in zip(direct["0014"], detections["0014"], strict=True):
         assert a.boxes.equals(b.boxes)
         np.testing.assert_allclose(a.cameras[0].camera_from_world, b.cameras[0].camera_from_world)
+    # KITTI annotates no velocity: unknown in the ground truth (null, read back as NaN), not 0,
+    # which is a measured standstill; the detections' stays 0 (no detector velocity)
+    assert direct_gt is not None
+    raw = json.loads((out / "gt.json").read_text())
+    assert {repr(b["global_velocity"]) for f in raw["0014"] for b in f["bboxes"]} == {"None"}
+    for a, b in zip(direct_gt["0014"], gt["0014"], strict=True):
+        assert a.boxes.equals(b.boxes) and np.isnan(b.boxes.velocity).all()
+    assert all((f.boxes.velocity == 0).all() for f in detections["0014"])
 
     assert main([*argv, "--poses", "none", "--no-gt", "--out", str(tmp_path / "no_poses")]) == 0
     assert not (tmp_path / "no_poses" / "gt.json").exists()

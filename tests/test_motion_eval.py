@@ -8,6 +8,7 @@ order and scene splits, and physical sanity on KITTI (parked cars have ~0 GT vel
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -370,12 +371,16 @@ def test_an_unknown_detection_velocity_is_no_estimate() -> None:
     assert metrics_of(some, "difference", "all").n_samples == kalman.n_samples
 
 
-def test_an_unknown_gt_velocity_is_left_out_of_every_estimator_and_reported() -> None:
+def test_an_unknown_gt_velocity_is_left_out_of_every_estimator_and_reported(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     """NaN GT velocities (BaseVersion null: nuScenes' single-annotation instances) leave their
     samples out of every estimator's metrics, counted per estimator and class and said in the
     report (they were written as 0 and scored as measured standstills). All unknown is a GT
-    without velocities (derived from the positions, as all zeros; it was taken as annotated and
-    every sample dropped)."""
+    without velocities (KITTI, Waymo without velos: derived from the positions; it was taken as
+    annotated and every sample dropped). All exactly 0 is a file written before unknown was null
+    (KITTI's converter wrote 0): still derived from the positions, the same figures, but said
+    (a warning, and a note in the protocol), as it is a guess."""
     dets, gts, outputs = tracked()
 
     def gt_with(unknown: Any) -> list[Frame]:
@@ -404,13 +409,35 @@ def test_an_unknown_gt_velocity_is_left_out_of_every_estimator_and_reported() ->
         in motion_markdown(some)
     )
     assert "GT velocity is unknown" not in motion_markdown(known)
-    none = evaluate(gt_with(lambda i: True))
-    zeros = evaluate(
-        [replace(g, boxes=g.boxes.replace(velocity=0 * g.boxes.velocity)) for g in gts]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="tracker.eval.motion_eval"):
+        none = evaluate(gt_with(lambda i: True))
+        assert not caplog.records  # the rule, not a guess: nothing to say
+        zeros = evaluate(
+            [replace(g, boxes=g.boxes.replace(velocity=0 * g.boxes.velocity)) for g in gts]
+        )
+    assert [r.getMessage() for r in caplog.records] == [
+        "every ground-truth velocity is 0: read as unknown (a file written before unknown "
+        "velocities were null), the GT velocity derived from the GT positions"
+    ]
+    assert none["protocol"]["gt_velocity"] == (
+        "GT world positions, central LSQ quadratic over 5 samples"
     )
-    assert none["protocol"]["gt_velocity"] == zeros["protocol"]["gt_velocity"]
-    assert none["protocol"]["gt_velocity"].startswith("GT world positions")
-    assert_metrics_close(metrics_of(none, "kalman", "all"), metrics_of(zeros, "kalman", "all"))
+    assert zeros["protocol"]["gt_velocity"] == (
+        "GT world positions, central LSQ quadratic over 5 samples (every GT velocity in the file "
+        "is 0: read as unknown (written before unknown was null))"
+    )
+    for estimator in ("kalman", "difference", "curve_fit"):
+        assert_metrics_close(
+            metrics_of(none, estimator, "all"), metrics_of(zeros, estimator, "all")
+        )
+    # one known velocity that is not 0 makes the GT annotated (its zeros: standstills)
+    one = [replace(g, boxes=g.boxes.replace(velocity=0 * g.boxes.velocity)) for g in gts]
+    first = next(i for i, g in enumerate(one) if len(g.boxes))
+    velocity = one[first].boxes.velocity.copy()
+    velocity[0] = [0.5, 0.0]
+    one[first] = replace(one[first], boxes=one[first].boxes.replace(velocity=velocity))
+    assert evaluate(one)["protocol"]["gt_velocity"] == "annotated (GT box velocity)"
 
 
 def test_frame_order_does_not_matter() -> None:

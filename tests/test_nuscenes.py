@@ -517,27 +517,33 @@ def test_sample_timestamps_out_of_order_are_named_at_conversion(
 
 
 @needs_devkit
-def test_a_pose_without_a_rotation_is_named(
+def test_a_pose_without_a_rotation_or_beyond_the_bound_is_named(
     dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path
 ) -> None:
-    """A zero or short quaternion in ego_pose / calibrated_sensor: one error naming the table,
-    the record and the field (a zero one made NaN matrices: 'unexpected error' at writing)."""
-    pose, sensor = {}, {}
+    """A zero or short quaternion, or a translation beyond the bound of tracker.io.bounds, in
+    ego_pose / calibrated_sensor: one error naming the table, the record and the field (a zero
+    quaternion made NaN matrices: 'unexpected error' at writing; a translation of 1e300 was
+    converted: the cameras and the ego there, every box in no camera)."""
+    records: dict[str, dict[str, Any]] = {}
 
-    def zero_pose(tables: dict[str, list[Any]]) -> None:
-        pose.update(tables["ego_pose"][0])
-        tables["ego_pose"][0]["rotation"] = [0.0, 0.0, 0.0, 0.0]
+    def edit_record(table: str, index: int, key: str, value: list[float]) -> Any:
+        def edit(tables: dict[str, list[Any]]) -> None:
+            records[table] = dict(tables[table][index])
+            tables[table][index][key] = value
 
-    def short_rotation(tables: dict[str, list[Any]]) -> None:
-        sensor.update(tables["calibrated_sensor"][-1])
-        tables["calibrated_sensor"][-1]["rotation"] = [1.0, 0.0, 0.0]
+        return edit
 
-    for edit, table, record, field in (
-        (zero_pose, "ego_pose", pose, "'rotation' is the zero quaternion"),
-        (short_rotation, "calibrated_sensor", sensor, "'rotation' must be 4 finite numbers"),
-    ):
-        _, error = _conversion_error(dataset, tmp_path / table, edit, clean_path)
-        assert f"{table}.json: {table} '{record['token']}': field {field}" in error
+    for table, index, key, value, said in (
+        ("ego_pose", 0, "rotation", [0.0] * 4, "'rotation' is the zero quaternion"),
+        ("calibrated_sensor", -1, "rotation", [1.0, 0.0, 0.0], "'rotation' must be 4 finite"),
+        ("ego_pose", 0, "translation", [1e300, 0.0, 0.0],
+         f"'translation' = [1e+300, 0.0, 0.0]: {_FAR}"),
+        ("calibrated_sensor", -1, "translation", [0.5, -2e8, 1.8],
+         f"'translation' = [0.5, -200000000.0, 1.8]: {_FAR}"),
+    ):  # fmt: skip
+        edit = edit_record(table, index, key, value)
+        _, error = _conversion_error(dataset, tmp_path / f"{table}_{key}", edit, clean_path)
+        assert f"{table}.json: {table} '{records[table]['token']}': field {said}" in error
 
 
 @needs_devkit
@@ -598,6 +604,7 @@ def _set_annotation(tables: dict[str, list[Any]], token: str, **fields: Any) -> 
 _EMPTY = {"num_lidar_pts": 0, "num_radar_pts": 0}
 _MUST = "must be {} finite numbers"
 _FAR = "beyond ±1e+08 m (farther or larger than anything on Earth)"
+_FAST = "beyond ±10000 m/s (faster than anything on or near Earth)"
 
 
 @needs_devkit
@@ -650,6 +657,34 @@ def test_a_ground_truth_translation_or_rotation_is_checked_as_a_detection_one(
             f"{table}: sample_annotation '{ann['token']}' of sample '{ann['sample_token']}': "
             f"field {said}"
         )
+
+
+@needs_devkit
+def test_a_ground_truth_velocity_beyond_the_bound_is_named(
+    dataset: SyntheticNuScenes, nusc: Any, clean_path: Path, tmp_path: Path
+) -> None:
+    """An annotation moved 9e7 m away (within the box bound) gives its previous one a devkit
+    velocity of ~1e8 m/s, beyond the velocity bound of tracker.io.bounds: one error naming the
+    table, the annotation whose velocity it is, its sample and what that velocity comes from
+    (was written into --gt-out, and overflowed the motion metrics)."""
+    ann = _tracked_annotation(dataset, nusc)
+    prev = nusc.get("sample_annotation", ann["prev"])
+    far = [9e7, *ann["translation"][1:]]
+    root = _edited_dataset(
+        dataset, tmp_path, lambda t: _set_annotation(t, ann["token"], translation=far)
+    )
+    table = root / dataset.version / "sample_annotation.json"
+    with pytest.raises(InputError) as err:
+        convert_nuscenes(
+            root, version=dataset.version, detections=clean_path, split="mini_val", with_gt=True
+        )
+    message = str(err.value)
+    assert message.startswith(
+        f"{table}: sample_annotation '{prev['token']}' of sample '{prev['sample_token']}': its "
+        "velocity (the devkit's box_velocity, from the translations and times of the instance's "
+        "neighbouring annotations) = ["
+    )
+    assert message.endswith(f"]: {_FAST}")
 
 
 @needs_devkit
@@ -786,6 +821,9 @@ def test_detection_fields_are_read_strictly(
         ({"velocity": [math.inf, 0.0]}, "'velocity' = [inf, 0.0] is infinite"),
         ({"translation": [1e300, 0.0, 1.0]}, f"'translation' = [1e+300, 0.0, 1.0]: {_FAR}"),
         ({"size": [1e9, 4.5, 1.6]}, f"'size' = [1000000000.0, 4.5, 1.6]: {_FAR}"),
+        # finite, but faster than anything on Earth (tracker.io.bounds): it overflowed downstream
+        ({"velocity": [1e300, 0.0]}, f"'velocity' = [1e+300, 0.0]: {_FAST}"),
+        ({"velocity": [2.0, -2e4]}, f"'velocity' = [2.0, -20000.0]: {_FAST}"),
     ):
         with pytest.raises(InputError) as err:
             convert(**fields)
@@ -852,5 +890,7 @@ def test_coordinates_that_overflow_the_transforms_are_named(
         with pytest.raises(InputError) as err:
             convert_nuscenes(root, version=dataset.version, detections=clean_path, split="mini_val")
         table = root / dataset.version / "ego_pose.json"
-        assert str(err.value).startswith(f"{table}: ego_pose '{pose['token']}' with ")
-        assert "(LIDAR_TOP): ego_from_world is not finite" in str(err.value)
+        assert str(err.value) == (
+            f"{table}: ego_pose '{pose['token']}': field 'translation' = [1.7e+308, 1.7e+308, "
+            f"0.0]: {_FAR}"
+        )

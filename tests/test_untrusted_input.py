@@ -289,6 +289,28 @@ def _corrupt_deflate() -> bytes:
     return bytes(data)
 
 
+def _far_pose(x: float, scale: float = 1.0) -> list[list[float]]:
+    """A 4x4 pose translated by x along x (``scale``: its rotation part scaled)."""
+    pose = np.eye(4)
+    pose[:3, :3] *= scale
+    pose[0, 3] = x
+    return pose.tolist()
+
+
+def _cameras(**poses: Any) -> dict[str, Any]:
+    """A transform_matrix whose CAM_FRONT takes its extrinsics from ``poses`` (the frame's
+    ``global2*`` and the camera's ``*2camera``), not from a global2camera."""
+    camera = {k: v for k, v in CAM.items() if k != "global2camera"}
+    camera |= {k: v for k, v in poses.items() if k.endswith("2camera")}
+    frame_poses = {k: v for k, v in poses.items() if not k.endswith("2camera")}
+    return {**frame_poses, "cameras_transform_matrix": {"CAM_FRONT": camera}}
+
+
+def _posed(transform_matrix: dict[str, Any]) -> str:
+    """A file of one frame with this ``transform_matrix``."""
+    return json.dumps({"s": [frame(transform_matrix=transform_matrix)]})
+
+
 def _box_text(x: str) -> str:
     return json.dumps(box(global_xyz=[0, 0, 0])).replace("[0, 0, 0]", f"[{x}, 0, 0]")
 
@@ -345,18 +367,56 @@ MALFORMED: list[tuple[str, str | bytes, str]] = [
         json.dumps({"s": [frame(boxes=[box(lwh=[3.9, 1.6, 1e300])])]}),
         "box 0: field 'lwh' = [3.9, 1.6, 1e+300]: beyond ±1e+08 m",
     ),
+    # a velocity (detection or ground truth) at 1e300 m/s: finite, but it overflowed downstream
+    (
+        "1e300 velocity",
+        json.dumps({"s": [frame(boxes=[box(), box(global_velocity=[0.5, 1e300])])]}),
+        "box 1: field 'global_velocity' = [0.5, 1e+300]: beyond ±10000 m/s (faster than",
+    ),
+    # a pose at 1e300 m: the ego (ranges, score calibration) or a camera (projections) there
+    (
+        "1e300 global2ego",
+        _posed({"global2ego": _far_pose(1e300)}),
+        "frame index 0: field 'global2ego' has translation [1e+300, 0.0, 0.0]: beyond ±1e+08 m",
+    ),
+    (
+        "nearly singular global2ego",  # (its inverse: the ego 2^31 m out)
+        _posed({"global2ego": _far_pose(1.0, scale=2**-31)}),
+        "field 'global2ego' puts the ego at [-2147483648.0, ",
+    ),
+    (
+        "1e300 global2camera",
+        _posed(_cameras(global2camera=_far_pose(-2e8))),
+        "field 'transform_matrix.cameras_transform_matrix.CAM_FRONT.global2camera' has "
+        "translation [-200000000.0, 0.0, 0.0]: beyond ±1e+08 m",
+    ),
+    (
+        "1e300 global2lidar",
+        _posed(_cameras(global2lidar=_far_pose(1e300), lidar2camera=_far_pose(0.0))),
+        "field 'global2lidar' has translation [1e+300, 0.0, 0.0]: beyond ±1e+08 m",
+    ),
+    (
+        "a chain beyond the bound",  # (each pose within it)
+        _posed(_cameras(global2ego=_far_pose(9e7), ego2camera=_far_pose(9e7))),
+        "field 'transform_matrix.cameras_transform_matrix.CAM_FRONT': camera_from_world has "
+        "translation [180000000.0, 0.0, 0.0]: beyond ±1e+08 m",
+    ),
 ]
 
 
 def test_the_box_bound_per_row() -> None:
     """tracker.io.bounds.beyond_bound: per row of (N, k) or (N,), inf beyond, NaN not (refused as
-    not finite elsewhere), no rows no error (a frame without boxes, an empty label file)."""
-    from tracker.io.bounds import MAX_BOX_METRES, beyond_bound
+    not finite elsewhere, or an unknown velocity), no rows no error (a frame without boxes, an
+    empty label file); the velocity bound is a bound of its own."""
+    from tracker.io.bounds import MAX_BOX_METRES, MAX_SPEED_MPS, beyond_bound
 
     rows = np.array([[0.0, -MAX_BOX_METRES], [1.0, -2e8], [np.inf, 0.0], [np.nan, 0.0]])
     assert beyond_bound(rows).tolist() == [False, True, True, False]
     assert beyond_bound(rows[:, 1]).tolist() == [False, True, False, False]
     assert beyond_bound(np.zeros((0, 3))).shape == beyond_bound(np.zeros(0)).shape == (0,)
+    # velocities: their own bound (NaN: unknown, not beyond)
+    speeds = np.array([[MAX_SPEED_MPS, -MAX_SPEED_MPS], [0.0, 1.5e4], [np.nan, np.nan]])
+    assert beyond_bound(speeds, MAX_SPEED_MPS).tolist() == [False, True, False]
 
 
 @pytest.mark.parametrize(("case", "text", "expected"), MALFORMED, ids=[c[0] for c in MALFORMED])

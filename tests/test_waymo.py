@@ -340,13 +340,17 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
     """An object twice in one frame, or a NaN velocity, in the ground truth: one error naming
     the file and the row (mctrack waymo --motion ended in an unexpected error, after tracking:
     'GT track 0 has two samples', or NaN in gt.json). A box beyond the bound a detection's has
-    (1e300: finite; tracker.io.bounds) is refused as a detection's, naming its frame too."""
+    (1e300: finite; tracker.io.bounds) is refused as a detection's, naming its frame too, and a
+    velocity beyond the velocity bound (2e4 m/s: was converted, and overflowed downstream at
+    1e300) likewise."""
     path = segment / "gt" / f"{SEGMENT}.npz"
     good = dict(np.load(path))
     ids, velos, bboxes = good["ids"].copy(), good["velos"].copy(), good["bboxes"].copy()
     frame0 = np.flatnonzero(good["frame_index"] == 0)
     ids[frame0[1]] = ids[frame0[0]]
     velos[3] = np.nan
+    fast = good["velos"].copy()
+    fast[7] = [1.5, 2e4]
     bboxes[5, 1] = 1e300
     cases = {
         "object twice in a frame": (
@@ -354,6 +358,11 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
             rf"ids row {frame0[1]}: object '{ids[0]}' is in frame 0 twice",
         ),
         "NaN velocity": ({"velos": velos}, r"velos row 3: must be finite"),
+        "velocity beyond the bound": (
+            {"velos": fast},
+            rf"velos row 7 \(frame {good['frame_index'][7]}\): vx, vy = \[1\.5, 20000\.0\]: "
+            r"beyond ±10000 m/s \(faster than anything on or near Earth\)$",
+        ),
         "box beyond the bound": (
             {"bboxes": bboxes},
             rf"bboxes row 5 \(frame {good['frame_index'][5]}\): x, y, z = \[.*, 1e\+300, .*\]: "
@@ -471,10 +480,11 @@ def test_waymo_refuses_inputs_among_its_outputs(
 
 
 def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> None:
-    """A box beyond the bound of every box reader (1e308: tracker.io.bounds), or an ego
-    translation so large that the pose transforms overflow (1.7e308) or that put the frame's
-    boxes beyond the bound (1e300): one error naming the file and the row or entry (was converted
-    with numpy overflow warnings, the box in no camera, or NaN poses)."""
+    """A box beyond the bound of every box reader (1e308: tracker.io.bounds), an ego or camera
+    translation beyond it (1.7e308 overflowed the pose transforms, 1e300 put the frame's boxes
+    there), or a box and an ego pose each within it whose sum is not: one error naming the file
+    and the row or entry (was converted with numpy overflow warnings, the box in no camera, or
+    NaN poses)."""
     import warnings
 
     dets, ego = segment / "dets" / f"{SEGMENT}.npz", segment / "ego_info" / f"{SEGMENT}.npz"
@@ -485,22 +495,36 @@ def test_coordinates_that_overflow_the_transforms_are_named(segment: Path) -> No
     poses[2, :3, 3] = 1.7e308
     far_poses = good_ego["ego2global"].copy()
     far_poses[3, :3, 3] = 1e300
+    far_camera = good_ego["cam_extrinsics"].copy()
+    far_camera[2, 1, :3, 3] = [1.0, 1e300, 2.0]
+    # (each within the bound, the box 2e6 m ahead of an ego 9.9e7 m out is not)
+    edge_poses, edge_boxes = good_ego["ego2global"].copy(), good_dets["bboxes"].copy()
+    edge_poses[3, :3, 3] = [9.9e7, 9.9e7, 0.0]
     first = int(np.flatnonzero(good_dets["frame_index"] == 3)[0])
+    edge_boxes[first, :3] = edge_poses[3, :3, :3].T @ [2e6, 2e6, 0.0]
     cases = (
-        (dets, {**good_dets, "bboxes": bboxes},
+        ({dets: {**good_dets, "bboxes": bboxes}},
          rf"bboxes row {row} \(frame 3\): x, y, z = \[1e\+308, 1e\+308, 1e\+308\]: beyond "
-         r"±1e\+08 m"),
-        (ego, {**good_ego, "ego2global": poses}, r"ego2global\[2\]: its inverse is not finite"),
-        (ego, {**good_ego, "ego2global": far_poses},
-         rf"dets/.*: bboxes row {first} \(frame 3\) with ego2global\[3\]: x, y, z = \[1e\+300, "
-         r".* in the world frame: beyond ±1e\+08 m"),
+         r"±1e\+08 m", dets),
+        ({ego: {**good_ego, "ego2global": poses}},
+         r"ego2global\[2\]: translation \[1\.7e\+308, 1\.7e\+308, 1\.7e\+308\]: beyond "
+         r"±1e\+08 m \(farther or larger than anything on Earth\)$", ego),
+        ({ego: {**good_ego, "ego2global": far_poses}},
+         r"ego2global\[3\]: translation \[1e\+300, 1e\+300, 1e\+300\]: beyond ±1e\+08 m", ego),
+        ({ego: {**good_ego, "cam_extrinsics": far_camera}},
+         r"cam_extrinsics\[2, 1\] \(CAM_FRONT_LEFT\): translation \[1\.0, 1e\+300, 2\.0\]: "
+         r"beyond ±1e\+08 m", ego),
+        ({dets: {**good_dets, "bboxes": edge_boxes}, ego: {**good_ego, "ego2global": edge_poses}},
+         rf"bboxes row {first} \(frame 3\) with ego2global\[3\]: x, y, z = \[101000000\.0, "
+         r".* in the world frame: beyond ±1e\+08 m", dets),
     )  # fmt: skip
-    for path, arrays, match in cases:
-        np.savez_compressed(path, **arrays)
+    for files, match, named in cases:
+        for path, arrays in files.items():
+            np.savez_compressed(path, **arrays)
         with warnings.catch_warnings():
             warnings.simplefilter("error")  # said once, as an error: no numpy warnings first
             with pytest.raises(InputError, match=match) as err:
                 convert_waymo(segment, segment / "dets")
-        assert str(err.value).startswith(f"{dets if 'world' in match else path}: "), match
+        assert str(err.value).startswith(f"{named}: "), match
         np.savez_compressed(dets, **good_dets)
         np.savez_compressed(ego, **good_ego)

@@ -6,8 +6,8 @@ and tracker output, like for like for every estimator, and formats the result.
 Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4, are deliberate):
 
 1. **Ground-truth velocity.** A dataset whose GT boxes carry a velocity (nuScenes) uses it. A
-   dataset whose GT velocities are all exactly zero or unknown (KITTI: none is annotated) gets it
-   from the GT world positions, per (scene, GT track), over real time with
+   dataset whose GT velocities are all unknown (NaN, null in BaseVersion; KITTI: none is
+   annotated) gets it from the GT world positions, per (scene, GT track), over real time with
    :func:`~tracker.eval.motion_metrics.gt_velocity_central` (zero lag, 5-sample window; a
    track's first and last samples get the one-sided second-order difference, not 0). A GT track
    is split into segments where it skips a frame (Δt > 1.5 × the scene's median frame step); a
@@ -15,7 +15,9 @@ Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4
    or NaN in the annotations: nuScenes' single-annotation instances, Waymo GT without ``velos``)
    is left out of every estimator's metrics and counted (``n_gt_velocity_unknown``, and
    ``counts[class]["gt_velocity_unknown"]``); it is never read as 0, which would score a
-   standstill.
+   standstill. Files written before unknown velocities were null hold 0 for every GT velocity
+   (KITTI, Waymo without ``velos``): all exactly 0 is read as unknown too (logged, and noted in
+   the protocol), as no real dataset annotates every object standing still.
    On KITTI the world frame comes from estimated (ORB-SLAM3) ego poses, so the "GT" velocity also
    carries the pose error.
 2. **Association**, per scene, per frame, per class: the output boxes, in descending score order,
@@ -109,6 +111,7 @@ __all__ = [
     "metrics_from_dict",
     "motion_markdown",
     "plot_velocity_curves",
+    "resolve_gt_velocity",
 ]
 
 
@@ -314,11 +317,39 @@ def derive_gt_velocity(
     return np.split(velocity, np.cumsum([len(f.boxes) for f in gt_frames])[:-1])
 
 
-def _gt_has_velocity(gt_scenes: Mapping[str, Sequence[Frame]]) -> bool:
-    def given(v: FloatArray) -> bool:  # (NaN: unknown, not an annotated velocity)
-        return bool(np.any(np.isfinite(v) & (v != 0.0)))
+#: The note the protocol adds when every GT velocity is 0 (:func:`resolve_gt_velocity`).
+LEGACY_ZERO_GT_VELOCITY_NOTE: Final = (
+    "every GT velocity in the file is 0: read as unknown (written before unknown was null)"
+)
 
-    return any(given(f.boxes.velocity) for frames in gt_scenes.values() for f in frames)
+
+def resolve_gt_velocity(
+    gt_velocity: str, gt_scenes: Mapping[str, Sequence[Frame]]
+) -> tuple[str, bool]:
+    """``("annotated" | "positions", legacy)``: ``gt_velocity`` with ``"auto"`` resolved. Auto is
+    ``"positions"`` when no GT velocity is known (every one NaN, null in BaseVersion: KITTI, Waymo
+    without ``velos``), else ``"annotated"``; ``legacy``: resolved by the rule for older files
+    (logged, and noted in the protocol)."""
+    if gt_velocity != "auto":
+        return gt_velocity, False
+    known = False
+    for frames in gt_scenes.values():
+        for f in frames:
+            v = f.boxes.velocity
+            finite = np.isfinite(v)
+            if np.any(finite & (v != 0.0)):
+                return "annotated", False
+            known = known or bool(finite.any())
+    if not known:
+        return "positions", False
+    # Every known GT velocity exactly 0: a file written before unknown velocities were null
+    # (KITTI's converter wrote 0 for all, as did Waymo's without velos), not a dataset of objects
+    # all standing still; read as unknown, so those files give the figures they always gave.
+    log.warning(
+        "every ground-truth velocity is 0: read as unknown (a file written before unknown "
+        "velocities were null), the GT velocity derived from the GT positions"
+    )
+    return "positions", True
 
 
 def _detector_has_velocity(
@@ -498,8 +529,8 @@ def collect_motion_samples(
         (logged).
     classes : class names to evaluate, e.g. ``("car", "pedestrian")``.
     max_distance_m : per-class association threshold overrides (default :data:`MAX_DISTANCE_M`).
-    gt_velocity : ``"auto"`` (annotated when any GT velocity is non-zero, else from positions),
-        ``"annotated"`` or ``"positions"``.
+    gt_velocity : ``"auto"`` (:func:`resolve_gt_velocity`: from the positions when no GT
+        velocity is known, else annotated), ``"annotated"`` or ``"positions"``.
     detection_velocity : does the detector give a velocity? None: yes iff any detection of the
         classes has a non-zero velocity.
 
@@ -517,9 +548,7 @@ def collect_motion_samples(
     max_distance_by_category = {
         category_index(c): float(thresholds.get(c, DEFAULT_MAX_DISTANCE_M)) for c in classes
     }
-    from_positions = gt_velocity == "positions" or (
-        gt_velocity == "auto" and not _gt_has_velocity(gt_scenes)
-    )
+    from_positions = resolve_gt_velocity(gt_velocity, gt_scenes)[0] == "positions"
     absent: dict[Estimator, str] = {}
     if det_scenes is None:
         absent = {e: NO_DETECTIONS for e in Estimator if e is not Estimator.KALMAN}
@@ -780,6 +809,7 @@ def evaluate_motion(
     :func:`evaluate_samples`' dict plus a ``"protocol"`` block (and ``"plot"`` with the plotted
     tracks when ``plot_path`` is given); JSON-serialisable, NaN written as None.
     """
+    gt_velocity, legacy = resolve_gt_velocity(gt_velocity, gt_scenes)  # (collect checks it)
     samples = collect_motion_samples(
         det_scenes,
         gt_scenes,
@@ -789,8 +819,6 @@ def evaluate_motion(
         gt_velocity=gt_velocity,
         detection_velocity=detection_velocity,
     )
-    if gt_velocity == "auto":
-        gt_velocity = "annotated" if _gt_has_velocity(gt_scenes) else "positions"
     thresholds = {**MAX_DISTANCE_M, **(max_distance_m or {})}
     protocol = {
         "association": "greedy by descending output score on BEV centre distance, per class",
@@ -798,7 +826,8 @@ def evaluate_motion(
         "samples": "matched output boxes updated by a detection that frame (det_row >= 0)",
         "gt_velocity": "annotated (GT box velocity)"
         if gt_velocity == "annotated"
-        else f"GT world positions, central LSQ quadratic over {GT_SMOOTH_WINDOW} samples",
+        else f"GT world positions, central LSQ quadratic over {GT_SMOOTH_WINDOW} samples"
+        + (f" ({LEGACY_ZERO_GT_VELOCITY_NOTE})" if legacy else ""),
         "estimators": {e.value: ESTIMATOR_DESCRIPTIONS[e] for e in Estimator},
         "scenes": sorted(s for s in outputs_by_scene if s in gt_scenes),
     }

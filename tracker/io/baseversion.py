@@ -25,7 +25,7 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
-from tracker.io.bounds import BOUND_NOTE, beyond_bound
+from tracker.io.bounds import BOUND_NOTE, MAX_SPEED_MPS, SPEED_NOTE, beyond_bound
 from tracker.io.fileio import (
     MAX_INPUT_BYTES_ENV,
     max_input_bytes,
@@ -441,15 +441,32 @@ def _matrix(value: Any, shapes: tuple[tuple[int, int], ...], at: str, name: str)
     return arr
 
 
+def _pose(value: Any, at: str, name: str) -> FloatArray:
+    """A 4x4 pose of ``transform_matrix`` whose translation is within the bound of
+    :mod:`tracker.io.bounds` (at 1e300 m, the ego or a camera is no place on Earth, and the
+    distances and projections from it overflow)."""
+    pose = _matrix(value, ((4, 4),), at, name)
+    if beyond_bound(pose[None, :3, 3])[0]:
+        raise InputError(
+            f"{at}: field '{name}' has translation {pose[:3, 3].tolist()}: {BOUND_NOTE}"
+        )
+    return pose
+
+
 def _world_from_ego(transform: dict[str, Any] | None, at: str) -> FloatArray:
     if transform and transform.get("global2ego") is not None:
-        ego_from_world = _matrix(transform["global2ego"], ((4, 4),), at, "global2ego")
+        ego_from_world = _pose(transform["global2ego"], at, "global2ego")
         try:
             world_from_ego = np.linalg.inv(ego_from_world)
         except np.linalg.LinAlgError:
             raise InputError(f"{at}: field 'global2ego' is singular (not a pose)") from None
         if not np.isfinite(world_from_ego).all():
             raise InputError(f"{at}: field 'global2ego' is singular (not a pose)")
+        if beyond_bound(world_from_ego[None, :3, 3])[0]:  # (nearly singular: a far ego)
+            raise InputError(
+                f"{at}: field 'global2ego' puts the ego at {world_from_ego[:3, 3].tolist()}: "
+                f"{BOUND_NOTE}"
+            )
         return world_from_ego
     return np.full((4, 4), np.nan)
 
@@ -482,20 +499,23 @@ def _read_cameras(transform: dict[str, Any] | None, at: str) -> list[Camera]:
         image_from_camera = np.zeros((3, 4))
         image_from_camera[:, : intr.shape[1]] = intr[:3, :]
         if cam.get("global2camera") is not None:
-            cam_from_world = _matrix(
-                cam["global2camera"], ((4, 4),), at, f"{field_at}.global2camera"
-            )
+            cam_from_world = _pose(cam["global2camera"], at, f"{field_at}.global2camera")
         elif cam.get("lidar2camera") is not None and transform.get("global2lidar") is not None:
-            cam_from_world = _matrix(
-                cam["lidar2camera"], ((4, 4),), at, f"{field_at}.lidar2camera"
-            ) @ _matrix(transform["global2lidar"], ((4, 4),), at, "global2lidar")
+            cam_from_world = _pose(cam["lidar2camera"], at, f"{field_at}.lidar2camera") @ _pose(
+                transform["global2lidar"], at, "global2lidar"
+            )
         elif cam.get("ego2camera") is not None and transform.get("global2ego") is not None:
-            cam_from_world = _matrix(
-                cam["ego2camera"], ((4, 4),), at, f"{field_at}.ego2camera"
-            ) @ _matrix(transform["global2ego"], ((4, 4),), at, "global2ego")
+            cam_from_world = _pose(cam["ego2camera"], at, f"{field_at}.ego2camera") @ _pose(
+                transform["global2ego"], at, "global2ego"
+            )
         else:
             log.debug("%s: camera %s has no extrinsics; left out", at, name)
             continue
+        if beyond_bound(cam_from_world[None, :3, 3])[0]:  # (each within it, not the chain)
+            raise InputError(
+                f"{at}: field '{field_at}': camera_from_world has translation "
+                f"{cam_from_world[:3, 3].tolist()}: {BOUND_NOTE}"
+            )
         shape = cam.get("image_shape") or [0, 0]
         if not (isinstance(shape, list) and len(shape) == 2):
             raise InputError(f"{at}: field '{field_at}.image_shape' must be [width, height]")
@@ -617,6 +637,7 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         and (lwh[:, 2] >= 0).all()
         and not beyond_bound(xyz).any()
         and not beyond_bound(lwh).any()
+        and not beyond_bound(vel, MAX_SPEED_MPS).any()
         and ((score >= 0) & (score <= 1)).all()
         and np.isfinite(xyxy[[v is not None for v in given]]).all()
         and not np.isinf(raw).any()
@@ -679,7 +700,9 @@ def _check_box(b: Any, at: str) -> None:
     if not 0.0 <= float(score) <= 1.0:
         raise InputError(f"{at}: field 'detection_score' = {float(score)} is outside [0, 1]")
     if b.get("global_velocity") is not None:
-        _vector(b, "global_velocity", 2, at)
+        velocity = _vector(b, "global_velocity", 2, at)
+        if beyond_bound([velocity], MAX_SPEED_MPS)[0]:
+            raise InputError(f"{at}: field 'global_velocity' = {velocity.tolist()}: {SPEED_NOTE}")
     if b.get("detection_score_raw") is not None:
         _vector(b, "detection_score_raw", None, at, allow_nan=True)
     if "track_id" in b:

@@ -1,11 +1,15 @@
-"""The plausibility bound of a box's centre and size, one for every reader of boxes.
+"""The plausibility bounds of boxes and poses, one for every reader of them.
 
 A finite number can still be absurd: a centre at 1e300 m passes every finiteness check, then
 its squared distances, areas and covariances overflow downstream (inf, NaN, numpy warnings, a
 silently surprising metric). Every reader of boxes, detections and ground truth alike
 (BaseVersion, the KITTI, nuScenes and Waymo converters), refuses a centre coordinate or a size
 beyond :data:`MAX_BOX_METRES` with :func:`beyond_bound`, in an error naming the file, the record
-and the field that ends in :data:`BOUND_NOTE`.
+and the field that ends in :data:`BOUND_NOTE`. Every reader of poses (KITTI pose and calib
+files, nuScenes ego_pose and calibrated_sensor, BaseVersion ``transform_matrix``, Waymo
+``ego_info``) refuses a translation beyond the same bound (a pose at 1e300 m puts every box of
+its frame there), and every reader of velocities (detections and ground truth) one beyond
+:data:`MAX_SPEED_MPS`, ending in :data:`SPEED_NOTE`.
 """
 
 from __future__ import annotations
@@ -21,11 +25,19 @@ MAX_BOX_METRES: Final = 1e8
 #: The end of a bound error: what the bound is and why a value beyond it is refused.
 BOUND_NOTE: Final = f"beyond ±{MAX_BOX_METRES:g} m (farther or larger than anything on Earth)"
 
+#: 10 km/s per axis: faster than any vehicle (cars < 150 m/s), aircraft or satellite in low orbit
+#: (7.8 km/s), so no annotation or estimate of a real object reaches it; its square (1e8) and its
+#: products with any time step stay far from float64's overflow.
+MAX_SPEED_MPS: Final = 1e4
+#: The end of a velocity bound error.
+SPEED_NOTE: Final = f"beyond ±{MAX_SPEED_MPS:g} m/s (faster than anything on or near Earth)"
 
-def beyond_bound(values: ArrayLike) -> NDArray[np.bool_]:
-    """(N,) whether each row of (N, k) or (N,) values has an entry beyond ±:data:`MAX_BOX_METRES`
-    (inf included; NaN is not: the readers refuse it as not finite)."""
+
+def beyond_bound(values: ArrayLike, bound: float = MAX_BOX_METRES) -> NDArray[np.bool_]:
+    """(N,) whether each row of (N, k) or (N,) values has an entry beyond ±``bound``
+    (:data:`MAX_BOX_METRES`, or :data:`MAX_SPEED_MPS` for velocities; inf included; NaN is not:
+    the readers refuse it as not finite, or read it as unknown)."""
     magnitude = np.abs(np.asarray(values, dtype=np.float64))
     if magnitude.ndim == 1:
         magnitude = magnitude[:, None]
-    return (magnitude > MAX_BOX_METRES).any(axis=1)
+    return (magnitude > bound).any(axis=1)

@@ -36,6 +36,14 @@ Scores
 ``score_raw`` is the detector's value as written in the file (PointRCNN: a logit in about
 -0.85..16.3). ``score = sigmoid(score_raw)``, as in the reference, which applies the sigmoid to
 every KITTI detector; the tracker's score thresholds apply to this calibrated ``score``.
+
+Velocity
+--------
+KITTI annotates none and its detectors estimate none. Ground-truth velocities are unknown (NaN,
+``global_velocity: null`` in BaseVersion; they were 0, which reads as a measured standstill): the
+motion metrics derive them from the GT positions. Detections keep 0 (the tracker measures no
+KITTI detector velocity, and the motion metrics take a detector whose velocities are all 0 as
+one without a velocity).
 """
 
 from __future__ import annotations
@@ -212,6 +220,7 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
     """
     path = Path(path)
     values: dict[str, FloatArray] = {}
+    lines: dict[str, int] = {}
     for line_no, line in enumerate(path.read_text().splitlines(), start=1):
         tokens = line.split()
         if not tokens:
@@ -234,8 +243,10 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
         if not np.isfinite(numbers).all():
             raise InputError("non-finite value", path=path, line=line_no, field=key)
         values[key] = numbers.reshape(3, 3) if expected == 9 else numbers.reshape(3, 4)
+        lines[key] = line_no
     if "P2" not in values:
         raise InputError("missing key 'P2'", path=path, field="P2")
+    _check_calib_translations(path, values, lines)
     padded = {k: _pad_4x4(values[k]) for k in _CALIB_SIZES if k in values}
     return KittiCalib(
         path=path,
@@ -247,12 +258,43 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
     )
 
 
+def _check_calib_translations(
+    path: Path, values: Mapping[str, FloatArray], lines: Mapping[str, int]
+) -> None:
+    """The calib's translations (``Tr_velo_to_cam`` and camera 2's ``K⁻¹ P2[:, 3]``, applied
+    to every box, and ``Tr_imu_to_velo``) within the bound of :mod:`tracker.io.bounds`, and
+    ``P2`` a camera (its left 3x3 invertible: else :attr:`KittiCalib.cam2_from_rect` failed in
+    a traceback)."""
+    p2 = values["P2"]
+    try:
+        with np.errstate(all="ignore"):
+            cam2 = np.linalg.solve(p2[:, :3], p2[:, 3])
+    except np.linalg.LinAlgError:
+        raise InputError(
+            "its left 3x3 (the intrinsics) is singular: not a camera",
+            path=path, line=lines["P2"], field="P2",
+        ) from None  # fmt: skip
+    translations = {"P2": cam2}
+    translations |= {
+        k: values[k][:, 3] for k in ("Tr_velo_to_cam", "Tr_imu_to_velo") if k in values
+    }
+    for key, translation in translations.items():
+        if not np.isfinite(translation).all() or beyond_bound(translation[None])[0]:
+            what = "the camera's translation K⁻¹ P2[:, 3]" if key == "P2" else "translation"
+            raise InputError(
+                f"{what} {translation.tolist()} is {BOUND_NOTE}",
+                path=path, line=lines[key], field=key,
+            )  # fmt: skip
+
+
 def read_kitti_poses(path: str | Path) -> FloatArray:
     """(F, 4, 4) poses, one row-major 3x4 ``[R | t]`` (12 floats) per non-empty line."""
     path = Path(path)
     table = _read_table([path], columns=tuple(f"pose[{i // 4},{i % 4}]" for i in range(12)))
     poses = np.tile(np.eye(4), (len(table.line), 1, 1))
     poses[:, :3, :] = table.floats(range(12)).reshape(-1, 3, 4)
+    # line i is frame i; a translation of 1e300 would put every box of its frame there
+    _check_bound(table, poses[:, :3, 3], [3, 7, 11], np.arange(len(poses)))
     # a pose is a rigid motion: R orthonormal with det +1 (ORB-SLAM3's files hold to 1e-6; a
     # scaled, reflected or hand-edited matrix would move every box of its frame)
     rotation = poses[:, :3, :3]
@@ -553,7 +595,8 @@ def _check_positive(
 
 
 def _check_bound(table: _Table, values: FloatArray, columns: list[int], frame: IntArray) -> None:
-    """Box sizes and locations must lie within the bound of :mod:`tracker.io.bounds`."""
+    """Box sizes and locations, and pose translations, must lie within the bound of
+    :mod:`tracker.io.bounds`."""
     far = beyond_bound(values)
     if far.any():
         row = int(np.argmax(far))
@@ -837,8 +880,10 @@ def _frames_from_objects(
     cameras: Sequence[Camera],
     score: FloatArray,
     ignore: KittiObjects | None = None,
+    velocity: FloatArray | None = None,
 ) -> list[Frame]:
-    """One Frame per frame index, boxes grouped with one argsort + np.split per field."""
+    """One Frame per frame index, boxes grouped with one argsort + np.split per field
+    (``velocity``: (N, 2), else 0)."""
     xyz, lwh, yaw = boxes_rect_to_world(objects, world_from_rect)
     order, bounds = _split_by_frame(objects.frame, num_frames)
     values_by_name = {
@@ -846,6 +891,8 @@ def _frames_from_objects(
         "category": objects.category, "xyxy_image": objects.xyxy_image,
         "track_id": objects.track_id,
     }  # fmt: skip
+    if velocity is not None:
+        values_by_name["velocity"] = velocity
     split = {name: np.split(values[order], bounds) for name, values in values_by_name.items()}
     ignore_xyxy: list[FloatArray] = []
     if ignore is not None:
@@ -1216,5 +1263,6 @@ def _convert_sequence(
         cameras=cameras,
         score=np.ones(len(objects)),
         ignore=labels.select(labels.type_name == DONTCARE),
+        velocity=np.full((len(objects), 2), np.nan),  # not annotated: unknown, not 0 (standing)
     )
     return det_frames_out, gt_frames

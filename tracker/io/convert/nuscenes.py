@@ -54,7 +54,7 @@ from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import corners_3d, wrap_angle
-from tracker.io.bounds import BOUND_NOTE, beyond_bound
+from tracker.io.bounds import BOUND_NOTE, MAX_SPEED_MPS, SPEED_NOTE, beyond_bound
 from tracker.io.nuscenes_writer import DEFAULT_META
 
 log = logging.getLogger(__name__)
@@ -481,7 +481,7 @@ def _velocity(value: Any, at: str) -> tuple[tuple[float, float], bool]:
     annotations) → [NaN, NaN], not known (a half-known velocity is no estimate either; not 0,
     which the tracker would measure as "standing still"). The format
     has exactly two values (the devkit asserts it); an infinite one is no estimate of anything:
-    an error."""
+    an error, as is one beyond the velocity bound of :mod:`tracker.io.bounds`."""
     if value is None:
         return (math.nan, math.nan), False
     if not _numeric(value) or len(value) != 2:
@@ -491,6 +491,8 @@ def _velocity(value: Any, at: str) -> tuple[tuple[float, float], bool]:
         raise InputError(f"{at}: field 'velocity' = {value!r} is infinite")
     if math.isnan(vx) or math.isnan(vy):
         return (math.nan, math.nan), False
+    if beyond_bound([[vx, vy]], MAX_SPEED_MPS)[0]:
+        raise InputError(f"{at}: field 'velocity' = {value!r}: {SPEED_NOTE}")
     return (vx, vy), True
 
 
@@ -507,7 +509,8 @@ class _SampleGeometry:
 
 def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
     """``pose_matrix`` of an ego_pose or calibrated_sensor record, its fields checked: a zero
-    or non-finite quaternion has no rotation (it made NaN matrices, found much later)."""
+    or non-finite quaternion has no rotation (it made NaN matrices, found much later), a
+    translation beyond the bound of :mod:`tracker.io.bounds` is no place on Earth."""
 
     def where() -> str:  # built only for an error (this runs for every sample's records)
         return (
@@ -525,6 +528,8 @@ def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
         values[key] = array
     if not np.linalg.norm(values["rotation"]) > 0:
         raise InputError(f"{where()}: field 'rotation' is the zero quaternion (no rotation)")
+    if beyond_bound(values["translation"][None])[0]:  # every box of the sample would be there
+        _check_bound(values["translation"], "translation", where())
     return pose_matrix(values["translation"], values["rotation"])
 
 
@@ -693,6 +698,15 @@ def _gt_boxes(nusc: Any, sample: dict[str, Any], keep_empty: bool) -> tuple[Boxe
     velocity = np.array([nusc.box_velocity(a["token"])[:2] for a in rows], dtype=np.float64)
     unknown = ~np.isfinite(velocity).all(axis=1)
     velocity[unknown] = np.nan  # (a half-known velocity is no measurement either)
+    far = np.flatnonzero(beyond_bound(velocity, MAX_SPEED_MPS))
+    if len(far):  # (its annotations within the box bound, but 1e8 m apart in 0.5 s)
+        ann = rows[far[0]]
+        table = Path(nusc.dataroot) / nusc.version / "sample_annotation.json"
+        raise InputError(
+            f"{table}: sample_annotation {ann['token']!r} of sample {sample['token']!r}: its "
+            f"velocity (the devkit's box_velocity, from the translations and times of the "
+            f"instance's neighbouring annotations) = {velocity[far[0]].tolist()}: {SPEED_NOTE}"
+        )
     size = np.array([a["size"] for a in rows], dtype=np.float64)
     boxes = Boxes.create(
         xyz=np.array([a["translation"] for a in rows], dtype=np.float64),

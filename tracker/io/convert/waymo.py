@@ -61,7 +61,7 @@ from tracker.boxes import Boxes, FloatArray
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
-from tracker.io.bounds import BOUND_NOTE, beyond_bound
+from tracker.io.bounds import BOUND_NOTE, MAX_SPEED_MPS, SPEED_NOTE, beyond_bound
 from tracker.io.convert.nuscenes import assign_cameras, overflowing_boxes
 from tracker.io.fileio import SafeNpz, load_npz
 
@@ -166,6 +166,11 @@ def read_ego_info(path: Path, n_frames: int) -> list[_EgoFrame]:
                     continue  # NaN: this frame has no such camera
                 if not extrinsic_rigid[i, k]:
                     raise _not_rigid(path, f"cam_extrinsics[{i}, {k}] ({name})")
+                if beyond_bound(extrinsic[None, :3, 3])[0]:
+                    raise InputError(
+                        f"{path}: cam_extrinsics[{i}, {k}] ({name}): translation "
+                        f"{extrinsic[:3, 3].tolist()}: {BOUND_NOTE}"
+                    )
                 if not (intrinsic[:2] > 0).all():
                     raise InputError(
                         f"{path}: cam_intrinsics[{i}, {k}] ({name}): focal lengths f_u, f_v "
@@ -239,6 +244,8 @@ def _matrix4(
         raise InputError(f"{path}: {what} is not a 4x4 matrix") from None
     if not np.isfinite(m).all():
         raise InputError(f"{path}: {what} contains NaN or inf")
+    if beyond_bound(m[None, :3, 3])[0]:  # every box of the frame would be there
+        raise InputError(f"{path}: {what}: translation {m[:3, 3].tolist()}: {BOUND_NOTE}")
     if not (bool(_rigid_mask(m)) if rigid is None else rigid):
         raise _not_rigid(path, what)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -371,6 +378,13 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
             bad = np.flatnonzero(~np.isfinite(velos).all(axis=1))
             if len(bad):
                 raise InputError(f"{path}: velos row {bad[0]}: must be finite [vx, vy]")
+            far = np.flatnonzero(beyond_bound(velos, MAX_SPEED_MPS))
+            if len(far):
+                k = far[0]
+                raise InputError(
+                    f"{path}: velos row {k} (frame {frame_index[k]}): vx, vy = "
+                    f"{velos[k].tolist()}: {SPEED_NOTE}"
+                )
             velos = velos[order]
     return _BoxTable(bboxes[order], types[order], bounds, order, ids, velos)
 
@@ -406,7 +420,7 @@ def _segment_boxes(
             f"{path}: bboxes row {row}: {table.bboxes[k, :7].tolist()} with ego2global[{i}] "
             "is not finite in the world or camera frames (too large)"
         )
-    far = np.flatnonzero(beyond_bound(xyz))  # (the file's row is within it: a far pose)
+    far = np.flatnonzero(beyond_bound(xyz))  # (the row and the pose within it, not their sum)
     if len(far):
         k = np.arange(a, b)[keep][far[0]]
         raise InputError(
