@@ -32,7 +32,6 @@ import math
 import multiprocessing
 import os
 import shutil
-import tempfile
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -54,7 +53,7 @@ from tracker.errors import InputError
 from tracker.eval.perturb import CLEAN, NOISE_LEVELS, perturb_frames
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import make_work_folder, write_text_atomic
 
 LOG = logging.getLogger(__name__)
 
@@ -641,7 +640,7 @@ def _run(args: argparse.Namespace) -> int:
     )
     first = _current(config_name, base, cls, space)
     n_startup = startup_trials(args.trials)
-    work = Path(tempfile.mkdtemp(prefix="mctrack-tune-"))
+    work = make_work_folder("tune")  # (a killed tune's goes: its pid is in the name)
     total = args.trials * (len(folds) + 1)
     ctx = multiprocessing.get_context("fork")
     record: dict[str, Any] = {

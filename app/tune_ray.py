@@ -33,7 +33,6 @@ import os
 import shutil
 import signal
 import sys
-import tempfile
 import threading
 import zipfile
 import zlib
@@ -61,7 +60,7 @@ from app.tune import (
 from tracker.config import config_for_mode, config_to_dict, load_config
 from tracker.errors import InputError
 from tracker.frame import Frame
-from tracker.io.fileio import write_bytes_atomic, write_text_atomic
+from tracker.io.fileio import make_work_folder, write_bytes_atomic, write_text_atomic
 
 METRIC = "hota"  # the objective's name in a trial's result
 # The Optuna trial number, added to each trial's config: a restored ResultGrid does not keep the
@@ -232,7 +231,7 @@ def _trial(
     local._FRAMES.clear()  # a reused worker holds another search's frames
     for (det, level), by_seq in frames.items():
         local._FRAMES[(det, key, level)] = by_seq
-    work = Path(tempfile.mkdtemp(prefix="mctrack-trial-"))
+    work = make_work_folder("trial")
     try:
         params = {k: v for k, v in config.items() if k != NUMBER}
         metrics = objective.metrics(key, seqs, params, work)

@@ -761,3 +761,53 @@ def test_best_toml_names_a_base_outside_its_tree_by_its_absolute_path() -> None:
     assert written_base(Path("/tmp/a/base.toml"), Path("/home/u/best.toml")).startswith("/tmp")
     assert written_base(Path("/tmp/a/base.toml"), None) == str(Path("/tmp/a/base.toml").resolve())
     assert written_base(Path("/w/a/b.toml"), Path("/w/c/best.toml")) == "../a/b.toml"
+
+
+def test_the_next_tune_removes_the_work_folder_of_a_killed_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A tune killed outright (SIGKILL: no clean-up of its own) left its /tmp/mctrack-tune-*
+    folder of trial results forever. Its name carries the tune's pid: the next tune removes it
+    once that pid no longer runs, never a running tune's."""
+    import os
+    import shutil
+    import signal
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    root = Path(__file__).resolve().parents[1]
+    kit = tmp_path / "kit"  # the sample's sequence 0001, and a copy as 0002 (two folds)
+    shutil.copytree(root / "sample_data" / "kitti-0001" / "raw", kit)
+    for path in list(kit.rglob("0001.txt")):
+        shutil.copy(path, path.with_name("0002.txt"))
+    temp = tmp_path / "temp"  # the runs' $TMPDIR
+    temp.mkdir()
+    argv = ["tune", "--kitti-root", str(kit), "--class", "car", "--detectors", "pointrcnn",
+            "--seqs", "0001,0002", "--folds", "2", "--trials", "1", "--noise", "none",
+            "--workers", "1"]  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", *argv, "--out", str(tmp_path / "killed")],
+        cwd=root,
+        env={**os.environ, "TMPDIR": str(temp)},
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,  # (its pool's workers are killed with it)
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while not list(temp.glob("mctrack-tune-*")):
+            assert proc.poll() is None and time.monotonic() < deadline, "the tune ended first"
+            time.sleep(0.05)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+    left = sorted(p.name for p in temp.iterdir())
+    assert any(name.startswith(f"mctrack-tune-{proc.pid}-") for name in left), left
+    running = temp / f"mctrack-tune-{os.getpid()}-running"  # a tune of a live process
+    running.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(temp))  # (this process's $TMPDIR)
+    assert main([*argv, "--out", str(tmp_path / "next")]) == 0, capsys.readouterr().err
+    assert sorted(p.name for p in temp.iterdir()) == [running.name]
+    assert (tmp_path / "next" / "tune.json").is_file()

@@ -33,11 +33,16 @@ def _tune_args(kitti_root: Path, out: Path, trials: int, *extra: str) -> list[st
             "--workers", "2", "--out", str(out), *extra]  # fmt: skip
 
 
-def _start(args: list[str], env: dict[str, str] | None = None) -> subprocess.Popen:
+def _start(args: list[str], temp: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """The command in its own process; its temp folder ($TMPDIR: the work folders of the tune
+    and its trials) is ``temp``, so what a killed run leaves stays in the test's folder. Ray's
+    own files stay where they were (a session's socket paths must be short)."""
+    ray_tmp = os.environ.get("RAY_TMPDIR") or os.environ.get("TMPDIR") or "/tmp"
+    temp.mkdir(exist_ok=True)
     return subprocess.Popen(
         [sys.executable, "-m", "app.cli", *args],
         cwd=ROOT,
-        env=None if env is None else {**os.environ, **env},
+        env={**os.environ, "TMPDIR": str(temp), "RAY_TMPDIR": ray_tmp, **(env or {})},
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -55,8 +60,14 @@ def _finish(proc: subprocess.Popen, timeout: float = 600) -> tuple[int, str]:
     return proc.returncode, output
 
 
-def _run(args: list[str]) -> tuple[int, str]:
-    return _finish(_start(args))
+def _run(args: list[str], temp: Path) -> tuple[int, str]:
+    return _finish(_start(args, temp))
+
+
+def _left(temp: Path) -> list[str]:
+    """What the runs left in their temp folder: nothing, once a run after the kills ended (it
+    removed the work folders of the killed processes, and its own)."""
+    return sorted(p.name for p in temp.iterdir())
 
 
 def _finished(out: Path, search: str) -> dict[str, str]:
@@ -179,18 +190,22 @@ def ray_installed() -> None:
 def local_record(kitti_root: Path, ray_installed: None, tmp_path_factory: Any) -> dict[str, Any]:
     """The local search (Optuna in this process, a process pool), the reference."""
     out = tmp_path_factory.mktemp("tune-local")
-    status, output = _run(_tune_args(kitti_root, out, TRIALS))
+    temp = tmp_path_factory.mktemp("tune-local-temp")
+    status, output = _run(_tune_args(kitti_root, out, TRIALS), temp)
     assert status == 0, output[-3000:]
+    assert _left(temp) == []
     return json.loads((out / "tune.json").read_text())
 
 
 def test_ray_proposes_the_local_trials_and_finds_the_same_best(
     kitti_root: Path, local_record: dict[str, Any], tmp_path: Path
 ) -> None:
+    temp = tmp_path / "temp"
     status, output = _run(
-        _tune_args(kitti_root, tmp_path, TRIALS, "--ray", "--max-concurrent", "1")
+        _tune_args(kitti_root, tmp_path, TRIALS, "--ray", "--max-concurrent", "1"), temp
     )
     assert status == 0, output[-3000:]
+    assert _left(temp) == []
     record = json.loads((tmp_path / "tune.json").read_text())
     assert record["ray"]["max_concurrent"] == 1 and record["ray"]["cluster_cpus"] == 2
     # trial for trial: the same settings proposed and the same objective, in every search
@@ -208,13 +223,14 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
 ) -> None:
     trials = 4
     args = _tune_args(kitti_root, tmp_path, trials, "--ray", "--max-concurrent", "1")
+    temp = tmp_path / "temp"
 
     # Each trial waits 1 s before it reports, so the Ctrl-C and the kill land inside a search,
     # not after its last trial: unslowed, a trial can take 0.1 s (seen in CI).
     slow = _hook_env(tmp_path / "hook", SLOW_REPORT="1")
 
     # 1. Ctrl-C once a trial of the first search is done: Ray Tune saves, the run stops
-    proc = _start(args, slow)
+    proc = _start(args, temp, slow)
     _wait_until(proc, lambda: len(_finished(tmp_path, "fold0")) >= 1)
     proc.send_signal(signal.SIGINT)
     status, output = _finish(proc)
@@ -231,7 +247,7 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     before_ctrl_c = {k: v for k, v in before_ctrl_c.items() if k in saved_at_ctrl_c}
 
     # 2. resumed, then killed outright (the whole process group) during the second search
-    proc = _start(args, slow)
+    proc = _start(args, temp, slow)
     # (a trial both saved and with its result file copied to the experiment folder: Ray Tune
     # copies that file in the background, and under load it can land after the save)
     _wait_until(proc, lambda: bool(_saved(tmp_path, "fold1") & set(_finished(tmp_path, "fold1"))))
@@ -253,7 +269,9 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     # 3. resumed to the end, with the trial process killed once during the last search: Ray
     # Tune runs that trial again (FailureConfig). Each trial waits 2 s before it reports, so the
     # kill lands in a trial, not after the search's last one (seen under load).
-    proc = _start(args, _hook_env(tmp_path / "hook", SLOW_REPORT="2"))
+    killed = _left(temp)  # the work folders of the killed tune and trial
+    assert killed and all(name.startswith("mctrack-") for name in killed), killed
+    proc = _start(args, temp, _hook_env(tmp_path / "hook", SLOW_REPORT="2"))
     _wait_until(proc, lambda: len(_finished(tmp_path, "all")) >= 1 and _trial_processes(proc))
     for pid in _trial_processes(proc):  # this run's trial process (reused from trial to trial)
         os.kill(pid, signal.SIGKILL)
@@ -273,9 +291,10 @@ def test_ray_resumes_after_ctrl_c_and_a_kill_and_retries_a_killed_trial(
     # of the reference's 6: both have 4 random start-up trials, and a proposal depends only on
     # the trials before it)
     assert _searches(record) == _prefix(local_record, trials)
+    assert _left(temp) == []  # the killed runs' work folders too
 
     # 4. the same --out with another command line is refused, naming what changed
-    status, output = _run(_tune_args(kitti_root, tmp_path, trials + 1, "--ray"))
+    status, output = _run(_tune_args(kitti_root, tmp_path, trials + 1, "--ray"), temp)
     assert status == 2, output[-3000:]
     lines = [line for line in output.splitlines() if "error" in line]
     assert len(lines) == 1 and "trials 4 -> 5" in lines[0] and "another --out" in lines[0]
@@ -287,7 +306,7 @@ def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
     """Ray Tune fails (not retries) a trial whose reused process dies while being handed it.
     A resume runs such a trial again, and so does the command itself; the search is the
     uninterrupted one."""
-    marker, out = tmp_path / "resetting", tmp_path / "out"
+    marker, out, temp = tmp_path / "resetting", tmp_path / "out", tmp_path / "temp"
     # (each trial waits 1 s before it reports, so the kills land in the first search)
     env = _hook_env(tmp_path / "hook", SLOW_FIRST_RESET=str(marker), SLOW_REPORT="1")
     args = _tune_args(kitti_root, out, 4, "--ray", "--max-concurrent", "1")
@@ -300,7 +319,7 @@ def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
             os.kill(pid, signal.SIGKILL)
 
     # 1. the failed trial saved, then the run killed: the resume runs it again
-    proc = _start(args, env)
+    proc = _start(args, temp, env)
     kill_the_resetting_process(proc)
     _wait_until(proc, lambda: any(t["status"] == "ERROR" for t in _saved_trials(out, "fold0")))
     os.killpg(proc.pid, signal.SIGKILL)
@@ -308,7 +327,7 @@ def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
     # 2. resumed, and the process killed again while being handed a trial: the command runs
     # that trial again once the others are done
     marker.unlink()
-    proc = _start(args, env)
+    proc = _start(args, temp, env)
     kill_the_resetting_process(proc)
     status, output = _finish(proc)
     assert status == 0, output[-3000:]
@@ -318,6 +337,7 @@ def test_ray_runs_again_a_trial_whose_process_died_before_it_began(
         assert len(list((out / "ray_tune" / search).glob("trial_*"))) == 4
     record = json.loads((out / "tune.json").read_text())
     assert _searches(record) == _prefix(local_record, 4)
+    assert _left(temp) == []  # the killed run's work folder too
 
 
 def test_ray_without_the_extra_is_a_one_line_error(

@@ -11,7 +11,6 @@ from __future__ import annotations
 import contextlib
 import io
 import shutil
-import tempfile
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tracker.errors import InputError
-from tracker.io.fileio import path_in
+from tracker.io.fileio import path_in, work_folder
 
 if TYPE_CHECKING:
     from tracker.io.convert.kitti import KittiObjects
@@ -222,7 +221,7 @@ def evaluate_kitti_sequence(
     seq = label_file.stem
     results: dict[str, dict[str, Any]] = {}
     id_inputs: dict[str, IdInputs] = {}
-    with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
+    with work_folder("eval") as tmp:  # (a killed run's goes: its pid is in the name)
         gt_root, trackers_root = Path(tmp) / "gt", Path(tmp) / "trackers"
         (gt_root / "label_02").mkdir(parents=True)
         target = trackers_root / _TRACKER_NAME / "data" / f"{seq}.txt"

@@ -2,7 +2,8 @@
 
 Output: every file is written completely or not at all (a temporary file in the same folder,
 fsynced, then renamed); temporary files stranded by a killed run are removed by the next write
-to that folder. Input: ``.npz`` files are read without pickle and with a size cap
+to that folder, and its work folders in the system's temp folder by the next work folder made
+(:func:`make_work_folder`). Input: ``.npz`` files are read without pickle and with a size cap
 (:func:`load_npz`).
 """
 
@@ -16,6 +17,9 @@ import io
 import json
 import math
 import os
+import re
+import shutil
+import stat
 import tempfile
 import time
 import zipfile
@@ -51,7 +55,18 @@ def _pid_alive(pid: int) -> bool:
         return False
     except (PermissionError, OverflowError, ValueError):
         return True  # exists (another user's) or unparseable: keep it
-    return True
+    return not _zombie(pid)
+
+
+def _zombie(pid: int) -> bool:
+    """True when ``pid`` has exited and waits to be reaped (it writes nothing more; an orphan
+    of a killed run can stay so a while). Linux's /proc; elsewhere False."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except (OSError, UnicodeDecodeError):
+        return False
+    fields = text.rsplit(")", 1)[-1].split()  # (the command name may hold spaces or parens)
+    return bool(fields) and fields[0] == "Z"
 
 
 def remove_stale_temps(folder: str | Path, *, older_than_secs: float = STALE_TEMP_SECS) -> int:
@@ -81,6 +96,62 @@ def remove_stale_temps(folder: str | Path, *, older_than_secs: float = STALE_TEM
                 removed += 1
         except OSError:
             continue  # another process took it: not ours to report
+    return removed
+
+
+#: Work folders are ``mctrack-<kind>-<pid>-<random>`` in the system's temp folder ($TMPDIR):
+#: intermediate files of a run (a tune's trial results, TrackEval's copies), removed when it
+#: ends. A killed run cannot remove its own; the pid says when it is stranded.
+WORK_FOLDER_PREFIX = "mctrack-"
+_WORK_FOLDER = re.compile(r"mctrack-[a-z]+-(\d+)-[a-z0-9_]+")  # (mkdtemp's random letters)
+
+
+def make_work_folder(kind: str) -> Path:
+    """A new private folder ``mctrack-<kind>-<pid>-<random>`` in the system's temp folder, for
+    the caller to remove when done. The work folders of runs that no longer run (killed before
+    they removed theirs) go first (:func:`remove_stale_work_folders`)."""
+    if not re.fullmatch(r"[a-z]+", kind):
+        raise ValueError(f"work folder kind {kind!r}: lower-case letters only")
+    remove_stale_work_folders()
+    return Path(tempfile.mkdtemp(prefix=f"{WORK_FOLDER_PREFIX}{kind}-{os.getpid()}-"))
+
+
+@contextlib.contextmanager
+def work_folder(kind: str) -> Iterator[Path]:
+    """:func:`make_work_folder`, removed with its contents when the block ends (as
+    ``tempfile.TemporaryDirectory``, whose names carry no pid: a killed run's would stay)."""
+    folder = make_work_folder(kind)
+    try:
+        yield folder
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def remove_stale_work_folders(root: str | Path | None = None) -> int:
+    """Delete the work folders (:func:`make_work_folder`) in ``root`` (default: the system's
+    temp folder) whose pid no longer runs; returns how many. As for temporary files, one of a
+    live pid is never deleted, nor one without a pid in its name (an older version's, or
+    anyone's), nor one of another user's."""
+    root = Path(root if root is not None else tempfile.gettempdir())
+    removed = 0
+    try:
+        candidates = list(root.glob(f"{WORK_FOLDER_PREFIX}*"))
+    except OSError:
+        return 0
+    for path in candidates:
+        match = _WORK_FOLDER.fullmatch(path.name)
+        if match is None:
+            continue
+        try:
+            st = path.lstat()
+        except OSError:
+            continue  # (gone meanwhile)
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
+            continue  # (a link or a file: not made by make_work_folder)
+        if _pid_alive(int(match.group(1))):
+            continue
+        shutil.rmtree(path, ignore_errors=True)  # (another run may be removing it too)
+        removed += not os.path.lexists(path)
     return removed
 
 
