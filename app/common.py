@@ -121,28 +121,35 @@ def _outputs(folder: Path, patterns: Sequence[str]) -> set[Path]:
 
 
 def refuse_inputs_among_outputs(
-    folder: Path, patterns: Sequence[str], inputs: Mapping[str, Path | None]
+    folder: Path,
+    patterns: Sequence[str],
+    inputs: Mapping[str, Path | None],
+    written: Sequence[str] | None = None,
 ) -> None:
     """InputError when an input (``inputs``: option -> path) is, or holds, a file the run writes
     or removes in ``folder`` (``patterns``: globs relative to it, as for
     :func:`remove_earlier_outputs`): `--detections OUT/results.json --out OUT` would be deleted
-    or overwritten by the run that reads it. Called before any work."""
+    or overwritten by the run that reads it. ``written``: the patterns of those the run writes
+    (default: all); the others it removes as an earlier run's. Called before any work."""
     root = folder.resolve()
     # the same glob (and the same files) as remove_earlier_outputs, so the two never disagree
-    written = sorted({p.resolve() for p in _outputs(folder, patterns)})
+    found = sorted({p.resolve() for p in _outputs(folder, patterns)})
+    own = {p.resolve() for p in _outputs(folder, patterns if written is None else written)}
     for option, path in inputs.items():
         if path is None:
             continue
         target = Path(path).resolve()
         if not target.is_relative_to(root):  # (outside --out: the run writes nothing there)
             continue
-        for file in written:
+        for file in found:
             if file.is_relative_to(target):
                 what = "is" if file == target else f"holds {file.relative_to(root).as_posix()},"
-                raise InputError(
-                    f"{path}: {option} {what} a file this run writes in {folder}: move it, or "
-                    "give another --out"
+                kind = (
+                    f"a file this run writes in {folder}"
+                    if file in own
+                    else f"an earlier run's output, which this run removes from {folder}"
                 )
+                raise InputError(f"{path}: {option} {what} {kind}: move it, or give another --out")
 
 
 def remove_earlier_outputs(folder: Path, patterns: Sequence[str]) -> int:

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from app.common import command_line, refuse_inputs_among_outputs, remove_earlier_outputs
+from app.outputs import outputs_of
 from app.runs import Run, load_run, run_names, scored_sequences
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -72,13 +73,8 @@ def load_pair(args: argparse.Namespace) -> tuple[Run, Run]:
     return run_a, run_b
 
 
-#: What a comparison writes, removed first from an earlier one's folder: its recordings of
-#: other sequences or runs (or all of them, before a comparison without --record) would sit
-#: beside this one's compare.json.
-COMPARE_RECORDINGS = ("recordings/*.rrd", "recordings/.*.rrd.*.tmp")  # (--record's)
-COMPARE_OUTPUTS = (
-    "compare.json", "compare.md", ".compare.json.*.tmp", ".compare.md.*.tmp", *COMPARE_RECORDINGS
-)  # fmt: skip
+#: What a comparison's --record writes (in recordings/): refused as an input
+COMPARE_RECORDINGS = tuple(p for p in outputs_of("compare") if p.startswith("recordings/"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -100,9 +96,10 @@ def run(args: argparse.Namespace) -> int:
     result = compare_result(run_a, run_b, tolerance=args.tolerance)
     tracks = record_tracks(run_a, run_b) if args.record else None
     # once the inputs are accepted; only in an earlier comparison's folder (a run folder's
-    # recordings/ are the run's own)
+    # recordings/ are the run's own): its recordings of other sequences or runs (or all of
+    # them, before a comparison without --record) would sit beside this one's compare.json
     if (out / "compare.json").is_file() and not (out / "summary.json").exists():
-        remove_earlier_outputs(out, COMPARE_OUTPUTS)
+        remove_earlier_outputs(out, outputs_of("compare"))
     # every option that changes the result, quoted: the line repeats the comparison
     words = [args.run_a, args.run_b, "--out", args.out, "--tolerance", str(args.tolerance)]
     words += [

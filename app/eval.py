@@ -24,6 +24,7 @@ import numpy as np
 
 from app.common import outputs_removed_on_failure
 from app.inputs import class_list
+from app.outputs import outputs_of
 from tracker.categories import CATEGORIES
 from tracker.config import ImageBoxes, load_config
 from tracker.errors import InputError
@@ -430,11 +431,8 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
         raise InputError(f"{tracks}: file not found")
     out = Path(args.out) if args.out else tracks.parent
     _check_nuscenes_ground_truth(args)
-    from tracker.eval.motion_eval import MOTION_PLOT
-
     # a refused evaluation leaves no output of its own (a half-written nuscenes_eval/)
-    written = (EVAL_SUBMISSION, "eval.json", "eval.md", MOTION_PLOT, "nuscenes_eval/*.json")
-    with outputs_removed_on_failure(out, written, folders=("nuscenes_eval/plots",)):
+    with outputs_removed_on_failure(out, outputs_of("eval"), folders=("nuscenes_eval/plots",)):
         return _evaluate_nuscenes(args, tracks, out)
 
 

@@ -37,6 +37,7 @@ from app.inputs import (
     default_kitti_root,
     sequence_list,
 )
+from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.calibration import (
     ScoreProfile,
@@ -139,22 +140,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     scenes.add_arguments(parser)
 
 
-#: What a run writes in --out. A run into the folder of an earlier one removes these first, so a
-#: folder never mixes two runs (a sequence the new run leaves out would keep its old results);
-#: files of other names are left alone. summary.json is written last: it marks completion.
-#: (.<name>.*.tmp: the temporary files of a run stopped by Ctrl-C or a kill, named by
-#: tracker.io.fileio.temp_name; .scenes/: its scene parts)
-RUN_OUTPUTS = (
-    "summary.json", "tracks.json", "self_profile.toml", "motion.md", "motion_velocity.png",
-    "data/*.txt", "recordings/*.rrd", "recordings/causes.md",
-    ".summary.json.*.tmp", ".tracks.json.*.tmp", ".self_profile.toml.*.tmp", ".motion.md.*.tmp",
-    ".motion_velocity.png.*.tmp", "data/.*.txt.*.tmp", "recordings/.*.rrd.*.tmp",
-    "recordings/.causes.md.*.tmp", ".scenes/*",
-)  # fmt: skip
-#: What only a run leaves (its scene parts while it runs; tracks.json and summary.json at the end)
-RUN_MARKS = ("summary.json", "tracks.json", ".scenes")
-
-
 def run(args: argparse.Namespace) -> int:
     check_output_folder(args.out)  # before any work: a bad --out fails in a second, not at the end
     root = args.kitti_root or default_kitti_root()
@@ -173,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         "--profile": profile if isinstance(profile, Path) else None,
         "--poses": Path(poses) if poses not in (None, "orbslam3") else None,
     }
-    refuse_inputs_among_outputs(out, RUN_OUTPUTS, inputs)
+    refuse_inputs_among_outputs(out, outputs_replaced_by("kitti"), inputs, outputs_of("kitti"))
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     summary = run_kitti(
@@ -381,13 +366,14 @@ def run_kitti(
             self_calibrated_note(profile, detector, self_profile) + ", see self_profile.toml"
         )
     # once the config, the profile and the labels are read: a refused run keeps the earlier one.
-    # Only in a folder a run has written (data/*.txt alone could be anyone's)
-    if any((out / mark).exists() for mark in RUN_MARKS):
-        remove_earlier_outputs(out, RUN_OUTPUTS)
+    # Only in a folder a run has written (data/*.txt alone could be anyone's); a sequence the
+    # new run leaves out does not keep its old results, nor any command's file of the old run
+    if holds_a_run(out):
+        remove_earlier_outputs(out, outputs_replaced_by("kitti"))
     # from here on the run writes: one that fails after the tracking (the motion metrics or
     # the recordings refuse, Ctrl-C) removes what it wrote, so OUT never holds data/*.txt and
     # tracks.json without the summary.json that marks a complete run
-    with outputs_removed_on_failure(out, RUN_OUTPUTS):
+    with outputs_removed_on_failure(out, outputs_of("kitti")):
         job = KittiSceneJob(
             kitti_root=kitti_root,
             detector=detector,

@@ -18,6 +18,7 @@ from app.common import (
     remove_earlier_outputs,
 )
 from app.inputs import add_mode_argument
+from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
@@ -31,19 +32,6 @@ from tracker.io.fileio import (
     write_text_atomic,
 )
 
-#: What a run writes in --out, removed (once the inputs are accepted) when --out holds an earlier
-#: run, so the folder never mixes two (an earlier run's metrics, motion metrics or recordings
-#: beside a run that made none). Other files stay. (.<name>.*.tmp: the temporary files of a run
-#: stopped by Ctrl-C; .scenes/: its scene parts)
-RUN_OUTPUTS = (
-    "summary.json", "results.json", "tracks.json", "gt.json", "motion.md", "motion_velocity.png",
-    "eval/*.json", "recordings/*.rrd",
-    ".summary.json.*.tmp", ".results.json.*.tmp", ".tracks.json.*.tmp", ".gt.json.*.tmp",
-    ".motion.md.*.tmp", ".motion_velocity.png.*.tmp", "eval/.*.json.*.tmp",
-    "recordings/.*.rrd.*.tmp", ".scenes/*",
-)  # fmt: skip
-#: What only a run leaves (its scene parts while it runs; the submission and summary at the end)
-RUN_MARKS = ("summary.json", "results.json", "tracks.json", ".scenes")
 #: Folders the devkit's evaluation makes in --out (empty: mctrack never renders its plots)
 DEVKIT_FOLDERS = ("eval/plots",)
 
@@ -170,7 +158,9 @@ def run_nuscenes(
     from tracker.io.convert.nuscenes import convert_nuscenes, load_nuscenes
     from tracker.io.nuscenes_writer import write_nuscenes_parts
 
-    refuse_inputs_among_outputs(out, RUN_OUTPUTS, {"--detections": detections})
+    refuse_inputs_among_outputs(
+        out, outputs_replaced_by("nuscenes"), {"--detections": detections}, outputs_of("nuscenes")
+    )
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     has_gt = not version.endswith("test")
     want_gt = has_gt and (motion or record)
@@ -195,13 +185,13 @@ def run_nuscenes(
             raise InputError(f"--scenes: not in split {split!r}: {missing}")
         det_scenes = {s: det_scenes[s] for s in scene_names}
     convert_secs = time.perf_counter() - t0
-    if any((out / mark).exists() for mark in RUN_MARKS):  # a refused run keeps the earlier one
-        remove_earlier_outputs(out, RUN_OUTPUTS)
+    if holds_a_run(out):  # a refused run keeps the earlier one; a run's files of any command go
+        remove_earlier_outputs(out, outputs_replaced_by("nuscenes"))
 
     # from here on the run writes: one that fails (the devkit refuses the submission, an
     # evaluation error, Ctrl-C) removes what it wrote, so OUT never holds a results.json
     # without the summary.json that marks a complete run
-    with outputs_removed_on_failure(out, RUN_OUTPUTS, folders=DEVKIT_FOLDERS):
+    with outputs_removed_on_failure(out, outputs_of("nuscenes"), folders=DEVKIT_FOLDERS):
         coasting_score = None if config.mode is TrackingMode.OFFLINE else 0.0
         job = NuscenesSceneJob(
             config,

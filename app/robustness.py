@@ -42,6 +42,7 @@ from app.inputs import (
     default_kitti_root,
     sequence_list,
 )
+from app.outputs import outputs_of
 from tracker.calibration import (
     calibrate_frames,
     raw_outside_profile,
@@ -69,9 +70,6 @@ from tracker.pipeline import run_scene
 EVALUATOR = "trackeval 1.3.0, KITTI 2D box protocol (HOTA, CLEAR, Identity)"
 #: Metrics kept per run in the json (the table shows HOTA).
 KEPT_METRICS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "Frag", "FP", "FN")
-#: What a run writes in --out (globs). A run into the folder of an earlier one removes these once
-#: its inputs are accepted; other files (and a runs/ folder's other contents) are left alone.
-RUN_OUTPUTS = ("robustness.json", "robustness.md", "runs/*/clean/*.txt", "runs/*/seed*/*.txt")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -254,8 +252,9 @@ def run_robustness(
         ("--image-boxes", image_boxes), *([("--profile", profile)] if profile else []),
         ("--out", out),
     ]  # fmt: skip
-    # the inputs are accepted: the earlier run's outputs go (a refused run keeps them)
-    remove_earlier_outputs(out, RUN_OUTPUTS)
+    # the inputs are accepted: the earlier run's outputs go (a refused run keeps them); other
+    # files (and a runs/ folder's other contents) are left alone
+    remove_earlier_outputs(out, outputs_of("robustness"))
 
     jobs = [(name, None if name == CLEAN else seed) for name in specs for seed in seeds]
     jobs = list(dict.fromkeys(jobs))  # clean once

@@ -14,12 +14,14 @@ import numpy as np
 
 from app import scenes
 from app.common import (
+    NO_PROFILE,
     SELF_PROFILE,
     log_self_profile,
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
 )
 from app.inputs import add_mode_argument
+from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.calibration import (
     ScoreProfile,
@@ -259,22 +261,16 @@ def _calibrated(
     return calibrated, fitted
 
 
-#: What a run writes in --out, removed (once the inputs are accepted) when --out holds an earlier
-#: run, so the folder never mixes two (a scene the new run leaves out kept its data/<scene>.txt).
-#: Other files stay. (.<name>.*.tmp: the temporary files of a run stopped by Ctrl-C; .scenes/:
-#: its scene parts)
-RUN_OUTPUTS = (
-    "summary.json", "tracks.json", "self_profile.toml", "data/*.txt",
-    ".summary.json.*.tmp", ".tracks.json.*.tmp", ".self_profile.toml.*.tmp", "data/.*.txt.*.tmp",
-    ".scenes/*",
-)  # fmt: skip
-#: What only a run leaves (its scene parts while it runs; tracks.json and summary.json at the end)
-RUN_MARKS = ("summary.json", "tracks.json", ".scenes")
-
-
 def run(args: argparse.Namespace) -> int:
     out = check_output_folder(args.out)  # before any work: exists as a file, not writable
-    refuse_inputs_among_outputs(out, RUN_OUTPUTS, {"INPUT": Path(args.input)})
+    # (an earlier run's outputs go once the inputs are read: an input among them would be lost)
+    profile = None if args.profile in (None, SELF_PROFILE, NO_PROFILE) else Path(args.profile)
+    refuse_inputs_among_outputs(
+        out,
+        outputs_replaced_by("track"),
+        {"INPUT": Path(args.input), "--profile": profile},
+        outputs_of("track"),
+    )
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     window = parse_frame_range(args.frames)
@@ -295,10 +291,11 @@ def run(args: argparse.Namespace) -> int:
     if args.kitti_results:
         check_camera_models(args.input, scene_frames, "CAM_FRONT")
     # the inputs are accepted (a refused run keeps the earlier run's outputs): the earlier run's
-    # go, summary.json with them (written last: its absence marks a run cut short). Only in a
-    # folder a run has written (data/*.txt alone could be anyone's)
-    if any((out / mark).exists() for mark in RUN_MARKS):
-        remove_earlier_outputs(out, RUN_OUTPUTS)
+    # go, summary.json with them (written last: its absence marks a run cut short), and what
+    # any command wrote beside them (a kitti run's recordings, an eval). Only in a folder a
+    # run has written (data/*.txt alone could be anyone's)
+    if holds_a_run(out):
+        remove_earlier_outputs(out, outputs_replaced_by("track"))
     summary_path = out / "summary.json"
     job = TrackSceneJob(config, out, args.kitti_results)
     parallel = scenes.from_args(args)

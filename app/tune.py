@@ -48,6 +48,7 @@ from app.inputs import (
     sequence_list,
     unique_names,
 )
+from app.outputs import FILES, outputs_of
 from tracker.config import BUILTIN, config_for_mode, load_config, range_error, toml_value
 from tracker.errors import InputError
 from tracker.eval.perturb import CLEAN, NOISE_LEVELS, perturb_frames
@@ -558,7 +559,7 @@ def _run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():  # (else found only when writing, after the search)
         raise InputError(f"{out}: exists and is not a folder; pass another --out")
-    if Path(args.config).resolve() in {(out / name).resolve() for name in RESULTS}:
+    if Path(args.config).resolve() in {(out / name).resolve() for name in FILES["tune"]}:
         # (a new search there replaces the results, its own config among them, and every
         # trial reads the config again)
         raise InputError(
@@ -659,7 +660,7 @@ def _run(args: argparse.Namespace) -> int:
     # resume reads its finished searches back and writes them again). Only where a search
     # wrote them: tune.json says so (a best.toml alone may be anyone's)
     if (out / "tune.json").is_file():
-        remove_earlier_outputs(out, RESULTS)
+        remove_earlier_outputs(out, outputs_of("tune"))
     start = time.perf_counter()
     try:
         # the pool forks before Ray starts (a forked Ray driver is unsafe)
@@ -756,11 +757,6 @@ def tune_command(
         if args.max_concurrent is not None:
             words += ["--max-concurrent", str(args.max_concurrent)]
     return [*words, "--out", str(args.out)]
-
-
-#: What a search writes in --out, at its end; removed when a new search starts (the Ray Tune
-#: state, ray_tune/, is kept: it is what a resume reads).
-RESULTS = ("tune.json", "best.toml")
 
 
 def best_config_toml(record: dict[str, Any], path: Path | None = None) -> str:

@@ -17,6 +17,7 @@ from typing import Any
 from app import scenes
 from app.common import refuse_inputs_among_outputs, remove_earlier_outputs
 from app.inputs import add_mode_argument
+from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
@@ -29,18 +30,6 @@ from tracker.io.fileio import (
 )
 from tracker.io.waymo_writer import RESULT_TYPES
 from tracker.io.writers import tracks_scene_json
-
-#: What a run writes in --out, removed (once the inputs are accepted) when --out holds an earlier
-#: run, so the folder never mixes two: pred_bin.py reads every file of results/, and a segment
-#: left out or failing this time would keep its old results. Other files stay. (.<name>.*.tmp:
-#: the temporary files of a run stopped by Ctrl-C; .scenes/: its scene parts)
-RUN_OUTPUTS = (
-    "summary.json", "tracks.json", "gt.json", "results/*/*.npz", "recordings/*.rrd",
-    ".summary.json.*.tmp", ".tracks.json.*.tmp", ".gt.json.*.tmp", "results/*/.*.npz.*.tmp",
-    "recordings/.*.rrd.*.tmp", ".scenes/*",
-)  # fmt: skip
-#: What only a run leaves (its scene parts while it runs; tracks.json and summary.json at the end)
-RUN_MARKS = ("summary.json", "tracks.json", ".scenes")
 
 
 def _csv(text: str) -> list[str]:
@@ -148,10 +137,12 @@ def run_waymo(
     from tracker.io.convert.waymo import segment_names
 
     inputs = {"--data-root": data_root, "--detections": detections, "--gt": gt}
-    refuse_inputs_among_outputs(out, RUN_OUTPUTS, inputs)
+    refuse_inputs_among_outputs(out, outputs_replaced_by("waymo"), inputs, outputs_of("waymo"))
     names = segment_names(data_root, detections, segments)
-    if any((out / mark).exists() for mark in RUN_MARKS):  # a refused run keeps the earlier one
-        remove_earlier_outputs(out, RUN_OUTPUTS)
+    # a refused run keeps the earlier one; else its files (of any command) go: pred_bin.py reads
+    # every file of results/, and a segment left out or failing now would keep its old results
+    if holds_a_run(out):
+        remove_earlier_outputs(out, outputs_replaced_by("waymo"))
     job = WaymoSceneJob(data_root, detections, gt, config, out, keep=motion, record=record)
     t0 = time.perf_counter()
     records = scenes.run_scenes(job, names, parallel=parallel, quiet=quiet)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import shutil
 import subprocess
 import sys
@@ -1227,10 +1228,10 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
 ) -> None:
     """A sequence the new run leaves out does not keep its old results beside the new ones;
     files the runs do not write stay, and a run refused on its inputs changes nothing."""
-    from app.kitti import RUN_OUTPUTS
+    from app.outputs import FILES
     from tracker.eval.motion_eval import MOTION_PLOT
 
-    assert MOTION_PLOT in RUN_OUTPUTS
+    assert MOTION_PLOT in FILES["kitti"]
     out = tmp_path / "out"
     (out / "data").mkdir(parents=True)
     (out / "recordings").mkdir()
@@ -1310,6 +1311,89 @@ def test_track_into_an_earlier_runs_folder_replaces_that_run(
     assert (out / "notes.txt").read_text() == "mine\n"
     listed = [o["path"] for o in json.loads((out / "summary.json").read_text())["outputs"]]
     assert listed == ["data/a.txt", "tracks.json"]
+
+
+def test_track_into_a_kitti_runs_folder_leaves_nothing_of_that_run(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A track run into a kitti run's folder removed only the outputs track writes: kitti's
+    motion.md, velocity PNG, recordings and self_profile.toml, and an evaluation of its tracks,
+    stayed beside the new tracks (the folder mixed two runs). Now every command's outputs of
+    a run folder go (one list per command, app/outputs.py); files of other names stay."""
+    from app.common import _outputs
+    from app.outputs import FILES, outputs_of
+
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--motion", "--record",
+            "--profile", "self", "--out", str(out)]  # fmt: skip
+    code, _, err = _run(argv, capsys)
+    assert code == 0, err
+    kitti_files = {p for p, data in _tree(out).items() if data is not None}
+    assert {"motion.md", "recordings/0001.rrd", "self_profile.toml"} <= kitti_files
+    # every file the kitti run wrote is one of its listed outputs
+    assert {p.relative_to(out).as_posix() for p in _outputs(out, outputs_of("kitti"))} == (
+        kitti_files
+    )
+    for name in FILES["eval"][:2]:  # `mctrack eval OUT/tracks.json` writes beside the run's
+        (out / name).write_text("an evaluation of the kitti run's tracks\n")
+    (out / "notes.txt").write_text("mine\n")
+    detections = tmp_path / "one.json"
+    detections.write_text(json.dumps({"a": _sample_frames()[:3]}))
+    code, _, err = _run(["track", str(detections), "--out", str(out)], capsys)
+    assert code == 0, err
+    assert sorted(_tree(out)) == ["notes.txt", "summary.json", "tracks.json"]
+    assert (out / "notes.txt").read_text() == "mine\n"
+
+
+def test_the_output_lists_name_the_files_and_temporary_files_written(tmp_path: Path) -> None:
+    """The one list per command (app/outputs.py) holds the names the commands write under, and
+    brings each file's temporary files (tracker.io.fileio.temp_name) with it."""
+    from app.common import _outputs
+    from app.eval import EVAL_SUBMISSION
+    from app.outputs import FILES, RUN_COMMANDS, outputs_of
+    from app.scenes import PARTS_DIR
+    from tracker.eval.motion_eval import MOTION_PLOT
+    from tracker.io.fileio import temp_name
+
+    assert EVAL_SUBMISSION in FILES["eval"] and MOTION_PLOT in FILES["eval"]
+    assert all(f"{PARTS_DIR}/*" in FILES[command] for command in RUN_COMMANDS)
+    result = tmp_path / "data" / "0001.txt"
+    temp = result.parent / f"{temp_name(result)}abc123.tmp"
+    part = tmp_path / PARTS_DIR / f".000001.json.{os.getpid()}.abc.tmp"
+    for path in (result, temp, part):
+        path.parent.mkdir(exist_ok=True)
+        path.write_text("x")
+    assert _outputs(tmp_path, outputs_of("track")) == {result, temp, part}
+
+
+def test_an_input_among_another_commands_outputs_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run removes every command's outputs of the earlier run in its folder: an input among
+    them (a nuscenes run's gt.json as track's INPUT, its self_profile.toml as --profile) would
+    be lost. Refused before any work, saying so; the files kept."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "summary.json").write_text("{}")  # an earlier run's folder
+    (out / "gt.json").write_text(json.dumps({"a": _sample_frames()[:3]}))
+    profile = out / "self_profile.toml"
+    profile.write_text("a profile\n")
+    earlier = _tree(out)
+    code, _, err = _run(["track", str(out / "gt.json"), "--out", str(out)], capsys)
+    _assert_one_line_error(
+        code,
+        err,
+        "track",
+        f"{out / 'gt.json'}: INPUT is an earlier run's output, which this run removes from {out}",
+    )
+    detections = tmp_path / "one.json"
+    detections.write_text(json.dumps({"a": _sample_frames()[:3]}))
+    argv = ["track", str(detections), "--profile", str(profile), "--out", str(out)]
+    code, _, err = _run(argv, capsys)
+    _assert_one_line_error(
+        code, err, "track", f"{profile}: --profile is a file this run writes in {out}"
+    )
+    assert _tree(out) == earlier
 
 
 def test_a_run_made_with_a_relative_kit_is_reported_from_anywhere(

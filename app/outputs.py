@@ -1,0 +1,82 @@
+"""What each command writes in its output folder: one list per command, read by the command
+itself (a failed run removes what it wrote of them) and by every command that replaces an
+earlier run in its folder (so the folder never mixes two runs). Below every app module: no app
+imports here."""
+
+from __future__ import annotations
+
+from pathlib import Path, PurePosixPath
+
+#: Each command's output files in --out (globs relative to it; .scenes/: the scene parts of a
+#: run while it runs, see app.scenes.PARTS_DIR). The temporary files each is written under
+#: (``.<name>.<pid>.<random>.tmp``, tracker.io.fileio.temp_name) come with it (:func:`outputs_of`).
+FILES: dict[str, tuple[str, ...]] = {
+    "track": ("summary.json", "tracks.json", "self_profile.toml", "data/*.txt", ".scenes/*"),
+    "kitti": (
+        "summary.json", "tracks.json", "self_profile.toml", "motion.md", "motion_velocity.png",
+        "data/*.txt", "recordings/*.rrd", "recordings/causes.md", ".scenes/*",
+    ),
+    "nuscenes": (
+        "summary.json", "results.json", "tracks.json", "gt.json", "motion.md",
+        "motion_velocity.png", "eval/*.json", "recordings/*.rrd", ".scenes/*",
+    ),
+    "waymo": (
+        "summary.json", "tracks.json", "gt.json", "results/*/*.npz", "recordings/*.rrd",
+        ".scenes/*",
+    ),
+    # (its --out defaults to the tracks file's folder: a run's)
+    "eval": (
+        "eval.json", "eval.md", "motion_velocity.png", "eval_results.json",
+        "nuscenes_eval/*.json",
+    ),
+    "compare": ("compare.json", "compare.md", "recordings/*.rrd"),
+    "robustness": (
+        "robustness.json", "robustness.md", "runs/*/clean/*.txt", "runs/*/seed*/*.txt",
+    ),
+    # (written at its end; its Ray Tune state, ray_tune/, is what a resume reads: kept)
+    "tune": ("tune.json", "best.toml"),
+}  # fmt: skip
+
+#: The commands whose run fills a folder of its own (its scenes' files, tracks.json and the
+#: summary.json written last, which marks the run complete).
+RUN_COMMANDS = ("track", "kitti", "nuscenes", "waymo")
+#: Whose outputs a run folder may hold: the runs', and what is written beside one (`mctrack
+#: eval` writes in the tracks file's folder by default; `mctrack compare` may write in a run
+#: folder). All of them describe the run in the folder, so a new run there removes them all.
+RUN_FOLDER = (*RUN_COMMANDS, "eval", "compare")
+#: What only a run leaves (its scene parts while it runs; its tracks, submission and summary
+#: at the end): a folder holding one is a run's. data/*.txt alone could be anyone's.
+RUN_MARKS = ("summary.json", "tracks.json", "results.json", ".scenes")
+
+
+def _with_temps(patterns: tuple[str, ...]) -> tuple[str, ...]:
+    """The patterns, each followed by its temporary files' (``data/*.txt``:
+    ``data/.*.txt.*.tmp``); a pattern of any name (``.scenes/*``) has them already."""
+    out: list[str] = []
+    for pattern in patterns:
+        out.append(pattern)
+        path = PurePosixPath(pattern)
+        if path.name != "*":
+            out.append(str(path.with_name(f".{path.name}.*.tmp")))
+    return tuple(out)
+
+
+def outputs_of(command: str) -> tuple[str, ...]:
+    """What ``command`` writes in its folder, temporary files included: what a failed run of
+    it removes (those it wrote), and what it refuses to take as an input there."""
+    return _with_temps(FILES[command])
+
+
+def outputs_replaced_by(command: str) -> tuple[str, ...]:
+    """What a run of ``command`` removes of an earlier run in its folder, once its inputs are
+    accepted: for a run (:data:`RUN_COMMANDS`), everything a run folder may hold of any
+    command (:data:`RUN_FOLDER`: a `track` into a `kitti` run's folder removes its motion.md
+    and recordings too); for the others, their own outputs."""
+    commands = RUN_FOLDER if command in RUN_COMMANDS else (command,)
+    return tuple(dict.fromkeys(p for c in commands for p in outputs_of(c)))
+
+
+def holds_a_run(folder: Path) -> bool:
+    """Whether a run has written ``folder`` (:data:`RUN_MARKS`): only then are its files an
+    earlier run's to replace."""
+    return any((folder / mark).exists() for mark in RUN_MARKS)
