@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from app.common import folders_to_make, remove_made_folders
+from app.common import ctrl_c_deferred, folders_to_make, remove_made_folders
 from tracker.errors import InputError
 
 # subcommand -> (module, help). Each module has add_arguments(parser) and run(args) -> int,
@@ -304,7 +304,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         status = _run_command(args)
     finally:
         if status != 0:
-            remove_made_folders(made)
+            with ctrl_c_deferred():
+                remove_made_folders(made)
     return status
 
 

@@ -7,6 +7,8 @@ import logging
 import os
 import resource
 import shlex
+import signal
+import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path, PurePosixPath
 from typing import TYPE_CHECKING
@@ -223,11 +225,27 @@ def outputs_removed_on_failure(
     try:
         yield
     except BaseException:
-        after = _stamps(_outputs(folder, patterns))
-        for path in sorted(p for p, stamp in after.items() if before.get(p) != stamp):
-            path.unlink(missing_ok=True)
-        remove_made_folders(made)
+        with ctrl_c_deferred():  # (a second Ctrl-C does not stop the clean-up half done)
+            after = _stamps(_outputs(folder, patterns))
+            for path in sorted(p for p, stamp in after.items() if before.get(p) != stamp):
+                path.unlink(missing_ok=True)
+            remove_made_folders(made)
         raise
+
+
+@contextlib.contextmanager
+def ctrl_c_deferred() -> Iterator[None]:
+    """Ctrl-C ignored during the block (in the main thread, which alone handles signals): what
+    an interrupted run must finish before it ends (stop its workers, remove its outputs) is
+    not itself cut short by a second Ctrl-C."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler if previous is None else previous)
 
 
 def _stamps(paths: Iterable[Path]) -> dict[Path, tuple[int, int]]:

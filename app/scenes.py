@@ -19,8 +19,10 @@ Ray is optional (``pip install -e ".[ray]"``) and imported only by ``--ray``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import multiprocessing
+import signal
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -32,11 +34,13 @@ from typing import Any, Protocol
 
 from tqdm import tqdm
 
+from app.common import ctrl_c_deferred
 from tracker.errors import InputError
 
 log = logging.getLogger(__name__)
 
 MAX_RETRIES = 3  # re-runs of a scene whose worker process died
+STOP_SECONDS = 10.0  # a stopped worker not gone by then (SIGTERM) is killed (SIGKILL)
 PARTS_DIR = ".scenes"  # per-scene parts of the combined output files, removed after assembly
 LOCAL = "local"  # --ray without an address: start a local Ray instance
 
@@ -191,13 +195,19 @@ def _run_pool(
     for attempt in range(MAX_RETRIES + 1):
         try:
             with ProcessPoolExecutor(
-                max_workers=min(workers, len(pending)), mp_context=context
+                max_workers=min(workers, len(pending)),
+                mp_context=context,
+                initializer=_leave_ctrl_c_to_the_parent,
             ) as pool:
-                futures = [pool.submit(run_task, job, *item) for item in pending.values()]
-                for future in as_completed(futures):
-                    record = future.result()
-                    del pending[record.index]
-                    done(record)
+                try:
+                    futures = [pool.submit(run_task, job, *item) for item in pending.values()]
+                    for future in as_completed(futures):
+                        record = future.result()
+                        del pending[record.index]
+                        done(record)
+                except BaseException:
+                    _stop_workers(pool)
+                    raise
             return
         except BrokenProcessPool:
             log.warning(
@@ -207,6 +217,33 @@ def _run_pool(
             )
     for i, scene, _ in pending.values():
         done(SceneRecord(i, scene, error=f"worker process died {MAX_RETRIES + 1} times"))
+
+
+def _leave_ctrl_c_to_the_parent() -> None:
+    """A pool worker's start: Ctrl-C (SIGINT to the terminal's whole process group) is the
+    parent's to handle, which stops the workers (:func:`_stop_workers`). A worker of its own
+    would end its scene's task and take the next one, or print a traceback and die."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Stop the pool's workers now, its scenes not begun cancelled, and wait until each worker
+    has exited: after Ctrl-C or an error here, a worker still tracking would write its scene's
+    files after the caller removed the stopped run's outputs. (The executor's own shutdown
+    waits for every scene instead, and a second Ctrl-C during that wait left the workers
+    writing, and the process hanging at its exit.)"""
+    processes = list((getattr(pool, "_processes", None) or {}).values())  # (3.14: a method)
+    with ctrl_c_deferred():  # (a second Ctrl-C: the workers are stopped all the same)
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            with contextlib.suppress(OSError, ValueError):  # (exited meanwhile)
+                process.terminate()
+        for process in processes:
+            with contextlib.suppress(ValueError):  # (closed)
+                process.join(STOP_SECONDS)
+                if process.is_alive():
+                    process.kill()
+                    process.join()
 
 
 def import_ray() -> Any:

@@ -282,6 +282,87 @@ def test_all_21_kitti_sequences_with_2_workers(
     assert len(files) == 22
 
 
+# Loaded by every Python process of a run (PYTHONPATH): each KITTI sequence's result file is
+# written SLOW_WRITE seconds late; its task says when it begins to wait (a file named by its pid
+# in WRITING) and when it goes on to write (<pid>.writes).
+SLOW_WRITE_HOOK = """
+import os, time
+if os.environ.get("SLOW_WRITE"):
+    import tracker.io.writers as writers
+    write = writers.write_kitti_sequence
+    def slow(*args, **kwargs):
+        said = os.path.join(os.environ["WRITING"], str(os.getpid()))
+        open(said, "w").close()
+        time.sleep(float(os.environ["SLOW_WRITE"]))
+        open(said + ".writes", "w").close()
+        return write(*args, **kwargs)
+    writers.write_kitti_sequence = slow
+"""
+
+
+@pytest.mark.parametrize("ctrl_c", ["once to the process group", "twice to the command"])
+def test_ctrl_c_stops_the_workers_before_the_outputs_are_removed(
+    kitti_root: Path, tmp_path: Path, ctrl_c: str
+) -> None:
+    """Ctrl-C while both workers track: the command stops them at once, the sequence not begun
+    cancelled, then removes the run's outputs. (It waited for the workers to finish their
+    sequences, minutes on long ones; a second Ctrl-C during that wait removed the outputs while
+    the workers still wrote theirs, and the command hung at its exit.) Nothing of the run is
+    left, and no process of it."""
+    import signal
+    import subprocess
+    import time
+
+    hook, writing, out = tmp_path / "hook", tmp_path / "writing", tmp_path / "out"
+    hook.mkdir()
+    writing.mkdir()
+    (hook / "sitecustomize.py").write_text(SLOW_WRITE_HOOK)
+    slow = 4.0
+    env = {**os.environ, "PYTHONPATH": f"{hook}{os.pathsep}{ROOT}", "SLOW_WRITE": str(slow),
+           "WRITING": str(writing)}  # fmt: skip
+    argv = ["kitti", "--kitti-root", str(kitti_root), "--seqs", "0012,0014,0016", "--no-eval",
+            "--workers", "2", "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "app.cli", *argv],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,  # its own process group, as a terminal's job
+    )
+    try:
+        deadline = time.monotonic() + 300
+        while len(list(writing.iterdir())) < 2:  # both workers in a sequence's task
+            assert proc.poll() is None, proc.communicate()[0][-3000:]
+            assert time.monotonic() < deadline, "timed out waiting for the workers"
+            time.sleep(0.05)
+        if ctrl_c == "once to the process group":  # (what a terminal's Ctrl-C sends)
+            os.killpg(proc.pid, signal.SIGINT)
+        else:
+            proc.send_signal(signal.SIGINT)
+            time.sleep(0.2)
+            proc.send_signal(signal.SIGINT)
+        output, _ = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.communicate()
+    # (a second Ctrl-C after the clean-up, as the interpreter exits, ends it by that signal)
+    assert proc.returncode in (130, -signal.SIGINT), output[-3000:]
+    assert "mctrack kitti: interrupted" in output and "Traceback" not in output, output[-3000:]
+    assert not out.exists()  # (it made --out: gone, empty)
+    # stopped in their sequences (they went on to write them, and the third began)
+    assert len(list(writing.iterdir())) == 2 and not list(writing.glob("*.writes"))
+    time.sleep(slow + 1)  # past the moment a worker left running would write its sequence
+    assert not out.exists()
+    with pytest.raises(ProcessLookupError):  # (its workers, fork server and resource tracker)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            os.killpg(proc.pid, 0)
+            time.sleep(0.1)
+
+
 def test_unlabelled_sequences_are_named_and_left_out_of_the_score(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture, capsys: Any
 ) -> None:
