@@ -145,8 +145,17 @@ def sequence_list(text: str) -> list[str]:
     """argparse type of ``--seqs``: comma-separated sequence names, digits zero-padded to four
     ("1" -> "0001"). An empty list or a sequence named twice is a usage error (one line, exit 2)
     rather than a run that tracks nothing or a sequence twice."""
+    from tracker.io.fileio import case_collision
+
     names = [s.zfill(4) if s.isdigit() else s for s in (p.strip() for p in text.split(",")) if s]
-    return unique_names(names, text, "sequences")
+    unique_names(names, text, "sequences")
+    found = case_collision(names)  # (a file per sequence: data/<seq>.txt)
+    if found is not None:
+        raise argparse.ArgumentTypeError(
+            f"sequences {found[0]!r} and {found[1]!r} differ only in case: their files would be "
+            "one on a case-insensitive filesystem (macOS, Windows)"
+        )
+    return names
 
 
 def unique_names(names: list[str], text: str, what: str) -> list[str]:

@@ -42,6 +42,7 @@ from tracker.io.fileio import (
     check_output_folder,
     output_manifest,
     path_in,
+    refuse_case_collisions,
     write_bytes_atomic,
     write_text_atomic,
 )
@@ -280,6 +281,8 @@ def run(args: argparse.Namespace) -> int:
     )
     scene_frames = select_scenes(scene_frames, args.scenes, window, source=args.input)
     require_frames(scene_frames, args.input, "track", args.scenes)  # else an empty tracks.json
+    if args.kitti_results:  # (a file per scene: data/<scene>.txt)
+        refuse_case_collisions(scene_frames, args.input, suffix=".txt")
     empty = [s for s, frames in scene_frames.items() if not frames]
     # (kept in tracks.json, as scenes without tracks: said, not silent; with --frames,
     # select_scenes has already warned of them)

@@ -25,6 +25,7 @@ from tracker.eval.fates import combine_fates
 from tracker.frame import Frame
 from tracker.io.fileio import (
     check_output_folder,
+    refuse_case_collisions,
     write_bytes_atomic,
     write_text_atomic,
 )
@@ -139,6 +140,8 @@ def run_waymo(
     inputs = {"--data-root": data_root, "--detections": detections, "--gt": gt}
     refuse_inputs_among_outputs(out, outputs_replaced_by("waymo"), inputs, outputs_of("waymo"))
     names = segment_names(data_root, detections, segments)
+    # (files per segment: results/<type>/<segment>.npz)
+    refuse_case_collisions(names, "--segments" if segments else detections, "segments", ".npz")
     # a refused run keeps the earlier one; else its files (of any command) go: pred_bin.py reads
     # every file of results/, and a segment left out or failing now would keep its old results
     if holds_a_run(out):

@@ -1396,6 +1396,46 @@ def test_an_input_among_another_commands_outputs_is_refused(
     assert _tree(out) == earlier
 
 
+def test_scenes_whose_files_differ_only_in_case_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Scenes A and a wrote data/A.txt and data/a.txt: one file on a case-insensitive
+    filesystem (the second scene's over the first's), and a folder that does not survive a
+    copy to one. Refused up front, on every filesystem, naming both; a run that writes no file
+    per scene (track without --kitti-results) is not refused."""
+    from tracker.io.fileio import case_collision
+
+    assert case_collision(["A", "b", "a"]) == ("A", "a")
+    assert case_collision(["x/Y", "X/y"]) == ("x/Y", "X/y")  # (as escaped: x%2FY, X%2Fy)
+    assert case_collision(["0001", "0002", "\u00e9", "\u00c9"]) is None  # (%C3%A9, %C3%89)
+    frames = _sample_frames()[:3]
+    both = tmp_path / "both.json"
+    both.write_text(json.dumps({"A": frames, "b": frames, "a": frames}))
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "summary.json").write_text("an earlier run's\n")
+    code, _, err = _run(["track", str(both), "--kitti-results", "--out", str(out)], capsys)
+    _assert_one_line_error(
+        code, err, "track", f"{both}: scenes 'A' and 'a' differ only in case", "(A.txt, a.txt)"
+    )
+    assert _tree(out) == {"summary.json": b"an earlier run's\n"}
+    code, _, err = _run(["track", str(both), "--out", str(out)], capsys)
+    assert code == 0, err
+    assert sorted(json.loads((out / "tracks.json").read_text())) == ["A", "a", "b"]
+
+    code, _, err = _run(["kitti", "--seqs", "ab,AB", "--out", str(tmp_path / "k")], capsys)
+    _assert_one_line_error(code, err, "kitti", "sequences 'ab' and 'AB' differ only in case")
+    root = tmp_path / "waymo"
+    for sub in ("ts_info", "ego_info", "dets"):
+        (root / sub).mkdir(parents=True)
+    argv = ["waymo", "--data-root", str(root), "--detections", str(root / "dets"),
+            "--segments", "seg,SEG", "--out", str(tmp_path / "w")]  # fmt: skip
+    code, _, err = _run(argv, capsys)
+    _assert_one_line_error(
+        code, err, "waymo", "--segments: segments 'seg' and 'SEG' differ only in case"
+    )
+
+
 def test_a_run_made_with_a_relative_kit_is_reported_from_anywhere(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

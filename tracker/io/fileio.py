@@ -376,6 +376,34 @@ def safe_filename(name: str) -> str:
     return text
 
 
+def case_collision(names: Iterable[str]) -> tuple[str, str] | None:
+    """The first two of ``names`` whose files (:func:`safe_filename`) differ only in case
+    (``A`` and ``a``), or None: on a case-insensitive filesystem (macOS's and Windows' by
+    default) they are one file, the second run's over the first's."""
+    seen: dict[str, str] = {}
+    for name in names:
+        first = seen.setdefault(safe_filename(name).casefold(), name)
+        if first != name:
+            return first, name
+    return None
+
+
+def refuse_case_collisions(
+    names: Iterable[str], source: str | Path, what: str = "scenes", suffix: str = ""
+) -> None:
+    """InputError naming two ``what`` (of ``source``) whose files (name + ``suffix``) would
+    differ only in case (:func:`case_collision`). Called before a run writes a file per name,
+    on every filesystem: outputs written here must stay whole where they are copied to."""
+    found = case_collision(names)
+    if found is not None:
+        a, b = found
+        raise InputError(
+            f"{source}: {what} {a!r} and {b!r} differ only in case: their files "
+            f"({safe_filename(a)}{suffix}, {safe_filename(b)}{suffix}) would be one on a "
+            "case-insensitive filesystem (macOS, Windows); rename one"
+        )
+
+
 def name_is_escaped(name: str) -> bool:
     """True when :func:`safe_filename` changes the name (``mctrack validate`` reports these)."""
     return safe_filename(name) != name
