@@ -222,13 +222,30 @@ def outputs_removed_on_failure(
     made = folders_to_make(
         [folder / _pattern_folder(p) for p in patterns] + [folder / f for f in folders]
     )
+    # (the folders a pattern's files are in: one made below a pattern's fixed folder, e.g.
+    # results/vehicle/ of results/*/*.npz, goes too when the run's files leave it empty)
+    existed = {
+        d
+        for p in patterns
+        if PurePosixPath(p).parent.parts
+        for d in folder.glob(str(PurePosixPath(p).parent))
+        if d.is_dir()
+    }
     try:
         yield
     except BaseException:
         with ctrl_c_deferred():  # (a second Ctrl-C does not stop the clean-up half done)
             after = _stamps(_outputs(folder, patterns))
-            for path in sorted(p for p, stamp in after.items() if before.get(p) != stamp):
+            removed = sorted(p for p, stamp in after.items() if before.get(p) != stamp)
+            for path in removed:
                 path.unlink(missing_ok=True)
+            for parent in sorted({p.parent for p in removed}, key=lambda p: -len(p.parts)):
+                while parent != folder and parent not in existed:
+                    try:
+                        parent.rmdir()
+                    except OSError:  # (not empty: another file of the run's, or anyone's)
+                        break
+                    parent = parent.parent
             remove_made_folders(made)
         raise
 

@@ -17,6 +17,7 @@ from app.common import (
     NO_PROFILE,
     SELF_PROFILE,
     log_self_profile,
+    outputs_removed_on_failure,
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
 )
@@ -299,41 +300,44 @@ def run(args: argparse.Namespace) -> int:
     # run has written (data/*.txt alone could be anyone's)
     if holds_a_run(out):
         remove_earlier_outputs(out, outputs_replaced_by("track"))
-    summary_path = out / "summary.json"
-    job = TrackSceneJob(config, out, args.kitti_results)
-    parallel = scenes.from_args(args)
-    records = scenes.run_scenes(job, list(scene_frames), inputs=scene_frames, parallel=parallel)
-    ok = [r for r in records if r.error is None]
-    scenes.write_tracks(out, ok)
-    frames = sum(r.frames for r in ok)
-    secs = sum(r.tracker_seconds for r in ok)
-    fate_summary = combine_fates([r.info["fates"] for r in ok], report.skipped_categories)
-    removed = [x for r in ok for x in r.info["offline_removed"]]
-    written = [out / "tracks.json"]
-    if self_profile is not None:
-        write_text_atomic(out / "self_profile.toml", [profile_toml(self_profile)])
-        written.append(out / "self_profile.toml")
-    if args.kitti_results:
-        written += [path_in(out / "data", r.scene, ".txt") for r in ok]
-    failed = {r.scene: r.error for r in records if r.error}
-    summary = {
-        "input": str(args.input),
-        "config": str(config_for_mode(args.config, config.mode.value)),  # the one that ran
-        "mode": config.mode.value,
-        "scenes": len(ok),
-        "frames": frames,
-        "tracks": sum(r.info["tracks"] for r in ok),
-        "detection_fates": fate_summary,
-        "offline_removed": {
-            "tracks": len(removed),
-            "detections": sum(n for _, n in removed),
-            "per_reason": dict(sorted(Counter(reason for reason, _ in removed).items())),
-        },
-        "failed_scenes": failed,
-        "outputs": output_manifest(out, written),
-        "complete": not failed,
-    }
-    write_text_atomic(summary_path, [json.dumps(summary, indent=2, allow_nan=False)])
+    # from here on the run writes: one stopped (Ctrl-C, an error) removes what it wrote, so
+    # OUT never holds data/*.txt or scene parts without the summary.json that marks a run
+    with outputs_removed_on_failure(out, outputs_of("track")):
+        summary_path = out / "summary.json"
+        job = TrackSceneJob(config, out, args.kitti_results)
+        parallel = scenes.from_args(args)
+        records = scenes.run_scenes(job, list(scene_frames), inputs=scene_frames, parallel=parallel)
+        ok = [r for r in records if r.error is None]
+        scenes.write_tracks(out, ok)
+        frames = sum(r.frames for r in ok)
+        secs = sum(r.tracker_seconds for r in ok)
+        fate_summary = combine_fates([r.info["fates"] for r in ok], report.skipped_categories)
+        removed = [x for r in ok for x in r.info["offline_removed"]]
+        written = [out / "tracks.json"]
+        if self_profile is not None:
+            write_text_atomic(out / "self_profile.toml", [profile_toml(self_profile)])
+            written.append(out / "self_profile.toml")
+        if args.kitti_results:
+            written += [path_in(out / "data", r.scene, ".txt") for r in ok]
+        failed = {r.scene: r.error for r in records if r.error}
+        summary = {
+            "input": str(args.input),
+            "config": str(config_for_mode(args.config, config.mode.value)),  # the one that ran
+            "mode": config.mode.value,
+            "scenes": len(ok),
+            "frames": frames,
+            "tracks": sum(r.info["tracks"] for r in ok),
+            "detection_fates": fate_summary,
+            "offline_removed": {
+                "tracks": len(removed),
+                "detections": sum(n for _, n in removed),
+                "per_reason": dict(sorted(Counter(reason for reason, _ in removed).items())),
+            },
+            "failed_scenes": failed,
+            "outputs": output_manifest(out, written),
+            "complete": not failed,
+        }
+        write_text_atomic(summary_path, [json.dumps(summary, indent=2, allow_nan=False)])
     print(
         f"{len(ok)} scenes, {frames} frames, {summary['tracks']} tracks, "
         f"{frames / secs if secs else 0:.0f} frames/s -> {out / 'tracks.json'}"

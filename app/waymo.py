@@ -15,7 +15,11 @@ from pathlib import Path
 from typing import Any
 
 from app import scenes
-from app.common import refuse_inputs_among_outputs, remove_earlier_outputs
+from app.common import (
+    outputs_removed_on_failure,
+    refuse_inputs_among_outputs,
+    remove_earlier_outputs,
+)
 from app.inputs import add_mode_argument
 from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
@@ -146,47 +150,50 @@ def run_waymo(
     # every file of results/, and a segment left out or failing now would keep its old results
     if holds_a_run(out):
         remove_earlier_outputs(out, outputs_replaced_by("waymo"))
-    job = WaymoSceneJob(data_root, detections, gt, config, out, keep=motion, record=record)
-    t0 = time.perf_counter()
-    records = scenes.run_scenes(job, names, parallel=parallel, quiet=quiet)
-    wall_secs = time.perf_counter() - t0
-    ok = [r for r in records if r.error is None]
-    scenes.write_tracks(out, ok)
-    written = dict.fromkeys(RESULT_TYPES, 0)
-    skipped: Counter[int] = Counter()
-    for r in ok:
-        written.update({k: written[k] + v for k, v in r.info["written"].items()})
-        skipped.update(r.info["skipped_types"])
-    frames = sum(r.frames for r in ok)
-    seconds = sum(r.tracker_seconds for r in ok)
-    summary: dict[str, Any] = {
-        "dataset": "waymo",
-        "segments": [r.scene for r in ok],
-        "frames": frames,
-        "results": str(out / "results"),
-        "boxes_written": written,
-        "tracker_seconds": round(seconds, 4),
-        "tracker_fps": round(frames / seconds, 1) if seconds > 0 else None,
-        "skipped_types": {str(k): v for k, v in sorted(skipped.items())},
-        **scenes.summary_fields(records, parallel, wall_secs),
-        "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
-        "config": config_to_dict(config),
-    }
-    recordings = [r.info["recording"] for r in ok if "recording" in r.info]
-    if recordings:
-        summary["recordings"] = recordings
-    if motion and gt is not None:
-        from tracker.eval.motion_eval import evaluate_motion
-        from tracker.io.baseversion import write_baseversion
+    # from here on the run writes: one stopped (Ctrl-C, an error) removes what it wrote, so
+    # OUT never holds results/ without the summary.json that marks a complete run
+    with outputs_removed_on_failure(out, outputs_of("waymo")):
+        job = WaymoSceneJob(data_root, detections, gt, config, out, keep=motion, record=record)
+        t0 = time.perf_counter()
+        records = scenes.run_scenes(job, names, parallel=parallel, quiet=quiet)
+        wall_secs = time.perf_counter() - t0
+        ok = [r for r in records if r.error is None]
+        scenes.write_tracks(out, ok)
+        written = dict.fromkeys(RESULT_TYPES, 0)
+        skipped: Counter[int] = Counter()
+        for r in ok:
+            written.update({k: written[k] + v for k, v in r.info["written"].items()})
+            skipped.update(r.info["skipped_types"])
+        frames = sum(r.frames for r in ok)
+        seconds = sum(r.tracker_seconds for r in ok)
+        summary: dict[str, Any] = {
+            "dataset": "waymo",
+            "segments": [r.scene for r in ok],
+            "frames": frames,
+            "results": str(out / "results"),
+            "boxes_written": written,
+            "tracker_seconds": round(seconds, 4),
+            "tracker_fps": round(frames / seconds, 1) if seconds > 0 else None,
+            "skipped_types": {str(k): v for k, v in sorted(skipped.items())},
+            **scenes.summary_fields(records, parallel, wall_secs),
+            "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
+            "config": config_to_dict(config),
+        }
+        recordings = [r.info["recording"] for r in ok if "recording" in r.info]
+        if recordings:
+            summary["recordings"] = recordings
+        if motion and gt is not None:
+            from tracker.eval.motion_eval import evaluate_motion
+            from tracker.io.baseversion import write_baseversion
 
-        det_scenes = {r.scene: r.kept[0] for r in ok}
-        gt_scenes = {r.scene: r.kept[1] for r in ok}
-        write_baseversion(out / "gt.json", gt_scenes)
-        summary["motion"] = evaluate_motion(
-            det_scenes,
-            gt_scenes,
-            {r.scene: r.kept[2] for r in ok},
-            classes=["car", "pedestrian", "cyclist"],
-        )
-    write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
+            det_scenes = {r.scene: r.kept[0] for r in ok}
+            gt_scenes = {r.scene: r.kept[1] for r in ok}
+            write_baseversion(out / "gt.json", gt_scenes)
+            summary["motion"] = evaluate_motion(
+                det_scenes,
+                gt_scenes,
+                {r.scene: r.kept[2] for r in ok},
+                classes=["car", "pedestrian", "cyclist"],
+            )
+        write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
     return summary

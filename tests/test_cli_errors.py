@@ -1436,6 +1436,30 @@ def test_scenes_whose_files_differ_only_in_case_are_refused(
     )
 
 
+def test_track_stopped_after_its_scenes_leaves_no_partial_outputs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C once the scenes are tracked (their data/*.txt and scene parts written, tracks.json
+    not yet): the run's files stayed without the summary.json that marks a complete run. Now
+    they go, the folders the run made with them; files of other names stay."""
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine\n")
+    detections = tmp_path / "two.json"
+    frames = _sample_frames()[:3]
+    detections.write_text(json.dumps({"a": frames, "b": frames}))
+
+    def interrupted(out: Path, ok: object) -> None:
+        assert (out / "data" / "a.txt").is_file() and (out / ".scenes").is_dir()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("app.scenes.write_tracks", interrupted)
+    argv = ["track", str(detections), "--kitti-results", "--out", str(out)]
+    code, _, err = _run(argv, capsys)
+    assert code == 130 and "interrupted" in err, err
+    assert _tree(out) == {"notes.txt": b"mine\n"}
+
+
 def test_a_run_made_with_a_relative_kit_is_reported_from_anywhere(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

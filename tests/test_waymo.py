@@ -462,6 +462,26 @@ def test_waymo_run_into_an_earlier_run_replaces_it(segment: Path, tmp_path: Path
     assert json.loads((run / "summary.json").read_text())["segments"] == ["other"]
 
 
+def test_waymo_stopped_after_its_segments_leaves_no_partial_outputs(
+    segment: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C once the segments are tracked (results/<type>/<segment>.npz written, tracks.json
+    not yet): pred_bin.py would read those results without the summary.json that marks a
+    complete run. Now they go, and the folders the run made for them."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "notes.txt").write_text("mine")
+
+    def interrupted(out: Path, ok: object) -> None:
+        assert (out / "results" / "vehicle" / f"{SEGMENT}.npz").is_file()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("app.scenes.write_tracks", interrupted)
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--out", str(run)]) == 130
+    assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*")) == ["notes.txt"]
+
+
 def test_waymo_refuses_inputs_among_its_outputs(
     segment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
