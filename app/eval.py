@@ -14,7 +14,6 @@ import dataclasses
 import json
 import logging
 import sys
-import tempfile
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -31,7 +30,7 @@ from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.baseversion import read_baseversion
-from tracker.io.fileio import check_output_folder, path_in, write_text_atomic
+from tracker.io.fileio import check_output_folder, path_in, work_folder, write_text_atomic
 
 LOG = logging.getLogger(__name__)
 #: The tracking submission of a tracks file, written in OUT and evaluated (not results.json: OUT
@@ -286,12 +285,12 @@ def _static_metrics(
             ", ".join(f"{n} {c}" for c, n in sorted(others.items())),
         )
         notes["left_out_of_static"] = dict(sorted(others.items()))
-    with tempfile.TemporaryDirectory(prefix="mctrack-eval-") as tmp:
+    with work_folder("eval") as tmp:
         for scene in scored:
             write_kitti_sequence(path_in(tmp, scene, ".txt"), kept[scene], frames[scene], **writer)
         return evaluate_kitti(
             label_dir=labels,
-            result_dir=Path(tmp),
+            result_dir=tmp,
             seq_lengths=lengths,
             classes=static_classes,
             first_frames=first_frames,

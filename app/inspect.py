@@ -235,8 +235,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return EXIT_VIEWER_FAILED
-    import tempfile
-
+    from tracker.io.fileio import work_folder
     from viz.rerun_process import stop_rerun, viewer_client
 
     process = None
@@ -244,8 +243,8 @@ def run(args: argparse.Namespace) -> int:
         # the viewer listens on 127.0.0.1 (ViewerClient.spawn's would listen on all interfaces)
         # and keeps running after this command, until its window is closed
         client, process = viewer_client(headless=False)
-        with tempfile.TemporaryDirectory(prefix="mctrack-inspect-") as tmp:
-            frame = drive_viewer(client, recording, target, Path(tmp))
+        with work_folder("inspect") as tmp:
+            frame = drive_viewer(client, recording, target, tmp)
     except (RuntimeError, TimeoutError, OSError, ConnectionError) as exc:
         if process is not None:
             stop_rerun(process)

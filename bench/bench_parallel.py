@@ -15,7 +15,6 @@ import hashlib
 import json
 import os
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ from app.cli import main as mctrack
 from app.kitti import DEFAULT_KITTI_ROOT, run_kitti
 from tracker.config import load_config
 from tracker.io.baseversion import read_baseversion, write_baseversion
+from tracker.io.fileio import work_folder
 from tracker.io.synthetic import synthetic_scene
 from tracker.pipeline import run_scene
 
@@ -265,7 +265,7 @@ def main() -> int:
         print("ray not installed: the Ray cases are skipped", file=sys.stderr)
     root = Path(args.kitti_root)
     results: dict[str, Any] = {"cpus": os.cpu_count(), "load_avg_at_start": os.getloadavg()}
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("parallel") as tmp:
         work = Path(tmp)
         parts = set(args.parts.split(","))
         if "cost" in parts:

@@ -19,7 +19,6 @@ import json
 import resource
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -44,6 +43,7 @@ def _peak_rss_mb() -> float:
 def kitti_overhead(repeat: int) -> dict[str, Any]:
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
+    from tracker.io.fileio import work_folder
     from tracker.pipeline import run_scene
     from viz.record import record_scene
 
@@ -61,7 +61,7 @@ def kitti_overhead(repeat: int) -> dict[str, Any]:
     track_s = track_cpu = float("inf")
     best: dict[str, Any] = {}
     cpu: dict[str, float] = {}
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("benchrecord") as tmp:
         for i in range(repeat):
             c0 = time.process_time()
             track_s = min(track_s, _timed(lambda: run_scene(frames, config)))
@@ -112,6 +112,7 @@ def memory_child(mode: str, num_frames: int) -> dict[str, Any]:
     import rerun as rr  # imported in both modes so the baseline carries the library too
 
     from tracker.config import load_config
+    from tracker.io.fileio import work_folder
     from tracker.io.synthetic import synthetic_scene
     from tracker.pipeline import run_scene
 
@@ -140,7 +141,7 @@ def memory_child(mode: str, num_frames: int) -> dict[str, Any]:
         from viz.observer import RerunObserver
         from viz.record import new_recording
 
-        with tempfile.TemporaryDirectory() as tmp:
+        with work_folder("benchrecord") as tmp:
             rec = new_recording("synthetic", path=Path(tmp) / "long.rrd")
             observer = RerunObserver(rec)
             run_scene(frames, config, observer=Probe(observer))

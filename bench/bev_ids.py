@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -43,6 +42,7 @@ from app.inputs import default_kitti_root  # noqa: E402
 from tracker.errors import InputError  # noqa: E402
 from tracker.eval.kitti import evaluate_kitti  # noqa: E402
 from tracker.io.convert.kitti import read_kitti_labels  # noqa: E402
+from tracker.io.fileio import work_folder  # noqa: E402
 
 #: a row takes the id of a ground-truth object whose BEV centre is this near (metres)
 MATCH_M = 1.0
@@ -107,7 +107,7 @@ def score(
     if not files:
         raise SystemExit(f"{results}: no <seq>.txt result files")
     lengths = {}
-    with tempfile.TemporaryDirectory(prefix="bev-ids-") as tmp:
+    with work_folder("bevids") as tmp:
         for f in files:
             label = label_dir / f.name
             if not label.is_file():

@@ -21,7 +21,6 @@ or no longer.
 from __future__ import annotations
 
 import argparse
-import tempfile
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ import numpy as np
 from fp_anatomy import KINDS, classify, id_inputs, matched_ids, results_dir, sequence_length
 
 from app.inputs import default_kitti_root
+from tracker.io.fileio import work_folder
 
 PLACES = ("before", "inside", "after", "never matched")
 
@@ -136,7 +136,7 @@ def main() -> int:
         raise SystemExit(f"{label_dir}: no labels for {', '.join(unlabelled)}")
     counts: Counter[tuple[str, bool]] = Counter()
     ends: Counter[tuple[str, int]] = Counter()
-    with tempfile.TemporaryDirectory(prefix="fn-anatomy-") as tmp:
+    with work_folder("fnanatomy") as tmp:
         try:
             write_detections(root, args.detector, seqs, args.cls, Path(tmp))
         except (OSError, ValueError) as err:  # (InputError is a ValueError)

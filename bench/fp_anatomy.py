@@ -20,7 +20,6 @@ run counts the rows at least --trim-hidden hidden, by kind.
 from __future__ import annotations
 
 import argparse
-import tempfile
 from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
@@ -31,6 +30,7 @@ from scipy.optimize import linear_sum_assignment
 
 from app.inputs import default_kitti_root
 from tracker.eval.kitti import evaluate_kitti, evaluate_kitti_sequence
+from tracker.io.fileio import work_folder
 
 KINDS = ("whole track", "before first TP", "after last TP", "inside")
 #: The label-free trimming rules' defaults: the calibrated score, the hidden fraction.
@@ -119,7 +119,7 @@ def anatomy(result_dir: Path, label_dir: Path, cls: str) -> dict[str, Any]:
     )[cls]
     counts = Counter(k for per in kinds.values() for k in per.values())
     oracle = {}
-    with tempfile.TemporaryDirectory(prefix="fp-anatomy-") as tmp:
+    with work_folder("fpanatomy") as tmp:
         for kind in KINDS:
             if not counts[kind]:
                 continue
@@ -153,7 +153,7 @@ def anatomy_row(
     m, counts, oracle = a["metrics"], a["counts"], a["oracle_hota"]
     changes = []
     for trim, arg in ((trim_leading, trim_p), (trim_hidden_leading, trim_hidden)):
-        with tempfile.TemporaryDirectory(prefix="fp-trim-") as tmp:
+        with work_folder("fptrim") as tmp:
             trim(result_dir, Path(tmp), arg)
             trimmed = evaluate_kitti(
                 label_dir=label_dir, result_dir=Path(tmp), seq_lengths=a["lengths"], classes=[cls]

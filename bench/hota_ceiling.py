@@ -25,7 +25,6 @@ label, or write frames beyond an object's first and last detection.
 from __future__ import annotations
 
 import argparse
-import tempfile
 from itertools import pairwise
 from pathlib import Path
 from typing import Any
@@ -35,6 +34,7 @@ from fp_anatomy import id_inputs, matched_ids, results_dir, sequence_length
 
 from app.inputs import default_kitti_root
 from tracker.eval.kitti import evaluate_kitti
+from tracker.io.fileio import work_folder
 
 # ids of rows no label holds, above any label's id
 UNMATCHED_ID0 = 1_000_000
@@ -115,7 +115,7 @@ def ceiling_rows(
                 variants.setdefault(name, {})[s] = f.read_text()
                 variants.setdefault(f"{name} perfect ids", {})[s] = relabel(f, tp, keep_others=True)
     rows = []
-    with tempfile.TemporaryDirectory(prefix="hota-ceiling-") as tmp:
+    with work_folder("hotaceiling") as tmp:
         for i, (name, files) in enumerate(variants.items()):
             out = Path(tmp) / str(i)
             out.mkdir()
@@ -152,7 +152,7 @@ def main() -> int:
     unlabelled = [s for s in seqs if not (label_dir / f"{s}.txt").is_file()]
     if unlabelled:
         raise SystemExit(f"{label_dir}: no labels for {', '.join(unlabelled)}")
-    with tempfile.TemporaryDirectory(prefix="hota-ceiling-dets-") as tmp:
+    with work_folder("hotaceiling") as tmp:
         try:
             write_detections(root, args.detector, seqs, args.cls, Path(tmp))
         except (OSError, ValueError) as err:  # (InputError is a ValueError)

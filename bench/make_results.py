@@ -30,7 +30,6 @@ import argparse
 import json
 import subprocess
 import sys
-import tempfile
 import time
 from collections.abc import Callable, Iterator, Sequence
 from functools import partial
@@ -43,6 +42,7 @@ from app.kitti import run_kitti
 from app.tune import base_level, record_seeds
 from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
+from tracker.io.fileio import work_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 COLUMNS = ["HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "FP", "FN", "Frag"]
@@ -79,7 +79,7 @@ def kitti(
 ) -> dict[str, Any]:
     """One `mctrack kitti` run's summary; ``inspect`` (given the KITTI result files' folder,
     before it is removed) adds its return value under ``"inspected"``."""
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("results") as tmp:
         res = run_kitti(
             kitti_root=root, seqs=list(_val()), classes=classes, out=Path(tmp), quiet=True, **kw
         )
@@ -166,7 +166,7 @@ def no_profile_section(root: Path) -> list[str]:
     assert SELF_CONFIDENT in SELF_LEVELS, "the shipped level must be among those compared"
     pairs = [(d, c) for d, classes in DETECTORS.items() for c in classes]
     by_level: dict[float | None, dict[tuple[str, str], dict[str, Any]]] = {}
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("results") as tmp:
         for detector, classes in DETECTORS.items():
             frames, _ = convert_kitti(
                 root, seqs=list(_val()), detector=detector, classes=classes, with_gt=False
@@ -263,7 +263,7 @@ def thresholded_section(root: Path) -> list[str]:
     from tracker.calibration import PROFILE_DIR
 
     rows = []
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("results") as tmp:
         kit = Path(tmp) / "kit"
         kit.mkdir()
         (kit / "training").symlink_to((root / "training").resolve())
@@ -508,7 +508,7 @@ def rerun_robustness(
 
     levels = [name for name in shipped["levels"] if name in LEVELS]
     out = {}
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("results") as tmp:
         for name, config in configs.items():
             if "\n" in config:  # TOML text
                 path = Path(tmp) / f"{name}.toml"
@@ -1164,7 +1164,8 @@ def main() -> int:
 
     speed = None
     if not args.skip_speed:
-        with tempfile.NamedTemporaryFile(suffix=".json") as fh:
+        with work_folder("speed") as tmp:
+            speed_json = tmp / "bench.json"
             proc = subprocess.run(
                 [
                     sys.executable,
@@ -1174,7 +1175,7 @@ def main() -> int:
                     "--kitti-root",
                     str(root),
                     "--json",
-                    fh.name,
+                    str(speed_json),
                 ],
                 capture_output=True,
                 text=True,
@@ -1182,7 +1183,7 @@ def main() -> int:
                 cwd=ROOT,
             )
             speed_text = proc.stdout.strip()
-            speed = json.loads(Path(fh.name).read_text())
+            speed = json.loads(speed_json.read_text())
 
     lines = [
         "# Results on the KITTI tracking validation sequences",

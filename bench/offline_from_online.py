@@ -40,7 +40,6 @@ import json
 import math
 import multiprocessing
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -65,7 +64,7 @@ from tracker.config import load_config
 from tracker.eval.calibrate import fit_profile, fit_self_profile
 from tracker.eval.perturb import CLEAN, PerturbSpec
 from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti
-from tracker.io.fileio import write_text_atomic
+from tracker.io.fileio import work_folder, write_text_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -162,7 +161,7 @@ def held_out(
                     added.append((det, key, level))
                     tune._FRAMES[det, key, level] = frames
         with (
-            tempfile.TemporaryDirectory(prefix="fold-figures-") as tmp,
+            work_folder("folds") as tmp,
             multiprocessing.get_context("fork").Pool(workers) as pool,
         ):
             work = Path(tmp)

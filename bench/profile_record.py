@@ -18,7 +18,6 @@ import argparse
 import cProfile
 import pstats
 import sys
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -74,6 +73,7 @@ def wall_clock(repeat: int) -> None:
     from tracker.config import load_config
     from tracker.eval.fates import FateCounter
     from tracker.io.baseversion import read_baseversion
+    from tracker.io.fileio import work_folder
     from tracker.pipeline import run_scene
     from viz.observer import RerunObserver
     from viz.record import new_recording, record_scene
@@ -112,7 +112,7 @@ def wall_clock(repeat: int) -> None:
         "record_scene: track, flush, post": recorded,
     }
     best: dict[str, tuple[float, tuple[float, ...]]] = {}
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("profile") as tmp:
         run_scene(frames, config)  # warm-up (imports, caches)
         for i in range(repeat):
             for name, fn in variants.items():
@@ -135,13 +135,14 @@ def main() -> int:
 
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
+    from tracker.io.fileio import work_folder
     from tracker.pipeline import run_scene
     from viz.record import record_scene
 
     config = load_config("kitti")
     frames = read_baseversion(SAMPLE / "detections.json.gz", fallback_frame_rate_hz=10.0)["0001"]
     images = {"CAM_FRONT": SAMPLE / "image_02"}
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("profile") as tmp:
         run_scene(frames, config)  # warm-up (imports, caches)
         record_scene(frames, config, path=Path(tmp) / "warm.rrd", images=images)
         plain = _profile(lambda: run_scene(frames, config))

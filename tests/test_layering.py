@@ -114,3 +114,28 @@ def test_layer_rules_catch_a_violation(tmp_path: Path) -> None:
     layers = {_layer(n) for n in _imports(fake)}
     assert {"eval", "viz"} <= layers
     assert not layers <= ALLOWED["core"]
+
+
+#: The one module that makes temporary files and folders. Its work folders carry the run's pid
+#: (``make_work_folder``: ``mctrack-<kind>-<pid>-<random>``), so the next run removes those of a
+#: killed one; a bare ``mkdtemp`` or ``TemporaryDirectory`` elsewhere would stay for good.
+TEMP_MAKER = "tracker/io/fileio.py"
+
+
+def _uses_tempfile(path: Path) -> bool:
+    return any(n == "tempfile" or n.startswith("tempfile.") for n in _imports(path))
+
+
+def test_temporary_folders_are_work_folders(tmp_path: Path) -> None:
+    offenders = [
+        path.relative_to(ROOT).as_posix()
+        for package in ("app", "viz", "tracker", "bench")
+        for path in sorted((ROOT / package).rglob("*.py"))
+        if path.relative_to(ROOT).as_posix() != TEMP_MAKER and _uses_tempfile(path)
+    ]
+    assert not offenders, f"use tracker.io.fileio.work_folder, not tempfile: {offenders}"
+    assert _uses_tempfile(ROOT / TEMP_MAKER)
+    for line in ("import tempfile", "from tempfile import mkdtemp", "import tempfile as t"):
+        fake = tmp_path / "m.py"
+        fake.write_text(f"def f():\n    {line}\n")  # (a lazy import is caught too)
+        assert _uses_tempfile(fake), line

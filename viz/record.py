@@ -16,7 +16,6 @@ import itertools
 import json
 import logging
 import math
-import tempfile
 import time
 import uuid
 from collections.abc import Callable, Mapping, Sequence
@@ -51,7 +50,13 @@ from tracker.eval.kitti import SequenceEvaluation
 from tracker.eval.motion_metrics import gt_velocity_central
 from tracker.events import Observer, TrackOutput
 from tracker.frame import Frame
-from tracker.io.fileio import finish_temp, path_in, remove_stale_temps, temp_name
+from tracker.io.fileio import (
+    finish_temp,
+    path_in,
+    remove_stale_temps,
+    temp_name,
+    work_folder,
+)
 from tracker.pipeline import run_scene
 from viz import paths
 from viz.archetypes import (
@@ -322,9 +327,9 @@ def record_scene(
     if on_tracked is not None:
         on_tracked(outputs)
     gt_index = _GtIndex(gt_frames) if gt_frames else None
-    with tempfile.TemporaryDirectory(prefix="mctrack-record-") as tmp:
+    with work_folder("record") as tmp:
         if label_file is not None:
-            restricted = _labels_for_frames(label_file, frames, Path(tmp))
+            restricted = _labels_for_frames(label_file, frames, tmp)
             classes = [c for c in config.categories if c in KITTI_EVAL_CLASSES]
             # one TrackEval loading and preprocessing gives the metrics and the ID events
             evaluation, result.id_evaluation = kitti_evaluation_and_id_events(

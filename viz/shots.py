@@ -14,7 +14,6 @@ import ctypes.util
 import glob
 import os
 import re
-import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -23,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from tracker.io.fileio import work_folder
 from viz import layout, paths
 from viz.rerun_process import running_viewer_client
 
@@ -269,13 +269,13 @@ def _private_home() -> Iterator[None]:
         "RUST_LOG",
     )
     saved = {k: os.environ.get(k) for k in keys}
-    with tempfile.TemporaryDirectory(prefix="mctrack-viewer-") as home:
+    with work_folder("viewer") as home:
         os.environ.update(
-            HOME=home,
+            HOME=str(home),
             XDG_DATA_HOME=f"{home}/data",
             XDG_CONFIG_HOME=f"{home}/config",
             XDG_CACHE_HOME=f"{home}/cache",
-            XDG_RUNTIME_DIR=home,
+            XDG_RUNTIME_DIR=str(home),
             RERUN_ANALYTICS="false",
             RUST_LOG=saved["RUST_LOG"] or "warn",
         )
@@ -330,7 +330,7 @@ def take_shots(
     planned = [p if isinstance(p, PlannedShot) else PlannedShot(*p) for p in plan]
     shots: list[Shot] = []
     with (
-        tempfile.TemporaryDirectory(prefix="mctrack-shots-") as tmp,
+        work_folder("shots") as tmp,
         headless_viewer() as client,
     ):
         client.open(str(recording))
@@ -340,9 +340,7 @@ def take_shots(
         # default-layout shots first (a focused layout set on the recording stays)
         for shot in sorted(planned, key=lambda p: p.event is not None):
             if shot.event is not None:
-                focus = focus_layout_json(
-                    client, recording, index, shot.event, Path(tmp), timeout_secs
-                )
+                focus = focus_layout_json(client, recording, index, shot.event, tmp, timeout_secs)
                 client.set_location(location)
                 client.set_blueprint(focus, store_id=store)
                 stem = f"event{shot.event}_f{shot.frame:04d}"

@@ -25,7 +25,6 @@ GT's velocity beside the track's.
 from __future__ import annotations
 
 import enum
-import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -276,6 +275,7 @@ def kitti_evaluation_and_id_events(
     (:func:`tracker.io.writers.write_kitti_sequence`; all three:
     ``TrackerConfig.kitti_writer_options()``), when the file is written here."""
     from tracker.eval.kitti import evaluate_kitti_sequence
+    from tracker.io.fileio import work_folder
     from tracker.io.writers import write_kitti_sequence
 
     label_file = Path(label_file)
@@ -284,9 +284,9 @@ def kitti_evaluation_and_id_events(
         raise ValueError(f"cannot evaluate classes {unknown} on KITTI labels")
     if num_timesteps is None:
         num_timesteps = kitti_num_timesteps(label_file, frames)
-    with tempfile.TemporaryDirectory(prefix="mctrack-idsw-") as tmp:
+    with work_folder("idsw") as tmp:
         if result_file is None:
-            result_file = Path(tmp) / f"{label_file.stem}.txt"
+            result_file = tmp / f"{label_file.stem}.txt"
             write_kitti_sequence(
                 result_file, outputs, frames, camera_name,
                 image_boxes=image_boxes, width_scale=width_scale, own_box_window=own_box_window,

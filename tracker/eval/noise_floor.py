@@ -27,7 +27,6 @@ to the written 2D boxes and how much of it filtering can take back.
 from __future__ import annotations
 
 import dataclasses
-import tempfile
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ from tracker.eval.perturb import NOISE_LEVELS, PerturbSpec, perturb_frames
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.convert.kitti import VALIDATION_SEQS, convert_kitti
+from tracker.io.fileio import work_folder
 from tracker.io.writers import write_kitti_sequence
 
 DT = 0.1  # s, KITTI's frame period
@@ -115,7 +115,7 @@ def _filtered(frames: Sequence[Frame], q: float, r: float, smooth: bool) -> list
 
 
 def _score(root: Path, scenes: dict[str, list[Frame]], cls: str, width: np.ndarray) -> dict:
-    with tempfile.TemporaryDirectory() as tmp:
+    with work_folder("noise") as tmp:
         for seq, frames in scenes.items():
             outputs = [
                 TrackOutput(f.scene, f.frame_id, 0.0, f.boxes, np.full((len(f.boxes), 2), np.nan),
@@ -123,10 +123,10 @@ def _score(root: Path, scenes: dict[str, list[Frame]], cls: str, width: np.ndarr
                             np.zeros(len(f.boxes), np.int8))
                 for f in frames
             ]  # fmt: skip
-            write_kitti_sequence(Path(tmp) / f"{seq}.txt", outputs, frames, width_scale=width)
+            write_kitti_sequence(tmp / f"{seq}.txt", outputs, frames, width_scale=width)
         metrics = evaluate_kitti(
             label_dir=root / "training" / "label_02",
-            result_dir=Path(tmp),
+            result_dir=tmp,
             seq_lengths={s: len(f) for s, f in scenes.items()},
             classes=[cls],
         )[cls]
