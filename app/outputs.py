@@ -35,6 +35,10 @@ FILES: dict[str, tuple[str, ...]] = {
     ),
     # (written at its end; its Ray Tune state, ray_tune/, is what a resume reads: kept)
     "tune": ("tune.json", "best.toml"),
+    # (what an earlier report's folder loses first: its compare.json before a report without
+    # --compare, its shots of other runs or events; index.html, written last, marks a report's
+    # folder and is replaced; plots/ is replaced whole)
+    "report": ("compare.json", "shots/*/*.png", "b/shots/*/*.png"),
 }  # fmt: skip
 
 #: The commands whose run fills a folder of its own (its scenes' files, tracks.json and the

@@ -31,6 +31,7 @@ from typing import Any
 from app import report_html as h
 from app.common import command_line, remove_earlier_outputs
 from app.compare import compare_result
+from app.outputs import outputs_of
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -44,9 +45,6 @@ from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, 
 
 LOG = logging.getLogger(__name__)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-#: An earlier report's files that this one may not write again, removed first: its
-#: compare.json before a report without --compare, its shots of other runs or events.
-REPORT_OUTPUTS = ("compare.json", ".compare.json.*.tmp", "shots/*/*.png", "b/shots/*/*.png")
 RGB_A = "#3c78f0"
 RGB_B = "#f08c1e"
 
@@ -329,7 +327,7 @@ def build_report(
     # (first: runs that share no sequence are refused before anything is removed)
     result = compare_result(run_a, run_b, tolerance=tolerance) if run_b is not None else None
     if (out / "index.html").is_file():  # an earlier report's folder (its plots: below)
-        remove_earlier_outputs(out, REPORT_OUTPUTS)
+        remove_earlier_outputs(out, outputs_of("report"))
     shutil.rmtree(out / "plots", ignore_errors=True)
     (out / "plots").mkdir(parents=True, exist_ok=True)
     if result is not None:

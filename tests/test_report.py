@@ -145,7 +145,10 @@ def test_report_shows_names_from_the_runs_as_text(tmp_path: Path) -> None:
 
 def test_report_into_an_earlier_report_removes_what_it_does_not_write(tmp_path: Path) -> None:
     """A report without --compare into an earlier --compare report's folder leaves no
-    compare.json of the earlier pair, nor its shots; other files stay."""
+    compare.json of the earlier pair, nor its shots, nor a killed one's temporary files
+    (app/outputs.py's list for report, as for every command); other files stay."""
+    from app.outputs import outputs_of
+
     a, b, _ = make_runs(tmp_path)
     out = tmp_path / "report"
     assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 0
@@ -153,6 +156,9 @@ def test_report_into_an_earlier_report_removes_what_it_does_not_write(tmp_path: 
     for shot in (out / "shots" / SEQ / "event0_f3_focus.png", out / "b" / "shots" / SEQ / "x.png"):
         shot.parent.mkdir(parents=True)
         shot.write_bytes(b"an earlier --shots'")
+    stranded = out / "shots" / SEQ / ".event0_f4_focus.png.999999.x1y2.tmp"
+    stranded.write_bytes(b"a killed report's")
+    assert {"compare.json", "shots/*/*.png", "shots/*/.*.png.*.tmp"} <= set(outputs_of("report"))
     (out / "kitti_0016").mkdir()  # another report, linked with --link: not this one's
     (out / "kitti_0016" / "compare.json").write_text("{}")
     # a refused report (runs without a shared sequence) keeps the earlier one
