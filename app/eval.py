@@ -30,7 +30,13 @@ from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
 from tracker.io.baseversion import read_baseversion
-from tracker.io.fileio import check_output_folder, path_in, work_folder, write_text_atomic
+from tracker.io.fileio import (
+    check_output_folder,
+    path_in,
+    refuse_case_collisions,
+    work_folder,
+    write_text_atomic,
+)
 
 LOG = logging.getLogger(__name__)
 #: The tracking submission of a tracks file, written in OUT and evaluated (not results.json: OUT
@@ -121,6 +127,11 @@ def run(args: argparse.Namespace) -> int:
         )
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)
+    if args.labels is not None:
+        # a file per scene: its labels (--labels/<scene>.txt) and the KITTI file written for
+        # TrackEval; on a case-insensitive filesystem scene a would be scored against A's
+        # labels, its file over A's. Refused on every filesystem, as by the other commands.
+        refuse_case_collisions(outputs, args.tracks, suffix=".txt")
     gt = read_baseversion(args.gt)
     if is_ground_truth(track_frames, gt):
         LOG.warning(

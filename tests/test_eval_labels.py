@@ -683,3 +683,28 @@ def test_eval_warns_when_the_tracks_file_is_the_ground_truth(
     caplog.clear()
     _eval(sample_tracks["all"], LABEL.parent, tmp_path / "tracked", capsys)
     assert "ground truth itself" not in caplog.text
+
+
+def test_eval_refuses_scenes_whose_files_differ_only_in_case(
+    sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Scenes x and X of a tracks file were scored from --labels/x.txt and --labels/X.txt
+    through temporary x.txt and X.txt: one file each on a case-insensitive filesystem (macOS's
+    /tmp), so X was scored against x's labels, its KITTI file over x's. Refused, as `mctrack
+    track --kitti-results` and `mctrack kitti --seqs` refuse them, before any output; without
+    --labels (no file per scene) it is not."""
+    tracks = json.loads(sample_tracks["all"].read_text())
+    both = tmp_path / "both.json"
+    both.write_text(json.dumps({"x": tracks["0001"], "X": tracks["0001"]}))
+    labels = tmp_path / "labels"
+    labels.mkdir()
+    shutil.copy(LABEL, labels / "x.txt")
+    out = tmp_path / "out"
+    argv = ["eval", str(both), "--gt", str(SAMPLE / "gt.json.gz"), "--out", str(out)]
+    code, err = _run([*argv, "--labels", str(labels)], capsys)
+    _one_line_error(
+        code, err, f"{both}: scenes 'x' and 'X' differ only in case: their files (x.txt, X.txt)"
+    )
+    assert not out.exists()
+    code, err = _run([*argv, "--motion"], capsys)  # (no ground truth for x and X: said)
+    assert code == 0 and (out / "eval.json").is_file(), err
