@@ -281,13 +281,12 @@ def _run_ray(
     """Ray tasks (one per scene, one CPU each, retried when their worker dies)."""
     ray = import_ray()
     started = connect_ray(parallel.ray or LOCAL, parallel.workers if parallel.workers > 1 else None)
+    scene_of: dict[Any, tuple[int, str]] = {}  # (filled as submitted: a stop may come between)
     try:
         task = ray.remote(num_cpus=1, max_retries=MAX_RETRIES)(run_task)
         job_ref = ray.put(job)  # shipped once, not once per scene
-        scene_of = {
-            task.remote(job_ref, i, s, None if f is None else ray.put(f)): (i, s)
-            for i, s, f in items
-        }
+        for i, s, f in items:
+            scene_of[task.remote(job_ref, i, s, None if f is None else ray.put(f))] = (i, s)
         remaining = list(scene_of)
         while remaining:
             finished, remaining = ray.wait(remaining, num_returns=1)
@@ -301,9 +300,41 @@ def _run_ray(
                 except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as exc:
                     record = SceneRecord(i, scene, error=f"Ray worker died: {type(exc).__name__}")
                 done(record)
+    except BaseException:
+        _stop_ray_tasks(ray, scene_of)
+        raise
     finally:
         if started:
             ray.shutdown()
+
+
+def _stop_ray_tasks(ray: Any, scene_of: Mapping[Any, tuple[int, str]]) -> None:
+    """Cancel the run's Ray tasks, a running one's worker process killed (``force``; the done
+    ones are left as they are), and wait until each has ended: after Ctrl-C or an error here, a
+    task still tracking would write its scene's files after the caller removed the stopped
+    run's outputs. (Shutting Ray down ends a local instance's workers, not a joined cluster's,
+    whose tasks ran on.) A scene whose task has not ended within :data:`STOP_SECONDS` (a
+    node out of reach) is named in a warning."""
+    refs = list(scene_of)
+    if not refs:
+        return
+    with ctrl_c_deferred():  # (a second Ctrl-C: the tasks are stopped all the same)
+        for ref in refs:
+            with contextlib.suppress(Exception):  # (Ray's own failure: waited for below)
+                ray.cancel(ref, force=True)
+        try:
+            _, running = ray.wait(
+                refs, num_returns=len(refs), timeout=STOP_SECONDS, fetch_local=False
+            )
+        except Exception as exc:  # (the connection lost: the stop's own cause goes on)
+            log.warning("could not wait for the Ray tasks to stop: %s", exc)
+            return
+    if running:
+        log.warning(
+            "Ray tasks of scenes %s did not stop within %.0f s: their files may still be written",
+            ", ".join(scene_of[ref][1] for ref in running),
+            STOP_SECONDS,
+        )
 
 
 def summary_fields(

@@ -467,6 +467,81 @@ def test_ray_on_all_21_kitti_sequences(
     assert _files(tmp_path) == _files(kitti21_sequential)
 
 
+@dataclass(frozen=True, slots=True)
+class SlowWriter:
+    """A job whose scene writes as it tracks (a line every 10 ms, after its worker's pid) for
+    ``seconds``, then its file: what a scene of a stopped run would write after the clean-up."""
+
+    folder: Path
+    seconds: float
+
+    def process(self, index: int, scene: str, data: Any) -> scenes.SceneRecord:
+        import time
+
+        writes = self.folder / f"{scene}.writes"
+        writes.write_text(f"{os.getpid()}\n")
+        end = time.monotonic() + self.seconds
+        while time.monotonic() < end:
+            with writes.open("a") as fh:
+                fh.write("tracking\n")
+            time.sleep(0.01)
+        (self.folder / f"{scene}.txt").write_text("written after the stop")
+        return scenes.SceneRecord(index, scene)
+
+
+def test_ctrl_c_under_ray_stops_the_tasks_before_the_clean_up(
+    local_ray: Any, tmp_path: Path
+) -> None:
+    """Ctrl-C while two Ray tasks track (a third waiting for a CPU), on a joined instance (one
+    that outlives the command, as a cluster): the run cancels the tasks, kills the running
+    ones' workers and waits until they have ended, before the caller's clean-up. It only shut
+    Ray down, which leaves a joined cluster's tasks running: they wrote on after the clean-up,
+    and the waiting one began."""
+    import signal
+    import threading
+    import time
+
+    job = SlowWriter(tmp_path, seconds=4.0)
+    items = [(i, s, None) for i, s in enumerate(["s0", "s1", "s2"])]
+    began: list[Path] = []
+
+    def ctrl_c() -> None:  # (SIGINT to this process, as a terminal's Ctrl-C)
+        deadline = time.monotonic() + 60
+        while len(began) < 2 and time.monotonic() < deadline:
+            began[:] = sorted(tmp_path.glob("*.writes"))
+            time.sleep(0.02)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    records: list[scenes.SceneRecord] = []
+    sender = threading.Thread(target=ctrl_c)
+    start = time.monotonic()
+    sender.start()
+    with pytest.raises(KeyboardInterrupt):
+        scenes._run_ray(job, items, scenes.Parallelism(ray="auto"), records.append)
+    stopped = time.monotonic()
+    left = {p.name: p.read_bytes() for p in tmp_path.iterdir()}  # (where the clean-up begins)
+    sender.join()
+    assert [p.name for p in began] == ["s0.writes", "s1.writes"] and not records
+    assert stopped - start < job.seconds  # (stopped in their scenes, not at their end)
+    time.sleep(job.seconds + 1)  # past the moment a task left running would write its file
+    assert {p.name: p.read_bytes() for p in tmp_path.iterdir()} == left  # not a line since
+    pids = [int(p.read_text().split()[0]) for p in began]
+    deadline = time.monotonic() + 10
+    while [pid for pid in pids if _alive(pid)] and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not [pid for pid in pids if _alive(pid)]  # (force: their workers killed)
+    assert local_ray.is_initialized()  # (the instance it joined runs on)
+
+
+def _alive(pid: int) -> bool:
+    """A process that runs (a zombie, exited and not yet reaped, does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except FileNotFoundError:
+        return False
+    return stat.rsplit(")", 1)[-1].split()[0] != "Z"
+
+
 def test_waymo_segments_with_workers_and_a_segment_that_fails_alone(tmp_path: Path) -> None:
     from tests.test_waymo import SEGMENT, write_segment
 
