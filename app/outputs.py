@@ -37,8 +37,11 @@ FILES: dict[str, tuple[str, ...]] = {
     "tune": ("tune.json", "best.toml"),
     # (what an earlier report's folder loses first: its compare.json before a report without
     # --compare, its shots of other runs or events; index.html, written last, marks a report's
-    # folder and is replaced; plots/ is replaced whole)
-    "report": ("compare.json", "shots/*/*.png", "b/shots/*/*.png"),
+    # folder and is replaced; a plots/ file of anyone else stays)
+    "report": (
+        "compare.json", "plots/*.svg", "plots/motion_velocity.png", "shots/*/*.png",
+        "b/shots/*/*.png",
+    ),
 }  # fmt: skip
 
 #: The commands whose run fills a folder of its own (its scenes' files, tracks.json and the

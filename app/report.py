@@ -19,7 +19,6 @@ import json
 import logging
 import os
 import shlex
-import shutil
 import stat
 import sys
 import time
@@ -326,10 +325,9 @@ def build_report(
     ``links``: (relative href, text) of other reports, listed under "Runs"."""
     # (first: runs that share no sequence are refused before anything is removed)
     result = compare_result(run_a, run_b, tolerance=tolerance) if run_b is not None else None
-    if (out / "index.html").is_file():  # an earlier report's folder (its plots: below)
+    if (out / "index.html").is_file():  # an earlier report's folder: its files go
         remove_earlier_outputs(out, outputs_of("report"))
-    shutil.rmtree(out / "plots", ignore_errors=True)
-    (out / "plots").mkdir(parents=True, exist_ok=True)
+    (out / "plots").mkdir(parents=True, exist_ok=True)  # (files of anyone else's stay)
     if result is not None:
         write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
     plots = make_plots(run_a, run_b, out)

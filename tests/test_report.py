@@ -177,6 +177,23 @@ def test_report_into_an_earlier_report_removes_what_it_does_not_write(tmp_path: 
     }
 
 
+def test_report_into_a_folder_with_plots_of_its_own_keeps_them(tmp_path: Path) -> None:
+    """--out a folder that holds someone's plots/ (not a report's folder): the report writes its
+    plots beside them; it removed the whole plots/ folder."""
+    a, _, _ = make_runs(tmp_path)
+    out = tmp_path / "mine"
+    (out / "plots").mkdir(parents=True)
+    (out / "plots" / "figure.pdf").write_bytes(b"a paper's figure")
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    assert (out / "plots" / "figure.pdf").read_bytes() == b"a paper's figure"
+    assert (out / "plots" / "hota.svg").is_file()
+    # and a report into its own earlier folder still replaces its plots (none stale)
+    stale = out / "plots" / "mota_per_sequence.svg"
+    stale.write_text("<svg/>")
+    assert main(["report", str(a), "--out", str(out)]) == 0
+    assert not stale.exists() and (out / "plots" / "figure.pdf").is_file()
+
+
 def test_report_of_a_tracks_file_says_it_reads_run_folders(tmp_path: Path, capsys) -> None:
     """(was "pass --gt GT.json", an option mctrack report does not have)"""
     a, _, _ = make_runs(tmp_path)
