@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import gc
 import json
 import logging
 import sys
@@ -456,6 +457,7 @@ def _check_nuscenes_ground_truth(args: argparse.Namespace) -> None:
     nusc = load_nuscenes(args.dataroot, args.version)
     check_ground_truth(nusc, args.split)
     del nusc  # several GB on v1.0-trainval; the evaluation loads its own copy
+    gc.collect()  # (the devkit's NuScenes and its explorer refer to each other)
 
 
 def _evaluate_nuscenes(args: argparse.Namespace, tracks: Path, out: Path) -> int:

@@ -4,6 +4,7 @@ the official devkit (AMOTA, AMOTP, MOTA, IDS, recall), and summarise. docs/nusce
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import time
 from dataclasses import dataclass
@@ -178,6 +179,7 @@ def run_nuscenes(
         nusc=nusc,
     )
     del nusc  # several GB on v1.0-trainval; the evaluation loads its own copy
+    gc.collect()  # (the devkit's NuScenes and its explorer refer to each other)
     det_scenes = conv.detections
     if scene_names:
         missing = [s for s in scene_names if s not in det_scenes]

@@ -358,3 +358,37 @@ def test_an_unknown_ground_truth_velocity_stays_unknown_and_is_counted(
     assert car["n_samples"] + car["n_dropped_samples"] == motion["counts"]["car"]["samples"] - 1
     report = (out / "motion.md").read_text()
     assert "Samples whose GT velocity is unknown, left out of the velocity metrics: 1." in report
+
+
+def test_eval_frees_its_check_of_the_annotations_before_the_devkit_loads_them(
+    dataset: SyntheticNuScenes, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """eval --dataset nuscenes checks the annotations on its own copy of the tables (several GB
+    on trainval), then the devkit loads another: the first must be gone by then. The devkit's
+    NuScenes and its explorer refer to each other, so dropping the name did not free it (only
+    a full collection does, which may not come before the second load)."""
+    import argparse
+    import gc
+    import weakref
+
+    import tracker.io.convert.nuscenes as convert
+    from app.eval import _check_nuscenes_ground_truth
+
+    loaded: list[weakref.ref] = []
+    real_load = convert.load_nuscenes
+
+    def load(*args: Any, **kwargs: Any) -> Any:
+        nusc = real_load(*args, **kwargs)
+        loaded.append(weakref.ref(nusc))
+        return nusc
+
+    monkeypatch.setattr(convert, "load_nuscenes", load)
+    args = argparse.Namespace(
+        dataroot=str(dataset.dataroot), version=dataset.version, split="mini_val"
+    )
+    gc.disable()
+    try:
+        _check_nuscenes_ground_truth(args)
+        assert len(loaded) == 1 and loaded[0]() is None
+    finally:
+        gc.enable()
