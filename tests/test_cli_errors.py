@@ -870,6 +870,23 @@ def test_a_failed_block_removes_the_outputs_it_wrote_only(tmp_path: Path) -> Non
     assert (out / "results.json").is_file()
 
 
+def test_a_failed_block_keeps_an_empty_folder_that_was_there(tmp_path: Path) -> None:
+    """results/ there before (empty) and results/vehicle/ made by the run for
+    results/*/*.npz: only the folder the run made goes; results/ was removed too."""
+    from app.common import outputs_removed_on_failure
+
+    out = tmp_path / "out"
+    (out / "results").mkdir(parents=True)
+    (out / "runs" / "a" / "clean").mkdir(parents=True)
+    patterns = ("results/*/*.npz", "runs/*/clean/*.txt")
+    with pytest.raises(InputError), outputs_removed_on_failure(out, patterns):
+        (out / "results" / "vehicle").mkdir()
+        (out / "results" / "vehicle" / "seg.npz").write_text("the run's\n")
+        (out / "runs" / "a" / "clean" / "0001.txt").write_text("the run's\n")
+        raise InputError("refused after writing")
+    assert _tree(out) == {"results": None, "runs": None, "runs/a": None, "runs/a/clean": None}
+
+
 def test_a_run_that_fails_without_an_exception_leaves_no_folder_it_made(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
