@@ -38,7 +38,9 @@ FILES: dict[str, tuple[str, ...]] = {
     "tune": ("tune.json", "best.toml"),
     # (what an earlier report's folder loses first: its compare.json before a report without
     # --compare, its shots of other runs or events; index.html, written last, marks a report's
-    # folder and is replaced; a plots/ file of anyone else stays)
+    # folder and is replaced. There every file these match goes, anyone's too: any
+    # plots/*.svg; a plots/ file of another name stays, and in a folder without index.html
+    # nothing is removed, only the report's own names rewritten)
     "report": (
         "compare.json", "plots/*.svg", "plots/motion_velocity.png", "shots/*/*.png",
         "b/shots/*/*.png",
