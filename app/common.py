@@ -223,12 +223,14 @@ def outputs_removed_on_failure(
         [folder / _pattern_folder(p) for p in patterns] + [folder / f for f in folders]
     )
     # (the folders a pattern's files are in: one made below a pattern's fixed folder, e.g.
-    # results/vehicle/ of results/*/*.npz, goes too when the run's files leave it empty)
+    # results/vehicle/ of results/*/*.npz, goes too when the run's files leave it empty; one
+    # on the way that was there, results/ itself, stays even if empty)
     existed = {
         d
         for p in patterns
-        if PurePosixPath(p).parent.parts
-        for d in folder.glob(str(PurePosixPath(p).parent))
+        for parts in [PurePosixPath(p).parent.parts]
+        for i in range(1, len(parts) + 1)
+        for d in folder.glob("/".join(parts[:i]))
         if d.is_dir()
     }
     try:

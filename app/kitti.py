@@ -37,7 +37,7 @@ from app.inputs import (
     default_kitti_root,
     sequence_list,
 )
-from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
+from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.calibration import (
     ScoreProfile,
@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
         "--profile": profile if isinstance(profile, Path) else None,
         "--poses": Path(poses) if poses not in (None, "orbslam3") else None,
     }
-    refuse_inputs_among_outputs(out, outputs_replaced_by("kitti"), inputs, outputs_of("kitti"))
+    refuse_inputs_among_outputs(out, outputs_at_stake("kitti", out), inputs, outputs_of("kitti"))
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     summary = run_kitti(
@@ -432,6 +432,7 @@ def run_kitti(
         total_frames = sum(r.frames for r in ok)
         tracker_secs = sum(r.tracker_seconds for r in ok)
         summary: dict[str, Any] = {
+            "command": "kitti",  # (marks its folder a run's: app.outputs.holds_a_run)
             "dataset": "kitti",
             "detector": detector,
             "image_detector": image_detector,

@@ -19,7 +19,7 @@ from app.common import (
     remove_earlier_outputs,
 )
 from app.inputs import add_mode_argument
-from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
+from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
 from tracker.errors import InputError
@@ -160,7 +160,7 @@ def run_nuscenes(
     from tracker.io.nuscenes_writer import write_nuscenes_parts
 
     refuse_inputs_among_outputs(
-        out, outputs_replaced_by("nuscenes"), {"--detections": detections}, outputs_of("nuscenes")
+        out, outputs_at_stake("nuscenes", out), {"--detections": detections}, outputs_of("nuscenes")
     )
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     has_gt = not version.endswith("test")
@@ -223,6 +223,7 @@ def run_nuscenes(
         recordings = [r.info["recording"] for r in ok if "recording" in r.info]
 
         summary: dict[str, Any] = {
+            "command": "nuscenes",  # (marks its folder a run's: app.outputs.holds_a_run)
             "dataset": "nuscenes",
             "version": version,
             "split": split,

@@ -5,6 +5,7 @@ imports here."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path, PurePosixPath
 
 #: Each command's output files in --out (globs relative to it; .scenes/: the scene parts of a
@@ -37,7 +38,9 @@ FILES: dict[str, tuple[str, ...]] = {
     "tune": ("tune.json", "best.toml"),
     # (what an earlier report's folder loses first: its compare.json before a report without
     # --compare, its shots of other runs or events; index.html, written last, marks a report's
-    # folder and is replaced; a plots/ file of anyone else stays)
+    # folder and is replaced. There every file these match goes, anyone's too: any
+    # plots/*.svg; a plots/ file of another name stays, and in a folder without index.html
+    # nothing is removed, only the report's own names rewritten)
     "report": (
         "compare.json", "plots/*.svg", "plots/motion_velocity.png", "shots/*/*.png",
         "b/shots/*/*.png",
@@ -51,9 +54,11 @@ RUN_COMMANDS = ("track", "kitti", "nuscenes", "waymo")
 #: eval` writes in the tracks file's folder by default; `mctrack compare` may write in a run
 #: folder). All of them describe the run in the folder, so a new run there removes them all.
 RUN_FOLDER = (*RUN_COMMANDS, "eval", "compare")
-#: What only a run leaves (its scene parts while it runs; its tracks, submission and summary
-#: at the end): a folder holding one is a run's. data/*.txt alone could be anyone's.
-RUN_MARKS = ("summary.json", "tracks.json", "results.json", ".scenes")
+#: Where a run's scene parts are while it runs (app.scenes.PARTS_DIR): a folder holding them
+#: is a run's (one cut short). Else only its summary.json, written last, marks a run's folder.
+RUN_PARTS = ".scenes"
+#: The largest summary.json read to tell whether it is a run's.
+_SUMMARY_MAX_BYTES = 64 << 20
 
 
 def _with_temps(patterns: tuple[str, ...]) -> tuple[str, ...]:
@@ -83,7 +88,36 @@ def outputs_replaced_by(command: str) -> tuple[str, ...]:
     return tuple(dict.fromkeys(p for c in commands for p in outputs_of(c)))
 
 
+def _run_summary(path: Path) -> bool:
+    """Whether ``path`` is a run's summary.json: a JSON object naming one of
+    :data:`RUN_COMMANDS` as its "command" (or, written before that field, holding the
+    "detection_fates" every run's has). Anyone's file of that name (``{}``) is not."""
+    try:
+        if not path.is_file() or path.stat().st_size > _SUMMARY_MAX_BYTES:
+            return False
+        summary = json.loads(path.read_bytes())
+    except (OSError, ValueError, RecursionError):  # (unreadable, not JSON, not UTF-8)
+        return False
+    if not isinstance(summary, dict):
+        return False
+    if "command" in summary:
+        return summary["command"] in RUN_COMMANDS
+    return isinstance(summary.get("detection_fates"), dict)
+
+
 def holds_a_run(folder: Path) -> bool:
-    """Whether a run has written ``folder`` (:data:`RUN_MARKS`): only then are its files an
-    earlier run's to replace."""
-    return any((folder / mark).exists() for mark in RUN_MARKS)
+    """Whether a run has written ``folder``: its summary.json (:func:`_run_summary`), or its
+    scene parts (:data:`RUN_PARTS`, a run cut short). Only then are the files there an earlier
+    run's, which a new run removes (:func:`outputs_replaced_by`): a results.json or gt.json
+    alone could be anyone's."""
+    return _run_summary(folder / "summary.json") or (folder / RUN_PARTS).is_dir()
+
+
+def outputs_at_stake(command: str, folder: Path) -> tuple[str, ...]:
+    """What a run of ``command`` into ``folder`` writes or removes there, once its inputs are
+    accepted (an input among them is refused): in a folder holding a run
+    (:func:`holds_a_run`), all it replaces of it (:func:`outputs_replaced_by`); else only
+    what it writes (:func:`outputs_of`), which is all it may touch there."""
+    if command in RUN_COMMANDS and holds_a_run(folder):
+        return outputs_replaced_by(command)
+    return outputs_of(command)

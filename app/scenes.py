@@ -232,15 +232,20 @@ def _stop_workers(pool: ProcessPoolExecutor) -> None:
     files after the caller removed the stopped run's outputs. (The executor's own shutdown
     waits for every scene instead, and a second Ctrl-C during that wait left the workers
     writing, and the process hanging at its exit.)"""
-    processes = list((getattr(pool, "_processes", None) or {}).values())  # (3.14: a method)
+    # (a private attribute, pid -> Process; without it, only the shutdown below)
+    processes = list((getattr(pool, "_processes", None) or {}).values())
     with ctrl_c_deferred():  # (a second Ctrl-C: the workers are stopped all the same)
         pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             with contextlib.suppress(OSError, ValueError):  # (exited meanwhile)
                 process.terminate()
+        # one deadline for them all (stopping together), not STOP_SECONDS each in turn
+        deadline = time.monotonic() + STOP_SECONDS
         for process in processes:
             with contextlib.suppress(ValueError):  # (closed)
-                process.join(STOP_SECONDS)
+                process.join(max(0.0, deadline - time.monotonic()))
+        for process in processes:
+            with contextlib.suppress(ValueError):
                 if process.is_alive():
                     process.kill()
                     process.join()

@@ -22,7 +22,7 @@ from app.common import (
     remove_earlier_outputs,
 )
 from app.inputs import add_mode_argument
-from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
+from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.calibration import (
     ScoreProfile,
@@ -269,7 +269,7 @@ def run(args: argparse.Namespace) -> int:
     profile = None if args.profile in (None, SELF_PROFILE, NO_PROFILE) else Path(args.profile)
     refuse_inputs_among_outputs(
         out,
-        outputs_replaced_by("track"),
+        outputs_at_stake("track", out),
         {"INPUT": Path(args.input), "--profile": profile},
         outputs_of("track"),
     )
@@ -321,6 +321,7 @@ def run(args: argparse.Namespace) -> int:
             written += [path_in(out / "data", r.scene, ".txt") for r in ok]
         failed = {r.scene: r.error for r in records if r.error}
         summary = {
+            "command": "track",  # (marks its folder a run's: app.outputs.holds_a_run)
             "input": str(args.input),
             "config": str(config_for_mode(args.config, config.mode.value)),  # the one that ran
             "mode": config.mode.value,

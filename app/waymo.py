@@ -21,7 +21,7 @@ from app.common import (
     remove_earlier_outputs,
 )
 from app.inputs import add_mode_argument
-from app.outputs import holds_a_run, outputs_of, outputs_replaced_by
+from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
@@ -142,7 +142,7 @@ def run_waymo(
     from tracker.io.convert.waymo import segment_names
 
     inputs = {"--data-root": data_root, "--detections": detections, "--gt": gt}
-    refuse_inputs_among_outputs(out, outputs_replaced_by("waymo"), inputs, outputs_of("waymo"))
+    refuse_inputs_among_outputs(out, outputs_at_stake("waymo", out), inputs, outputs_of("waymo"))
     names = segment_names(data_root, detections, segments)
     # (files per segment: results/<type>/<segment>.npz)
     refuse_case_collisions(names, "--segments" if segments else detections, "segments", ".npz")
@@ -167,6 +167,7 @@ def run_waymo(
         frames = sum(r.frames for r in ok)
         seconds = sum(r.tracker_seconds for r in ok)
         summary: dict[str, Any] = {
+            "command": "waymo",  # (marks its folder a run's: app.outputs.holds_a_run)
             "dataset": "waymo",
             "segments": [r.scene for r in ok],
             "frames": frames,

@@ -5,6 +5,7 @@ no traceback (``--debug`` shows it)."""
 from __future__ import annotations
 
 import argparse
+import gzip
 import json
 import logging
 import os
@@ -812,7 +813,8 @@ def test_a_refused_run_keeps_an_earlier_runs_outputs(
     out = tmp_path / "earlier"
     for name in earlier:
         (out / name).parent.mkdir(parents=True, exist_ok=True)
-        (out / name).write_text("an earlier run's\n")
+        run = name == "summary.json"  # (a run's says so: its folder's files are replaced)
+        (out / name).write_text('{"command": "track"}\n' if run else "an earlier run's\n")
     (out / "notes.txt").write_text("mine\n")
     before = _tree(out)
     code, _, err = _run(argv_of(files, out), capsys)
@@ -866,6 +868,23 @@ def test_a_failed_block_removes_the_outputs_it_wrote_only(tmp_path: Path) -> Non
     with outputs_removed_on_failure(out, patterns):
         (out / "results.json").write_text("the run's\n")
     assert (out / "results.json").is_file()
+
+
+def test_a_failed_block_keeps_an_empty_folder_that_was_there(tmp_path: Path) -> None:
+    """results/ there before (empty) and results/vehicle/ made by the run for
+    results/*/*.npz: only the folder the run made goes; results/ was removed too."""
+    from app.common import outputs_removed_on_failure
+
+    out = tmp_path / "out"
+    (out / "results").mkdir(parents=True)
+    (out / "runs" / "a" / "clean").mkdir(parents=True)
+    patterns = ("results/*/*.npz", "runs/*/clean/*.txt")
+    with pytest.raises(InputError), outputs_removed_on_failure(out, patterns):
+        (out / "results" / "vehicle").mkdir()
+        (out / "results" / "vehicle" / "seg.npz").write_text("the run's\n")
+        (out / "runs" / "a" / "clean" / "0001.txt").write_text("the run's\n")
+        raise InputError("refused after writing")
+    assert _tree(out) == {"results": None, "runs": None, "runs/a": None, "runs/a/clean": None}
 
 
 def test_a_run_that_fails_without_an_exception_leaves_no_folder_it_made(
@@ -1235,9 +1254,11 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     out = tmp_path / "out"
     (out / "data").mkdir(parents=True)
     (out / "recordings").mkdir()
-    for earlier in ("data/0099.txt", "recordings/0099.rrd", "motion.md", "summary.json",
+    for earlier in ("data/0099.txt", "recordings/0099.rrd", "motion.md",
                     "recordings/.0099.rrd.123.abc.tmp"):  # (a run stopped by Ctrl-C)  # fmt: skip
         (out / earlier).write_text("an earlier run's\n")
+    earlier_summary = '{"command": "kitti", "sequences": ["0099"]}\n'  # (a run's: it says so)
+    (out / "summary.json").write_text(earlier_summary)
     (out / "notes.txt").write_text("mine\n")
     (out / ".notes.tmp").write_text("mine\n")
     argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--out", str(out)]
@@ -1246,7 +1267,7 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     for refused in (["--detector", "nope"], ["--config", str(bad)]):
         code, _, err = _run([*argv, *refused], capsys)
         assert code == 2 and (out / "data" / "0099.txt").is_file(), err
-        assert (out / "summary.json").read_text() == "an earlier run's\n"
+        assert (out / "summary.json").read_text() == earlier_summary
     code, _, err = _run(argv, capsys)
     assert code == 0, err
     assert sorted(p.name for p in (out / "data").iterdir()) == ["0001.txt"]
@@ -1350,11 +1371,12 @@ def test_the_output_lists_name_the_files_and_temporary_files_written(tmp_path: P
     brings each file's temporary files (tracker.io.fileio.temp_name) with it."""
     from app.common import _outputs
     from app.eval import EVAL_SUBMISSION
-    from app.outputs import FILES, RUN_COMMANDS, outputs_of
+    from app.outputs import FILES, RUN_COMMANDS, RUN_PARTS, outputs_of
     from app.scenes import PARTS_DIR
     from tracker.eval.motion_eval import MOTION_PLOT
     from tracker.io.fileio import temp_name
 
+    assert RUN_PARTS == PARTS_DIR
     assert EVAL_SUBMISSION in FILES["eval"] and MOTION_PLOT in FILES["eval"]
     assert all(f"{PARTS_DIR}/*" in FILES[command] for command in RUN_COMMANDS)
     result = tmp_path / "data" / "0001.txt"
@@ -1366,6 +1388,83 @@ def test_the_output_lists_name_the_files_and_temporary_files_written(tmp_path: P
     assert _outputs(tmp_path, outputs_of("track")) == {result, temp, part}
 
 
+def test_only_a_runs_summary_or_scene_parts_make_a_folder_a_runs(tmp_path: Path) -> None:
+    """A results.json (or tracks.json) alone could be anyone's: only a summary.json naming a
+    run's command (or, written before that field, holding a run's detection_fates), or a
+    run's scene parts folder, make a run folder whose files a new run removes."""
+    from app.outputs import holds_a_run
+
+    def holds(name: str, text: str) -> bool:
+        folder = tmp_path / str(len(list(tmp_path.iterdir())))
+        folder.mkdir()
+        (folder / name).write_text(text)
+        return holds_a_run(folder)
+
+    assert not holds("results.json", "{}") and not holds("tracks.json", "{}")
+    assert not holds("summary.json", "{}") and not holds("summary.json", "an earlier run's")
+    assert not holds("summary.json", '{"command": "eval"}')
+    assert not holds("summary.json", '{"command": "track", "detection_fates": {}}'[:20])
+    assert not holds("summary.json", "[1]")
+    (tmp_path / "bytes").mkdir()
+    (tmp_path / "bytes" / "summary.json").write_bytes(b'{"command": "track\xff"}')
+    assert not holds_a_run(tmp_path / "bytes")  # (not UTF-8: not a run's)
+    assert holds("summary.json", '{"command": "waymo"}')
+    assert holds("summary.json", '{"frames": 1, "detection_fates": {}}')  # (an older run's)
+    (tmp_path / "cut_short" / ".scenes").mkdir(parents=True)
+    assert holds_a_run(tmp_path / "cut_short")
+
+
+def test_track_into_a_folder_of_anyones_results_json_keeps_every_file(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A folder holding a results.json counted as a run's: track removed every command's
+    files from it (results.json, gt.json, eval.md). A folder without a run's summary.json
+    keeps all it holds but what the run writes; with one, the earlier run's files go (and
+    the new summary.json names its command)."""
+    out = tmp_path / "w"
+    out.mkdir()
+    for name, text in (("results.json", "{}\n"), ("gt.json", "gt\n"), ("eval.md", "n\n")):
+        (out / name).write_text(text)
+    argv = ["track", str(SAMPLE / "detections.json.gz"), "--frames", "0:5", "--out", str(out)]
+    code, _, err = _run(argv, capsys)
+    assert code == 0, err
+    assert {n: (out / n).read_text() for n in ("results.json", "gt.json", "eval.md")} == {
+        "results.json": "{}\n",
+        "gt.json": "gt\n",
+        "eval.md": "n\n",
+    }
+    assert json.loads((out / "summary.json").read_text())["command"] == "track"
+    code, _, err = _run(argv, capsys)  # now a run's folder: the earlier run's files go
+    assert code == 0, err
+    assert not any((out / n).exists() for n in ("results.json", "gt.json", "eval.md"))
+
+
+def test_an_input_named_as_another_commands_output_is_refused_only_in_a_runs_folder(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack track w/results.json --out w`, w not a run's folder: nothing removes
+    results.json (track does not write it), so it is read as any input; in a run's folder it
+    goes with the earlier run, and the refusal says so."""
+    out = tmp_path / "w"
+    out.mkdir()
+    (out / "results.json").write_bytes(
+        gzip.decompress((SAMPLE / "detections.json.gz").read_bytes())
+    )
+    argv = ["track", str(out / "results.json"), "--frames", "0:5", "--out", str(out)]
+    code, _, err = _run(argv, capsys)
+    assert code == 0, err
+    assert (out / "results.json").is_file() and (out / "tracks.json").is_file()
+    code, _, err = _run(argv, capsys)  # (summary.json now marks w a run's)
+    _assert_one_line_error(
+        code,
+        err,
+        "track",
+        f"{out / 'results.json'}: INPUT is an earlier run's output, which this run removes"
+        f" from {out}",
+    )
+    assert (out / "results.json").is_file()
+
+
 def test_an_input_among_another_commands_outputs_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -1374,7 +1473,7 @@ def test_an_input_among_another_commands_outputs_is_refused(
     be lost. Refused before any work, saying so; the files kept."""
     out = tmp_path / "run"
     out.mkdir()
-    (out / "summary.json").write_text("{}")  # an earlier run's folder
+    (out / "summary.json").write_text('{"command": "nuscenes"}')  # an earlier run's folder
     (out / "gt.json").write_text(json.dumps({"a": _sample_frames()[:3]}))
     profile = out / "self_profile.toml"
     profile.write_text("a profile\n")

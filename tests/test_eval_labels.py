@@ -86,10 +86,10 @@ def test_kitti_refuses_bad_labels_before_tracking_and_keeps_the_earlier_run(
         _labels(kit / "training" / "label_02", extra)
     out = tmp_path / "out"
     (out / "data").mkdir(parents=True)
-    (out / "summary.json").write_text("an earlier run's\n")
+    (out / "summary.json").write_text('{"command": "kitti"}\n')  # an earlier run's
     code, err = _run([*argv, "--kitti-root", str(kit), "--out", str(out)], capsys)
     _one_line_error(code, err, *fragments)
-    assert (out / "summary.json").read_text() == "an earlier run's\n"
+    assert (out / "summary.json").read_text() == '{"command": "kitti"}\n'
     assert not list((out / "data").iterdir())  # nothing tracked
 
 

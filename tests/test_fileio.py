@@ -86,33 +86,92 @@ def test_a_failed_rename_removes_the_files_already_placed(
 # work folders: a killed run's are removed by the next run that makes one
 
 
+def _work(root: Path, name: str, pid: int, marker: str | None = None) -> Path:
+    """A folder ``name`` in ``root`` as make_work_folder makes one for ``pid`` (its marker:
+    ``marker`` when given)."""
+    folder = root / name
+    folder.mkdir()
+    text = fileio._work_marker(pid) if marker is None else marker
+    (folder / fileio.WORK_MARKER).write_text(text)
+    return folder
+
+
+DEAD = 2**22 + 12345  # above the default pid_max: no such process
+
+
 def test_a_work_folder_of_a_pid_that_no_longer_runs_is_removed(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """What a run killed outright (SIGKILL) leaves in the temp folder goes with the next work
     folder made; a running process's (however old), a name without a pid (an older version's,
     or anyone's), and a file or a link of such a name stay."""
-    dead = 2**22 + 12345  # above the default pid_max: no such process
-    stranded = tmp_path / f"mctrack-tune-{dead}-abc_12"
+    stranded = _work(tmp_path, f"mctrack-tune-{DEAD}-abc_1234", DEAD)
     (stranded / "fold0-trial" / "pointrcnn").mkdir(parents=True)
     (stranded / "fold0-trial" / "pointrcnn" / "0001.txt").write_text("a trial's tracks\n")
-    kept = [
-        f"mctrack-tune-{os.getpid()}-running",  # this process: alive
+    _work(tmp_path, f"mctrack-tune-{os.getpid()}-running1", os.getpid())  # this process: alive
+    kept = [f"mctrack-tune-{os.getpid()}-running1"]
+    kept += [
         "mctrack-tune-0ux514vm",  # no pid: a folder of an earlier version
-        f"mctrack-test-compare-{dead}",  # not a work folder's name
-        f"other-tune-{dead}-abc",
+        f"mctrack-test-compare-{DEAD}",  # not a work folder's name
+        f"other-tune-{DEAD}-abc",
     ]
-    for name in kept:
+    for name in kept[1:]:
         (tmp_path / name).mkdir()
-    (tmp_path / f"mctrack-eval-{dead}-afile").write_text("not a folder\n")
-    (tmp_path / f"mctrack-eval-{dead}-alink").symlink_to(stranded)
-    kept += [f"mctrack-eval-{dead}-afile", f"mctrack-eval-{dead}-alink"]
+    (tmp_path / f"mctrack-eval-{DEAD}-afile123").write_text("not a folder\n")
+    (tmp_path / f"mctrack-eval-{DEAD}-alink123").symlink_to(stranded)
+    kept += [f"mctrack-eval-{DEAD}-afile123", f"mctrack-eval-{DEAD}-alink123"]
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # ($TMPDIR)
     with fileio.work_folder("eval") as work:
         assert work.parent == tmp_path and work.name.startswith(f"mctrack-eval-{os.getpid()}-")
         assert _names(tmp_path) == sorted([*kept, work.name])
+        assert (work / fileio.WORK_MARKER).read_text().startswith(f"pid {os.getpid()}\n")
     assert _names(tmp_path) == sorted(kept)  # its own gone too, at the end of the block
     assert fileio.remove_stale_work_folders(tmp_path) == 0
+
+
+def test_a_folder_named_like_a_work_folder_without_its_marker_stays(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Only a folder make_work_folder made goes: `mctrack-kitti-20240101-baseline` (anyone's
+    results, a date read as a dead pid) was removed with its contents. A work folder's name
+    needs a known kind and mkdtemp's random part, and the folder its marker naming that pid,
+    a file (not a link)."""
+    baseline = tmp_path / "mctrack-kitti-20240101-baseline"
+    baseline.mkdir()
+    (baseline / "results.txt").write_text("x\n")
+    (tmp_path / f"mctrack-tune-{DEAD}-abcd1234").mkdir()  # a work folder's name, no marker
+    _work(tmp_path, f"mctrack-kitti-{DEAD}-abcd1234", DEAD)  # not a kind of work folder
+    _work(tmp_path, f"mctrack-tune-{DEAD}-baseline_x", DEAD)  # not mkdtemp's 8 characters
+    _work(tmp_path, f"mctrack-eval-{DEAD}-abcd1234", DEAD + 1)  # the marker: another pid
+    linked = tmp_path / f"mctrack-trial-{DEAD}-abcd1234"
+    linked.mkdir()
+    (tmp_path / "marker").write_text(fileio._work_marker(DEAD))
+    (linked / fileio.WORK_MARKER).symlink_to(tmp_path / "marker")  # the marker: a link
+    before = _names(tmp_path)
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    monkeypatch.setattr(tempfile, "tempdir", None)  # (read $TMPDIR again, as a new process)
+    assert fileio.remove_stale_work_folders() == 0
+    assert _names(tmp_path) == before
+    assert (baseline / "results.txt").read_text() == "x\n"
+    _work(tmp_path, f"mctrack-eval-{DEAD}-abcd5678", DEAD)  # a stranded work folder: goes
+    assert fileio.remove_stale_work_folders() == 1 and _names(tmp_path) == before
+    with pytest.raises(ValueError, match="kitti"):
+        fileio.make_work_folder("kitti")  # (a kind the removal would not know)
+
+
+def test_a_work_folder_of_another_pid_namespace_goes_only_once_old(tmp_path: Path) -> None:
+    """A temp folder shared with a container: a pid of another pid namespace (or boot) says
+    nothing here, so its work folder goes only once unchanged for STALE_WORK_SECS."""
+    ids = fileio._host_ids()
+    if "pidns" not in ids:
+        pytest.skip("no /proc/self/ns/pid: pid namespaces are not told apart here")
+    other = "".join(f"{k} {v}\n" for k, v in {"pid": DEAD, **ids, "pidns": "pid:[1]"}.items())
+    folder = _work(tmp_path, f"mctrack-tune-{DEAD}-abcd1234", DEAD, other)
+    assert fileio.remove_stale_work_folders(tmp_path) == 0 and folder.is_dir()
+    old = time.time() - fileio.STALE_WORK_SECS - 60
+    for path in (folder, folder / fileio.WORK_MARKER):
+        os.utime(path, (old, old))
+    assert fileio.remove_stale_work_folders(tmp_path) == 1 and not folder.exists()
 
 
 def test_a_work_folder_of_an_exited_process_not_yet_reaped_is_removed(tmp_path: Path) -> None:
@@ -127,7 +186,7 @@ def test_a_work_folder_of_an_exited_process_not_yet_reaped_is_removed(tmp_path: 
         while stat.read_text().rsplit(")", 1)[1].split()[0] != "Z":  # exited, not reaped
             assert time.monotonic() < deadline
             time.sleep(0.01)
-        (tmp_path / f"mctrack-trial-{proc.pid}-abc").mkdir()
+        _work(tmp_path, f"mctrack-trial-{proc.pid}-abcd1234", proc.pid)
         assert fileio.remove_stale_work_folders(tmp_path) == 1 and _names(tmp_path) == []
     finally:
         proc.wait()

@@ -7,6 +7,7 @@ import json
 import os
 import shutil
 import sys
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -298,6 +299,46 @@ if os.environ.get("SLOW_WRITE"):
         return write(*args, **kwargs)
     writers.write_kitti_sequence = slow
 """
+
+
+def test_ctrl_c_waits_for_the_stopped_workers_once_not_once_each(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Workers that do not end on SIGTERM: waited for STOP_SECONDS in all (then killed),
+    not STOP_SECONDS one after another (N x 10 s)."""
+    monkeypatch.setattr(scenes, "STOP_SECONDS", 0.2)
+
+    class Stuck:  # (a worker that ignores SIGTERM until killed)
+        def __init__(self) -> None:
+            self.alive, self.waits = True, []
+
+        def terminate(self) -> None:
+            pass
+
+        def kill(self) -> None:
+            self.alive = False
+
+        def is_alive(self) -> bool:
+            return self.alive
+
+        def join(self, timeout: float | None = None) -> None:
+            self.waits.append(timeout)
+            if self.alive and timeout:
+                time.sleep(timeout)
+
+    class Pool:
+        def __init__(self) -> None:
+            self._processes = {pid: Stuck() for pid in range(4)}
+
+        def shutdown(self, wait: bool, cancel_futures: bool) -> None:
+            pass
+
+    pool = Pool()
+    t0 = time.monotonic()
+    scenes._stop_workers(pool)  # type: ignore[arg-type]
+    assert time.monotonic() - t0 < 0.6  # (4 x 0.2 s before)
+    waits = [w for p in pool._processes.values() for w in p.waits if w]
+    assert sum(waits) <= 0.2 + 0.05 and not any(p.alive for p in pool._processes.values())
 
 
 @pytest.mark.parametrize("ctrl_c", ["once to the process group", "twice to the command"])

@@ -491,7 +491,7 @@ def test_waymo_refuses_inputs_among_its_outputs(
     detections = run / "results" / "vehicle"
     detections.mkdir(parents=True)
     shutil.copy(segment / "dets" / f"{SEGMENT}.npz", detections)
-    (run / "summary.json").write_text("{}")  # an earlier run's
+    (run / "summary.json").write_text('{"command": "waymo"}')  # an earlier run's
     argv = ["waymo", "--data-root", str(segment), "--detections", str(detections)]
     assert main([*argv, "--out", str(run)]) == 2
     err = capsys.readouterr().err

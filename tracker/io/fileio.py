@@ -101,19 +101,61 @@ def remove_stale_temps(folder: str | Path, *, older_than_secs: float = STALE_TEM
 
 #: Work folders are ``mctrack-<kind>-<pid>-<random>`` in the system's temp folder ($TMPDIR):
 #: intermediate files of a run (a tune's trial results, TrackEval's copies), removed when it
-#: ends. A killed run cannot remove its own; the pid says when it is stranded.
+#: ends. A killed run cannot remove its own: the next work folder made removes it, but only a
+#: folder that holds the marker a work folder is made with (:data:`WORK_MARKER`): a folder of
+#: anyone else's named alike (``mctrack-kitti-20240101-baseline``) is never touched.
 WORK_FOLDER_PREFIX = "mctrack-"
-_WORK_FOLDER = re.compile(r"mctrack-[a-z]+-(\d+)-[a-z0-9_]+")  # (mkdtemp's random letters)
+#: The kinds of work folder (make_work_folder refuses others): only these names are removed.
+WORK_FOLDER_KINDS = frozenset(
+    {
+        "benchrecord", "bevids", "eval", "fnanatomy", "folds", "fpanatomy", "fptrim",
+        "hotaceiling", "idsw", "inspect", "noise", "parallel", "profile", "record",
+        "results", "shots", "speed", "trial", "tune", "viewer",
+    }
+)  # fmt: skip
+# (mkdtemp's random part: 8 of tempfile's lower-case letters, digits and "_")
+_WORK_FOLDER = re.compile(
+    rf"mctrack-({'|'.join(sorted(WORK_FOLDER_KINDS))})-([1-9][0-9]*)-[a-z0-9_]{{8}}"
+)
+#: The file inside each work folder that says it is one, and whose: ``pid <pid>``, ``boot
+#: <boot id>`` and ``pidns <pid namespace>`` lines (the last two where Linux's /proc has them).
+WORK_MARKER = ".mctrack-work"
+#: A work folder made under another boot or pid namespace (a temp folder shared with a
+#: container), or where either is unknown: its pid says nothing here, so it goes only once
+#: unchanged this long.
+STALE_WORK_SECS = 86400.0
+
+
+def _host_ids() -> dict[str, str]:
+    """This boot's id and this process's pid namespace (Linux's /proc; elsewhere none): a pid
+    is only meaningful within both."""
+    ids = {}
+    with contextlib.suppress(OSError):
+        ids["boot"] = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
+    with contextlib.suppress(OSError):
+        ids["pidns"] = os.readlink("/proc/self/ns/pid")
+    return ids
+
+
+def _work_marker(pid: int) -> str:
+    return "".join(f"{k} {v}\n" for k, v in {"pid": str(pid), **_host_ids()}.items())
 
 
 def make_work_folder(kind: str) -> Path:
     """A new private folder ``mctrack-<kind>-<pid>-<random>`` in the system's temp folder, for
-    the caller to remove when done. The work folders of runs that no longer run (killed before
+    the caller to remove when done (``kind``: one of :data:`WORK_FOLDER_KINDS`). It holds its
+    marker (:data:`WORK_MARKER`). The work folders of runs that no longer run (killed before
     they removed theirs) go first (:func:`remove_stale_work_folders`)."""
-    if not re.fullmatch(r"[a-z]+", kind):
-        raise ValueError(f"work folder kind {kind!r}: lower-case letters only")
+    if kind not in WORK_FOLDER_KINDS:
+        raise ValueError(f"work folder kind {kind!r}: not one of WORK_FOLDER_KINDS")
     remove_stale_work_folders()
-    return Path(tempfile.mkdtemp(prefix=f"{WORK_FOLDER_PREFIX}{kind}-{os.getpid()}-"))
+    folder = Path(tempfile.mkdtemp(prefix=f"{WORK_FOLDER_PREFIX}{kind}-{os.getpid()}-"))
+    try:
+        (folder / WORK_MARKER).write_text(_work_marker(os.getpid()))
+    except BaseException:
+        shutil.rmtree(folder, ignore_errors=True)
+        raise
+    return folder
 
 
 @contextlib.contextmanager
@@ -127,28 +169,45 @@ def work_folder(kind: str) -> Iterator[Path]:
         shutil.rmtree(folder, ignore_errors=True)
 
 
+def _stale_work_folder(path: Path, pid: int, now: float) -> bool:
+    """Whether ``path`` (named with ``pid``) is a work folder whose run no longer runs: a
+    folder of ours (not a link) holding a marker of that pid, whose pid is dead here (same
+    boot and pid namespace) or, made elsewhere, unchanged for :data:`STALE_WORK_SECS`."""
+    try:
+        st = path.lstat()
+        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
+            return False  # (a link, a file, another user's: not made by make_work_folder)
+        marker = path / WORK_MARKER
+        mst = marker.lstat()
+        if not stat.S_ISREG(mst.st_mode) or mst.st_size > 4096:
+            return False
+        fields = dict(line.split(" ", 1) for line in marker.read_text().splitlines() if " " in line)
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False  # (no marker: anyone's folder named alike; or gone meanwhile)
+    if fields.get("pid") != str(pid):
+        return False
+    here = _host_ids()
+    if any(k not in here or fields.get(k) != here[k] for k in ("boot", "pidns")):
+        return now - max(st.st_mtime, mst.st_mtime) > STALE_WORK_SECS
+    return not _pid_alive(pid)
+
+
 def remove_stale_work_folders(root: str | Path | None = None) -> int:
     """Delete the work folders (:func:`make_work_folder`) in ``root`` (default: the system's
-    temp folder) whose pid no longer runs; returns how many. As for temporary files, one of a
-    live pid is never deleted, nor one without a pid in its name (an older version's, or
-    anyone's), nor one of another user's."""
+    temp folder) of runs that no longer run; returns how many. Only a folder of a work
+    folder's name (a known kind, a pid, mkdtemp's random part) that holds its marker naming
+    that pid goes, once the pid no longer runs (:func:`_stale_work_folder`); as for temporary
+    files, one of a live pid is never deleted, nor one of another user's."""
     root = Path(root if root is not None else tempfile.gettempdir())
     removed = 0
     try:
         candidates = list(root.glob(f"{WORK_FOLDER_PREFIX}*"))
     except OSError:
         return 0
+    now = time.time()
     for path in candidates:
         match = _WORK_FOLDER.fullmatch(path.name)
-        if match is None:
-            continue
-        try:
-            st = path.lstat()
-        except OSError:
-            continue  # (gone meanwhile)
-        if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid():
-            continue  # (a link or a file: not made by make_work_folder)
-        if _pid_alive(int(match.group(1))):
+        if match is None or not _stale_work_folder(path, int(match.group(2)), now):
             continue
         shutil.rmtree(path, ignore_errors=True)  # (another run may be removing it too)
         removed += not os.path.lexists(path)
