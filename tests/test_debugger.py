@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from app.cli import main
+from tests.cli_output import without_kernel_lines
 from tests.test_viz import column_at, entity_table, recording
 from tracker.eval.id_causes import Cause
 from viz import layout, paths
@@ -280,10 +281,7 @@ def test_view_spawn_without_a_display_is_refused_before_any_work(
         monkeypatch.delenv(name, raising=False)
     det = SAMPLE / "detections.json.gz"
     assert main(["view", str(det), "--frames", "0:5", "--spawn"]) == 2
-    err = capsys.readouterr().err
-    # (the first tracking command on a fresh install says it compiles the kernels first)
-    err = "".join(line for line in err.splitlines(True) if "kernels" not in line)
-    assert err == (
+    assert without_kernel_lines(capsys.readouterr().err) == (
         "mctrack view: error: --spawn: no display for the viewer's window (DISPLAY and "
         "WAYLAND_DISPLAY are unset); record to a file (--save OUT.rrd, then mctrack shots "
         "OUT.rrd --out shots/) or serve a web viewer (--serve-web)\n"

@@ -24,6 +24,7 @@ from app.tune import (
     settings_to_overrides,
     with_searched,
 )
+from tests.cli_output import without_kernel_lines
 from tracker.config import load_config
 from tracker.errors import InputError
 
@@ -140,13 +141,13 @@ def test_more_folds_than_sequences_or_an_out_file_is_refused_before_any_work(
     no_kit = ["--kitti-root", str(tmp_path / "no_kit")]  # (its error would come after)
     code = main(["tune", *no_kit, "--seqs", "0006,0010", "--folds", "3", "--out", str(tmp_path)])
     assert code == 2
-    assert capsys.readouterr().err.strip() == (
+    assert without_kernel_lines(capsys.readouterr().err).strip() == (
         "mctrack tune: error: --folds 3 needs at least as many --seqs (got 2)"
     )
     a_file = tmp_path / "afile"
     a_file.write_text("")
     assert main(["tune", *no_kit, "--seqs", "0006,0010", "--folds", "2", "--out", str(a_file)]) == 2
-    assert capsys.readouterr().err.strip() == (
+    assert without_kernel_lines(capsys.readouterr().err).strip() == (
         f"mctrack tune: error: {a_file}: exists and is not a folder; pass another --out"
     )
     # searching on from a best.toml into its own folder would delete it (a new search there
@@ -156,7 +157,7 @@ def test_more_folds_than_sequences_or_an_out_file_is_refused_before_any_work(
     (earlier / "best.toml").write_text('base = "kitti"\n')
     argv = ["tune", *no_kit, "--seqs", "0006,0010", "--folds", "2"]
     assert main([*argv, "--config", str(earlier / "best.toml"), "--out", str(earlier)]) == 2
-    assert capsys.readouterr().err.strip() == (
+    assert without_kernel_lines(capsys.readouterr().err).strip() == (
         f"mctrack tune: error: --config {earlier / 'best.toml'} is this --out's own result: "
         "pass another --out to search on from it"
     )
@@ -703,7 +704,7 @@ def test_a_detector_not_in_the_kit_names_the_detectors_flag(
     code = main(["tune", "--kitti-root", str(kit), "--detectors", "mydet,nope", "--seqs",
                  "0006,0010", "--folds", "2", "--out", str(tmp_path / "t")])  # fmt: skip
     assert code == 2
-    assert capsys.readouterr().err.strip() == (
+    assert without_kernel_lines(capsys.readouterr().err).strip() == (
         f"mctrack tune: error: {kit / 'detections' / 'nope' / 'training'}: detections not "
         "found; pass --detectors A,B (found: mydet)"
     )
