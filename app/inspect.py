@@ -242,7 +242,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         # the viewer listens on 127.0.0.1 (ViewerClient.spawn's would listen on all interfaces)
         # and keeps running after this command, until its window is closed
-        client, process = viewer_client(headless=False)
+        client, process = viewer_client(headless=False, detach=True)
         with work_folder("inspect") as tmp:
             frame = drive_viewer(client, recording, target, tmp)
     except (RuntimeError, TimeoutError, OSError, ConnectionError) as exc:

@@ -8,6 +8,7 @@ velocity curves. ``--save`` streams to disk, so memory stays flat on long sequen
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import time
@@ -287,16 +288,20 @@ def run(args: argparse.Namespace) -> int:
         if f
     }
     _refuse_unreadable_images(scene_images, scenes)
-    server, url = _start_viewer(args) if live else (None, "")
-    try:
-        _record(args, config, scenes, gt_scenes, labelled, scene_images, unmatched, saves, url)
-        if args.serve_web:
-            _serve_until_stopped()
-    finally:
-        if server is not None and args.serve_web:  # (a spawned viewer stays, with its window)
-            from viz.rerun_process import stop_rerun
+    from app.serve import stopped_as_by_ctrl_c
 
-            stop_rerun(server)
+    # the server is stopped however the command ends (a spawned viewer stays, with its window)
+    with stopped_as_by_ctrl_c() if args.serve_web else contextlib.nullcontext():
+        server, url = _start_viewer(args) if live else (None, "")
+        try:
+            _record(args, config, scenes, gt_scenes, labelled, scene_images, unmatched, saves, url)
+            if args.serve_web:
+                _serve_until_stopped()
+        finally:
+            if server is not None and args.serve_web:
+                from viz.rerun_process import stop_rerun
+
+                stop_rerun(server)
     return 0
 
 
@@ -323,7 +328,7 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
             print(f"viewer: {url} (already running)")
             return None, url
         try:
-            process, url = start_viewer(headless=False, host=host, port=port)
+            process, url = start_viewer(headless=False, host=host, port=port, detach=True)
         except (RuntimeError, TimeoutError, OSError) as exc:
             raise InputError(f"--spawn: the viewer did not start on {host}: {exc}") from None
     else:
@@ -351,20 +356,13 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
 
 
 def _serve_until_stopped() -> None:
-    """Until Ctrl-C or SIGTERM (which ends it as Ctrl-C does, so the server is stopped)."""
-    import signal
-
-    from app.serve import _interrupt
-
-    previous = signal.signal(signal.SIGTERM, _interrupt)
-    print("serving; press Ctrl-C to stop", flush=True)
-    try:
+    """Until Ctrl-C, SIGTERM or SIGHUP (which end it as Ctrl-C does: see :func:`run`)."""
+    try:  # (the line inside: a signal right after it is a stop too)
+        print("serving; press Ctrl-C to stop", flush=True)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         print("stopped")
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _record(
