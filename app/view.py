@@ -14,7 +14,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from app.inputs import add_mode_argument
+from app.inputs import add_mode_argument, host_address
 from tracker.config import TrackerConfig
 from tracker.errors import InputError
 from tracker.frame import Frame
@@ -62,8 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--host",
+        type=host_address,
         default=LOOPBACK,
-        help="address the viewer's servers listen on (--spawn, --serve-web; default "
+        help="IP address the viewer's servers listen on (--spawn, --serve-web; default "
         "127.0.0.1); 0.0.0.0 exposes the recording to the network: do it deliberately",
     )
 

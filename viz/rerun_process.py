@@ -44,7 +44,8 @@ def free_port(host: str = LOOPBACK) -> int:
 
 
 def is_loopback(host: str) -> bool:
-    """``localhost`` or an address in 127.0.0.0/8 or ::1."""
+    """``localhost`` (report --serve's server takes host names) or an address in 127.0.0.0/8
+    or ::1."""
     if host == "localhost":
         return True
     try:
@@ -138,10 +139,9 @@ def wait_listening(
     waiting = list(ports)
     while waiting:
         if process.poll() is not None:
-            raise RuntimeError(
-                f"the rerun viewer exited (status {process.returncode}); is port "
-                f"{waiting[0]} in use?"
-            )
+            taken = [p for p in ports if port_open(address, p)]  # (by another process)
+            why = f"; port {taken[0]} is in use" if taken else ""
+            raise RuntimeError(f"the rerun viewer exited (status {process.returncode}){why}")
         if port_open(address, waiting[0]):
             waiting.pop(0)
             continue
