@@ -27,9 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
+from app.cli import EXIT_VIEWER_FAILED
 from tracker.errors import InputError
-
-EXIT_VIEWER_FAILED = 4
 
 _T = TypeVar("_T")
 

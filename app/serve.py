@@ -32,6 +32,8 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from tracker.errors import ViewerError
+
 VIEWER_PREFIX = "/viewer/"
 RECORDINGS_PREFIX = "/recordings/"
 
@@ -93,15 +95,13 @@ class ViewerAssets:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
-                raise RuntimeError(
-                    f"the rerun web viewer exited (status {self.process.returncode})"
-                )
+                raise ViewerError(f"the rerun web viewer exited (status {self.process.returncode})")
             with contextlib.suppress(OSError):
                 with urllib.request.urlopen(self.base + "/", timeout=2) as r:
                     if r.status == 200:
                         return
             time.sleep(0.2)
-        raise TimeoutError("the rerun web viewer did not answer")
+        raise ViewerError(f"the rerun web viewer did not answer in {timeout:.0f} s")
 
     def get(self, name: str) -> tuple[bytes, str] | None:
         """(bytes, content type) of ``/viewer/<name>`` (``""``: the patched index.html)."""

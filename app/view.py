@@ -16,7 +16,7 @@ from pathlib import Path
 
 from app.inputs import add_mode_argument, host_address
 from tracker.config import TrackerConfig
-from tracker.errors import InputError
+from tracker.errors import InputError, ViewerError
 from tracker.frame import Frame
 from tracker.io.fileio import check_output_file, path_in, safe_filename
 from viz.rerun_process import LOOPBACK
@@ -257,7 +257,7 @@ def run(args: argparse.Namespace) -> int:
     from app.inspect import missing_display
 
     if args.spawn and missing_display(os.environ):  # else the run hangs on a viewer never up
-        raise InputError(
+        raise ViewerError(
             "--spawn: no display for the viewer's window (DISPLAY and WAYLAND_DISPLAY are "
             "unset); record to a file (--save OUT.rrd, then mctrack shots OUT.rrd --out shots/) "
             "or serve a web viewer (--serve-web)"
@@ -331,7 +331,7 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
         try:
             process, url = start_viewer(headless=False, host=host, port=port, detach=True)
         except (RuntimeError, TimeoutError, OSError) as exc:
-            raise InputError(f"--spawn: the viewer did not start on {host}: {exc}") from None
+            raise ViewerError(f"--spawn: the viewer did not start on {host}: {exc}") from None
     else:
         for option, taken in (("--grpc-port", port), ("--web-port", args.web_port)):
             if port_open(local_address(host), taken):  # (else that server would answer)
@@ -346,7 +346,7 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
             wait_listening(process, host, [port, args.web_port])
         except (RuntimeError, TimeoutError, OSError) as exc:
             stop_rerun(process)
-            raise InputError(f"--serve-web: the server did not start on {host}: {exc}") from None
+            raise ViewerError(f"--serve-web: the server did not start on {host}: {exc}") from None
         except BaseException:
             stop_rerun(process)
             raise
