@@ -63,7 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--host",
         type=host_address,
-        default=LOOPBACK,
+        default=None,
         help="IP address the viewer's servers listen on (--spawn, --serve-web; default "
         "127.0.0.1); 0.0.0.0 exposes the recording to the network: do it deliberately",
     )
@@ -255,6 +255,13 @@ def _save_paths(save: str | None, scenes: dict[str, list[Frame]]) -> dict[str, P
 
 def run(args: argparse.Namespace) -> int:
     from app.inspect import missing_display
+
+    if args.host is not None and not (args.spawn or args.serve_web):  # else ignored unsaid
+        raise InputError(
+            f"--host {args.host}: only with --spawn or --serve-web (the viewer's address); "
+            "without them view records to a file"
+        )
+    args.host = args.host or LOOPBACK
 
     if args.spawn and missing_display(os.environ):  # else the run hangs on a viewer never up
         raise ViewerError(

@@ -771,3 +771,44 @@ def test_report_serve_viewer_not_started_is_a_viewer_failure(
         "the rerun web viewer exited (status 2)",
         EXIT_VIEWER_FAILED,
     )
+
+
+@pytest.mark.parametrize("sink", [[], ["--save", "x.rrd"]])
+def test_view_host_without_a_viewer_is_refused(
+    sink: list[str],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """--host with --save (or the default file) was ignored without a word: refused before any
+    work, nothing written."""
+    from tests.test_viz import SAMPLE
+
+    monkeypatch.chdir(tmp_path)  # (the default file's folder)
+
+    det = SAMPLE / "detections.json.gz"
+    out = tmp_path / "x.rrd"
+    sink = [sink[0], str(out)] if sink else sink
+    assert main(["view", str(det), "--frames", "0:5", *sink, "--host", "0.0.0.0"]) == 2
+    assert capsys.readouterr().err == (
+        "mctrack view: error: --host 0.0.0.0: only with --spawn or --serve-web (the viewer's "
+        "address); without them view records to a file\n"
+    )
+    assert not list(tmp_path.iterdir())
+
+
+def test_inspect_list_with_print_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    """--print beside --list was ignored without a word."""
+    path, _ = recording()
+    assert main(["inspect", str(path), "--list", "--print"]) == 2
+    assert capsys.readouterr().err == (
+        "mctrack inspect: error: --print and --list: give one (--list starts no viewer either)\n"
+    )
+
+
+def test_inspect_help_first_line_names_list(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["inspect", "--help"])
+    out = capsys.readouterr().out
+    described = out.split("\n\n")[1]  # (after the usage lines)
+    assert described.startswith("mctrack inspect REC [--event K | --frame F | --list]:")
