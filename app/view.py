@@ -18,7 +18,12 @@ from app.inputs import add_mode_argument, host_address
 from tracker.config import TrackerConfig
 from tracker.errors import InputError, ViewerError
 from tracker.frame import Frame
-from tracker.io.fileio import check_output_file, path_in, safe_filename
+from tracker.io.fileio import (
+    check_output_file,
+    path_in,
+    refuse_case_collisions,
+    safe_filename,
+)
 from viz.rerun_process import LOOPBACK
 
 
@@ -243,11 +248,13 @@ def _save_path(save: str | None, scene: str, many: bool) -> Path:
     return path.with_name(f"{path.stem}_{safe_filename(scene)}{path.suffix}") if many else path
 
 
-def _save_paths(save: str | None, scenes: dict[str, list[Frame]]) -> dict[str, Path]:
+def _save_paths(save: str | None, scenes: dict[str, list[Frame]], source: str) -> dict[str, Path]:
     """Each recorded scene's recording file, checked before any recording (not a folder, its
-    folder writable): a bad one failed only once every scene was recorded."""
+    folder writable; scenes whose files differ only in case refused, as by the other commands):
+    a bad one failed only once every scene was recorded."""
     many = len(scenes) > 1
     paths = {scene: _save_path(save, scene, many) for scene, frames in scenes.items() if frames}
+    refuse_case_collisions(paths, source, suffix=".rrd")
     for path in paths.values():
         check_output_file(path, "--save")
     return paths
@@ -281,7 +288,7 @@ def run(args: argparse.Namespace) -> int:
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
     require_frames(scenes, args.input, "record", args.scenes)  # else nothing is recorded
     live = args.spawn or args.serve_web
-    saves = {} if live else _save_paths(args.save, scenes)
+    saves = {} if live else _save_paths(args.save, scenes, args.input)
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
     if args.gt and not any(gt_scenes.values()):  # else every scene "is not in" it
         raise InputError(f"{args.gt}: --gt holds no frames of ground truth")
