@@ -20,8 +20,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
 
-from app.common import ctrl_c_deferred, folders_to_make, remove_made_folders
-from tracker.errors import InputError
+from app.common import (
+    EXIT_VIEWER_FAILED,
+    ctrl_c_deferred,
+    folders_to_make,
+    remove_made_folders,
+)
+from tracker.errors import InputError, ViewerError
 
 # subcommand -> (module, help). Each module has add_arguments(parser) and run(args) -> int,
 # imported only when used so `mctrack validate` never pays for rerun or trackeval.
@@ -61,8 +66,10 @@ EPILOG = """examples:
   mctrack view detections.json --gt gt.json      the same, recorded for the Rerun viewer
 
 exit status: 0 success, 2 bad input or usage (one line on stderr: the file and what to do),
-1 an unexpected error (a bug: re-run with --debug for the traceback and report it), 141 the
-reader of the output closed it early (`| head`)."""
+1 an unexpected error (a bug: re-run with --debug for the traceback and report it), 3 no
+renderer for `shots` (a Vulkan driver), 4 a viewer or its server did not start or answer (view
+--spawn / --serve-web, inspect, shots, report --serve), 141 the reader of the output closed it
+early (`| head`)."""
 
 #: Exit status for bad input (a wrong path, a missing or malformed file, a wrong flag), as
 #: argparse uses for usage errors.
@@ -163,6 +170,8 @@ def error_message(exc: BaseException) -> tuple[str, int] | None:
     value), with its exit status; None for anything else (a bug)."""
     if isinstance(exc, InputError):
         return str(exc), EXIT_INPUT
+    if isinstance(exc, ViewerError):
+        return str(exc), EXIT_VIEWER_FAILED
     if isinstance(exc, FileNotFoundError):
         if exc.filename is None:  # raised with a message of our own
             return str(exc), EXIT_INPUT

@@ -22,6 +22,9 @@ if TYPE_CHECKING:
 LOG = logging.getLogger("mctrack")
 SELF_PROFILE = "self"  # --profile self: fitted without labels on the run's detections
 NO_PROFILE = "none"  # --profile none: the uncalibrated fallback
+#: Exit status when a viewer or its server did not start or answer (no display, the binary
+#: exited, no answer): the environment, not the input (app.cli documents every status).
+EXIT_VIEWER_FAILED = 4
 
 
 def peak_rss_mb() -> float:

@@ -4,6 +4,7 @@ folder into one line naming the folder and the flag that fixes it."""
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -212,6 +213,19 @@ def non_negative_int(text: str) -> int:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {text!r}")
     return value
+
+
+def host_address(text: str) -> str:
+    """argparse type of a viewer's ``--host``: an IP address (``localhost``: 127.0.0.1). The
+    rerun binary's ``--bind`` takes no host name: it exited with status 2, unexplained."""
+    if text.strip().lower() == "localhost":
+        return "127.0.0.1"
+    try:
+        return str(ipaddress.ip_address(text.strip()))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected an IP address (127.0.0.1, 0.0.0.0, ::1) or localhost, got {text!r}"
+        ) from None
 
 
 #: Printed once when a run has no ego poses.

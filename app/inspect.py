@@ -1,4 +1,5 @@
-"""`mctrack inspect REC [--event K | --frame F]`: the viewer on a recording, at one moment.
+"""`mctrack inspect REC [--event K | --frame F | --list]`: the viewer on a recording, at one
+moment; or the events it can open.
 
 With ``--event K`` (``#K`` in the recording's summary) the viewer opens in that event's focused
 layout (old and new track and the GT object highlighted, everything else dimmed, the 3D eye on
@@ -11,8 +12,9 @@ cursor stays at 0). What works is ``rerun.experimental.ViewerClient.set_time`` o
 this command spawns: :func:`drive_viewer` opens the recording, applies the focused layout, sets
 the cursor and reads the viewer's own cursor back, failing loudly when it is not on the frame.
 ``--print`` only prints the target (the event, its frame, the recording) without starting
-anything; ``--list`` prints the events ``--event`` can open (of a recording, or of each recording
-of a ``mctrack kitti --record`` run folder), one per line, without a viewer or a display.
+anything (not with ``--list``, which starts nothing either); ``--list`` prints the events
+``--event`` can open (of a recording, or of each recording of a ``mctrack kitti --record`` run
+folder), one per line, without a viewer or a display.
 ``--frame F`` must lie within the recording's frames (default: its first frame); a frame
 outside them is an error naming the frames it has.
 """
@@ -27,9 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
 
+from app.common import EXIT_VIEWER_FAILED
 from tracker.errors import InputError
-
-EXIT_VIEWER_FAILED = 4
 
 _T = TypeVar("_T")
 
@@ -55,7 +56,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "tracks); no viewer, no display needed",
     )
     parser.add_argument(
-        "--print", action="store_true", help="print the URL and the target; start nothing"
+        "--print",
+        action="store_true",
+        help="print the URL and the target; start nothing (not with --list)",
     )
 
 
@@ -217,6 +220,8 @@ def list_events(given: Path) -> int:
 
 def run(args: argparse.Namespace) -> int:
     recording = Path(args.recording)
+    if args.list and args.print:  # (else --print went without a word)
+        raise InputError("--print and --list: give one (--list starts no viewer either)")
     if args.list:
         return list_events(recording)
     if not recording.is_file():
@@ -242,7 +247,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         # the viewer listens on 127.0.0.1 (ViewerClient.spawn's would listen on all interfaces)
         # and keeps running after this command, until its window is closed
-        client, process = viewer_client(headless=False)
+        client, process = viewer_client(headless=False, detach=True)
         with work_folder("inspect") as tmp:
             frame = drive_viewer(client, recording, target, tmp)
     except (RuntimeError, TimeoutError, OSError, ConnectionError) as exc:

@@ -32,6 +32,8 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
+from tracker.errors import ViewerError
+
 VIEWER_PREFIX = "/viewer/"
 RECORDINGS_PREFIX = "/recordings/"
 
@@ -93,15 +95,13 @@ class ViewerAssets:
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:
-                raise RuntimeError(
-                    f"the rerun web viewer exited (status {self.process.returncode})"
-                )
+                raise ViewerError(f"the rerun web viewer exited (status {self.process.returncode})")
             with contextlib.suppress(OSError):
                 with urllib.request.urlopen(self.base + "/", timeout=2) as r:
                     if r.status == 200:
                         return
             time.sleep(0.2)
-        raise TimeoutError("the rerun web viewer did not answer")
+        raise ViewerError(f"the rerun web viewer did not answer in {timeout:.0f} s")
 
     def get(self, name: str) -> tuple[bytes, str] | None:
         """(bytes, content type) of ``/viewer/<name>`` (``""``: the patched index.html)."""
@@ -237,15 +237,28 @@ def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
 
+@contextlib.contextmanager
+def stopped_as_by_ctrl_c() -> Iterator[None]:
+    """SIGTERM (kill, a CI timeout, docker stop) and SIGHUP (the terminal closed) end the block
+    as Ctrl-C does, so that its clean-up stops the servers it started: by default they ended
+    the process at once, and a rerun server kept running, holding its ports. Installed before
+    the servers start (a signal while they start or while recording is handled too)."""
+    signals = [signal.SIGTERM] + ([signal.SIGHUP] if hasattr(signal, "SIGHUP") else [])
+    previous = {s: signal.signal(s, _interrupt) for s in signals}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
 def serve_report(root: Path, recordings: Mapping[str, Path], *, host: str, port: int) -> int:
-    """Serve until Ctrl-C or SIGTERM."""
+    """Serve until Ctrl-C, SIGTERM or SIGHUP."""
     from viz.rerun_process import exposure_note
 
-    # SIGTERM (kill, a CI timeout, docker stop) stops it as Ctrl-C does: by default it ended
-    # the process at once, and the rerun web viewer it started kept running, holding its port
-    previous = signal.signal(signal.SIGTERM, _interrupt)
     try:
-        with report_server(root, recordings, host=host, port=port) as (_, url):
+        with stopped_as_by_ctrl_c(), report_server(root, recordings, host=host, port=port) as run:
+            url = run[1]
             print(f"serving the report at {url} (Ctrl-C to stop)", flush=True)
             note = exposure_note(host, "the report and recordings")
             if note:
@@ -258,5 +271,3 @@ def serve_report(root: Path, recordings: Mapping[str, Path], *, host: str, port:
     except OSError as exc:
         print(f"mctrack report: cannot serve on {host}:{port}: {exc}", file=sys.stderr)
         return 2
-    finally:
-        signal.signal(signal.SIGTERM, previous)

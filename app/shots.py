@@ -19,11 +19,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from app.common import EXIT_VIEWER_FAILED
 from app.inputs import non_negative_int
 from tracker.errors import InputError
 
 EXIT_NO_RENDERER = 3
-EXIT_VIEWER_FAILED = 4
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

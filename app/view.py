@@ -8,16 +8,22 @@ velocity curves. ``--save`` streams to disk, so memory stays flat on long sequen
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import subprocess
 import time
 from pathlib import Path
 
-from app.inputs import add_mode_argument
+from app.inputs import add_mode_argument, host_address
 from tracker.config import TrackerConfig
-from tracker.errors import InputError
+from tracker.errors import InputError, ViewerError
 from tracker.frame import Frame
-from tracker.io.fileio import check_output_file, path_in, safe_filename
+from tracker.io.fileio import (
+    check_output_file,
+    path_in,
+    refuse_case_collisions,
+    safe_filename,
+)
 from viz.rerun_process import LOOPBACK
 
 
@@ -61,8 +67,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--host",
-        default=LOOPBACK,
-        help="address the viewer's servers listen on (--spawn, --serve-web; default "
+        type=host_address,
+        default=None,
+        help="IP address the viewer's servers listen on (--spawn, --serve-web; default "
         "127.0.0.1); 0.0.0.0 exposes the recording to the network: do it deliberately",
     )
 
@@ -241,11 +248,13 @@ def _save_path(save: str | None, scene: str, many: bool) -> Path:
     return path.with_name(f"{path.stem}_{safe_filename(scene)}{path.suffix}") if many else path
 
 
-def _save_paths(save: str | None, scenes: dict[str, list[Frame]]) -> dict[str, Path]:
+def _save_paths(save: str | None, scenes: dict[str, list[Frame]], source: str) -> dict[str, Path]:
     """Each recorded scene's recording file, checked before any recording (not a folder, its
-    folder writable): a bad one failed only once every scene was recorded."""
+    folder writable; scenes whose files differ only in case refused, as by the other commands):
+    a bad one failed only once every scene was recorded."""
     many = len(scenes) > 1
     paths = {scene: _save_path(save, scene, many) for scene, frames in scenes.items() if frames}
+    refuse_case_collisions(paths, source, suffix=".rrd")
     for path in paths.values():
         check_output_file(path, "--save")
     return paths
@@ -254,8 +263,15 @@ def _save_paths(save: str | None, scenes: dict[str, list[Frame]]) -> dict[str, P
 def run(args: argparse.Namespace) -> int:
     from app.inspect import missing_display
 
-    if args.spawn and missing_display(os.environ):  # else the run hangs on a viewer never up
+    if args.host is not None and not (args.spawn or args.serve_web):  # else ignored unsaid
         raise InputError(
+            f"--host {args.host}: only with --spawn or --serve-web (the viewer's address); "
+            "without them view records to a file"
+        )
+    args.host = args.host or LOOPBACK
+
+    if args.spawn and missing_display(os.environ):  # else the run hangs on a viewer never up
+        raise ViewerError(
             "--spawn: no display for the viewer's window (DISPLAY and WAYLAND_DISPLAY are "
             "unset); record to a file (--save OUT.rrd, then mctrack shots OUT.rrd --out shots/) "
             "or serve a web viewer (--serve-web)"
@@ -272,7 +288,7 @@ def run(args: argparse.Namespace) -> int:
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
     require_frames(scenes, args.input, "record", args.scenes)  # else nothing is recorded
     live = args.spawn or args.serve_web
-    saves = {} if live else _save_paths(args.save, scenes)
+    saves = {} if live else _save_paths(args.save, scenes, args.input)
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
     if args.gt and not any(gt_scenes.values()):  # else every scene "is not in" it
         raise InputError(f"{args.gt}: --gt holds no frames of ground truth")
@@ -287,16 +303,20 @@ def run(args: argparse.Namespace) -> int:
         if f
     }
     _refuse_unreadable_images(scene_images, scenes)
-    server, url = _start_viewer(args) if live else (None, "")
-    try:
-        _record(args, config, scenes, gt_scenes, labelled, scene_images, unmatched, saves, url)
-        if args.serve_web:
-            _serve_until_stopped()
-    finally:
-        if server is not None and args.serve_web:  # (a spawned viewer stays, with its window)
-            from viz.rerun_process import stop_rerun
+    from app.serve import stopped_as_by_ctrl_c
 
-            stop_rerun(server)
+    # the server is stopped however the command ends (a spawned viewer stays, with its window)
+    with stopped_as_by_ctrl_c() if args.serve_web else contextlib.nullcontext():
+        server, url = _start_viewer(args) if live else (None, "")
+        try:
+            _record(args, config, scenes, gt_scenes, labelled, scene_images, unmatched, saves, url)
+            if args.serve_web:
+                _serve_until_stopped()
+        finally:
+            if server is not None and args.serve_web:
+                from viz.rerun_process import stop_rerun
+
+                stop_rerun(server)
     return 0
 
 
@@ -323,9 +343,9 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
             print(f"viewer: {url} (already running)")
             return None, url
         try:
-            process, url = start_viewer(headless=False, host=host, port=port)
+            process, url = start_viewer(headless=False, host=host, port=port, detach=True)
         except (RuntimeError, TimeoutError, OSError) as exc:
-            raise InputError(f"--spawn: the viewer did not start on {host}: {exc}") from None
+            raise ViewerError(f"--spawn: the viewer did not start on {host}: {exc}") from None
     else:
         for option, taken in (("--grpc-port", port), ("--web-port", args.web_port)):
             if port_open(local_address(host), taken):  # (else that server would answer)
@@ -340,7 +360,7 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
             wait_listening(process, host, [port, args.web_port])
         except (RuntimeError, TimeoutError, OSError) as exc:
             stop_rerun(process)
-            raise InputError(f"--serve-web: the server did not start on {host}: {exc}") from None
+            raise ViewerError(f"--serve-web: the server did not start on {host}: {exc}") from None
         except BaseException:
             stop_rerun(process)
             raise
@@ -351,20 +371,13 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
 
 
 def _serve_until_stopped() -> None:
-    """Until Ctrl-C or SIGTERM (which ends it as Ctrl-C does, so the server is stopped)."""
-    import signal
-
-    from app.serve import _interrupt
-
-    previous = signal.signal(signal.SIGTERM, _interrupt)
-    print("serving; press Ctrl-C to stop", flush=True)
-    try:
+    """Until Ctrl-C, SIGTERM or SIGHUP (which end it as Ctrl-C does: see :func:`run`)."""
+    try:  # (the line inside: a signal right after it is a stop too)
+        print("serving; press Ctrl-C to stop", flush=True)
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
         print("stopped")
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _record(

@@ -1535,6 +1535,24 @@ def test_scenes_whose_files_differ_only_in_case_are_refused(
     )
 
 
+def test_view_refuses_scenes_whose_recordings_differ_only_in_case(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """view writes a recording per scene (mctrack_<scene>.rrd, or OUT_<scene>.rrd with
+    --save): scenes A and a were two files here and one on macOS or Windows. Refused before
+    any recording, with the check the other commands use."""
+    frames = _sample_frames()[:3]
+    both = tmp_path / "both.json"
+    both.write_text(json.dumps({"A": frames, "b": frames, "a": frames}))
+    monkeypatch.chdir(tmp_path)  # (the default recordings' folder)
+    for save in ([], ["--save", str(tmp_path / "out.rrd")]):
+        code, _, err = _run(["view", str(both), "--no-motion", *save], capsys)
+        _assert_one_line_error(
+            code, err, "view", f"{both}: scenes 'A' and 'a' differ only in case", "(A.rrd, a.rrd)"
+        )
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["both.json"]
+
+
 def test_track_stopped_after_its_scenes_leaves_no_partial_outputs(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:

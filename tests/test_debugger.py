@@ -269,6 +269,7 @@ def test_view_spawn_without_a_display_is_refused_before_any_work(
 ) -> None:
     """``mctrack view INPUT --spawn`` without a display: the viewer died on winit's error and
     the run then hung with no word (the recording's flush waits for a viewer that never came)."""
+    from app.cli import EXIT_VIEWER_FAILED
     from tests.test_viz import SAMPLE
     from viz import rerun_process
 
@@ -280,7 +281,8 @@ def test_view_spawn_without_a_display_is_refused_before_any_work(
     for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(name, raising=False)
     det = SAMPLE / "detections.json.gz"
-    assert main(["view", str(det), "--frames", "0:5", "--spawn"]) == 2
+    code = main(["view", str(det), "--frames", "0:5", "--spawn"])
+    assert code == EXIT_VIEWER_FAILED  # as inspect
     assert without_kernel_lines(capsys.readouterr().err) == (
         "mctrack view: error: --spawn: no display for the viewer's window (DISPLAY and "
         "WAYLAND_DISPLAY are unset); record to a file (--save OUT.rrd, then mctrack shots "
@@ -711,3 +713,99 @@ def test_fragmentation_cost_table_lists_its_track_once() -> None:
     assert "| T6 | old = new | 1.00 | 0.80 |" in lone
     gone = explain_markdown(6, event(IdEventKind.FRAGMENTATION, 8, 8), None, stages)
     assert "the track had no comparable detection" in gone
+
+
+class _Exited:
+    """A rerun process that exited at once (status 2), as on a refused option."""
+
+    pid = -1
+    returncode = 2
+
+    def poll(self) -> int:
+        return 2
+
+
+@pytest.mark.parametrize("sink", ["--spawn", "--serve-web"])
+def test_view_viewer_not_started_exits_as_inspect_and_shots_do(
+    sink: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A viewer or server that does not start is the environment, not the input: view exited
+    with 2 (bad input) there, inspect and shots with 4; now all with EXIT_VIEWER_FAILED."""
+    import app.inspect
+    import app.shots
+    from app.cli import EXIT_VIEWER_FAILED
+    from tests.test_viz import SAMPLE
+    from viz import rerun_process
+
+    assert EXIT_VIEWER_FAILED == app.inspect.EXIT_VIEWER_FAILED == app.shots.EXIT_VIEWER_FAILED
+    monkeypatch.setattr(rerun_process, "start_rerun", lambda *a, **k: _Exited())
+    monkeypatch.setattr(rerun_process, "port_open", lambda *a: False)
+    monkeypatch.setenv("DISPLAY", ":mctrack-test")
+    det = SAMPLE / "detections.json.gz"
+    assert main(["view", str(det), "--frames", "0:5", sink]) == EXIT_VIEWER_FAILED == 4
+    err = capsys.readouterr().err.splitlines()[-1]
+    what = "the viewer" if sink == "--spawn" else "the server"
+    assert err == (
+        f"mctrack view: error: {sink}: {what} did not start on 127.0.0.1: the rerun viewer "
+        "exited (status 2)"
+    )
+
+
+def test_report_serve_viewer_not_started_is_a_viewer_failure(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """report --serve's web viewer that exits: exit 4 as the other viewers (it was a
+    RuntimeError, reported as a bug, exit 1)."""
+    from app.cli import EXIT_VIEWER_FAILED, error_message
+    from app.serve import report_server
+    from tracker.errors import ViewerError
+    from viz import rerun_process
+
+    monkeypatch.setattr(rerun_process, "start_rerun", lambda *a, **k: _Exited())
+    with pytest.raises(ViewerError) as failed, report_server(tmp_path, {}):
+        pass
+    assert error_message(failed.value) == (
+        "the rerun web viewer exited (status 2)",
+        EXIT_VIEWER_FAILED,
+    )
+
+
+@pytest.mark.parametrize("sink", [[], ["--save", "x.rrd"]])
+def test_view_host_without_a_viewer_is_refused(
+    sink: list[str],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """--host with --save (or the default file) was ignored without a word: refused before any
+    work, nothing written."""
+    from tests.test_viz import SAMPLE
+
+    monkeypatch.chdir(tmp_path)  # (the default file's folder)
+
+    det = SAMPLE / "detections.json.gz"
+    out = tmp_path / "x.rrd"
+    sink = [sink[0], str(out)] if sink else sink
+    assert main(["view", str(det), "--frames", "0:5", *sink, "--host", "0.0.0.0"]) == 2
+    assert capsys.readouterr().err == (
+        "mctrack view: error: --host 0.0.0.0: only with --spawn or --serve-web (the viewer's "
+        "address); without them view records to a file\n"
+    )
+    assert not list(tmp_path.iterdir())
+
+
+def test_inspect_list_with_print_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    """--print beside --list was ignored without a word."""
+    path, _ = recording()
+    assert main(["inspect", str(path), "--list", "--print"]) == 2
+    assert capsys.readouterr().err == (
+        "mctrack inspect: error: --print and --list: give one (--list starts no viewer either)\n"
+    )
+
+
+def test_inspect_help_first_line_names_list(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit):
+        main(["inspect", "--help"])
+    out = capsys.readouterr().out
+    described = out.split("\n\n")[1]  # (after the usage lines)
+    assert described.startswith("mctrack inspect REC [--event K | --frame F | --list]:")

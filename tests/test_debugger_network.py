@@ -69,7 +69,7 @@ def started(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[list]:
 
 def test_loopback_and_exposure_note() -> None:
     assert rerun_process.is_loopback("127.0.0.1") and rerun_process.is_loopback("127.0.0.2")
-    assert rerun_process.is_loopback("::1") and rerun_process.is_loopback("localhost")
+    assert rerun_process.is_loopback("::1")
     assert not rerun_process.is_loopback("0.0.0.0") and not rerun_process.is_loopback("::")
     assert not rerun_process.is_loopback("192.168.1.5")
     assert rerun_process.exposure_note("127.0.0.1", "it") is None
@@ -174,11 +174,8 @@ def test_view_serve_web_listens_on_loopback_and_stops_on_sigterm(tmp_path: Path)
     assert not rerun_process.port_open("127.0.0.1", grpc)
 
 
-def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
-    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """--host 0.0.0.0 (exposing it, deliberately) reaches the binary's --bind, with a note;
-    nothing is bound here (the binary is not started)."""
+def _fake_start(monkeypatch: pytest.MonkeyPatch) -> list[list[str]]:
+    """The argv of each rerun binary view would start; none is started, nothing recorded."""
     seen: list[list[str]] = []
 
     class Fake:
@@ -197,6 +194,15 @@ def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
     monkeypatch.setattr(rerun_process, "stop_rerun", lambda p: None)
     monkeypatch.setattr("app.view._record", lambda *a, **k: None)
     monkeypatch.setattr("app.view._serve_until_stopped", lambda: None)
+    return seen
+
+
+def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--host 0.0.0.0 (exposing it, deliberately) reaches the binary's --bind, with a note;
+    nothing is bound here (the binary is not started)."""
+    seen = _fake_start(monkeypatch)
     det = SAMPLE / "detections.json.gz"
     argv = ["view", str(det), "--frames", "0:5", "--serve-web", "--host", "0.0.0.0"]
     assert main([*argv, "--grpc-port", "9001", "--web-port", "9002"]) == 0
@@ -224,3 +230,66 @@ def test_view_serve_web_refuses_a_port_in_use(capsys: pytest.CaptureFixture[str]
     assert err == (
         f"mctrack view: error: --web-port {taken}: in use on 127.0.0.1; choose another port\n"
     )
+
+
+def test_view_host_localhost_is_bound_as_127_0_0_1(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The binary's --bind takes no host name (`invalid value 'localhost'`, status 2): --host
+    localhost is given to it as 127.0.0.1, on loopback (no note)."""
+    seen = _fake_start(monkeypatch)
+    det = SAMPLE / "detections.json.gz"
+    argv = ["view", str(det), "--frames", "0:5", "--serve-web", "--host", "localhost"]
+    assert main([*argv, "--grpc-port", "9001", "--web-port", "9002"]) == 0
+    assert [a[:3] for a in seen] == [["rerun", "--bind", "127.0.0.1"]]
+    assert "note:" not in capsys.readouterr().out
+
+
+def test_rerun_binary_refuses_a_host_name() -> None:
+    """Why --host must be an IP address: the binary itself (0.41) refuses a name."""
+    if rerun_process.rerun_executable() is None:
+        pytest.skip("the rerun binary of rerun-sdk is not installed")
+    proc = rerun_process.start_rerun(["--serve-web"], host="localhost")
+    assert proc.wait(timeout=30) == 2
+
+
+@pytest.mark.parametrize("host", ["myhost", "example.org", "127.0.0.300", ""])
+def test_view_host_not_an_ip_address_is_a_usage_error(
+    host: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    det = SAMPLE / "detections.json.gz"
+    with pytest.raises(SystemExit) as exit:
+        main(["view", str(det), "--serve-web", "--host", host])
+    assert exit.value.code == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"mctrack view: error: argument --host: expected an IP address (127.0.0.1, 0.0.0.0, "
+        f"::1) or localhost, got {host!r} (see mctrack view --help)\n"
+    )
+
+
+def test_viewer_exit_names_a_port_in_use_only_when_it_is() -> None:
+    """The viewer's exit was put down to "is port N in use?" whatever its cause (a host name
+    it refused, a bad option); now said only when the port is taken."""
+    import socket
+
+    if rerun_process.rerun_executable() is None:
+        pytest.skip("the rerun binary of rerun-sdk is not installed")
+    free = rerun_process.free_port()
+    bad = rerun_process.start_rerun(["--no-such-option"])
+    with pytest.raises(RuntimeError) as refused:
+        rerun_process.wait_listening(bad, "127.0.0.1", [free])
+    assert str(refused.value) == "the rerun viewer exited (status 2)"
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        taken = held.getsockname()[1]
+        web = rerun_process.free_port()
+        args = ["--serve-web", "--port", str(taken), "--web-viewer-port", str(web)]
+        proc = rerun_process.start_rerun(args)  # (its gRPC server cannot listen: it exits)
+        try:
+            with pytest.raises(RuntimeError) as in_use:
+                rerun_process.wait_listening(proc, "127.0.0.1", [taken, web])
+        finally:
+            rerun_process.stop_rerun(proc)
+    assert str(in_use.value).endswith(f"; port {taken} is in use")

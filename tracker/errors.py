@@ -27,3 +27,8 @@ class InputError(ValueError):
             where += f":{line}"
         what = f" field '{field}':" if field is not None else ""
         super().__init__(f"{where}:{what} {message}")
+
+
+class ViewerError(RuntimeError):
+    """A viewer or its server did not start or answer (no display, the binary exited): the
+    machine's environment, not bad input. The CLI exits with status 4 (``EXIT_VIEWER_FAILED``)."""

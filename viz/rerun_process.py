@@ -10,17 +10,20 @@ is this binary, started here, on 127.0.0.1 unless the user asks for another addr
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import ipaddress
 import os
 import signal
 import socket
 import subprocess
+import sys
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 LOOPBACK = "127.0.0.1"
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 
 
 def rerun_executable() -> str | None:
@@ -41,7 +44,8 @@ def free_port(host: str = LOOPBACK) -> int:
 
 
 def is_loopback(host: str) -> bool:
-    """``localhost`` or an address in 127.0.0.0/8 or ::1."""
+    """``localhost`` (report --serve's server takes host names) or an address in 127.0.0.0/8
+    or ::1."""
     if host == "localhost":
         return True
     try:
@@ -78,24 +82,44 @@ def rerun_command(
     return [exe, "--bind", host, *args]
 
 
+def _die_with_parent(parent: int) -> Callable[[], None]:
+    """``preexec_fn`` of a child that must not outlive this process: on Linux the kernel sends
+    it SIGTERM when the parent dies, however it dies (SIGKILL, a hang-up without a handler)."""
+
+    def arm() -> None:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+        if os.getppid() != parent:  # the parent died before the prctl: no signal will come
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    return arm
+
+
 def start_rerun(
     args: Sequence[str],
     *,
     host: str = LOOPBACK,
     quiet: bool = True,
     env: Mapping[str, str] | None = None,
+    detach: bool = False,
 ) -> subprocess.Popen[bytes]:
-    """The binary started with ``args`` on ``host``, in a process group of its own (so that
-    :func:`stop_rerun` ends it and nothing else, and Ctrl-C in the terminal does not reach a
-    viewer left running on purpose). ``RERUN_APP_ONLY`` skips its analytics banner, as
-    ``ViewerClient.spawn`` does."""
+    """The binary started with ``args`` on ``host``. ``RERUN_APP_ONLY`` skips its analytics
+    banner, as ``ViewerClient.spawn`` does.
+
+    ``detach``: a viewer meant to outlive the command (``view --spawn``, ``inspect``), in a
+    session of its own, out of reach of Ctrl-C and the terminal's hang-up. Otherwise (servers,
+    the headless viewer of shots) it stays in the caller's process group, so a hang-up or a
+    signal to the group reaches it too, and on Linux it gets SIGTERM when this process dies:
+    such a server left behind kept its ports, a child of nobody."""
+    linux = sys.platform.startswith("linux")
     return subprocess.Popen(
         rerun_command(args, host=host),
         stdin=subprocess.DEVNULL,
         stdout=subprocess.DEVNULL if quiet else None,
         stderr=subprocess.DEVNULL if quiet else None,
         env={**os.environ, **(env or {}), "RERUN_APP_ONLY": "true"},
-        start_new_session=True,
+        start_new_session=detach,
+        preexec_fn=_die_with_parent(os.getpid()) if linux and not detach else None,
     )
 
 
@@ -115,10 +139,9 @@ def wait_listening(
     waiting = list(ports)
     while waiting:
         if process.poll() is not None:
-            raise RuntimeError(
-                f"the rerun viewer exited (status {process.returncode}); is port "
-                f"{waiting[0]} in use?"
-            )
+            taken = [p for p in ports if port_open(address, p)]  # (by another process)
+            why = f"; port {taken[0]} is in use" if taken else ""
+            raise RuntimeError(f"the rerun viewer exited (status {process.returncode}){why}")
         if port_open(address, waiting[0]):
             waiting.pop(0)
             continue
@@ -128,16 +151,23 @@ def wait_listening(
 
 
 def stop_rerun(process: subprocess.Popen[bytes], timeout: float = 10.0) -> None:
-    """End the process (its whole group: it may have started helpers) and wait for it."""
+    """End the process and wait for it: its whole group when it leads one of its own (a
+    detached viewer may have started helpers), else the process alone (the group is ours)."""
     if process.poll() is None:
-        with contextlib.suppress(ProcessLookupError):
-            os.killpg(process.pid, signal.SIGTERM)
+        _signal(process, signal.SIGTERM)
         try:
             process.wait(timeout=timeout)
         except subprocess.TimeoutExpired:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(process.pid, signal.SIGKILL)
+            _signal(process, signal.SIGKILL)
             process.wait(timeout=timeout)
+
+
+def _signal(process: subprocess.Popen[bytes], signum: int) -> None:
+    with contextlib.suppress(ProcessLookupError):
+        if os.getpgid(process.pid) == process.pid:
+            os.killpg(process.pid, signum)
+        else:
+            process.send_signal(signum)
 
 
 def viewer_args(port: int, *, headless: bool) -> list[str]:
@@ -154,11 +184,18 @@ def viewer_args(port: int, *, headless: bool) -> list[str]:
 
 
 def start_viewer(
-    *, headless: bool, host: str = LOOPBACK, port: int | None = None, timeout: float = 30.0
+    *,
+    headless: bool,
+    host: str = LOOPBACK,
+    port: int | None = None,
+    timeout: float = 30.0,
+    detach: bool = False,
 ) -> tuple[subprocess.Popen[bytes], str]:
-    """A native viewer on ``host``, listening: (its process, its ``rerun+http`` URL)."""
+    """A native viewer on ``host``, listening: (its process, its ``rerun+http`` URL);
+    ``detach`` as for :func:`start_rerun`."""
     port = free_port(host) if port is None else port
-    process = start_rerun(viewer_args(port, headless=headless), host=host, quiet=headless)
+    args = viewer_args(port, headless=headless)
+    process = start_rerun(args, host=host, quiet=headless, detach=detach)
     try:
         wait_listening(process, host, [port], timeout)
     except BaseException:
@@ -167,12 +204,15 @@ def start_viewer(
     return process, f"rerun+http://{local_address(host)}:{port}/proxy"
 
 
-def viewer_client(*, headless: bool, host: str = LOOPBACK) -> tuple[Any, subprocess.Popen[bytes]]:
+def viewer_client(
+    *, headless: bool, host: str = LOOPBACK, detach: bool = False
+) -> tuple[Any, subprocess.Popen[bytes]]:
     """A native viewer started on ``host`` and a ``ViewerClient`` connected to it:
-    (client, process). The viewer keeps running until :func:`stop_rerun` of the process."""
+    (client, process). The viewer keeps running until :func:`stop_rerun` of the process (or,
+    unless ``detach``, until this process ends)."""
     from rerun.experimental import ViewerClient
 
-    process, url = start_viewer(headless=headless, host=host)
+    process, url = start_viewer(headless=headless, host=host, detach=detach)
     try:
         return ViewerClient.connect(url), process
     except BaseException:
