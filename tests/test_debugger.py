@@ -238,21 +238,15 @@ def test_inspect_without_a_display_says_so_and_names_shots(
     """Without DISPLAY / WAYLAND_DISPLAY (SSH, CI) the viewer's window cannot open: inspect
     says so in one line with the shots command for the same moment, instead of spawning a
     viewer that fails with "transport error" after 6 s."""
-    from app.inspect import EXIT_VIEWER_FAILED, missing_display
-    from viz import rerun_process
+    from app.common import EXIT_VIEWER_FAILED
+    from app.inspect import missing_display
 
     assert missing_display({}, "linux")
     assert not missing_display({"DISPLAY": ":0"}, "linux")
     assert not missing_display({"WAYLAND_DISPLAY": "wayland-0"}, "linux")
     assert not missing_display({}, "darwin") and not missing_display({}, "win32")
 
-    def spawn(*args: object, **kwargs: object) -> None:
-        raise AssertionError("no viewer without a display")
-
-    monkeypatch.setattr(rerun_process, "start_rerun", spawn)
-    monkeypatch.setattr("sys.platform", "linux")
-    for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
-        monkeypatch.delenv(name, raising=False)
+    _without_a_display(monkeypatch)
     path, _ = recording()
     for what, where in ((["--event", "1"], "--event 1"), (["--frame", "15"], "--frame 15")):
         assert main(["inspect", str(path), *what]) == EXIT_VIEWER_FAILED
@@ -264,13 +258,9 @@ def test_inspect_without_a_display_says_so_and_names_shots(
         )
 
 
-def test_view_spawn_without_a_display_is_refused_before_any_work(
-    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """``mctrack view INPUT --spawn`` without a display: the viewer died on winit's error and
-    the run then hung with no word (the recording's flush waits for a viewer that never came)."""
-    from app.cli import EXIT_VIEWER_FAILED
-    from tests.test_viz import SAMPLE
+def _without_a_display(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Linux machine without DISPLAY / WAYLAND_DISPLAY, where starting a viewer fails the
+    test (the command must refuse before)."""
     from viz import rerun_process
 
     def spawn(*args: object, **kwargs: object) -> None:
@@ -280,6 +270,17 @@ def test_view_spawn_without_a_display_is_refused_before_any_work(
     monkeypatch.setattr("sys.platform", "linux")
     for name in ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET"):
         monkeypatch.delenv(name, raising=False)
+
+
+def test_view_spawn_without_a_display_is_refused_before_any_work(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``mctrack view INPUT --spawn`` without a display: the viewer died on winit's error and
+    the run then hung with no word (the recording's flush waits for a viewer that never came)."""
+    from app.common import EXIT_VIEWER_FAILED
+    from tests.test_viz import SAMPLE
+
+    _without_a_display(monkeypatch)
     det = SAMPLE / "detections.json.gz"
     code = main(["view", str(det), "--frames", "0:5", "--spawn"])
     assert code == EXIT_VIEWER_FAILED  # as inspect
@@ -733,7 +734,7 @@ def test_view_viewer_not_started_exits_as_inspect_and_shots_do(
     with 2 (bad input) there, inspect and shots with 4; now all with EXIT_VIEWER_FAILED."""
     import app.inspect
     import app.shots
-    from app.cli import EXIT_VIEWER_FAILED
+    from app.common import EXIT_VIEWER_FAILED
     from tests.test_viz import SAMPLE
     from viz import rerun_process
 
