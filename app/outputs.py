@@ -88,21 +88,26 @@ def outputs_replaced_by(command: str) -> tuple[str, ...]:
     return tuple(dict.fromkeys(p for c in commands for p in outputs_of(c)))
 
 
-def _run_summary(path: Path) -> bool:
-    """Whether ``path`` is a run's summary.json: a JSON object naming one of
+def is_run_summary(summary: object) -> bool:
+    """Whether ``summary`` (a summary.json's JSON) is a run's: an object naming one of
     :data:`RUN_COMMANDS` as its "command" (or, written before that field, holding the
     "detection_fates" every run's has). Anyone's file of that name (``{}``) is not."""
+    if not isinstance(summary, dict):
+        return False
+    if "command" in summary:
+        return summary["command"] in RUN_COMMANDS
+    return isinstance(summary.get("detection_fates"), dict)
+
+
+def _run_summary(path: Path) -> bool:
+    """Whether ``path`` is a run's summary.json (:func:`is_run_summary`)."""
     try:
         if not path.is_file() or path.stat().st_size > _SUMMARY_MAX_BYTES:
             return False
         summary = json.loads(path.read_bytes())
     except (OSError, ValueError, RecursionError):  # (unreadable, not JSON, not UTF-8)
         return False
-    if not isinstance(summary, dict):
-        return False
-    if "command" in summary:
-        return summary["command"] in RUN_COMMANDS
-    return isinstance(summary.get("detection_fates"), dict)
+    return is_run_summary(summary)
 
 
 def holds_a_run(folder: Path) -> bool:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from app.outputs import is_run_summary
 from tracker.errors import InputError
 from tracker.eval.compare import Event, event_record
 from tracker.io.fileio import path_in
@@ -71,6 +72,11 @@ def read_summary(folder: Path) -> dict[str, Any]:
         raise InputError(f"{file}: malformed JSON ({exc})") from None
     if not isinstance(summary, dict):
         raise InputError(f"{file}: expected a JSON object")
+    if not is_run_summary(summary):  # (the rule by which a run replaces its folder's files)
+        raise InputError(
+            f'{file}: not a run\'s summary.json (no "command" naming an mctrack run: another '
+            "tool's file?): pass a `mctrack kitti --out` folder"
+        )
     seqs = summary.get("sequences")
     if seqs is None and "input" in summary and "tracks" in summary:
         raise InputError(

@@ -100,7 +100,7 @@ def test_compare_hand_made_runs(tmp_path: Path, capsys) -> None:
 
 def test_compare_bad_input_is_one_line(tmp_path: Path, capsys) -> None:
     a, b, _ = make_runs(tmp_path)
-    (b / "summary.json").write_text('{"sequences": "0001"}')
+    (b / "summary.json").write_text('{"command": "kitti", "sequences": "0001"}')
     assert main(["compare", str(a), str(b), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "summary.json" in err and "'sequences'" in err
@@ -217,6 +217,46 @@ def test_compare_and_report_name_a_malformed_summary_field(
         err = capsys.readouterr().err.strip()
         assert len(err.splitlines()) == 1
         assert err.startswith(f"mctrack {args[0]}: error: {b / 'summary.json'}: {named}")
+
+
+@pytest.mark.parametrize(
+    "foreign",
+    [
+        {"sequences": [SEQ], "classes": ["car"], "tool": "another"},  # (was a half-filled table)
+        {"command": "eval", "sequences": [SEQ], "classes": ["car"]},  # (not a run's command)
+        {},
+    ],
+)
+def test_compare_and_report_refuse_a_foreign_summary(tmp_path: Path, capsys, foreign: dict) -> None:
+    """A folder whose summary.json is not a run's (app.outputs.is_run_summary, the rule by
+    which a run replaces a folder's files) is refused in one line naming the file; one holding
+    a run's field names was compared as a run with no metrics (B's column all '–')."""
+    a, b, _ = make_runs(tmp_path)
+    (b / "summary.json").write_text(json.dumps(foreign))
+    for args in (["compare", str(a), str(b)], ["report", str(a), "--compare", str(b)]):
+        assert main([*args, "--out", str(tmp_path / "o")]) == 2
+        assert capsys.readouterr().err.strip() == (
+            f"mctrack {args[0]}: error: {b / 'summary.json'}: not a run's summary.json (no "
+            '"command" naming an mctrack run: another tool\'s file?): pass a `mctrack kitti '
+            "--out` folder"
+        )
+        assert not (tmp_path / "o").exists()
+
+
+def test_compare_into_a_folder_with_a_foreign_summary_replaces_its_earlier_comparison(
+    tmp_path: Path,
+) -> None:
+    """--out holding anyone's summary.json is not a run folder: an earlier comparison's
+    recordings there go with it, as in any other folder (they stayed, as a run's own)."""
+    a, b, _ = make_runs(tmp_path)
+    out = tmp_path / "cmp"
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    (out / "summary.json").write_text('{"mine": true}')
+    (out / "recordings").mkdir()
+    (out / "recordings" / f"{SEQ}.rrd").write_bytes(b"an earlier --record's")
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["compare.json", "compare.md", "summary.json"]
+    assert (out / "summary.json").read_text() == '{"mine": true}'
 
 
 def _with_second_sequence(run: Path, labels: Path, *, failed: bool = False) -> None:
