@@ -2,7 +2,11 @@
 moments, then check what a killed run leaves in its output folder and that the next run
 cleans it up.
 
-    python bench/kill_trials.py [--trials 8] [--out /tmp/mctrack-kill]
+    python bench/kill_trials.py [--trials 8] [--out DIR]
+
+The trials run in a work folder of their own (tracker.io.fileio.work_folder), removed at the
+end; with ``--out DIR`` in a new folder ``DIR/kill-<pid>-<time>``, kept to look at (nothing
+already in DIR is touched, and two runs never share one).
 
 For each trial it prints the files present after the kill and whether each is complete:
 tracks.json / KITTI files load, summary.json (written last) exists only for a finished run and
@@ -13,13 +17,18 @@ next run in the same folder.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import itertools
 import json
-import shutil
+import os
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
+
+from tracker.io.fileio import work_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "kitti-0001" / "detections.json.gz"
@@ -75,19 +84,47 @@ def _inspect(out: Path) -> dict[str, object]:
     return state
 
 
-def main() -> int:
+@contextlib.contextmanager
+def trials_folder(out: Path | None) -> Iterator[Path]:
+    """Where one run of the trials writes: without ``out`` a work folder, removed at the end;
+    else a new folder under ``out`` (made exclusively, named with the pid: a second run never
+    shares it), kept. Nothing else in ``out`` is touched (it was removed whole)."""
+    if out is None:
+        with work_folder("kill") as folder:
+            yield folder
+        return
+    out.mkdir(parents=True, exist_ok=True)
+    stem = f"kill-{os.getpid()}-{time.strftime('%Y%m%d-%H%M%S')}"
+    for n in itertools.count(1):
+        folder = out / (stem if n == 1 else f"{stem}-{n}")
+        try:
+            folder.mkdir()  # (exclusive: an existing folder is never taken over)
+            break
+        except FileExistsError:
+            continue
+    print(f"trials in {folder}")
+    yield folder
+
+
+def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--trials", type=int, default=8, help="kills per command")
-    parser.add_argument("--out", type=Path, default=Path("/tmp/mctrack-kill"))
-    args = parser.parse_args()
-    shutil.rmtree(args.out, ignore_errors=True)
+    parser.add_argument(
+        "--out", type=Path, default=None, help="keep the trials in a new folder under DIR"
+    )
+    args = parser.parse_args(argv)
+    with trials_folder(args.out) as folder:
+        return _trials(folder, args.trials)
+
+
+def _trials(root: Path, trials: int) -> int:
     problems = 0
     for name, cmd in (("track", TRACK), ("demo", ["demo"])):
-        full = _timed_run([*cmd, "--out", str(args.out / f"{name}-timing")])
+        full = _timed_run([*cmd, "--out", str(root / f"{name}-timing")])
         print(f"## mctrack {name}: an uninterrupted run takes {full:.1f} s")
-        for k in range(args.trials):
-            out = args.out / f"{name}-{k}"
-            secs = full * (k + 0.5) / args.trials
+        for k in range(trials):
+            out = root / f"{name}-{k}"
+            secs = full * (k + 0.5) / trials
             killed = _kill_after([*cmd, "--out", str(out)], secs)
             out.mkdir(parents=True, exist_ok=True)
             after_kill = _inspect(out)

@@ -109,7 +109,7 @@ WORK_FOLDER_PREFIX = "mctrack-"
 WORK_FOLDER_KINDS = frozenset(
     {
         "benchrecord", "bevids", "eval", "fnanatomy", "folds", "fpanatomy", "fptrim",
-        "hotaceiling", "idsw", "inspect", "noise", "parallel", "profile", "record",
+        "hotaceiling", "idsw", "inspect", "kill", "noise", "parallel", "profile", "record",
         "results", "shots", "speed", "trial", "tune", "viewer",
     }
 )  # fmt: skip
