@@ -158,7 +158,9 @@ def run(args: argparse.Namespace) -> int:
         "--profile": profile if isinstance(profile, Path) else None,
         "--poses": Path(poses) if poses not in (None, "orbslam3") else None,
     }
-    refuse_inputs_among_outputs(out, outputs_at_stake("kitti", out), inputs, outputs_of("kitti"))
+    written = [_normalise_seq(s) for s in seqs]  # (data/<seq>.txt of its sequences alone)
+    at_stake = outputs_at_stake("kitti", out, written)
+    refuse_inputs_among_outputs(out, at_stake, inputs, outputs_of("kitti", written))
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     summary = run_kitti(

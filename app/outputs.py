@@ -6,7 +6,10 @@ imports here."""
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from pathlib import Path, PurePosixPath
+
+from tracker.io.fileio import safe_filename
 
 #: Each command's output files in --out (globs relative to it; .scenes/: the scene parts of a
 #: run while it runs, see app.scenes.PARTS_DIR). The temporary files each is written under
@@ -57,6 +60,9 @@ RUN_FOLDER = (*RUN_COMMANDS, "eval", "compare")
 #: Where a run's scene parts are while it runs (app.scenes.PARTS_DIR): a folder holding them
 #: is a run's (one cut short). Else only its summary.json, written last, marks a run's folder.
 RUN_PARTS = ".scenes"
+#: The patterns of a file per scene (sequence), ``*`` its name (tracker.io.fileio.path_in): a
+#: run writes those of its own scenes alone (:func:`outputs_of` with ``scenes``).
+PER_SCENE = ("data/*.txt",)
 #: The largest summary.json read to tell whether it is a run's.
 _SUMMARY_MAX_BYTES = 64 << 20
 
@@ -73,10 +79,20 @@ def _with_temps(patterns: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def outputs_of(command: str) -> tuple[str, ...]:
+def outputs_of(command: str, scenes: Iterable[str] | None = None) -> tuple[str, ...]:
     """What ``command`` writes in its folder, temporary files included: what a failed run of
-    it removes (those it wrote), and what it refuses to take as an input there."""
-    return _with_temps(FILES[command])
+    it removes (those it wrote), and what it refuses to take as an input there. ``scenes``:
+    the scenes a run writes a file of, once known: each per-scene pattern (:data:`PER_SCENE`)
+    becomes their files (none for no scenes: `track` without --kitti-results)."""
+    patterns = FILES[command]
+    if scenes is not None:
+        names = [safe_filename(s) for s in scenes]  # (no glob character: [A-Za-z0-9._%-])
+        patterns = tuple(
+            q
+            for p in patterns
+            for q in ([p.replace("*", n) for n in names] if p in PER_SCENE else [p])
+        )
+    return _with_temps(patterns)
 
 
 def outputs_replaced_by(command: str) -> tuple[str, ...]:
@@ -118,11 +134,14 @@ def holds_a_run(folder: Path) -> bool:
     return _run_summary(folder / "summary.json") or (folder / RUN_PARTS).is_dir()
 
 
-def outputs_at_stake(command: str, folder: Path) -> tuple[str, ...]:
+def outputs_at_stake(
+    command: str, folder: Path, scenes: Iterable[str] | None = None
+) -> tuple[str, ...]:
     """What a run of ``command`` into ``folder`` writes or removes there, once its inputs are
     accepted (an input among them is refused): in a folder holding a run
-    (:func:`holds_a_run`), all it replaces of it (:func:`outputs_replaced_by`); else only
-    what it writes (:func:`outputs_of`), which is all it may touch there."""
+    (:func:`holds_a_run`), all it replaces of it (:func:`outputs_replaced_by`: every
+    data/*.txt); else only what it writes (:func:`outputs_of`, of ``scenes`` where known:
+    data/<scene>.txt of its own scenes), which is all it may touch there."""
     if command in RUN_COMMANDS and holds_a_run(folder):
         return outputs_replaced_by(command)
-    return outputs_of(command)
+    return outputs_of(command, scenes)

@@ -265,14 +265,6 @@ def _calibrated(
 
 def run(args: argparse.Namespace) -> int:
     out = check_output_folder(args.out)  # before any work: exists as a file, not writable
-    # (an earlier run's outputs go once the inputs are read: an input among them would be lost)
-    profile = None if args.profile in (None, SELF_PROFILE, NO_PROFILE) else Path(args.profile)
-    refuse_inputs_among_outputs(
-        out,
-        outputs_at_stake("track", out),
-        {"INPUT": Path(args.input), "--profile": profile},
-        outputs_of("track"),
-    )
     overrides = {"mode": args.mode} if args.mode else None
     config = load_config(args.config, overrides=overrides)
     window = parse_frame_range(args.frames)
@@ -284,6 +276,16 @@ def run(args: argparse.Namespace) -> int:
     require_frames(scene_frames, args.input, "track", args.scenes)  # else an empty tracks.json
     if args.kitti_results:  # (a file per scene: data/<scene>.txt)
         refuse_case_collisions(scene_frames, args.input, suffix=".txt")
+    # an earlier run's outputs go once the inputs are read: an input among them, or among the
+    # files this run writes (data/<scene>.txt of its scenes alone), would be lost
+    profile = None if args.profile in (None, SELF_PROFILE, NO_PROFILE) else Path(args.profile)
+    written = list(scene_frames) if args.kitti_results else []
+    refuse_inputs_among_outputs(
+        out,
+        outputs_at_stake("track", out, written),
+        {"INPUT": Path(args.input), "--profile": profile},
+        outputs_of("track", written),
+    )
     empty = [s for s, frames in scene_frames.items() if not frames]
     # (kept in tracks.json, as scenes without tracks: said, not silent; with --frames,
     # select_scenes has already warned of them)

@@ -1465,6 +1465,50 @@ def test_an_input_named_as_another_commands_output_is_refused_only_in_a_runs_fol
     assert (out / "results.json").is_file()
 
 
+def test_an_input_in_data_is_refused_only_where_the_run_writes_or_removes_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack track w/data/dets.txt --out w`, w holding no run: track writes data/<scene>.txt
+    of its own scenes alone (with --kitti-results), never data/dets.txt, yet every data/*.txt
+    was refused as "a file this run writes". Now a file of a scene it writes is refused, and in
+    a run's folder every data/*.txt (the earlier run's names, which a run removes)."""
+    from app.outputs import outputs_at_stake
+
+    detections = gzip.decompress((SAMPLE / "detections.json.gz").read_bytes())
+    out = tmp_path / "w"
+    (out / "data").mkdir(parents=True)
+    dets = out / "data" / "dets.txt"
+    dets.write_bytes(detections)
+    argv = ["track", str(dets), "--frames", "0:5", "--out", str(out)]
+    for extra in ([], ["--kitti-results"]):
+        code, _, err = _run([*argv, *extra], capsys)
+        assert code == 0, err
+        assert dets.read_bytes() == detections
+        (out / "summary.json").unlink()  # (w again a folder of anyone's files)
+    assert (out / "data" / "0001.txt").is_file()
+    (out / "summary.json").write_text('{"command": "track"}')  # (now a run's folder)
+    code, _, err = _run(argv, capsys)
+    _assert_one_line_error(
+        code, err, "track", f"{dets}: INPUT is an earlier run's output, which this run removes"
+    )
+    # a scene's own file, in a folder holding no run: refused only where the run writes it
+    scene = tmp_path / "v" / "data" / "0001.txt"
+    scene.parent.mkdir(parents=True)
+    scene.write_bytes(detections)
+    argv = ["track", str(scene), "--frames", "0:5", "--out", str(tmp_path / "v")]
+    code, _, err = _run([*argv, "--kitti-results"], capsys)
+    _assert_one_line_error(
+        code, err, "track", f"{scene}: INPUT is a file this run writes in {tmp_path / 'v'}"
+    )
+    assert scene.read_bytes() == detections
+    code, _, err = _run(argv, capsys)
+    assert code == 0 and scene.read_bytes() == detections, err
+    # kitti alike: data/<seq>.txt of its sequences in a folder holding no run
+    anyones = outputs_at_stake("kitti", tmp_path / "new", ["0001"])
+    assert "data/0001.txt" in anyones and "data/*.txt" not in anyones
+    assert "data/*.txt" in outputs_at_stake("kitti", out, ["0001"])  # (w holds a run)
+
+
 def test_an_input_among_another_commands_outputs_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
