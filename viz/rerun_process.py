@@ -17,6 +17,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -110,8 +111,20 @@ def start_rerun(
     session of its own, out of reach of Ctrl-C and the terminal's hang-up. Otherwise (servers,
     the headless viewer of shots) it stays in the caller's process group, so a hang-up or a
     signal to the group reaches it too, and on Linux it gets SIGTERM when this process dies:
-    such a server left behind kept its ports, a child of nobody."""
+    such a server left behind kept its ports, a child of nobody.
+
+    That signal follows the *thread* that starts the child (prctl(2): the parent-death signal
+    comes when the creating thread ends), so such a child is started from the main thread only,
+    which lives as long as the process: one from a worker thread would be stopped when that
+    thread ended, under a command still using it. Every command starts its viewers and servers
+    from the main thread; a RuntimeError here is a bug of the caller."""
     linux = sys.platform.startswith("linux")
+    if linux and not detach and threading.current_thread() is not threading.main_thread():
+        raise RuntimeError(
+            f"start_rerun from thread {threading.current_thread().name!r}: a server or headless "
+            "viewer is started from the main thread only (its death signal follows the thread "
+            "that starts it)"
+        )
     return subprocess.Popen(
         rerun_command(args, host=host),
         stdin=subprocess.DEVNULL,
