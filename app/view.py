@@ -14,7 +14,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from app.inputs import add_mode_argument, host_address
+from app.inputs import add_mode_argument, host_address, refuse_unused_option
 from tracker.config import TrackerConfig
 from tracker.errors import InputError, ViewerError
 from tracker.frame import Frame
@@ -25,6 +25,9 @@ from tracker.io.fileio import (
     safe_filename,
 )
 from viz.rerun_process import LOOPBACK
+
+DEFAULT_WEB_PORT = 9090
+DEFAULT_GRPC_PORT = 9876  # (Rerun's own default)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,19 +61,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     sink.add_argument("--spawn", action="store_true", help="stream to a new native viewer")
     sink.add_argument("--serve-web", action="store_true", help="serve a web viewer (until Ctrl-C)")
-    parser.add_argument("--web-port", type=int, default=9090, help="port of --serve-web")
+    parser.add_argument(
+        "--web-port",
+        type=int,
+        default=None,
+        help=f"port of --serve-web's web page (default {DEFAULT_WEB_PORT}; only with --serve-web)",
+    )
     parser.add_argument(
         "--grpc-port",
         type=int,
-        default=9876,
-        help="port the viewer connects to (--spawn, --serve-web)",
+        default=None,
+        help=f"port the viewer connects to (default {DEFAULT_GRPC_PORT}; only with --spawn or "
+        "--serve-web)",
     )
     parser.add_argument(
         "--host",
         type=host_address,
         default=None,
-        help="IP address the viewer's servers listen on (--spawn, --serve-web; default "
-        "127.0.0.1); 0.0.0.0 exposes the recording to the network: do it deliberately",
+        help="IP address the viewer's servers listen on (default 127.0.0.1; only with --spawn "
+        "or --serve-web); 0.0.0.0 exposes the recording to the network: do it deliberately",
     )
 
 
@@ -260,15 +269,27 @@ def _save_paths(save: str | None, scenes: dict[str, list[Frame]], source: str) -
     return paths
 
 
+def _refuse_unused_options(args: argparse.Namespace) -> None:
+    """The viewer's options where they have no effect (each was ignored without a word)."""
+    if not (args.spawn or args.serve_web):
+        for option, value, what in (
+            ("--host", args.host, "address"),
+            ("--grpc-port", args.grpc_port, "port"),
+        ):
+            viewer = f"--spawn or --serve-web (the viewer's {what})"
+            refuse_unused_option(option, value, viewer, "without them view records to a file")
+    instead = "--spawn's viewer has none" if args.spawn else "without it view records to a file"
+    if not args.serve_web:
+        refuse_unused_option("--web-port", args.web_port, "--serve-web (its web page)", instead)
+
+
 def run(args: argparse.Namespace) -> int:
     from app.inspect import missing_display
 
-    if args.host is not None and not (args.spawn or args.serve_web):  # else ignored unsaid
-        raise InputError(
-            f"--host {args.host}: only with --spawn or --serve-web (the viewer's address); "
-            "without them view records to a file"
-        )
+    _refuse_unused_options(args)
     args.host = args.host or LOOPBACK
+    args.grpc_port = DEFAULT_GRPC_PORT if args.grpc_port is None else args.grpc_port
+    args.web_port = DEFAULT_WEB_PORT if args.web_port is None else args.web_port
 
     if args.spawn and missing_display(os.environ):  # else the run hangs on a viewer never up
         raise ViewerError(

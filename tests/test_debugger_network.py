@@ -253,19 +253,65 @@ def test_rerun_binary_refuses_a_host_name() -> None:
     assert proc.wait(timeout=30) == 2
 
 
+@pytest.mark.parametrize("command", ["view", "report"])
 @pytest.mark.parametrize("host", ["myhost", "example.org", "127.0.0.300", ""])
-def test_view_host_not_an_ip_address_is_a_usage_error(
-    host: str, capsys: pytest.CaptureFixture[str]
+def test_host_not_an_ip_address_is_a_usage_error(
+    command: str, host: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    det = SAMPLE / "detections.json.gz"
+    """view and report --serve take the same --host, checked by one function (report took a
+    host name, which view refuses, and failed on a bad one only once the report was made)."""
+    if command == "view":
+        argv = ["view", str(SAMPLE / "detections.json.gz"), "--serve-web"]
+    else:
+        argv = ["report", str(tmp_path / "run"), "--out", str(tmp_path / "r"), "--serve"]
     with pytest.raises(SystemExit) as exit:
-        main(["view", str(det), "--serve-web", "--host", host])
+        main([*argv, "--host", host])
     assert exit.value.code == 2
     err = capsys.readouterr().err
     assert err == (
-        f"mctrack view: error: argument --host: expected an IP address (127.0.0.1, 0.0.0.0, "
-        f"::1) or localhost, got {host!r} (see mctrack view --help)\n"
+        f"mctrack {command}: error: argument --host: expected an IP address (127.0.0.1, "
+        f"0.0.0.0, ::1) or localhost, got {host!r} (see mctrack {command} --help)\n"
     )
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize("given", [["--host", "0.0.0.0"], ["--port", "0"]])
+def test_report_host_and_port_without_serve_are_refused(
+    given: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--host and --port without --serve were ignored without a word: refused before any work,
+    as view refuses --host without a viewer."""
+    from tests.report_fixtures import make_runs
+
+    run, _, _ = make_runs(tmp_path)
+    out = tmp_path / "r"
+    assert main(["report", str(run), "--out", str(out), *given]) == 2
+    option, value = given
+    assert capsys.readouterr().err == (
+        f"mctrack report: error: {option} {value}: only with --serve; without it report writes "
+        "the folder\n"
+    )
+    assert not out.exists()
+
+
+def test_report_serves_on_an_ipv6_address(tmp_path: Path) -> None:
+    """--host ::1, an IP address --host takes, was refused by the server ("Address family for
+    hostname not supported"): it bound IPv4 only."""
+    import socket
+    import urllib.request
+
+    from app.serve import report_server
+
+    with socket.socket(socket.AF_INET6) as probe:
+        try:
+            probe.bind(("::1", 0))
+        except OSError:
+            pytest.skip("no IPv6 loopback here")
+    (tmp_path / "index.html").write_text("<p>report</p>")
+    with report_server(tmp_path, {}, host="::1", with_viewer=False) as (_, url):
+        assert url.startswith("http://[::1]:")
+        with urllib.request.urlopen(url, timeout=30) as answer:
+            assert answer.read() == b"<p>report</p>"
 
 
 def test_viewer_exit_names_a_port_in_use_only_when_it_is() -> None:

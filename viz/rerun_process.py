@@ -45,8 +45,7 @@ def free_port(host: str = LOOPBACK) -> int:
 
 
 def is_loopback(host: str) -> bool:
-    """``localhost`` (report --serve's server takes host names) or an address in 127.0.0.0/8
-    or ::1."""
+    """``localhost`` or an address in 127.0.0.0/8 or ::1."""
     if host == "localhost":
         return True
     try:
