@@ -267,12 +267,15 @@ def stopped_as_by_ctrl_c() -> Iterator[None]:
 
 def serve_report(root: Path, recordings: Mapping[str, Path], *, host: str, port: int) -> int:
     """Serve until Ctrl-C, SIGTERM or SIGHUP."""
-    from viz.rerun_process import exposure_note
+    from viz.rerun_process import exposure_note, served_at
 
     try:
         with stopped_as_by_ctrl_c(), report_server(root, recordings, host=host, port=port) as run:
-            url = run[1]
+            bound = run[0].server_address[1]  # (--port 0: the one it got)
+            url, listening = served_at(host, lambda at: f"http://{at}:{bound}/")
             print(f"serving the report at {url} (Ctrl-C to stop)", flush=True)
+            if listening:
+                print(listening)
             note = exposure_note(host, "the report and recordings")
             if note:
                 print(note)

@@ -350,6 +350,7 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
         exposure_note,
         local_address,
         port_open,
+        served_at,
         start_rerun,
         start_viewer,
         stop_rerun,
@@ -385,7 +386,13 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
         except BaseException:
             stop_rerun(process)
             raise
-        print(f"web viewer: http://{local_address(host)}:{args.web_port}/?url={url}")
+        # (a browser elsewhere reaches both servers at the address it was given)
+        page, listening = served_at(
+            host, lambda at: f"http://{at}:{args.web_port}/?url=rerun+http://{at}:{port}/proxy"
+        )
+        print(f"web viewer: {page}")
+        if listening:
+            print(listening)
     if note:
         print(note)
     return process, url

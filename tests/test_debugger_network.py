@@ -201,8 +201,11 @@ def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """--host 0.0.0.0 (exposing it, deliberately) reaches the binary's --bind, with a note;
-    nothing is bound here (the binary is not started)."""
+    nothing is bound here (the binary is not started). The URL printed is one a browser on
+    another machine can use (it named 127.0.0.1, there the other machine itself), with the one
+    for this machine after it."""
     seen = _fake_start(monkeypatch)
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "studio-box")
     det = SAMPLE / "detections.json.gz"
     argv = ["view", str(det), "--frames", "0:5", "--serve-web", "--host", "0.0.0.0"]
     assert main([*argv, "--grpc-port", "9001", "--web-port", "9002"]) == 0
@@ -210,8 +213,62 @@ def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
         ["rerun", "--bind", "0.0.0.0", "--serve-web", "--port", "9001", "--web-viewer-port", "9002"]
     ]
     out = capsys.readouterr().out
-    assert "note: --host 0.0.0.0 exposes the recording to the network" in out
-    assert "web viewer: http://127.0.0.1:9002/?url=rerun+http://127.0.0.1:9001/proxy" in out
+    assert out.splitlines()[:3] == [
+        "web viewer: http://studio-box:9002/?url=rerun+http://studio-box:9001/proxy",
+        "  listening on all interfaces; on this machine: "
+        "http://127.0.0.1:9002/?url=rerun+http://127.0.0.1:9001/proxy",
+        "note: --host 0.0.0.0 exposes the recording to the network",
+    ]
+
+
+def test_served_at_names_an_address_a_browser_can_use(monkeypatch: pytest.MonkeyPatch) -> None:
+    def url(at: str) -> str:
+        return f"http://{at}:80/"
+
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "studio-box")
+    assert rerun_process.served_at("127.0.0.1", url) == ("http://127.0.0.1:80/", None)
+    assert rerun_process.served_at("192.168.1.5", url) == ("http://192.168.1.5:80/", None)
+    assert rerun_process.served_at("::1", url) == ("http://[::1]:80/", None)
+    assert rerun_process.served_at("::", url) == (
+        "http://studio-box:80/",
+        "  listening on all interfaces; on this machine: http://[::1]:80/",
+    )
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "localhost")  # (no use)
+    assert rerun_process.served_at("0.0.0.0", url) == (
+        "http://127.0.0.1:80/",
+        "  listening on all interfaces: from another machine, this machine's address for 127.0.0.1",
+    )
+
+
+def test_report_serve_on_all_interfaces_prints_a_url_for_other_machines(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """report --serve --host 0.0.0.0 printed http://127.0.0.1:PORT/ (nothing is bound here: the
+    server is a stand-in, stopped as by Ctrl-C once it has printed)."""
+    import contextlib
+
+    from app import serve
+
+    class Server:
+        server_address = ("0.0.0.0", 8765)
+
+    @contextlib.contextmanager
+    def server(*args: object, **kwargs: object) -> Iterator[tuple[Server, str]]:
+        yield Server(), "http://127.0.0.1:8765/"
+
+    def ctrl_c(seconds: float) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(serve, "report_server", server)
+    monkeypatch.setattr(serve.time, "sleep", ctrl_c)
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "studio-box")
+    assert serve.serve_report(tmp_path, {}, host="0.0.0.0", port=8765) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        "serving the report at http://studio-box:8765/ (Ctrl-C to stop)",
+        "  listening on all interfaces; on this machine: http://127.0.0.1:8765/",
+        "note: --host 0.0.0.0 exposes the report and recordings to the network",
+        "stopped",
+    ]
 
 
 def test_view_serve_web_refuses_a_port_in_use(capsys: pytest.CaptureFixture[str]) -> None:

@@ -65,11 +65,32 @@ def exposure_note(host: str, what: str) -> str | None:
 def local_address(host: str) -> str:
     """The address a client on this machine uses for a server bound to ``host`` (a wildcard
     address is not one to connect to), bracketed when IPv6 (for a URL)."""
-    if host in ("0.0.0.0", ""):
+    if host in ("0.0.0.0", ""):  # (the WILDCARDS)
         return LOOPBACK
     if host == "::":
         return "[::1]"
     return f"[{host}]" if ":" in host else host
+
+
+#: the addresses that listen on all interfaces (not ones to connect to)
+WILDCARDS = ("0.0.0.0", "::", "")
+
+
+def served_at(host: str, url: Callable[[str], str]) -> tuple[str, str | None]:
+    """How to print the URL of a server listening on ``host``, ``url(address)``: (the URL, a
+    line to print after it or None). On a wildcard address (0.0.0.0, ::) the URL names this
+    machine by its host name, for a browser on another machine (127.0.0.1 there is that other
+    machine), and the line says the server listens on all interfaces and gives the URL for this
+    machine; without a usable host name the URL is this machine's, and the line says to put
+    this machine's address in its place from elsewhere."""
+    local = url(local_address(host))
+    if host not in WILDCARDS:
+        return local, None
+    name = socket.gethostname()
+    if not name or is_loopback(name):
+        elsewhere = f"from another machine, this machine's address for {local_address(host)}"
+        return local, f"  listening on all interfaces: {elsewhere}"
+    return url(name), f"  listening on all interfaces; on this machine: {local}"
 
 
 def rerun_command(
