@@ -185,7 +185,7 @@ def _refuse_unreadable_images(
     but has no picture) is an error naming it, before any recording: Rerun only warned, or the
     viewer showed nothing, and the frame went without its image, exit 0. A frame without an
     image file is no error (a folder may hold some frames' images only)."""
-    from viz.observer import list_images
+    from viz.observer import image_problem, list_images
 
     listed: dict[Path, dict[int, Path]] = {}
     checked: set[Path] = set()
@@ -197,35 +197,12 @@ def _refuse_unreadable_images(
                 path = listed[folder].get(frame.frame_id)
                 if path is None or frame.camera_index(camera) < 0 or path in checked:
                     continue  # (not recorded: the observer logs a frame's own cameras)
-                what = f"{path}: image of frame {frame.frame_id} (camera {camera})"
-                try:
-                    with open(path, "rb") as fh:
-                        fh.read(1)
-                except OSError as exc:
-                    broken = path.is_symlink() and not path.exists()
-                    why = "a link to a missing file" if broken else exc.strerror or str(exc)
-                    raise InputError(f"{what} cannot be read: {why}") from None
-                why = _undecodable(path)
-                if why is not None:
-                    raise InputError(f"{what} cannot be decoded: {why}")
+                problem = image_problem(path)
+                if problem is not None:
+                    raise InputError(
+                        f"{path}: image of frame {frame.frame_id} (camera {camera}) {problem}"
+                    )
                 checked.add(path)
-
-
-def _undecodable(path: Path) -> str | None:
-    """Why the image at ``path`` does not decode to a picture (None: it does). Every pixel is
-    decoded (~10 ms for a KITTI PNG): a truncated body opens fine and fails only there."""
-    import struct
-
-    from PIL import Image
-
-    try:
-        with Image.open(path) as image:
-            image.load()
-    except Image.DecompressionBombError as exc:
-        return str(exc)
-    except (OSError, SyntaxError, ValueError, EOFError, struct.error) as exc:
-        return str(exc) or type(exc).__name__
-    return None
 
 
 def _check_labels(folder: str, scenes: list[str]) -> set[str]:
