@@ -215,6 +215,26 @@ def non_negative_int(text: str) -> int:
     return value
 
 
+def _port(text: str, lowest: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not lowest <= value <= 65535:  # (else socket's OverflowError, reported as a bug)
+        raise argparse.ArgumentTypeError(f"expected a port {lowest}..65535, got {text!r}")
+    return value
+
+
+def port_number(text: str) -> int:
+    """argparse type of a server's port: 1..65535."""
+    return _port(text, 1)
+
+
+def port_or_any(text: str) -> int:
+    """argparse type of a server's port, 0 for any free one: 0..65535."""
+    return _port(text, 0)
+
+
 def host_address(text: str) -> str:
     """argparse type of ``--host`` (view's viewers, report --serve): an IP address
     (``localhost``: 127.0.0.1). The rerun binary's ``--bind`` takes no host name: it exited

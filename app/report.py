@@ -30,7 +30,7 @@ from typing import Any
 from app import report_html as h
 from app.common import command_line, remove_earlier_outputs
 from app.compare import compare_result
-from app.inputs import host_address, refuse_unused_option
+from app.inputs import host_address, port_or_any, refuse_unused_option
 from app.outputs import outputs_of
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
@@ -90,7 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--port",
-        type=int,
+        type=port_or_any,
         default=None,
         help="port --serve listens on (default 8765, 0: any free; only with --serve)",
     )

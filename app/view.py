@@ -14,7 +14,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from app.inputs import add_mode_argument, host_address, refuse_unused_option
+from app.inputs import add_mode_argument, host_address, port_number, refuse_unused_option
 from tracker.config import TrackerConfig
 from tracker.errors import InputError, ViewerError
 from tracker.frame import Frame
@@ -63,13 +63,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sink.add_argument("--serve-web", action="store_true", help="serve a web viewer (until Ctrl-C)")
     parser.add_argument(
         "--web-port",
-        type=int,
+        type=port_number,
         default=None,
         help=f"port of --serve-web's web page (default {DEFAULT_WEB_PORT}; only with --serve-web)",
     )
     parser.add_argument(
         "--grpc-port",
-        type=int,
+        type=port_number,
         default=None,
         help=f"port the viewer connects to (default {DEFAULT_GRPC_PORT}; only with --spawn or "
         "--serve-web)",

@@ -332,6 +332,39 @@ def test_host_not_an_ip_address_is_a_usage_error(
     assert not (tmp_path / "r").exists()
 
 
+@pytest.mark.parametrize(
+    ("command", "option", "port", "lowest"),
+    [
+        ("view", "--web-port", "70000", 1),
+        ("view", "--grpc-port", "0", 1),  # (rerun would pick one the command does not know)
+        ("view", "--grpc-port", "-1", 1),
+        ("report", "--port", "65536", 0),
+        ("report", "--port", "x", 0),
+    ],
+)
+def test_port_out_of_range_is_a_usage_error(
+    command: str,
+    option: str,
+    port: str,
+    lowest: int,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A port past 65535 ended view and report with socket's OverflowError, reported as a bug
+    (exit 1; report once the report was made)."""
+    if command == "view":
+        argv = ["view", str(SAMPLE / "detections.json.gz"), "--serve-web"]
+    else:
+        argv = ["report", str(tmp_path / "run"), "--out", str(tmp_path / "r"), "--serve"]
+    with pytest.raises(SystemExit) as exit:
+        main([*argv, option, port])
+    assert exit.value.code == 2
+    assert capsys.readouterr().err == (
+        f"mctrack {command}: error: argument {option}: expected a port {lowest}..65535, got "
+        f"{port!r} (see mctrack {command} --help)\n"
+    )
+
+
 @pytest.mark.parametrize("given", [["--host", "0.0.0.0"], ["--port", "0"]])
 def test_report_host_and_port_without_serve_are_refused(
     given: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
