@@ -215,9 +215,30 @@ def non_negative_int(text: str) -> int:
     return value
 
 
+def _port(text: str, lowest: int) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not lowest <= value <= 65535:  # (else socket's OverflowError, reported as a bug)
+        raise argparse.ArgumentTypeError(f"expected a port {lowest}..65535, got {text!r}")
+    return value
+
+
+def port_number(text: str) -> int:
+    """argparse type of a server's port: 1..65535."""
+    return _port(text, 1)
+
+
+def port_or_any(text: str) -> int:
+    """argparse type of a server's port, 0 for any free one: 0..65535."""
+    return _port(text, 0)
+
+
 def host_address(text: str) -> str:
-    """argparse type of a viewer's ``--host``: an IP address (``localhost``: 127.0.0.1). The
-    rerun binary's ``--bind`` takes no host name: it exited with status 2, unexplained."""
+    """argparse type of ``--host`` (view's viewers, report --serve): an IP address
+    (``localhost``: 127.0.0.1). The rerun binary's ``--bind`` takes no host name: it exited
+    with status 2, unexplained; report --serve, which took one, takes the same addresses."""
     if text.strip().lower() == "localhost":
         return "127.0.0.1"
     try:
@@ -226,6 +247,14 @@ def host_address(text: str) -> str:
         raise argparse.ArgumentTypeError(
             f"expected an IP address (127.0.0.1, 0.0.0.0, ::1) or localhost, got {text!r}"
         ) from None
+
+
+def refuse_unused_option(option: str, value: object, needs: str, instead: str) -> None:
+    """A usage error for ``option`` given (``value`` is not None: the parser's default is None)
+    where it has no effect, before any work: it was ignored without a word. ``needs`` names the
+    options it goes with (and what it is), ``instead`` what the command does without them."""
+    if value is not None:
+        raise InputError(f"{option} {value}: only with {needs}; {instead}")
 
 
 #: Printed once when a run has no ego poses.

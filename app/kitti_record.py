@@ -10,6 +10,7 @@ from one loading; the run's combined metrics are made from these) and finishes t
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -22,6 +23,8 @@ from tracker.io.fileio import path_in, write_text_atomic
 
 if TYPE_CHECKING:
     from viz.record import RecordResult
+
+LOG = logging.getLogger(__name__)
 
 
 def record_sequence(
@@ -64,6 +67,8 @@ def record_sequence(
         on_tracked=on_tracked,
     )
     info: dict[str, Any] = {"recording": str(path), "recording_seconds": dict(r.seconds)}
+    if r.skipped_images:  # (a file that cannot be read or decoded: the observer left it out)
+        info["skipped_images"] = list(r.skipped_images)
     if r.id_evaluation is not None:  # {} when evaluated without an event
         info["causes"] = cause_counts(r.causes)
     return r, info
@@ -72,12 +77,18 @@ def record_sequence(
 def recording_summary(
     records: Sequence[Any], config: TrackerConfig, record_dir: Path
 ) -> dict[str, Any]:
-    """Summary keys "recordings", "recording_seconds" (summed per phase) and, with labels,
-    "causes" (per sequence), "causes_other_share" and "causes_markdown" (``record_dir/causes.md``,
-    the table of :func:`tracker.eval.id_causes.cause_table_markdown`)."""
+    """Summary keys "recordings", "recording_seconds" (summed per phase), with labels "causes"
+    (per sequence), "causes_other_share" and "causes_markdown" (``record_dir/causes.md``, the
+    table of :func:`tracker.eval.id_causes.cause_table_markdown`) and, when a camera image
+    could not be read or decoded, "recording_skipped_images" ({sequence: [the file and why]}:
+    recorded without it, each also a warning)."""
     from tracker.eval.id_causes import cause_table_markdown, other_share
 
     recordings = {r.scene: r.info["recording"] for r in records if "recording" in r.info}
+    skipped = {r.scene: r.info["skipped_images"] for r in records if "skipped_images" in r.info}
+    for seq, lines in skipped.items():
+        for line in lines:
+            LOG.warning("recording %s: without %s", seq, line)
     seconds: Counter[str] = Counter()
     for r in records:
         seconds.update(r.info.get("recording_seconds", {}))
@@ -90,6 +101,8 @@ def recording_summary(
         "recordings": recordings,
         "recording_seconds": {k: round(v, 2) for k, v in sorted(seconds.items())},
     }
+    if skipped:
+        out["recording_skipped_images"] = skipped
     if causes:
         md = record_dir / "causes.md"
         lines = [

@@ -30,6 +30,7 @@ from typing import Any
 from app import report_html as h
 from app.common import command_line, remove_earlier_outputs
 from app.compare import compare_result
+from app.inputs import host_address, port_or_any, refuse_unused_option
 from app.outputs import outputs_of
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
@@ -41,6 +42,7 @@ from tracker.eval.compare import (
     left_out_note,
 )
 from tracker.io.fileio import check_output_folder, path_in, write_bytes_atomic, write_text_atomic
+from viz.rerun_process import LOOPBACK
 
 LOG = logging.getLogger(__name__)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -81,14 +83,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--host",
-        default="127.0.0.1",
-        help="address to serve on; 0.0.0.0 exposes the report (and the recordings) to the "
-        "network: do it deliberately",
+        type=host_address,
+        default=None,
+        help="IP address --serve listens on (default 127.0.0.1; only with --serve); 0.0.0.0 "
+        "exposes the report (and the recordings) to the network: do it deliberately",
     )
-    parser.add_argument("--port", type=int, default=8765, help="port to serve on (0: any free)")
+    parser.add_argument(
+        "--port",
+        type=port_or_any,
+        default=None,
+        help="port --serve listens on (default 8765, 0: any free; only with --serve)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
+    if not args.serve:  # else ignored unsaid
+        for option, value in (("--host", args.host), ("--port", args.port)):
+            refuse_unused_option(option, value, "--serve", "without it report writes the folder")
     if args.tolerance < 0:
         raise InputError(f"--tolerance {args.tolerance}: must be >= 0")
     out = check_output_folder(args.out)
@@ -140,7 +151,8 @@ def run(args: argparse.Namespace) -> int:
     if args.serve:
         from app.serve import serve_report
 
-        return serve_report(out, _recordings(run_a, run_b), host=args.host, port=args.port)
+        host, port = args.host or LOOPBACK, 8765 if args.port is None else args.port
+        return serve_report(out, _recordings(run_a, run_b), host=host, port=port)
     return 0
 
 

@@ -22,6 +22,7 @@ import json
 import mimetypes
 import re
 import signal
+import socket
 import sys
 import threading
 import time
@@ -196,6 +197,18 @@ def _handler(root: Path, recordings: Mapping[str, Path], viewer: ViewerAssets | 
     return Handler
 
 
+class _Server6(http.server.ThreadingHTTPServer):
+    """The server on an IPv6 address (``--host ::1``; ``::`` takes IPv4 too, as ``0.0.0.0``
+    would): the base class binds IPv4 only."""
+
+    address_family = socket.AF_INET6
+
+    def server_bind(self) -> None:
+        with contextlib.suppress(OSError, AttributeError):  # (the system's default otherwise)
+            self.socket.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 0)
+        super().server_bind()
+
+
 @contextlib.contextmanager
 def report_server(
     root: Path,
@@ -207,22 +220,22 @@ def report_server(
 ) -> Iterator[tuple[http.server.ThreadingHTTPServer, str]]:
     """The server running in a thread: (server, base URL); stopped (with the viewer process)
     on exit."""
+    from viz.rerun_process import free_port, local_address
+
     viewer = None
     if with_viewer:
-        from viz.rerun_process import free_port
-
         viewer = ViewerAssets(free_port())
     server = None
     thread = None
     try:
         if viewer is not None:
             viewer.wait()
-        server = http.server.ThreadingHTTPServer((host, port), _handler(root, recordings, viewer))
+        server_type = _Server6 if ":" in host else http.server.ThreadingHTTPServer
+        server = server_type((host, port), _handler(root, recordings, viewer))
         server.daemon_threads = True
         thread = threading.Thread(target=server.serve_forever, name="mctrack-report", daemon=True)
         thread.start()
-        shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
-        yield server, f"http://{shown}:{server.server_address[1]}/"
+        yield server, f"http://{local_address(host)}:{server.server_address[1]}/"
     finally:
         if server is not None:
             server.shutdown()
@@ -254,12 +267,15 @@ def stopped_as_by_ctrl_c() -> Iterator[None]:
 
 def serve_report(root: Path, recordings: Mapping[str, Path], *, host: str, port: int) -> int:
     """Serve until Ctrl-C, SIGTERM or SIGHUP."""
-    from viz.rerun_process import exposure_note
+    from viz.rerun_process import exposure_note, served_at
 
     try:
         with stopped_as_by_ctrl_c(), report_server(root, recordings, host=host, port=port) as run:
-            url = run[1]
+            bound = run[0].server_address[1]  # (--port 0: the one it got)
+            url, listening = served_at(host, lambda at: f"http://{at}:{bound}/")
             print(f"serving the report at {url} (Ctrl-C to stop)", flush=True)
+            if listening:
+                print(listening)
             note = exposure_note(host, "the report and recordings")
             if note:
                 print(note)

@@ -14,7 +14,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from app.inputs import add_mode_argument, host_address
+from app.inputs import add_mode_argument, host_address, port_number, refuse_unused_option
 from tracker.config import TrackerConfig
 from tracker.errors import InputError, ViewerError
 from tracker.frame import Frame
@@ -25,6 +25,9 @@ from tracker.io.fileio import (
     safe_filename,
 )
 from viz.rerun_process import LOOPBACK
+
+DEFAULT_WEB_PORT = 9090
+DEFAULT_GRPC_PORT = 9876  # (Rerun's own default)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,19 +61,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     sink.add_argument("--spawn", action="store_true", help="stream to a new native viewer")
     sink.add_argument("--serve-web", action="store_true", help="serve a web viewer (until Ctrl-C)")
-    parser.add_argument("--web-port", type=int, default=9090, help="port of --serve-web")
+    parser.add_argument(
+        "--web-port",
+        type=port_number,
+        default=None,
+        help=f"port of --serve-web's web page (default {DEFAULT_WEB_PORT}; only with --serve-web)",
+    )
     parser.add_argument(
         "--grpc-port",
-        type=int,
-        default=9876,
-        help="port the viewer connects to (--spawn, --serve-web)",
+        type=port_number,
+        default=None,
+        help=f"port the viewer connects to (default {DEFAULT_GRPC_PORT}; only with --spawn or "
+        "--serve-web)",
     )
     parser.add_argument(
         "--host",
         type=host_address,
         default=None,
-        help="IP address the viewer's servers listen on (--spawn, --serve-web; default "
-        "127.0.0.1); 0.0.0.0 exposes the recording to the network: do it deliberately",
+        help="IP address the viewer's servers listen on (default 127.0.0.1; only with --spawn "
+        "or --serve-web); 0.0.0.0 exposes the recording to the network: do it deliberately",
     )
 
 
@@ -176,7 +185,7 @@ def _refuse_unreadable_images(
     but has no picture) is an error naming it, before any recording: Rerun only warned, or the
     viewer showed nothing, and the frame went without its image, exit 0. A frame without an
     image file is no error (a folder may hold some frames' images only)."""
-    from viz.observer import list_images
+    from viz.observer import image_problem, list_images
 
     listed: dict[Path, dict[int, Path]] = {}
     checked: set[Path] = set()
@@ -188,35 +197,12 @@ def _refuse_unreadable_images(
                 path = listed[folder].get(frame.frame_id)
                 if path is None or frame.camera_index(camera) < 0 or path in checked:
                     continue  # (not recorded: the observer logs a frame's own cameras)
-                what = f"{path}: image of frame {frame.frame_id} (camera {camera})"
-                try:
-                    with open(path, "rb") as fh:
-                        fh.read(1)
-                except OSError as exc:
-                    broken = path.is_symlink() and not path.exists()
-                    why = "a link to a missing file" if broken else exc.strerror or str(exc)
-                    raise InputError(f"{what} cannot be read: {why}") from None
-                why = _undecodable(path)
-                if why is not None:
-                    raise InputError(f"{what} cannot be decoded: {why}")
+                problem = image_problem(path)
+                if problem is not None:
+                    raise InputError(
+                        f"{path}: image of frame {frame.frame_id} (camera {camera}) {problem}"
+                    )
                 checked.add(path)
-
-
-def _undecodable(path: Path) -> str | None:
-    """Why the image at ``path`` does not decode to a picture (None: it does). Every pixel is
-    decoded (~10 ms for a KITTI PNG): a truncated body opens fine and fails only there."""
-    import struct
-
-    from PIL import Image
-
-    try:
-        with Image.open(path) as image:
-            image.load()
-    except Image.DecompressionBombError as exc:
-        return str(exc)
-    except (OSError, SyntaxError, ValueError, EOFError, struct.error) as exc:
-        return str(exc) or type(exc).__name__
-    return None
 
 
 def _check_labels(folder: str, scenes: list[str]) -> set[str]:
@@ -260,15 +246,27 @@ def _save_paths(save: str | None, scenes: dict[str, list[Frame]], source: str) -
     return paths
 
 
+def _refuse_unused_options(args: argparse.Namespace) -> None:
+    """The viewer's options where they have no effect (each was ignored without a word)."""
+    if not (args.spawn or args.serve_web):
+        for option, value, what in (
+            ("--host", args.host, "address"),
+            ("--grpc-port", args.grpc_port, "port"),
+        ):
+            viewer = f"--spawn or --serve-web (the viewer's {what})"
+            refuse_unused_option(option, value, viewer, "without them view records to a file")
+    instead = "--spawn's viewer has none" if args.spawn else "without it view records to a file"
+    if not args.serve_web:
+        refuse_unused_option("--web-port", args.web_port, "--serve-web (its web page)", instead)
+
+
 def run(args: argparse.Namespace) -> int:
     from app.inspect import missing_display
 
-    if args.host is not None and not (args.spawn or args.serve_web):  # else ignored unsaid
-        raise InputError(
-            f"--host {args.host}: only with --spawn or --serve-web (the viewer's address); "
-            "without them view records to a file"
-        )
+    _refuse_unused_options(args)
     args.host = args.host or LOOPBACK
+    args.grpc_port = DEFAULT_GRPC_PORT if args.grpc_port is None else args.grpc_port
+    args.web_port = DEFAULT_WEB_PORT if args.web_port is None else args.web_port
 
     if args.spawn and missing_display(os.environ):  # else the run hangs on a viewer never up
         raise ViewerError(
@@ -329,6 +327,7 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
         exposure_note,
         local_address,
         port_open,
+        served_at,
         start_rerun,
         start_viewer,
         stop_rerun,
@@ -364,7 +363,13 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
         except BaseException:
             stop_rerun(process)
             raise
-        print(f"web viewer: http://{local_address(host)}:{args.web_port}/?url={url}")
+        # (a browser elsewhere reaches both servers at the address it was given)
+        page, listening = served_at(
+            host, lambda at: f"http://{at}:{args.web_port}/?url=rerun+http://{at}:{port}/proxy"
+        )
+        print(f"web viewer: {page}")
+        if listening:
+            print(listening)
     if note:
         print(note)
     return process, url

@@ -1213,6 +1213,48 @@ def test_view_refuses_an_image_that_does_not_decode(
     assert code == 0 and path.is_file(), err
 
 
+@pytest.mark.parametrize("bad", ["truncated PNG", "broken link"])
+def test_kitti_record_leaves_out_an_image_it_cannot_show(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+    bad: str,
+) -> None:
+    """kitti --record logged a camera image of image_02 that does not decode (a PNG cut short,
+    which still opens) as it was: the viewer showed nothing at that frame, exit 0, without a
+    word (a broken link: Rerun only warned). It is left out of the recording, named in a
+    warning and in summary.json; the run and the other images go on."""
+    from tests.test_viz import entity_table
+    from viz import paths
+
+    kit = tmp_path / "kit"
+    shutil.copytree(SAMPLE_KIT, kit)
+    images = kit / "training" / "image_02" / "0001"
+    shutil.copytree(SAMPLE / "image_02", images)  # images of frames 10, 15, 20
+    if bad == "truncated PNG":
+        image, frame = images / "000015.png", 15
+        body = image.read_bytes()
+        image.write_bytes(body[: len(body) // 2])
+        why = "cannot be decoded: "
+    else:
+        image, frame = images / "000012.png", 12
+        image.symlink_to(images / "missing.png")
+        why = "cannot be read: a link to a missing file"
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(kit), "--seqs", "0001", "--record", "--out", str(out)]
+    with caplog.at_level(logging.WARNING):
+        code, _, err = _run(argv, capsys)
+    assert code == 0, err
+    (line,) = json.loads((out / "summary.json").read_text())["recording_skipped_images"]["0001"]
+    assert line.startswith(f"{image}: image of frame {frame} (camera CAM_FRONT) {why}"), line
+    assert f"recording 0001: without {line}" in caplog.text
+    table = entity_table(out / "recordings" / "0001.rrd", paths.camera_image("CAM_FRONT"))
+    frames = table[paths.FRAME].to_pylist()
+    opacity = table["EncodedImage:opacity"].to_pylist()
+    shown = {f for f, o in zip(frames, opacity, strict=True) if o and o[0] == 1.0}
+    assert shown == {10, 15, 20} - {frame}
+
+
 def test_view_refuses_two_image_folders_for_one_camera(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -795,6 +795,52 @@ def test_view_host_without_a_viewer_is_refused(
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize(
+    ("given", "refused"),
+    [
+        (["--grpc-port", "9001"], "--grpc-port 9001: only with --spawn or --serve-web (the "
+         "viewer's port); without them view records to a file"),
+        (["--save", "x.rrd", "--grpc-port", "9001"], "--grpc-port 9001: only with --spawn or "
+         "--serve-web (the viewer's port); without them view records to a file"),
+        (["--save", "x.rrd", "--web-port", "9002"], "--web-port 9002: only with --serve-web (its "
+         "web page); without it view records to a file"),
+        (["--spawn", "--web-port", "9002"], "--web-port 9002: only with --serve-web (its web "
+         "page); --spawn's viewer has none"),
+    ],
+)  # fmt: skip
+def test_view_ports_without_their_viewer_are_refused(
+    given: list[str],
+    refused: str,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """--grpc-port and --web-port where no server uses them (--save or the default file; the
+    native viewer of --spawn has no web page) were ignored without a word: refused before any
+    work, as --host is; nothing written, no viewer started."""
+    from tests.test_viz import SAMPLE
+    from viz import rerun_process
+
+    monkeypatch.chdir(tmp_path)  # (the default file's folder)
+    monkeypatch.setattr(rerun_process, "start_rerun", lambda *a, **k: pytest.fail("started"))
+    monkeypatch.setenv("DISPLAY", ":mctrack-test")
+    det = SAMPLE / "detections.json.gz"
+    assert main(["view", str(det), "--frames", "0:5", *given]) == 2
+    assert capsys.readouterr().err == f"mctrack view: error: {refused}\n"
+    assert not list(tmp_path.iterdir())
+
+
+def test_view_help_says_which_sink_each_viewer_option_goes_with(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    with pytest.raises(SystemExit):
+        main(["view", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "(default 9090; only with --serve-web)" in out
+    assert "(default 9876; only with --spawn or --serve-web)" in out
+    assert "(default 127.0.0.1; only with --spawn or --serve-web)" in out
+
+
 def test_inspect_list_with_print_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
     """--print beside --list was ignored without a word."""
     path, _ = recording()

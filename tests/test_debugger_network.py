@@ -201,8 +201,11 @@ def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
     monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """--host 0.0.0.0 (exposing it, deliberately) reaches the binary's --bind, with a note;
-    nothing is bound here (the binary is not started)."""
+    nothing is bound here (the binary is not started). The URL printed is one a browser on
+    another machine can use (it named 127.0.0.1, there the other machine itself), with the one
+    for this machine after it."""
     seen = _fake_start(monkeypatch)
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "studio-box")
     det = SAMPLE / "detections.json.gz"
     argv = ["view", str(det), "--frames", "0:5", "--serve-web", "--host", "0.0.0.0"]
     assert main([*argv, "--grpc-port", "9001", "--web-port", "9002"]) == 0
@@ -210,8 +213,62 @@ def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
         ["rerun", "--bind", "0.0.0.0", "--serve-web", "--port", "9001", "--web-viewer-port", "9002"]
     ]
     out = capsys.readouterr().out
-    assert "note: --host 0.0.0.0 exposes the recording to the network" in out
-    assert "web viewer: http://127.0.0.1:9002/?url=rerun+http://127.0.0.1:9001/proxy" in out
+    assert out.splitlines()[:3] == [
+        "web viewer: http://studio-box:9002/?url=rerun+http://studio-box:9001/proxy",
+        "  listening on all interfaces; on this machine: "
+        "http://127.0.0.1:9002/?url=rerun+http://127.0.0.1:9001/proxy",
+        "note: --host 0.0.0.0 exposes the recording to the network",
+    ]
+
+
+def test_served_at_names_an_address_a_browser_can_use(monkeypatch: pytest.MonkeyPatch) -> None:
+    def url(at: str) -> str:
+        return f"http://{at}:80/"
+
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "studio-box")
+    assert rerun_process.served_at("127.0.0.1", url) == ("http://127.0.0.1:80/", None)
+    assert rerun_process.served_at("192.168.1.5", url) == ("http://192.168.1.5:80/", None)
+    assert rerun_process.served_at("::1", url) == ("http://[::1]:80/", None)
+    assert rerun_process.served_at("::", url) == (
+        "http://studio-box:80/",
+        "  listening on all interfaces; on this machine: http://[::1]:80/",
+    )
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "localhost")  # (no use)
+    assert rerun_process.served_at("0.0.0.0", url) == (
+        "http://127.0.0.1:80/",
+        "  listening on all interfaces: from another machine, this machine's address for 127.0.0.1",
+    )
+
+
+def test_report_serve_on_all_interfaces_prints_a_url_for_other_machines(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """report --serve --host 0.0.0.0 printed http://127.0.0.1:PORT/ (nothing is bound here: the
+    server is a stand-in, stopped as by Ctrl-C once it has printed)."""
+    import contextlib
+
+    from app import serve
+
+    class Server:
+        server_address = ("0.0.0.0", 8765)
+
+    @contextlib.contextmanager
+    def server(*args: object, **kwargs: object) -> Iterator[tuple[Server, str]]:
+        yield Server(), "http://127.0.0.1:8765/"
+
+    def ctrl_c(seconds: float) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(serve, "report_server", server)
+    monkeypatch.setattr(serve.time, "sleep", ctrl_c)
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "studio-box")
+    assert serve.serve_report(tmp_path, {}, host="0.0.0.0", port=8765) == 0
+    assert capsys.readouterr().out.splitlines() == [
+        "serving the report at http://studio-box:8765/ (Ctrl-C to stop)",
+        "  listening on all interfaces; on this machine: http://127.0.0.1:8765/",
+        "note: --host 0.0.0.0 exposes the report and recordings to the network",
+        "stopped",
+    ]
 
 
 def test_view_serve_web_refuses_a_port_in_use(capsys: pytest.CaptureFixture[str]) -> None:
@@ -253,19 +310,98 @@ def test_rerun_binary_refuses_a_host_name() -> None:
     assert proc.wait(timeout=30) == 2
 
 
+@pytest.mark.parametrize("command", ["view", "report"])
 @pytest.mark.parametrize("host", ["myhost", "example.org", "127.0.0.300", ""])
-def test_view_host_not_an_ip_address_is_a_usage_error(
-    host: str, capsys: pytest.CaptureFixture[str]
+def test_host_not_an_ip_address_is_a_usage_error(
+    command: str, host: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    det = SAMPLE / "detections.json.gz"
+    """view and report --serve take the same --host, checked by one function (report took a
+    host name, which view refuses, and failed on a bad one only once the report was made)."""
+    if command == "view":
+        argv = ["view", str(SAMPLE / "detections.json.gz"), "--serve-web"]
+    else:
+        argv = ["report", str(tmp_path / "run"), "--out", str(tmp_path / "r"), "--serve"]
     with pytest.raises(SystemExit) as exit:
-        main(["view", str(det), "--serve-web", "--host", host])
+        main([*argv, "--host", host])
     assert exit.value.code == 2
     err = capsys.readouterr().err
     assert err == (
-        f"mctrack view: error: argument --host: expected an IP address (127.0.0.1, 0.0.0.0, "
-        f"::1) or localhost, got {host!r} (see mctrack view --help)\n"
+        f"mctrack {command}: error: argument --host: expected an IP address (127.0.0.1, "
+        f"0.0.0.0, ::1) or localhost, got {host!r} (see mctrack {command} --help)\n"
     )
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize(
+    ("command", "option", "port", "lowest"),
+    [
+        ("view", "--web-port", "70000", 1),
+        ("view", "--grpc-port", "0", 1),  # (rerun would pick one the command does not know)
+        ("view", "--grpc-port", "-1", 1),
+        ("report", "--port", "65536", 0),
+        ("report", "--port", "x", 0),
+    ],
+)
+def test_port_out_of_range_is_a_usage_error(
+    command: str,
+    option: str,
+    port: str,
+    lowest: int,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A port past 65535 ended view and report with socket's OverflowError, reported as a bug
+    (exit 1; report once the report was made)."""
+    if command == "view":
+        argv = ["view", str(SAMPLE / "detections.json.gz"), "--serve-web"]
+    else:
+        argv = ["report", str(tmp_path / "run"), "--out", str(tmp_path / "r"), "--serve"]
+    with pytest.raises(SystemExit) as exit:
+        main([*argv, option, port])
+    assert exit.value.code == 2
+    assert capsys.readouterr().err == (
+        f"mctrack {command}: error: argument {option}: expected a port {lowest}..65535, got "
+        f"{port!r} (see mctrack {command} --help)\n"
+    )
+
+
+@pytest.mark.parametrize("given", [["--host", "0.0.0.0"], ["--port", "0"]])
+def test_report_host_and_port_without_serve_are_refused(
+    given: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--host and --port without --serve were ignored without a word: refused before any work,
+    as view refuses --host without a viewer."""
+    from tests.report_fixtures import make_runs
+
+    run, _, _ = make_runs(tmp_path)
+    out = tmp_path / "r"
+    assert main(["report", str(run), "--out", str(out), *given]) == 2
+    option, value = given
+    assert capsys.readouterr().err == (
+        f"mctrack report: error: {option} {value}: only with --serve; without it report writes "
+        "the folder\n"
+    )
+    assert not out.exists()
+
+
+def test_report_serves_on_an_ipv6_address(tmp_path: Path) -> None:
+    """--host ::1, an IP address --host takes, was refused by the server ("Address family for
+    hostname not supported"): it bound IPv4 only."""
+    import socket
+    import urllib.request
+
+    from app.serve import report_server
+
+    with socket.socket(socket.AF_INET6) as probe:
+        try:
+            probe.bind(("::1", 0))
+        except OSError:
+            pytest.skip("no IPv6 loopback here")
+    (tmp_path / "index.html").write_text("<p>report</p>")
+    with report_server(tmp_path, {}, host="::1", with_viewer=False) as (_, url):
+        assert url.startswith("http://[::1]:")
+        with urllib.request.urlopen(url, timeout=30) as answer:
+            assert answer.read() == b"<p>report</p>"
 
 
 def test_viewer_exit_names_a_port_in_use_only_when_it_is() -> None:

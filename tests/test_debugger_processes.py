@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 from pathlib import Path
 
 import psutil
@@ -133,6 +134,59 @@ def test_only_a_detached_viewer_outlives_a_killed_parent(tmp_path: Path, detach:
         if child is not None and child.is_running():
             child.kill()
     assert bool(alive) == detach
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the parent-death signal")
+def test_the_death_signal_follows_the_thread_that_starts_the_child() -> None:
+    """Why start_rerun refuses a worker thread: the kernel sends the parent-death signal when
+    the *thread* that started the child ends (prctl(2)), here while the process lives on."""
+    started: list[subprocess.Popen[bytes]] = []
+
+    def start() -> None:
+        die = rerun_process._die_with_parent(os.getpid())
+        started.append(subprocess.Popen(["sleep", "60"], preexec_fn=die))
+
+    worker = threading.Thread(target=start)
+    worker.start()
+    worker.join()
+    try:
+        assert started[0].wait(timeout=10) == -signal.SIGTERM
+    finally:
+        started[0].kill()
+        started[0].wait()
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the parent-death signal")
+def test_start_rerun_refuses_a_worker_thread_unless_detached(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A server started from a worker thread would be stopped when that thread ended: refused
+    (every command starts its own from the main thread); a detached viewer, which has no death
+    signal, may start from any thread."""
+    monkeypatch.setattr(rerun_process, "rerun_command", lambda args, host: ["sleep", "60"])
+    outcome: dict[bool, object] = {}
+
+    def start(detach: bool) -> None:
+        try:
+            outcome[detach] = rerun_process.start_rerun([], detach=detach)
+        except RuntimeError as exc:
+            outcome[detach] = exc
+
+    for detach in (False, True):
+        worker = threading.Thread(target=start, args=(detach,), name="worker")
+        worker.start()
+        worker.join()
+    assert isinstance(outcome[False], RuntimeError)
+    assert str(outcome[False]) == (
+        "start_rerun from thread 'worker': a server or headless viewer is started from the main "
+        "thread only (its death signal follows the thread that starts it)"
+    )
+    detached = outcome[True]
+    assert isinstance(detached, subprocess.Popen)
+    try:
+        assert detached.poll() is None  # (not stopped with the thread that started it)
+    finally:
+        rerun_process.stop_rerun(detached)
 
 
 def test_view_serve_web_handles_sigterm_and_sighup_before_the_server_starts(

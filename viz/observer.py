@@ -128,6 +128,8 @@ class RerunObserver:
         self._images = {cam: list_images(Path(d)) for cam, d in (images or {}).items()}
         #: frame ids that have a camera image (``mctrack shots`` prefers them)
         self.image_frames = sorted({f for imgs in self._images.values() for f in imgs})
+        #: the images left out, each a line naming the file and why (see _checked_image)
+        self.skipped_images: list[str] = []
         self._pinholes: set[str] = set()
         self._image_shown: set[str] = set()
         self._rv_shown = False
@@ -217,6 +219,8 @@ class RerunObserver:
                 static=True,
             )
         image = self._images.get(cam.name, {}).get(frame_id)
+        if image is not None:
+            image = self._checked_image(image, cam.name, frame_id)
         if image is not None or cam.name in self._image_shown:  # rare: a direct log is fine
             state = self._require_state()
             set_frame_time(rec, frame_id, state.time_secs)
@@ -228,6 +232,21 @@ class RerunObserver:
             # the last one instead, or it would stand behind the boxes of later frames
             rec.log(paths.camera_image(cam.name), rr.EncodedImage.from_fields(opacity=0.0))
             self._image_shown.discard(cam.name)
+
+    def _checked_image(self, image: Path, camera: str, frame_id: int) -> Path | None:
+        """``image``, or None when it cannot be shown: then it is left out, named in
+        :attr:`skipped_images` (Rerun logged its bytes as they were, and the viewer showed
+        nothing for that frame, without a word; ``view`` refuses such a file before recording).
+        The check reads a PNG to its end, not every pixel (:func:`image_problem`)."""
+        problem = image_problem(image, decode=False)
+        if problem is None:
+            return image
+        self.skipped_images.append(
+            f"{image}: image of frame {frame_id} (camera {camera}) {problem}"
+        )
+        del self._images[camera][frame_id]
+        self.image_frames = sorted({f for imgs in self._images.values() for f in imgs})
+        return None
 
     def _on_detections_filtered(self, event: DetectionsFiltered) -> None:
         frame = event.frame
@@ -1229,3 +1248,33 @@ def list_images(folder: Path) -> dict[int, Path]:
             if ext.lower() in _IMAGE_SUFFIXES and stem.isdigit():
                 out[int(stem)] = folder / name
     return out
+
+
+def image_problem(path: Path, *, decode: bool = True) -> str | None:
+    """Why the image file at ``path`` cannot be shown, as "cannot be read: WHY" (a broken link,
+    a folder by an image's name, no permission) or "cannot be decoded: WHY" (a truncated or
+    corrupt PNG or JPEG, which opens but has no picture); None: it can. ``decode`` decodes
+    every pixel (~10 ms for a KITTI PNG: a truncated body opens fine and fails only there);
+    without it a PNG's chunks are read to the end with their checksums (~0.4 ms: a truncated or
+    corrupted file fails), other formats are still decoded."""
+    import struct
+
+    from PIL import Image
+
+    try:
+        with open(path, "rb") as fh:
+            fh.read(1)
+    except OSError as exc:
+        broken = path.is_symlink() and not path.exists()
+        return f"cannot be read: {'a link to a missing file' if broken else exc.strerror or exc}"
+    try:
+        with Image.open(path) as image:
+            if decode or image.format != "PNG":
+                image.load()
+            else:
+                image.verify()
+    except Image.DecompressionBombError as exc:
+        return f"cannot be decoded: {exc}"
+    except (OSError, SyntaxError, ValueError, EOFError, struct.error) as exc:
+        return f"cannot be decoded: {str(exc) or type(exc).__name__}"
+    return None

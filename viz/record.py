@@ -159,6 +159,9 @@ class RecordResult:
     focus: list[EventFocus] = field(default_factory=list)
     #: frames with a camera image
     image_frames: list[int] = field(default_factory=list)
+    #: camera images left out of the recording, each a line naming the file and why (a file
+    #: that cannot be read or decoded: RerunObserver.skipped_images)
+    skipped_images: list[str] = field(default_factory=list)
     #: wall seconds per phase: "track" (tracker + observer), "flush", "evaluate" (ID switches,
     #: TrackEval, motion metrics: analysis, not recording), "post" (curves, events, summary)
     seconds: dict[str, float] = field(default_factory=dict)
@@ -350,6 +353,7 @@ def record_scene(
     if result.id_evaluation is not None and stages is not None:
         result.causes = classify_events(result.id_evaluation, stages, gt_by_frame or {})
     result.image_frames = observer.image_frames
+    result.skipped_images = observer.skipped_images
     if gt_frames and motion_metrics:
         result.motion_markdown = _motion_metrics(frames, gt_frames, outputs, config)
     t_eval, c_eval = time.perf_counter(), time.process_time()

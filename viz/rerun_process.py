@@ -17,6 +17,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from pathlib import Path
@@ -44,8 +45,7 @@ def free_port(host: str = LOOPBACK) -> int:
 
 
 def is_loopback(host: str) -> bool:
-    """``localhost`` (report --serve's server takes host names) or an address in 127.0.0.0/8
-    or ::1."""
+    """``localhost`` or an address in 127.0.0.0/8 or ::1."""
     if host == "localhost":
         return True
     try:
@@ -65,11 +65,32 @@ def exposure_note(host: str, what: str) -> str | None:
 def local_address(host: str) -> str:
     """The address a client on this machine uses for a server bound to ``host`` (a wildcard
     address is not one to connect to), bracketed when IPv6 (for a URL)."""
-    if host in ("0.0.0.0", ""):
+    if host in ("0.0.0.0", ""):  # (the WILDCARDS)
         return LOOPBACK
     if host == "::":
         return "[::1]"
     return f"[{host}]" if ":" in host else host
+
+
+#: the addresses that listen on all interfaces (not ones to connect to)
+WILDCARDS = ("0.0.0.0", "::", "")
+
+
+def served_at(host: str, url: Callable[[str], str]) -> tuple[str, str | None]:
+    """How to print the URL of a server listening on ``host``, ``url(address)``: (the URL, a
+    line to print after it or None). On a wildcard address (0.0.0.0, ::) the URL names this
+    machine by its host name, for a browser on another machine (127.0.0.1 there is that other
+    machine), and the line says the server listens on all interfaces and gives the URL for this
+    machine; without a usable host name the URL is this machine's, and the line says to put
+    this machine's address in its place from elsewhere."""
+    local = url(local_address(host))
+    if host not in WILDCARDS:
+        return local, None
+    name = socket.gethostname()
+    if not name or is_loopback(name):
+        elsewhere = f"from another machine, this machine's address for {local_address(host)}"
+        return local, f"  listening on all interfaces: {elsewhere}"
+    return url(name), f"  listening on all interfaces; on this machine: {local}"
 
 
 def rerun_command(
@@ -110,8 +131,20 @@ def start_rerun(
     session of its own, out of reach of Ctrl-C and the terminal's hang-up. Otherwise (servers,
     the headless viewer of shots) it stays in the caller's process group, so a hang-up or a
     signal to the group reaches it too, and on Linux it gets SIGTERM when this process dies:
-    such a server left behind kept its ports, a child of nobody."""
+    such a server left behind kept its ports, a child of nobody.
+
+    That signal follows the *thread* that starts the child (prctl(2): the parent-death signal
+    comes when the creating thread ends), so such a child is started from the main thread only,
+    which lives as long as the process: one from a worker thread would be stopped when that
+    thread ended, under a command still using it. Every command starts its viewers and servers
+    from the main thread; a RuntimeError here is a bug of the caller."""
     linux = sys.platform.startswith("linux")
+    if linux and not detach and threading.current_thread() is not threading.main_thread():
+        raise RuntimeError(
+            f"start_rerun from thread {threading.current_thread().name!r}: a server or headless "
+            "viewer is started from the main thread only (its death signal follows the thread "
+            "that starts it)"
+        )
     return subprocess.Popen(
         rerun_command(args, host=host),
         stdin=subprocess.DEVNULL,
