@@ -57,15 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("input", help="BaseVersion detections JSON")
     parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
     add_mode_argument(parser)
-    parser.add_argument(
-        "--profile",
-        default=None,
-        help="score calibration profile (a TOML file from `mctrack calibrate`, or a shipped "
-        "profile's name: pointrcnn, second_iou, virconv) applied to each box's "
-        "detection_score_raw, which every box of a tracked class must have; 'self': fitted "
-        "without labels on the file's own detections (OUT/self_profile.toml); default: "
-        "detection_score as given",
-    )
+    add_profile_argument(parser, "OUT/self_profile.toml")
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument(
         "--frames",
@@ -80,6 +72,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", required=True, help="output folder")
     scenes.add_arguments(parser)
+
+
+def add_profile_argument(parser: argparse.ArgumentParser, self_saved: str | None) -> None:
+    """``--profile``, as :func:`calibrate_scenes` applies it (``track`` and ``view``: one
+    option, so the two track a file alike); ``self_saved``: where ``self``'s profile goes."""
+    saved = f" ({self_saved})" if self_saved else " (not saved: `mctrack track` writes it)"
+    parser.add_argument(
+        "--profile",
+        default=None,
+        help="score calibration profile (a TOML file from `mctrack calibrate`, or a shipped "
+        "profile's name: pointrcnn, second_iou, virconv) applied to each box's "
+        "detection_score_raw, which every box of a tracked class must have; 'self': fitted "
+        f"without labels on the file's own detections{saved}; default: detection_score as "
+        "given",
+    )
 
 
 def parse_frame_range(text: str | None) -> slice:
@@ -221,7 +228,7 @@ def check_raw_scores(
         )
 
 
-def _calibrated(
+def calibrate_scenes(
     scenes: dict[str, list[Frame]], config: TrackerConfig, profile: str | None, source: str
 ) -> tuple[dict[str, list[Frame]], ScoreProfile | None]:
     """Scores recomputed by ``profile`` from the raw scores; without one, as given (with a
@@ -293,7 +300,7 @@ def run(args: argparse.Namespace) -> int:
         more = " ..." if len(empty) > 5 else ""
         print(f"{len(empty)} scene(s) without frames, written without tracks: "
               f"{', '.join(empty[:5])}{more}")  # fmt: skip
-    scene_frames, self_profile = _calibrated(scene_frames, config, args.profile, args.input)
+    scene_frames, self_profile = calibrate_scenes(scene_frames, config, args.profile, args.input)
     if args.kitti_results:
         check_camera_models(args.input, scene_frames, "CAM_FRONT")
     # the inputs are accepted (a refused run keeps the earlier run's outputs): the earlier run's

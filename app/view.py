@@ -15,6 +15,13 @@ import time
 from pathlib import Path
 
 from app.inputs import add_mode_argument, host_address, port_number, refuse_unused_option
+from app.track import (
+    add_profile_argument,
+    calibrate_scenes,
+    parse_frame_range,
+    require_frames,
+    select_scenes,
+)
 from tracker.config import TrackerConfig
 from tracker.errors import InputError, ViewerError
 from tracker.frame import Frame
@@ -35,6 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--gt", default=None, help="BaseVersion ground truth of the same scenes")
     parser.add_argument("--config", default="kitti", help="kitti, nuscenes, waymo or a TOML path")
     add_mode_argument(parser)
+    add_profile_argument(parser, None)  # (as `track`: a file tracked alike by both)
     parser.add_argument("--scenes", default=None, help="comma-separated scene names (default all)")
     parser.add_argument("--frames", default=None, help="frame index range A:B within each scene")
     parser.add_argument(
@@ -275,7 +283,6 @@ def run(args: argparse.Namespace) -> int:
             "or serve a web viewer (--serve-web)"
         )
 
-    from app.track import parse_frame_range, require_frames, select_scenes
     from tracker.config import load_config
     from tracker.io.baseversion import read_baseversion
 
@@ -285,6 +292,8 @@ def run(args: argparse.Namespace) -> int:
     scenes = read_baseversion(args.input, fallback_frame_rate_hz=rate)
     scenes = select_scenes(scenes, args.scenes, parse_frame_range(args.frames), args.input)
     require_frames(scenes, args.input, "record", args.scenes)  # else nothing is recorded
+    # as `track` does (the same option, default and warning): the same file, the same tracks
+    scenes, _ = calibrate_scenes(scenes, config, args.profile, args.input)
     live = args.spawn or args.serve_web
     saves = {} if live else _save_paths(args.save, scenes, args.input)
     gt_scenes = read_baseversion(args.gt, fallback_frame_rate_hz=rate) if args.gt else {}
@@ -437,6 +446,7 @@ def _record(
                 f"- detections: `{args.input}`, scene `{scene}`, frames {first}..{last}"
                 f" ({len(frames)} frames)\n- ground truth: `{args.gt or 'none'}`"
                 f"\n- labels: `{args.labels or 'none'}`\n- config: `{args.config}`"
+                f"\n- score profile: `{args.profile or 'none (detection_score as given)'}`"
             )
             result = record_scene(
                 frames,
