@@ -272,6 +272,8 @@ def run(args: argparse.Namespace) -> int:
     from app.inspect import missing_display
 
     _refuse_unused_options(args)
+    if args.save is not None:  # (with several scenes, its files would go beside a folder)
+        check_output_file(args.save, "--save")
     args.host = args.host or LOOPBACK
     args.grpc_port = DEFAULT_GRPC_PORT if args.grpc_port is None else args.grpc_port
     args.web_port = DEFAULT_WEB_PORT if args.web_port is None else args.web_port

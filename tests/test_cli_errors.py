@@ -1149,6 +1149,35 @@ def test_view_refuses_a_folder_at_a_recordings_path_before_recording(
     assert _tree(out) == {folder.name: None}
 
 
+@pytest.mark.parametrize("scenes", [("0001",), ("0001", "0006")])
+def test_view_refuses_save_naming_a_folder_however_many_scenes(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    scenes: tuple[str, ...],
+) -> None:
+    """--save DIR, an existing folder, is one line naming it before the input is read, with
+    several scenes too: they were recorded beside it, as extension-less DIR_0001, DIR_0006."""
+    import tracker.io.baseversion
+
+    data = tmp_path / "in.json"
+    data.write_text(json.dumps(dict.fromkeys(scenes, _sample_frames()[:3])))
+    folder = tmp_path / "conv"
+    folder.mkdir()
+    read: list[object] = []
+    real = tracker.io.baseversion.read_baseversion
+
+    def reading(*args: object, **kwargs: object) -> object:
+        read.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(tracker.io.baseversion, "read_baseversion", reading)
+    code, printed, err = _run(["view", str(data), "--no-motion", "--save", str(folder)], capsys)
+    _assert_one_line_error(code, err, "view", f"--save {folder}: is a folder, expected a file")
+    assert printed == "" and not read
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["conv", "in.json"]
+
+
 @pytest.mark.parametrize("bad", ["broken link", "folder"])
 @pytest.mark.parametrize("given", ["--images", "image_02 beside the input"])
 def test_view_refuses_an_unreadable_image_of_a_recorded_frame(
