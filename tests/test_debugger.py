@@ -333,6 +333,35 @@ def test_inspect_refuses_a_frame_the_recording_does_not_have(
         assert err.count("\n") == 1
 
 
+def test_a_truncated_recording_is_one_line_without_rerun_warning(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+    recwarn: pytest.WarningsRecorder,
+) -> None:
+    """A recording cut short (a copy stopped mid-way): inspect and shots end in the one-line
+    error alone; Rerun's RerunWarning ("RRD file has no footer/manifest ...", a Python warning
+    block with its source line) went before it, and is now in the debug log (-v)."""
+    import logging
+
+    from rerun.error_utils import RerunWarning
+
+    path, _ = recording()
+    cut = tmp_path / "trunc.rrd"
+    cut.write_bytes(path.read_bytes()[:200_000])
+    commands = (["inspect", "--list"], ["inspect", "--frame", "3", "--print"], ["shots"])
+    for command, *options in commands:
+        out = ["--out", str(tmp_path / "shots")] if command == "shots" else []
+        with caplog.at_level(logging.DEBUG, logger="mctrack"):
+            assert main([command, str(cut), *options, *out]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"mctrack {command}: error: {cut}: not a readable Rerun recording")
+        assert err.count("\n") == 1, err
+        assert not [w for w in recwarn if issubclass(w.category, RerunWarning)]
+        assert "no footer/manifest" in caplog.text
+        caplog.clear()
+
+
 def _planned_shots(monkeypatch: pytest.MonkeyPatch) -> list[PlannedShot]:
     """The shots `mctrack shots` plans, collected instead of taken (no viewer)."""
     from viz import shots

@@ -12,19 +12,26 @@ from __future__ import annotations
 import contextlib
 import ctypes.util
 import glob
+import logging
 import os
 import re
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from tracker.io.fileio import work_folder
 from viz import layout, paths
 from viz.rerun_process import running_viewer_client
+
+if TYPE_CHECKING:
+    from rerun.chunk import RrdReader
+
+LOG = logging.getLogger("mctrack.shots")
 
 INSTALL_HINT = "apt-get install -y mesa-vulkan-drivers libvulkan1"
 _ICD_GLOBS = (
@@ -94,12 +101,30 @@ def renderer_available() -> tuple[bool, str]:
     return True, ", ".join(sorted(os.path.basename(p) for p in icds))
 
 
+def open_recording(recording: str | Path) -> RrdReader:
+    """An ``RrdReader`` of ``recording``. Rerun's RerunWarning on a file without a footer
+    (cut short, or by an older Rerun; read by a whole-file scan, or refused next as unreadable)
+    goes to the debug log: the user saw a Python warning block before the one-line error."""
+    from rerun.chunk import RrdReader
+    from rerun.error_utils import RerunWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        reader = RrdReader(str(recording))
+    for warning in caught:
+        if issubclass(warning.category, RerunWarning):
+            LOG.debug("%s: %s", recording, warning.message)
+        else:  # (not ours to hide)
+            warnings.warn_explicit(
+                warning.message, warning.category, warning.filename, warning.lineno
+            )
+    return reader
+
+
 def read_shot_index(recording: str | Path) -> ShotIndex:
     """The static ``summary/index`` of a recording."""
-    from rerun.chunk import RrdReader
-
     chunks = (
-        RrdReader(str(recording))
+        open_recording(recording)
         .stream()
         .filter(content=paths.entity(paths.SHOT_INDEX), is_static=True)
         .to_chunks()
@@ -145,10 +170,8 @@ RECORDING_NAME_PREFIX = "MCTrack "
 
 def read_scene_name(recording: str | Path) -> str | None:
     """The scene (sequence) a recording is of, from its recording name (None: no name)."""
-    from rerun.chunk import RrdReader
-
     chunks = (
-        RrdReader(str(recording))
+        open_recording(recording)
         .stream()
         .filter(content="/__properties/**", is_static=True)
         .to_chunks()
@@ -166,10 +189,8 @@ def read_frame_range(recording: str | Path) -> tuple[int, int] | None:
     """The first and last frame id on the recording's ``frame`` timeline (None: no frames).
 
     Read from the temporal chunks' time columns (~0.1 s for the whole 447-frame sample)."""
-    from rerun.chunk import RrdReader
-
     chunks = (
-        RrdReader(str(recording))
+        open_recording(recording)
         .stream()
         .filter(is_static=False, has_timeline=paths.FRAME)
         .to_chunks()
@@ -388,9 +409,7 @@ def _screenshot(client: Any, target: Path, view_id: Any = None, attempts: int = 
 
 def recording_cameras(recording: str | Path) -> list[tuple[str, int, int]]:
     """(name, width, height) of each camera of a recording (from its static Pinholes)."""
-    from rerun.chunk import RrdReader
-
-    chunks = RrdReader(str(recording)).stream().filter(is_static=True).to_chunks()
+    chunks = open_recording(recording).stream().filter(is_static=True).to_chunks()
     cams: list[tuple[str, int, int]] = []
     prefix = paths.entity(paths.CAMERAS) + "/"
     for chunk in chunks:
