@@ -528,11 +528,15 @@ def _pose_file(kitti_root: Path, seq: str, poses: str | None) -> Path | None:
 
 
 def _pose_count(kitti_root: Path, seq: str, poses: str | None) -> int | None:
-    """A sequence's length as the converter takes it with poses: the pose file's non-empty
-    lines (None without poses, or no readable pose file: the sequence's task reports that)."""
+    """A sequence's length as the converter takes it with poses: its poses, parsed as the
+    converter parses them (None without poses, or no readable pose file: the sequence's task
+    reports that). A malformed pose file is an InputError naming it: counted unparsed, a
+    truncated one judged the sequence's labels, which were then blamed for its error."""
+    from tracker.io.convert.kitti import read_kitti_poses
+
     path = _pose_file(kitti_root, seq, poses)
     try:
-        return None if path is None else sum(1 for t in path.read_text().splitlines() if t.strip())
+        return None if path is None else len(read_kitti_poses(path))
     except (OSError, UnicodeDecodeError):
         return None
 

@@ -280,6 +280,10 @@ def files(tmp_path: Path) -> dict[str, Path]:
     (bad_detections / "detections" / "pointrcnn" / "training" / "Car" / "0001.txt").write_text(
         "0 Car x y z\n"
     )
+    truncated_poses = tmp_path / "truncated_poses"  # cut mid-line, 13 whole lines of 447
+    shutil.copytree(SAMPLE_KIT, truncated_poses)
+    pose_file = truncated_poses / "training" / "pose_orbslam3" / "0001.txt"
+    pose_file.write_bytes(pose_file.read_bytes()[:2000])
     bad_toml = tmp_path / "bad.toml"
     bad_toml.write_text('base = "kitti"\n[defaults]\nno_such_key = 1\n')
     empty = tmp_path / "empty.json"
@@ -307,6 +311,7 @@ def files(tmp_path: Path) -> dict[str, Path]:
         "stock": stock,
         "bad_calib": bad_calib,
         "bad_detections": bad_detections,
+        "truncated_poses": truncated_poses,
         "bad_toml": bad_toml,
         "empty": empty,
         "no_scenes": no_scenes,
@@ -423,6 +428,15 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
             *("--no-eval", "--out", str(f["out"])),
         ],
         ("0001.txt", "P2"),
+    ),
+    (  # (was "label_02/0001.txt:4271: field 'frame': frame 446 is beyond the sequence's 14
+        # frames": the pose lines, counted unparsed, judged the labels)
+        "kitti truncated pose file",
+        lambda f: [
+            *("kitti", "--kitti-root", str(f["truncated_poses"]), "--seqs", "0001"),
+            *("--classes", "car", "--out", str(f["out"])),
+        ],
+        ("pose_orbslam3/0001.txt:14", "expected 12 columns, got 7"),
     ),
     (
         "convert kitti stock layout without poses",
