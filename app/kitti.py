@@ -181,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
         parallel=scenes.from_args(args),
     )
     _print_summary(summary)
+    sys.stdout.flush()  # (the scenes' errors follow the summary, as it says)
     return scenes.print_failures("kitti", summary["failed"])
 
 
@@ -471,7 +472,18 @@ def run_kitti(
             scored = [r for r in ok if "evaluation" in r.info]
             missing = [r.scene for r in ok if "evaluation" not in r.info]
             if summary["failed"]:
-                summary["evaluation"] = f"skipped: sequences failed: {list(summary['failed'])}"
+                # TrackEval scores a tracker with every sequence or refuses; scored without
+                # the failed ones, the metrics would be another run's (other sequences)
+                tracked = [r.scene for r in ok]
+                summary["evaluation"] = (
+                    f"not scored: the run failed on {', '.join(summary['failed'])}"
+                    + (
+                        f"; metrics over {', '.join(tracked)} alone would not be the run's "
+                        f"(--seqs {','.join(tracked)} scores those)"
+                        if tracked
+                        else ""
+                    )
+                )
             elif not scored:
                 summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
                 LOG.warning("not evaluated: no labels for %s in %s", missing, label_dir)
@@ -598,10 +610,29 @@ def _motion(
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
-    print(
-        f"frames {summary['frames']}  tracker {summary['tracker_seconds']:.2f} s  "
-        f"{summary['tracker_fps'] or '-'} frames/s  peak RSS {summary['peak_rss_mb']} MB"
-    )
+    failed = summary.get("failed") or {}
+    tracked = [s for s in summary["sequences"] if s not in failed]
+    if tracked:  # (with none, a speed of 0 frames would say nothing)
+        of = f"tracked {', '.join(tracked)} only: " if failed else ""
+        print(
+            f"{of}frames {summary['frames']}  tracker {summary['tracker_seconds']:.2f} s  "
+            f"{summary['tracker_fps'] or '-'} frames/s  peak RSS {summary['peak_rss_mb']} MB"
+        )
+    if failed:  # plainly: the run is not a result, and why nothing was scored
+        which = (
+            f"{len(failed)} of {len(summary['sequences'])} sequences"
+            if tracked
+            else "every sequence"
+        )
+        note = "not evaluated (--no-eval)"
+        if "evaluation" in summary:
+            note = "nothing was scored" + (
+                f": metrics over {', '.join(tracked)} alone would not be the run's (--seqs "
+                f"{','.join(tracked)} scores those)"
+                if tracked
+                else ""
+            )
+        print(f"run failed on {which} ({', '.join(failed)}: the error below); {note}")
     for kind, counts in summary.get("skipped_at_load", {}).items():
         if counts:
             print(f"detection rows skipped at load, {kind.replace('_', ' ')}: {counts}")
@@ -613,7 +644,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
             print(f"{cls:<12}" + "".join(f"{m[c]:>9}" for c in cols))
         for cls, why in summary.get("metrics_absent", {}).items():
             print(f"{cls:<12}  absent: {why}")
-    if "evaluation" in summary:
+    if "evaluation" in summary and not failed:  # (a failed run's is said above)
         print(summary["evaluation"])
     per_seq = summary.get("per_sequence")
     if per_seq:
