@@ -16,6 +16,7 @@ import re
 import select
 import sys
 import time
+import traceback
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -140,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--debug",
         action="store_true",
-        help="on an error, show the Python traceback instead of the one-line message",
+        help="on an error, also show the Python traceback (the exit status stays the same)",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
@@ -335,9 +336,13 @@ def _run_command(args: argparse.Namespace) -> int:
             # quietly, as a Unix tool killed by SIGPIPE does, with its status (128 + 13)
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return EXIT_PIPE
-        if args.debug:
-            raise
         known = error_message(exc)
+        if args.debug:
+            if known is None:
+                raise  # a bug: its traceback, exit 1 (and a debugger's post-mortem)
+            # the traceback too, but the exit status of the error (2 for input and usage), so
+            # a script that checks it behaves the same with --debug
+            traceback.print_exc()
         if known is not None:
             message, status = known
             print(f"mctrack {args.command}: error: {message}", file=sys.stderr)

@@ -969,7 +969,13 @@ def test_console_exit_status_and_debug_traceback(tmp_path: Path) -> None:
         f"mctrack validate: error: {missing}: file not found"
     ]
     debug = _mctrack("validate", missing, "--debug")
-    assert debug.returncode != 0 and "Traceback" in debug.stderr and "InputError" in debug.stderr
+    # the traceback, then the same line and exit status (was 1: the error was raised again)
+    assert debug.returncode == 2, debug.stderr
+    assert "Traceback" in debug.stderr and "InputError" in debug.stderr
+    assert debug.stderr.strip().splitlines()[-1] == plain.stderr.strip()
+    before = _mctrack("--debug", "track", missing, "--out", str(tmp_path / "x"))
+    assert before.returncode == 2 and "Traceback" in before.stderr, before.stderr
+    assert not (tmp_path / "x").exists()  # (the folder the run made is removed, as without it)
 
 
 def test_unexpected_errors_are_one_line_with_exit_1(
