@@ -32,7 +32,7 @@ from tracker.errors import InputError, ViewerError
 # subcommand -> (module, help). Each module has add_arguments(parser) and run(args) -> int,
 # imported only when used so `mctrack validate` never pays for rerun or trackeval.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("app.demo", "track the bundled sample sequence and write a recording + summary"),
+    "demo": ("app.demo", "track the bundled sample sequence, write a recording, print a summary"),
     "validate": ("app.validate", "check a BaseVersion file and print a summary"),
     "convert": ("app.convert", "convert a dataset's detections and labels to BaseVersion"),
     "track": ("app.track", "run the tracker on a BaseVersion file"),
