@@ -337,6 +337,13 @@ def run_kitti(
     (:func:`tracker.eval.motion_eval.evaluate_motion`) go to ``summary["motion"]``,
     ``out/motion.md`` and ``out/motion_velocity.png``.
     """
+    if evaluate and not any(c in SUPPORTED_CLASSES for c in classes):
+        # (was a run whose metrics table was its header alone, exit 0)
+        raise InputError(
+            f"--classes {','.join(classes)}: the KITTI protocol scores only "
+            f"{', '.join(SUPPORTED_CLASSES)}; name one of them, or pass --no-eval to track "
+            f"{', '.join(classes)} unscored"
+        )
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
     config_name = config_for_mode(config_name, mode)  # (load_config applies the same rule)

@@ -438,6 +438,14 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
         ],
         ("pose_orbslam3/0001.txt:14", "expected 12 columns, got 7"),
     ),
+    (  # (was a metrics table of its header alone, exit 0)
+        "kitti a class the protocol does not score",
+        lambda f: [
+            *("kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001"),
+            *("--classes", "truck", "--out", str(f["out"])),
+        ],
+        ("--classes truck", "scores only car, pedestrian, cyclist", "--no-eval"),
+    ),
     (
         "convert kitti stock layout without poses",
         lambda f: ["convert", "kitti", "--kitti-root", str(f["stock"]), "--out", str(f["out"])],
