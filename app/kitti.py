@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.labels}: --labels folder not found (or pass --no-eval)")
     poses = None if args.poses == "none" else args.poses
     check_kitti_root(root, seqs=seqs, poses=poses, detector=args.detector)
-    check_image_detector(root, args.image_detector)
+    check_image_detector(root, args.image_detector, classes=args.classes, seqs=seqs)
     out = Path(args.out)
     profile = profile_argument(args.profile)
     # an input among the outputs would be deleted with an earlier run's, or by a failed run's
