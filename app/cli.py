@@ -230,7 +230,8 @@ def _kernel_stamp() -> tuple[Path, str] | None:
 
 def kernels_cold() -> bool:
     """True when the tracker's compiled kernels have not been warmed up since their sources last
-    changed (the first run on a machine, or after an edit): loading them then compiles for ~20 s.
+    changed (the first run of a checkout or install: numba caches them next to the source, or
+    after an edit): loading them then compiles for ~20 s.
     A stamp holding the sources' hash is written after each warm-up; comparing file times
     instead missed an edited helper whose own cache index numba never rewrites."""
     stamp = _kernel_stamp()
@@ -255,6 +256,21 @@ def _mark_kernels_warm() -> None:
         pass
 
 
+def _kernel_cache_note(folder: Path | None) -> str:
+    """Where the compiled kernels are kept, and so when they compile again: the cache sits
+    with the source (or under $NUMBA_CACHE_DIR, by the source's path), so each checkout or
+    install compiles once, not each machine."""
+    if folder is None:
+        return "not cached"
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), folder)
+    if not os.access(existing, os.W_OK):
+        return f"on every run: {folder} is not writable; set NUMBA_CACHE_DIR to a folder that is"
+    return (
+        f"cached in {folder}: later runs of this copy of the source load them, until a "
+        "kernel's source changes"
+    )
+
+
 #: Subcommands that run the tracker (and so load its compiled kernels).
 TRACKING_COMMANDS = frozenset(
     {"demo", "track", "kitti", "nuscenes", "waymo", "view", "bench", "tune", "robustness"}
@@ -265,8 +281,10 @@ def _warm_kernels() -> None:
     """Compile the kernels up front, saying so, instead of a silent pause in the first frame."""
     if not kernels_cold():
         return
+    stamp = _kernel_stamp()
+    folder = stamp[0].parent if stamp is not None else None
     print(
-        "mctrack: compiling the tracker kernels (first run on this machine only, 20-60 s)...",
+        f"mctrack: compiling the tracker kernels, 20-60 s ({_kernel_cache_note(folder)})...",
         file=sys.stderr,
         flush=True,
     )

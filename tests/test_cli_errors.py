@@ -1762,7 +1762,7 @@ def test_kitti_root_defaults_to_the_environment_variable(
 
 
 def test_kernel_cache_check_sees_a_cold_cache(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     pytest.importorskip("numba")
     monkeypatch.delenv("MCTRACK_NUMBA", raising=False)
@@ -1775,6 +1775,19 @@ def test_kernel_cache_check_sees_a_cold_cache(
     # any edit to a kernel source (a shared helper too) changes the hash: cold again
     stamp[0].write_text("0" * 64 + "\n", encoding="utf-8")
     assert cli.kernels_cold()
+    # the message names where they are cached (was "first run on this machine only": the
+    # cache is per copy of the source, so a new checkout compiles again)
+    import tracker.geometry
+    import tracker.kernels
+
+    monkeypatch.setattr(tracker.kernels, "load", lambda: None)  # (not 20-60 s of compiling)
+    monkeypatch.setattr(tracker.geometry, "prepare_kernels", lambda: None)
+    cli._warm_kernels()
+    said = capsys.readouterr().err
+    assert f"(cached in {stamp[0].parent}: later runs of this copy of the source" in said, said
+    assert "machine" not in said and not cli.kernels_cold()
+    monkeypatch.setattr(cli.os, "access", lambda *args: False)  # (root may write anywhere)
+    assert "on every run: " in cli._kernel_cache_note(stamp[0].parent)
     monkeypatch.setenv("MCTRACK_NUMBA", "0")  # numpy only: nothing to compile
     assert not cli.kernels_cold()
 
