@@ -6,8 +6,8 @@
 
 Each case runs ``--repeat`` times and the best run is kept: on a shared machine the slower runs
 measure the neighbours. The machine's load average is printed with the results. The compiled
-geometry kernel is loaded when the tracker is built, before the timer starts (the first run on
-a machine compiles it once).
+geometry kernel is loaded when the tracker is built, before the timer starts (the first run of
+a checkout compiles it once).
 """
 
 from __future__ import annotations

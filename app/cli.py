@@ -16,6 +16,7 @@ import re
 import select
 import sys
 import time
+import traceback
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -31,7 +32,7 @@ from tracker.errors import InputError, ViewerError
 # subcommand -> (module, help). Each module has add_arguments(parser) and run(args) -> int,
 # imported only when used so `mctrack validate` never pays for rerun or trackeval.
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("app.demo", "track the bundled sample sequence and write a recording + summary"),
+    "demo": ("app.demo", "track the bundled sample sequence, write a recording, print a summary"),
     "validate": ("app.validate", "check a BaseVersion file and print a summary"),
     "convert": ("app.convert", "convert a dataset's detections and labels to BaseVersion"),
     "track": ("app.track", "run the tracker on a BaseVersion file"),
@@ -140,7 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--debug",
         action="store_true",
-        help="on an error, show the Python traceback instead of the one-line message",
+        help="on an error, also show the Python traceback (the exit status stays the same)",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, help_text) in SUBCOMMANDS.items():
@@ -229,7 +230,8 @@ def _kernel_stamp() -> tuple[Path, str] | None:
 
 def kernels_cold() -> bool:
     """True when the tracker's compiled kernels have not been warmed up since their sources last
-    changed (the first run on a machine, or after an edit): loading them then compiles for ~20 s.
+    changed (the first run of a checkout or install: numba caches them next to the source, or
+    after an edit): loading them then compiles for ~20 s.
     A stamp holding the sources' hash is written after each warm-up; comparing file times
     instead missed an edited helper whose own cache index numba never rewrites."""
     stamp = _kernel_stamp()
@@ -254,6 +256,21 @@ def _mark_kernels_warm() -> None:
         pass
 
 
+def _kernel_cache_note(folder: Path | None) -> str:
+    """Where the compiled kernels are kept, and so when they compile again: the cache sits
+    with the source (or under $NUMBA_CACHE_DIR, by the source's path), so each checkout or
+    install compiles once, not each machine."""
+    if folder is None:
+        return "not cached"
+    existing = next((p for p in (folder, *folder.parents) if p.exists()), folder)
+    if not os.access(existing, os.W_OK):
+        return f"on every run: {folder} is not writable; set NUMBA_CACHE_DIR to a folder that is"
+    return (
+        f"cached in {folder}: later runs of this copy of the source load them, until a "
+        "kernel's source changes"
+    )
+
+
 #: Subcommands that run the tracker (and so load its compiled kernels).
 TRACKING_COMMANDS = frozenset(
     {"demo", "track", "kitti", "nuscenes", "waymo", "view", "bench", "tune", "robustness"}
@@ -264,8 +281,10 @@ def _warm_kernels() -> None:
     """Compile the kernels up front, saying so, instead of a silent pause in the first frame."""
     if not kernels_cold():
         return
+    stamp = _kernel_stamp()
+    folder = stamp[0].parent if stamp is not None else None
     print(
-        "mctrack: compiling the tracker kernels (first run on this machine only, 20-60 s)...",
+        f"mctrack: compiling the tracker kernels, 20-60 s ({_kernel_cache_note(folder)})...",
         file=sys.stderr,
         flush=True,
     )
@@ -335,9 +354,13 @@ def _run_command(args: argparse.Namespace) -> int:
             # quietly, as a Unix tool killed by SIGPIPE does, with its status (128 + 13)
             os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
             return EXIT_PIPE
-        if args.debug:
-            raise
         known = error_message(exc)
+        if args.debug:
+            if known is None:
+                raise  # a bug: its traceback, exit 1 (and a debugger's post-mortem)
+            # the traceback too, but the exit status of the error (2 for input and usage), so
+            # a script that checks it behaves the same with --debug
+            traceback.print_exc()
         if known is not None:
             message, status = known
             print(f"mctrack {args.command}: error: {message}", file=sys.stderr)

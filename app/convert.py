@@ -155,7 +155,9 @@ def _run_kitti(args: argparse.Namespace) -> int:
         poses=poses,
         detector=None if args.detections else args.detector,
     )
-    check_image_detector(root, args.image_detector, args.split)
+    check_image_detector(
+        root, args.image_detector, args.split, classes=args.classes, seqs=args.seqs
+    )
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     detections, gt = convert_kitti(

@@ -58,14 +58,61 @@ IMAGE_DETECTOR_HELP = (
 )
 
 
-def check_image_detector(root: Path, name: str | None, split: str = "training") -> None:
-    """InputError unless ``--image-detector NAME`` names a folder of the kit (or is absent)."""
+def check_image_detector(
+    root: Path,
+    name: str | None,
+    split: str = "training",
+    *,
+    classes: Sequence[str] = (),
+    seqs: Sequence[str] | None = None,
+) -> None:
+    """InputError unless ``--image-detector NAME`` names a folder of the kit (or is absent)
+    holding 2D boxes: a ``<Class>/`` folder of one of ``classes``, whose first file of ``seqs``
+    (default: the split's) starts with a line of 6 columns. A 3D detector's folder (one
+    ``<seq>.txt`` per sequence, or per-class files of 15 columns) is refused here, once, rather
+    than warned about or failed in every sequence after the work."""
+    from tracker.io.convert.kitti import CLASS_FOLDERS, IMAGE_DET_COLUMNS
+
     folder = root / "detections" / str(name) / split
-    if name is not None and not folder.is_dir():
+    if name is None:
+        return
+    if not folder.is_dir():
         found = sorted(p.name for p in (root / "detections").glob("*") if p.is_dir())
         raise InputError(
             f"{folder}: image detections not found; --image-detector names a folder under "
             f"{root / 'detections'} (found: {', '.join(found) or 'none'})"
+        )
+    layout = f"--image-detector names a folder of <Class>/<seq>.txt ({','.join(IMAGE_DET_COLUMNS)})"
+    names = [CLASS_FOLDERS.get(c, c) for c in classes]
+    present = [n for n in names if (folder / n).is_dir()]
+    if names and not present:
+        held = " (it holds <seq>.txt files: a 3D detector's, for --detector?)"
+        raise InputError(
+            f"{folder}: no {'/, '.join(names)}/ folder of 2D boxes"
+            f"{held if any(folder.glob('*.txt')) else ''}; {layout}"
+        )
+    if seqs is None:
+        seqs = sorted(p.stem for p in (root / split / "calib").glob("*.txt"))
+    first = next(
+        (f for n in present for s in seqs if (f := folder / n / f"{s}.txt").is_file()), None
+    )
+    if first is None:
+        return  # (each sequence says which image boxes it has not)
+    try:
+        with first.open() as text:
+            line_no, line = next(((i, t) for i, t in enumerate(text, 1) if t.strip()), (0, ""))
+    except (OSError, UnicodeDecodeError):
+        return  # (the sequence's own read reports it)
+    row = line.split(",")
+    if row[-1].strip() == "":
+        row.pop()  # (a trailing separator, as the reader takes it)
+    if line_no and len(row) != len(IMAGE_DET_COLUMNS):
+        raise InputError(
+            f"expected {len(IMAGE_DET_COLUMNS)} comma-separated columns, got {len(row)}: not "
+            f"2D boxes (a 3D detector's file?); {layout}",
+            path=first,
+            line=line_no,
+            field="columns",
         )
 
 

@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.labels}: --labels folder not found (or pass --no-eval)")
     poses = None if args.poses == "none" else args.poses
     check_kitti_root(root, seqs=seqs, poses=poses, detector=args.detector)
-    check_image_detector(root, args.image_detector)
+    check_image_detector(root, args.image_detector, classes=args.classes, seqs=seqs)
     out = Path(args.out)
     profile = profile_argument(args.profile)
     # an input among the outputs would be deleted with an earlier run's, or by a failed run's
@@ -181,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
         parallel=scenes.from_args(args),
     )
     _print_summary(summary)
+    sys.stdout.flush()  # (the scenes' errors follow the summary, as it says)
     return scenes.print_failures("kitti", summary["failed"])
 
 
@@ -336,6 +337,13 @@ def run_kitti(
     (:func:`tracker.eval.motion_eval.evaluate_motion`) go to ``summary["motion"]``,
     ``out/motion.md`` and ``out/motion_velocity.png``.
     """
+    if evaluate and not any(c in SUPPORTED_CLASSES for c in classes):
+        # (was a run whose metrics table was its header alone, exit 0)
+        raise InputError(
+            f"--classes {','.join(classes)}: the KITTI protocol scores only "
+            f"{', '.join(SUPPORTED_CLASSES)}; name one of them, or pass --no-eval to track "
+            f"{', '.join(classes)} unscored"
+        )
     overrides = dict(config_overrides or {})
     overrides["categories"] = classes
     config_name = config_for_mode(config_name, mode)  # (load_config applies the same rule)
@@ -471,7 +479,18 @@ def run_kitti(
             scored = [r for r in ok if "evaluation" in r.info]
             missing = [r.scene for r in ok if "evaluation" not in r.info]
             if summary["failed"]:
-                summary["evaluation"] = f"skipped: sequences failed: {list(summary['failed'])}"
+                # TrackEval scores a tracker with every sequence or refuses; scored without
+                # the failed ones, the metrics would be another run's (other sequences)
+                tracked = [r.scene for r in ok]
+                summary["evaluation"] = (
+                    f"not scored: the run failed on {', '.join(summary['failed'])}"
+                    + (
+                        f"; metrics over {', '.join(tracked)} alone would not be the run's "
+                        f"(--seqs {','.join(tracked)} scores those)"
+                        if tracked
+                        else ""
+                    )
+                )
             elif not scored:
                 summary["evaluation"] = f"skipped: no labels for {missing} in {label_dir}"
                 LOG.warning("not evaluated: no labels for %s in %s", missing, label_dir)
@@ -528,11 +547,15 @@ def _pose_file(kitti_root: Path, seq: str, poses: str | None) -> Path | None:
 
 
 def _pose_count(kitti_root: Path, seq: str, poses: str | None) -> int | None:
-    """A sequence's length as the converter takes it with poses: the pose file's non-empty
-    lines (None without poses, or no readable pose file: the sequence's task reports that)."""
+    """A sequence's length as the converter takes it with poses: its poses, parsed as the
+    converter parses them (None without poses, or no readable pose file: the sequence's task
+    reports that). A malformed pose file is an InputError naming it: counted unparsed, a
+    truncated one judged the sequence's labels, which were then blamed for its error."""
+    from tracker.io.convert.kitti import read_kitti_poses
+
     path = _pose_file(kitti_root, seq, poses)
     try:
-        return None if path is None else sum(1 for t in path.read_text().splitlines() if t.strip())
+        return None if path is None else len(read_kitti_poses(path))
     except (OSError, UnicodeDecodeError):
         return None
 
@@ -594,10 +617,29 @@ def _motion(
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
-    print(
-        f"frames {summary['frames']}  tracker {summary['tracker_seconds']:.2f} s  "
-        f"{summary['tracker_fps'] or '-'} frames/s  peak RSS {summary['peak_rss_mb']} MB"
-    )
+    failed = summary.get("failed") or {}
+    tracked = [s for s in summary["sequences"] if s not in failed]
+    if tracked:  # (with none, a speed of 0 frames would say nothing)
+        of = f"tracked {', '.join(tracked)} only: " if failed else ""
+        print(
+            f"{of}frames {summary['frames']}  tracker {summary['tracker_seconds']:.2f} s  "
+            f"{summary['tracker_fps'] or '-'} frames/s  peak RSS {summary['peak_rss_mb']} MB"
+        )
+    if failed:  # plainly: the run is not a result, and why nothing was scored
+        which = (
+            f"{len(failed)} of {len(summary['sequences'])} sequences"
+            if tracked
+            else "every sequence"
+        )
+        note = "not evaluated (--no-eval)"
+        if "evaluation" in summary:
+            note = "nothing was scored" + (
+                f": metrics over {', '.join(tracked)} alone would not be the run's (--seqs "
+                f"{','.join(tracked)} scores those)"
+                if tracked
+                else ""
+            )
+        print(f"run failed on {which} ({', '.join(failed)}: the error below); {note}")
     for kind, counts in summary.get("skipped_at_load", {}).items():
         if counts:
             print(f"detection rows skipped at load, {kind.replace('_', ' ')}: {counts}")
@@ -609,7 +651,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
             print(f"{cls:<12}" + "".join(f"{m[c]:>9}" for c in cols))
         for cls, why in summary.get("metrics_absent", {}).items():
             print(f"{cls:<12}  absent: {why}")
-    if "evaluation" in summary:
+    if "evaluation" in summary and not failed:  # (a failed run's is said above)
         print(summary["evaluation"])
     per_seq = summary.get("per_sequence")
     if per_seq:

@@ -100,7 +100,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="NAME:drop=R:centre=M:yaw=DEG:fp=R",
         help="a level of your own, run after --levels (repeatable): drop rate in [0, 1], centre"
         " jitter σ in metres, yaw jitter σ in degrees, false positives per real box; parts left"
-        " out are 0 (e.g. double_jitter:centre=0.3:yaw=5)",
+        " out are 0, not all of them unless --score-sigma is set (e.g."
+        " double_jitter:centre=0.3:yaw=5)",
     )
     parser.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (integers >= 0)")
     parser.add_argument(
@@ -199,6 +200,12 @@ def run_robustness(
     for name, spec in [*((n, NOISE_LEVELS[n]) for n in levels), *custom_levels.items()]:
         if name != CLEAN:
             specs[name] = dataclasses.replace(spec, score_sigma=score_sigma)
+    same = [name for name in custom_levels if specs[name].is_clean]
+    if same:  # (its row would be clean's again, under another name: a level given no parts)
+        raise InputError(
+            f"--level {same[0]}: no noise (drop, centre, yaw and fp all 0, and --score-sigma "
+            f"0), the clean level again; give it a part, e.g. {same[0]}:centre=0.3"
+        )
     label_dir = kitti_root / "training" / "label_02"
     missing = [str(label_dir / f"{s}.txt") for s in seqs if not (label_dir / f"{s}.txt").is_file()]
     if missing:

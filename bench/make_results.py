@@ -60,6 +60,30 @@ ABLATION = {
 QUOTE_LEFT_OUT = ("config", "per_sequence_metrics")  # too long to quote in full
 
 
+def summary_quote(summary: dict[str, Any], cwd: Path | None = None) -> list[str]:
+    """The lines quoting the online run's ``summary.json``: every entry but
+    :data:`QUOTE_LEFT_OUT`, its paths (absolute in the file) shown relative to ``cwd`` (default:
+    the working directory) so the page does not name this machine's folders."""
+    prefix = f"{(cwd or Path.cwd()).absolute()}/"
+    quoted = {
+        k: v.removeprefix(prefix) if k in ("kitti_root", "labels") else v
+        for k, v in summary.items()
+        if k not in QUOTE_LEFT_OUT
+    }
+    return [
+        "The `summary.json` that `mctrack kitti --out DIR` wrote for the online run (its"
+        " `config` entry, the resolved `kitti` config, and `per_sequence_metrics`, every"
+        " metric per sequence and class, left out here; `kitti_root` and `labels`, absolute in"
+        " the file, are shown relative to the folder the command ran in; `tracker_fps` is one"
+        " run on this machine, the speed section below is the best of several):",
+        "",
+        "```json",
+        json.dumps(quoted, indent=1),
+        "```",
+        "",
+    ]
+
+
 def table(rows: list[tuple[str, dict[str, Any]]], columns: list[str] = COLUMNS) -> str:
     head = "| run | " + " | ".join(columns) + " |\n|---|" + "---:|" * len(columns) + "\n"
     body = "".join(
@@ -253,28 +277,19 @@ def no_profile_section(root: Path) -> list[str]:
     ]
 
 
-CUT_RAW = 0.0  # the thresholded sets keep raw >= this (sigmoid 0.5)
-
-
 def thresholded_section(root: Path) -> list[str]:
     """Detection sets distributed above a score cut: the two detectors of the kit in the KITTI
     tracking result format, cut at raw >= CUT_RAW, self-calibrated against the sigmoid and
     their shipped profile."""
+    from cut_detections import CUT_RAW, cut_kit
+
     from tracker.calibration import PROFILE_DIR
 
     rows = []
     with work_folder("results") as tmp:
         kit = Path(tmp) / "kit"
-        kit.mkdir()
-        (kit / "training").symlink_to((root / "training").resolve())
         for detector in ("virconv", "second_iou"):
-            cut = f"{detector}_cut"
-            folder = kit / "detections" / cut / "training"
-            folder.mkdir(parents=True)
-            for seq in _val():
-                lines = (root / "detections" / detector / "training" / f"{seq}.txt").read_text()
-                kept = [ln for ln in lines.splitlines() if float(ln.split()[-1]) >= CUT_RAW]
-                (folder / f"{seq}.txt").write_text("".join(f"{ln}\n" for ln in kept))
+            cut = cut_kit(root, detector, kit, min_raw=CUT_RAW, seqs=list(_val()))
             for profile, name in (
                 ("self", "self-calibrated, no labels"),
                 ("none", "sigmoid(raw), uncalibrated"),
@@ -286,8 +301,10 @@ def thresholded_section(root: Path) -> list[str]:
         "**Detection sets distributed above a score cut.** Many are: their lowest scores are"
         " then mostly real, and the 5 % quantile's label rate is no estimate of P(label |"
         " false); the rate on displaced boxes is. VirConv and SECOND-IoU cut at raw >="
-        f" {CUT_RAW:g} (sigmoid 0.5), car, online, `mctrack kitti --detector D_cut --classes car"
-        " --profile self|none|PROFILE`:",
+        f" {CUT_RAW:g} (sigmoid 0.5), car, online: `python bench/cut_detections.py --detector D"
+        " --out CUT_KIT` makes a kit whose `D_cut` holds those detections, then `mctrack kitti"
+        " --kitti-root CUT_KIT --detector D_cut --classes car --profile self|none|D --out DIR`"
+        " (`--profile D`: the shipped profile of D):",
         "",
         table(rows),
     ]
@@ -1213,15 +1230,7 @@ def main() -> int:
         " original MCTrack code with its default KITTI config car HOTA 66.43 / MOTA 46.63 /"
         " IDSW 44; PC3T publishes car HOTA 76.65 online on this split.",
         "",
-        "The `summary.json` that `mctrack kitti --out DIR` wrote for the online run (its"
-        " `config` entry, the resolved `kitti` config, and `per_sequence_metrics`, every"
-        " metric per sequence and class, left out here; `tracker_fps` is one run on this"
-        " machine, the speed section below is the best of several):",
-        "",
-        "```json",
-        json.dumps({k: v for k, v in online.items() if k not in QUOTE_LEFT_OUT}, indent=1),
-        "```",
-        "",
+        *summary_quote(online),
         "## Every detector, one config",
         "",
         "The same `kitti` / `kitti_offline` settings for every detector: scores are calibrated"

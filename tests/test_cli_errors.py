@@ -280,6 +280,10 @@ def files(tmp_path: Path) -> dict[str, Path]:
     (bad_detections / "detections" / "pointrcnn" / "training" / "Car" / "0001.txt").write_text(
         "0 Car x y z\n"
     )
+    truncated_poses = tmp_path / "truncated_poses"  # cut mid-line, 13 whole lines of 447
+    shutil.copytree(SAMPLE_KIT, truncated_poses)
+    pose_file = truncated_poses / "training" / "pose_orbslam3" / "0001.txt"
+    pose_file.write_bytes(pose_file.read_bytes()[:2000])
     bad_toml = tmp_path / "bad.toml"
     bad_toml.write_text('base = "kitti"\n[defaults]\nno_such_key = 1\n')
     empty = tmp_path / "empty.json"
@@ -307,6 +311,7 @@ def files(tmp_path: Path) -> dict[str, Path]:
         "stock": stock,
         "bad_calib": bad_calib,
         "bad_detections": bad_detections,
+        "truncated_poses": truncated_poses,
         "bad_toml": bad_toml,
         "empty": empty,
         "no_scenes": no_scenes,
@@ -423,6 +428,23 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
             *("--no-eval", "--out", str(f["out"])),
         ],
         ("0001.txt", "P2"),
+    ),
+    (  # (was "label_02/0001.txt:4271: field 'frame': frame 446 is beyond the sequence's 14
+        # frames": the pose lines, counted unparsed, judged the labels)
+        "kitti truncated pose file",
+        lambda f: [
+            *("kitti", "--kitti-root", str(f["truncated_poses"]), "--seqs", "0001"),
+            *("--classes", "car", "--out", str(f["out"])),
+        ],
+        ("pose_orbslam3/0001.txt:14", "expected 12 columns, got 7"),
+    ),
+    (  # (was a metrics table of its header alone, exit 0)
+        "kitti a class the protocol does not score",
+        lambda f: [
+            *("kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001"),
+            *("--classes", "truck", "--out", str(f["out"])),
+        ],
+        ("--classes truck", "scores only car, pedestrian, cyclist", "--no-eval"),
     ),
     (
         "convert kitti stock layout without poses",
@@ -955,7 +977,13 @@ def test_console_exit_status_and_debug_traceback(tmp_path: Path) -> None:
         f"mctrack validate: error: {missing}: file not found"
     ]
     debug = _mctrack("validate", missing, "--debug")
-    assert debug.returncode != 0 and "Traceback" in debug.stderr and "InputError" in debug.stderr
+    # the traceback, then the same line and exit status (was 1: the error was raised again)
+    assert debug.returncode == 2, debug.stderr
+    assert "Traceback" in debug.stderr and "InputError" in debug.stderr
+    assert debug.stderr.strip().splitlines()[-1] == plain.stderr.strip()
+    before = _mctrack("--debug", "track", missing, "--out", str(tmp_path / "x"))
+    assert before.returncode == 2 and "Traceback" in before.stderr, before.stderr
+    assert not (tmp_path / "x").exists()  # (the folder the run made is removed, as without it)
 
 
 def test_unexpected_errors_are_one_line_with_exit_1(
@@ -1763,7 +1791,7 @@ def test_kitti_root_defaults_to_the_environment_variable(
 
 
 def test_kernel_cache_check_sees_a_cold_cache(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
     pytest.importorskip("numba")
     monkeypatch.delenv("MCTRACK_NUMBA", raising=False)
@@ -1776,6 +1804,19 @@ def test_kernel_cache_check_sees_a_cold_cache(
     # any edit to a kernel source (a shared helper too) changes the hash: cold again
     stamp[0].write_text("0" * 64 + "\n", encoding="utf-8")
     assert cli.kernels_cold()
+    # the message names where they are cached (was "first run on this machine only": the
+    # cache is per copy of the source, so a new checkout compiles again)
+    import tracker.geometry
+    import tracker.kernels
+
+    monkeypatch.setattr(tracker.kernels, "load", lambda: None)  # (not 20-60 s of compiling)
+    monkeypatch.setattr(tracker.geometry, "prepare_kernels", lambda: None)
+    cli._warm_kernels()
+    said = capsys.readouterr().err
+    assert f"(cached in {stamp[0].parent}: later runs of this copy of the source" in said, said
+    assert "machine" not in said and not cli.kernels_cold()
+    monkeypatch.setattr(cli.os, "access", lambda *args: False)  # (root may write anywhere)
+    assert "on every run: " in cli._kernel_cache_note(stamp[0].parent)
     monkeypatch.setenv("MCTRACK_NUMBA", "0")  # numpy only: nothing to compile
     assert not cli.kernels_cold()
 

@@ -144,3 +144,45 @@ def test_a_missing_image_detector_is_one_line(
     assert main([*argv, "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "detections/nope/training: image detections not found" in err
+
+
+@pytest.mark.parametrize("command", ["kitti", "convert"])
+@pytest.mark.parametrize(
+    ("layout", "fragments"),
+    [
+        (  # a 3D detector's one file per sequence (was a warning per sequence, and a run)
+            "per_sequence",
+            ("detections/threed/training: no Car/ folder of 2D boxes", "a 3D detector's"),
+        ),
+        (  # per-class files of a 3D detector (was an error per sequence, after the work)
+            "per_class",
+            ("threed/training/Car/0001.txt:1: field 'columns': expected 6", "got 15"),
+        ),
+    ],
+)
+def test_a_3d_detectors_folder_as_image_detector_is_refused_once(
+    command: str,
+    layout: str,
+    fragments: tuple[str, ...],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    from app.cli import main
+
+    root = tmp_path / "kit"
+    shutil.copytree(SAMPLE / "raw", root)
+    lidar = root / "detections" / "pointrcnn" / "training" / "Car" / "0001.txt"
+    folder = root / "detections" / "threed" / "training"
+    folder.mkdir(parents=True)
+    if layout == "per_sequence":
+        shutil.copy(lidar, folder / "0001.txt")
+    else:
+        (folder / "Car").mkdir()
+        shutil.copy(lidar, folder / "Car" / "0001.txt")
+    argv = ["kitti", "--kitti-root", str(root), "--seqs", "0001", "--classes", "car"]
+    argv = (["convert", *argv] if command == "convert" else argv) + ["--image-detector", "threed"]
+    assert main([*argv, "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and all(f in err for f in fragments), err
+    assert "--image-detector names a folder of <Class>/<seq>.txt" in err
+    assert not (tmp_path / "out").exists()  # (refused before the work)

@@ -459,6 +459,9 @@ def test_a_level_of_your_own(
         ("a:fp=-1", "fp_rate: expected a finite value >= 0"),
         ("Noise:drop=0.2", "already names a built-in level"),
         ("a:drop=0.1 --level A:drop=0.2", "a level named 'A' is given already"),
+        # (each was accepted: a level the same as clean, under another name)
+        ("x", "--level x: no noise (drop, centre, yaw and fp all 0, and --score-sigma 0)"),
+        ("x:drop=0:fp=0", "--level x: no noise"),
     ],
 )
 def test_bad_levels_are_one_line_errors(

@@ -151,11 +151,23 @@ def test_a_scene_with_a_malformed_file_fails_alone(
     bad.write_text(bad.read_text().replace(",", ";", 3))  # row 1 is no longer CSV
     out = tmp_path / "out"
     assert _kitti(kit, out, "--workers", "2") == 2
-    err = capsys.readouterr().err.strip().splitlines()
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
     assert len(err) == 1 and "scene 0002" in err[0] and str(bad) in err[0], err
     summary = json.loads((out / "summary.json").read_text())
     assert list(summary["failed"]) == ["0002"]
-    assert summary["evaluation"].startswith("skipped: sequences failed")
+    # the run failed and nothing was scored, said plainly (was "skipped: sequences failed:
+    # ['0002']", read as the sequence skipped); the speed is of the sequences tracked
+    assert summary["evaluation"] == (
+        "not scored: the run failed on 0002; metrics over 0001, 0003 alone would not be the "
+        "run's (--seqs 0001,0003 scores those)"
+    )
+    lines = captured.out.strip().splitlines()
+    assert lines[0].startswith("tracked 0001, 0003 only: frames 567 "), lines
+    assert lines[1].startswith(
+        "run failed on 1 of 3 sequences (0002: the error below); nothing was scored: "
+    ), lines
+    assert not any("HOTA" in line or "skipped" in line for line in lines), lines
     # the other sequences' outputs are complete and the same as in the good run
     good = _files(sequential)
     files = _files(out)
@@ -163,6 +175,22 @@ def test_a_scene_with_a_malformed_file_fails_alone(
     assert files["data/0001.txt"] == good["data/0001.txt"]
     assert files["data/0003.txt"] == good["data/0003.txt"]
     assert list(json.loads(files["tracks.json"])) == ["0001", "0003"]
+
+
+def test_a_run_whose_every_scene_failed_prints_no_speed(
+    small_kit: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    kit = tmp_path / "kit"
+    shutil.copytree(small_kit, kit)
+    bad = kit / "detections" / "pointrcnn" / "training" / "Car" / "0002.txt"
+    bad.write_text(bad.read_text().replace(",", ";", 3))
+    assert _kitti(kit, tmp_path / "out", seqs="0002") == 2
+    captured = capsys.readouterr()
+    # (was "frames 0  tracker 0.00 s  - frames/s" and "skipped: sequences failed: ['0002']")
+    assert captured.out.strip().splitlines() == [
+        "run failed on every sequence (0002: the error below); nothing was scored"
+    ]
+    assert "scene 0002" in captured.err
 
 
 @dataclass(frozen=True, slots=True)

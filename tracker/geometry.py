@@ -456,7 +456,7 @@ def _geometry_kernel() -> Callable[..., tuple[FloatArray, ...]] | None:
         from tracker.kernels.geometry import bev_pair_geometry_kernel
     except ImportError:
         return None
-    # compile (first run on this machine) or load from numba's cache now, not on first use
+    # compile (first run of a checkout) or load from numba's cache now, not on first use
     none = np.zeros(0, dtype=np.int64)
     bev_pair_geometry_kernel(np.zeros((0, 5)), np.zeros((0, 5)), none, none, True)
     return bev_pair_geometry_kernel  # type: ignore[no-any-return]
