@@ -84,8 +84,9 @@ def add_profile_argument(parser: argparse.ArgumentParser, self_saved: str | None
         help="score calibration profile (a TOML file from `mctrack calibrate`, or a shipped "
         "profile's name: pointrcnn, second_iou, virconv) applied to each box's "
         "detection_score_raw, which every box of a tracked class must have; 'self': fitted "
-        f"without labels on the file's own detections{saved}; default: detection_score as "
-        "given",
+        f"without labels on the file's own detections{saved}; 'none': detection_score as "
+        "given (the default, which warns where the config's thresholds expect calibrated "
+        "scores)",
     )
 
 
@@ -235,8 +236,8 @@ def calibrate_scenes(
     warning when the config's thresholds expect calibrated scores). With ``self`` the profile
     is fitted on the file's own detections (:func:`tracker.eval.calibrate.fit_self_profile`)
     and returned, to be written beside the tracks."""
-    if profile is None:
-        if config.scores is ScoreSource.PROFILE:
+    if profile in (None, NO_PROFILE):  # (none: the user's choice, so no warning)
+        if profile is None and config.scores is ScoreSource.PROFILE:
             LOG.warning(
                 "no --profile: detection_score is used as given; the %s config's thresholds "
                 "expect calibrated probabilities (see `mctrack calibrate`, or --profile self)",

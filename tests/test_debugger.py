@@ -961,3 +961,34 @@ def test_view_with_the_samples_profile_records_the_demos_tracks_and_id_switches(
     printed = capsys.readouterr().out
     assert "  tracks: 67\n  ID switches (car): 0, fragmentations: 1" in printed
     assert "scene 0001: 150 frames, 67 tracks, car: 0 ID switches, 1 fragmentations" in printed
+
+
+def test_track_and_view_take_profile_none_as_the_given_scores_without_the_warning(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """`--profile none` is what `kitti` and `robustness` accept for "no calibration"; `track`
+    and `view` took it for a file name ("none: no such profile file"). It tracks what no
+    --profile tracks, the user's choice said by the option rather than warned about."""
+    import json
+    import logging
+
+    from tests.test_viz import SAMPLE
+
+    det = str(SAMPLE / "detections.json.gz")
+    recorded = _recorded_results(monkeypatch)
+    written = {}
+    for name, given in (("default", []), ("none", ["--profile", "none"])):
+        caplog.clear()
+        out = tmp_path / name
+        with caplog.at_level(logging.WARNING):
+            assert main(["track", det, "--frames", "0:60", "--out", str(out), *given]) == 0
+            save = ["--no-motion", "--save", str(tmp_path / f"{name}.rrd")]
+            assert main(["view", det, "--frames", "0:60", *save, *given]) == 0
+        assert ("no --profile" in caplog.text) is (name == "default")
+        tracks = json.loads((out / "tracks.json").read_text())["0001"]
+        written[name] = [
+            (f["frame_id"], sorted(b["track_id"] for b in f["bboxes"])) for f in tracks
+        ]
+    assert written["none"] == written["default"] and written["none"]
+    assert _track_ids_per_frame(recorded[0].outputs) == written["default"]
+    assert _track_ids_per_frame(recorded[1].outputs) == written["none"]
