@@ -626,11 +626,6 @@ def _print_summary(summary: dict[str, Any]) -> None:
             f"{summary['tracker_fps'] or '-'} frames/s  peak RSS {summary['peak_rss_mb']} MB"
         )
     if failed:  # plainly: the run is not a result, and why nothing was scored
-        which = (
-            f"{len(failed)} of {len(summary['sequences'])} sequences"
-            if tracked
-            else "every sequence"
-        )
         note = "not evaluated (--no-eval)"
         if "evaluation" in summary:
             note = "nothing was scored" + (
@@ -639,7 +634,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
                 if tracked
                 else ""
             )
-        print(f"run failed on {which} ({', '.join(failed)}: the error below); {note}")
+        print(scenes.failed_run_line(failed, summary["sequences"], "sequence", note))
     for kind, counts in summary.get("skipped_at_load", {}).items():
         if counts:
             print(f"detection rows skipped at load, {kind.replace('_', ' ')}: {counts}")

@@ -251,7 +251,8 @@ def run_nuscenes(
         elif scene_names:
             summary["evaluation"] = "skipped: --scenes selects part of the split"
         elif summary["failed"]:
-            summary["evaluation"] = f"skipped: scenes failed: {list(summary['failed'])}"
+            # (the benchmark scores every scene of the split, or nothing)
+            summary["evaluation"] = f"not scored: the run failed on {', '.join(summary['failed'])}"
         else:
             summary["metrics"] = evaluate_nuscenes(
                 results_path, dataroot=dataroot, version=version, split=split, out_dir=out / "eval"
@@ -289,11 +290,18 @@ def _motion(
 
 
 def _print_summary(summary: dict[str, Any]) -> None:
-    print(
-        f"{len(summary['scenes'])} scenes, {summary['frames']} frames, tracker "
-        f"{summary['tracker_seconds']:.2f} s ({summary['tracker_fps'] or '-'} frames/s), "
-        f"{summary['boxes_written']} boxes -> {summary['results']}"
-    )
+    failed, names = summary.get("failed") or {}, summary["scenes"]
+    if len(failed) < len(names):  # (with none tracked, a speed of 0 frames says nothing)
+        head = f"tracked {len(names) - len(failed)} of {len(names)}" if failed else len(names)
+        print(
+            f"{head} scenes, {summary['frames']} frames, tracker "
+            f"{summary['tracker_seconds']:.2f} s ({summary['tracker_fps'] or '-'} frames/s), "
+            f"{summary['boxes_written']} boxes -> {summary['results']}"
+        )
+    if failed:  # plainly: the run is not a result
+        note = summary.get("evaluation", "")
+        note = "nothing was scored" if note.startswith("not scored") else note
+        print(scenes.failed_run_line(failed, names, "scene", note))
     metrics = summary.get("metrics")
     if isinstance(metrics, dict):
         cols = ["amota", "amotp", "recall", "mota", "ids"]
@@ -302,7 +310,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
         for name, m in rows:
             cells = "".join(f"{'n/a':>9}" if m.get(c) is None else f"{m[c]:>9.3f}" for c in cols)
             print(f"{name:<12}{cells}")
-    elif "evaluation" in summary:
+    elif "evaluation" in summary and not failed:  # (a failed run's is said above)
         print(summary["evaluation"])
     if isinstance(summary.get("motion"), str):
         print(f"motion: {summary['motion']}")

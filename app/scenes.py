@@ -359,6 +359,17 @@ def summary_fields(
     }
 
 
+def failed_run_line(
+    failed: Mapping[str, str], names: Sequence[str], unit: str, scored_note: str
+) -> str:
+    """The line that says a run failed: on which of its ``names`` (``unit``: "sequence",
+    "scene", "segment"; their errors follow on stderr, :func:`print_failures`), then
+    ``scored_note`` (what became of the evaluation)."""
+    tracked = len(names) - len(failed)
+    which = f"{len(failed)} of {len(names)} {unit}s" if tracked else f"every {unit}"
+    return f"run failed on {which} ({', '.join(failed)}: the error below); {scored_note}"
+
+
 def print_failures(command: str, failed: Mapping[str, str]) -> int:
     """One line per failed scene on stderr; the exit status (2 when any failed)."""
     for scene, error in failed.items():

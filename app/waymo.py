@@ -72,12 +72,19 @@ def run(args: argparse.Namespace) -> int:
         out=Path(args.out),
         parallel=scenes.from_args(args),
     )
-    print(
-        f"{len(summary['segments'])} segments, {summary['frames']} frames, "
-        f"{summary['tracker_fps'] or '-'} frames/s -> {summary['results']} "
-        f"{summary['boxes_written']}"
-    )
-    return scenes.print_failures("waymo", summary["failed"])
+    failed = summary["failed"]
+    names = [*summary["segments"], *failed]  # (its "segments" are those tracked)
+    if len(failed) < len(names):  # (with none tracked, a speed of 0 frames says nothing)
+        head = f"tracked {len(names) - len(failed)} of {len(names)}" if failed else len(names)
+        print(
+            f"{head} segments, {summary['frames']} frames, "
+            f"{summary['tracker_fps'] or '-'} frames/s -> {summary['results']} "
+            f"{summary['boxes_written']}"
+        )
+    if failed:
+        note = "results written for the others alone" if summary["segments"] else "no results"
+        print(scenes.failed_run_line(failed, names, "segment", note))
+    return scenes.print_failures("waymo", failed)
 
 
 @dataclass(frozen=True, slots=True)

@@ -631,3 +631,51 @@ def test_waymo_segments_with_workers_and_a_segment_that_fails_alone(tmp_path: Pa
     assert runs["1"] == runs["2"]
     assert "results/vehicle/seg-a.npz" in runs["2"]
     assert not any("seg-broken" in name for name in runs["2"])
+
+
+@pytest.mark.parametrize("tracked", [1, 0])
+def test_nuscenes_and_waymo_say_a_failed_run_as_kitti_does(
+    tracked: int, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run with a failed scene says so in one line, and one whose every scene failed prints
+    no speed (both printed "0 frames, - frames/s" and nuScenes "skipped: scenes failed: [...]",
+    read as the scenes skipped)."""
+    import argparse
+
+    import app.nuscenes
+    import app.waymo
+
+    names = ["scene-a", "scene-b"][: tracked + 1]
+    failed = {"scene-b" if tracked else "scene-a": "boom"}
+    common = {"frames": 40 * tracked, "tracker_seconds": 0.1 * tracked, "boxes_written": 7}
+    common |= {
+        "tracker_fps": 400.0 if tracked else None,
+        "results": "OUT/results",
+        "failed": failed,
+    }
+    app.nuscenes._print_summary(
+        {**common, "scenes": names, "evaluation": "not scored: the run failed on scene-b"}
+    )
+    tracked_names = [n for n in names if n not in failed]  # (a waymo summary's "segments")
+    monkeypatch.setattr(app.waymo, "run_waymo", lambda **_: {**common, "segments": tracked_names})
+    monkeypatch.setattr(app.waymo, "check_output_folder", lambda out: None)
+    args = argparse.Namespace(
+        out="OUT", data_root=".", detections=".", gt=None, segments=None, config="waymo",
+        mode=None, motion=False, record=False, workers=1, ray=None,
+    )  # fmt: skip
+    assert app.waymo.run(args) == 2
+    out = capsys.readouterr().out.splitlines()
+    if tracked:
+        assert out == [
+            "tracked 1 of 2 scenes, 40 frames, tracker 0.10 s (400.0 frames/s), 7 boxes -> "
+            "OUT/results",
+            "run failed on 1 of 2 scenes (scene-b: the error below); nothing was scored",
+            "tracked 1 of 2 segments, 40 frames, 400.0 frames/s -> OUT/results 7",
+            "run failed on 1 of 2 segments (scene-b: the error below); results written for "
+            "the others alone",
+        ]
+    else:
+        assert out == [
+            "run failed on every scene (scene-a: the error below); nothing was scored",
+            "run failed on every segment (scene-a: the error below); no results",
+        ]
