@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from app.common import outputs_removed_on_failure
+from app.common import outputs_removed_on_failure, print_metrics, print_motion
 from app.inputs import class_list
 from app.outputs import holds_a_run, outputs_of
 from tracker.categories import CATEGORIES
@@ -115,6 +115,11 @@ def run(args: argparse.Namespace) -> int:
         return _run_nuscenes(args)
     if args.gt is None:
         raise InputError("--gt is required for --dataset kitti")
+    if args.labels is None and not args.motion:  # (it wrote an eval.json of nothing, exit 0)
+        raise InputError(
+            "nothing to evaluate: add --labels DIR (KITTI label_02: the static metrics) and/or "
+            "--motion (the motion metrics)"
+        )
     if args.labels is not None and not Path(args.labels).is_dir():
         raise InputError(f"{args.labels}: --labels folder not found (KITTI label_02)")
     from tracker.eval.kitti import SUPPORTED_CLASSES
@@ -144,6 +149,11 @@ def run(args: argparse.Namespace) -> int:
         # labels, its file over A's. Refused on every filesystem, as by the other commands.
         refuse_case_collisions(outputs, args.tracks, suffix=".txt")
     gt = read_baseversion(args.gt)
+    if not _any_track_id(gt):  # (its objects' ids are what the motion metrics follow)
+        raise InputError(
+            f"{args.gt}: no box has a track_id: not ground truth (a detections file?); --gt "
+            "takes the ground truth (`mctrack convert kitti` writes gt.json)"
+        )
     if is_ground_truth(track_frames, gt):
         LOG.warning(
             "%s: the tracks file looks like the ground truth itself (--gt %s: the same boxes and"
@@ -154,8 +164,7 @@ def run(args: argparse.Namespace) -> int:
     check_unique_track_ids(outputs, args.tracks)
     if args.motion:  # (the static metrics read the labels, checked as TrackEval checks them)
         check_unique_track_ids(gt, args.gt, "object")
-    track_ids = [o.boxes.track_id for frames in outputs.values() for o in frames]
-    if any(len(ids) for ids in track_ids) and not any((ids >= 0).any() for ids in track_ids):
+    if not _any_track_id(outputs):
         raise InputError(
             f"{args.tracks}: no box has a track_id (a detections file? eval scores a tracker's"
             " output: `mctrack track` writes one)"
@@ -179,12 +188,22 @@ def run(args: argparse.Namespace) -> int:
         tracks_name=args.tracks,
         config_name=config_name,
     )
+    # the metrics as `mctrack kitti` prints them
+    if isinstance(result.get("static"), dict):
+        print_metrics(result["static"], result.get("static_absent", {}))
+    elif isinstance(result.get("static"), str):
+        print(f"static: {result['static']}")
+    if "motion" in result:
+        print_motion(result["motion"])
     print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
-    if isinstance(result.get("static"), str):
-        print(result["static"])
-    for cls, why in result.get("static_absent", {}).items():
-        print(f"{cls:<12}  absent: {why}")  # (as mctrack kitti prints it)
     return 0
+
+
+def _any_track_id(frames: Mapping[str, Sequence[TrackOutput | Frame]]) -> bool:
+    """Whether a box of ``frames`` has a track id (or there is no box): a detections file's
+    boxes have none (-1)."""
+    ids = [f.boxes.track_id for scene in frames.values() for f in scene]
+    return not any(len(i) for i in ids) or any((i >= 0).any() for i in ids)
 
 
 def eval_config(tracks: Path, given: str | None) -> tuple[TrackerConfig, str, str]:
