@@ -498,3 +498,32 @@ def test_compare_tracks_files_against_the_same_ground_truth(tmp_path: Path) -> N
     assert np.isclose(result["metrics"][e["class"]]["IDSW"]["delta"], 1)
     # without --gt: one line saying what is missing
     assert main([*args, "--out", str(out)]) == 2
+
+
+def test_compare_refuses_an_option_of_the_other_kind_of_run(tmp_path: Path, capsys) -> None:
+    """--labels with tracks files (compared by the BEV-IoU replay against --gt) and --gt with
+    run folders (scored against their labels) changed nothing, and compare.md's "Made by"
+    line listed them: a usage error, one line, saying what the option is for."""
+    a, b, labels = make_runs(tmp_path)
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+    gt = sample / "gt.json.gz"
+    out = tmp_path / "cmp"
+    tracks = []
+    for name in ("ta", "tb"):  # (the ground truth as both runs' tracks: no event)
+        (tmp_path / name).mkdir()
+        tracks.append(str(shutil.copy(gt, tmp_path / name / "tracks.json.gz")))
+    args = ["compare", *tracks, "--gt", str(gt), "--out", str(out)]
+    assert main([*args, "--labels", str(labels)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack compare: error: --labels {labels}: only with run folders (`mctrack kitti "
+        "--out`: the KITTI labels their result files are scored against); tracks files are "
+        "compared against --gt, by the CLEAR replay with BEV IoU"
+    )
+    assert not out.exists()
+    assert main(args) == 0  # (without it: compared)
+    args = ["compare", str(a), str(b), "--out", str(tmp_path / "runs")]
+    assert main([*args, "--gt", str(gt)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"mctrack compare: error: --gt {gt}: only with tracks files")
+    assert len(err.splitlines()) == 1 and not (tmp_path / "runs").exists()
+    assert main([*args, "--labels", str(labels)]) == 0
