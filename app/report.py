@@ -115,10 +115,10 @@ def run(args: argparse.Namespace) -> int:
     if args.compare:
         path_b = Path(args.compare)
         na, nb = run_names(path_a, path_b)
-        run_a = load_run(path_a, labels=labels, name=na)
-        run_b: Run | None = load_run(path_b, labels=labels, name=nb)
+        run_a = load_run(path_a, labels=labels, name=na, command="report")
+        run_b: Run | None = load_run(path_b, labels=labels, name=nb, command="report")
     else:
-        run_a, run_b = load_run(path_a, labels=labels), None
+        run_a, run_b = load_run(path_a, labels=labels, command="report"), None
     # every option that changes the report, quoted: the line makes it again (--serve and its
     # address only show it)
     words = [

@@ -43,12 +43,18 @@ class Run:
 
 
 def load_run(
-    path: str | Path, *, labels: Path | None = None, gt: Path | None = None, name: str | None = None
+    path: str | Path,
+    *,
+    labels: Path | None = None,
+    gt: Path | None = None,
+    name: str | None = None,
+    command: str = "compare",
 ) -> Run:
-    """Read a run folder or a tracks file (InputError naming the file and field when bad)."""
+    """Read a run folder or a tracks file (InputError naming the file and field when bad).
+    ``command``: the one reading it ("compare", "report"), whose options an error advises."""
     path = Path(path)
     if path.is_dir():
-        return _load_kitti_run(path, labels, name or path.name)
+        return _load_kitti_run(path, labels, name or path.name, command)
     if path.is_file():
         if gt is None:
             raise InputError(
@@ -59,7 +65,9 @@ def load_run(
     raise InputError(f"{path}: not found (pass a `mctrack kitti --out` folder or a tracks.json)")
 
 
-def read_summary(folder: Path) -> dict[str, Any]:
+def read_summary(folder: Path, command: str = "compare") -> dict[str, Any]:
+    """A run folder's summary.json, checked (InputError naming the file and field). ``command``:
+    the one reading it ("compare", "report"), whose options an error advises."""
     file = folder / "summary.json"
     if not file.is_file():
         raise InputError(
@@ -79,11 +87,18 @@ def read_summary(folder: Path) -> dict[str, Any]:
         )
     seqs = summary.get("sequences")
     if seqs is None and "input" in summary and "tracks" in summary:
-        raise InputError(
-            f"{folder}: a `mctrack track` output folder; compare and report read `mctrack kitti "
-            f"--out` folders, or tracks files with their ground truth ({folder / 'tracks.json'} "
-            "--gt GT.json)"
-        )
+        tracks = folder / "tracks.json"
+        if command == "report":  # (report reads run folders alone: it has no --gt)
+            advice = (
+                "report reads `mctrack kitti --out` folders (compare its tracks file with "
+                f"another: mctrack compare {tracks} OTHER_TRACKS --gt GT.json --out DIR)"
+            )
+        else:
+            advice = (
+                f"{command} reads `mctrack kitti --out` folders, or tracks files with their "
+                f"ground truth ({tracks} --gt GT.json)"
+            )
+        raise InputError(f"{folder}: a `mctrack track` output folder; {advice}")
     if seqs is None:
         raise InputError(
             f"{file}: no field 'sequences': not the summary of a `mctrack kitti --out` folder"
@@ -162,10 +177,10 @@ def _label_dir(summary: dict[str, Any], labels: Path | None, file: Path) -> Path
     return found
 
 
-def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
+def _load_kitti_run(folder: Path, labels: Path | None, name: str, command: str) -> Run:
     from tracker.eval.id_switches import result_file_id_events
 
-    summary = read_summary(folder)
+    summary = read_summary(folder, command)
     summary["path"] = str(folder)
     label_dir = _label_dir(summary, labels, folder / "summary.json")
     classes = [c for c in summary["classes"] if c in ("car", "pedestrian", "cyclist")]

@@ -385,7 +385,9 @@ def test_compare_refuses_runs_without_a_shared_sequence(tmp_path: Path, capsys) 
     )
 
 
-def test_compare_says_a_track_folder_is_the_wrong_kind(tmp_path: Path, capsys) -> None:
+def test_compare_and_report_say_a_track_folder_is_the_wrong_kind(tmp_path: Path, capsys) -> None:
+    """Each with advice it can follow: report, which has no --gt, advised `report
+    t/tracks.json --gt GT.json` (as compare does), an unrecognized argument."""
     sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
     track = tmp_path / "t"
     args = ["track", str(sample / "detections.json.gz"), "--frames", "0:20", "--out", str(track)]
@@ -395,10 +397,18 @@ def test_compare_says_a_track_folder_is_the_wrong_kind(tmp_path: Path, capsys) -
     assert main(["compare", str(a), str(track), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert err == (
-        f"mctrack compare: error: {track}: a `mctrack track` output folder; compare and report "
-        f"read `mctrack kitti --out` folders, or tracks files with their ground truth "
+        f"mctrack compare: error: {track}: a `mctrack track` output folder; compare reads "
+        f"`mctrack kitti --out` folders, or tracks files with their ground truth "
         f"({track / 'tracks.json'} --gt GT.json)"
     )
+    for args in ([str(track)], [str(a), "--compare", str(track)]):
+        assert main(["report", *args, "--out", str(tmp_path / "r")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err == (
+            f"mctrack report: error: {track}: a `mctrack track` output folder; report reads "
+            "`mctrack kitti --out` folders (compare its tracks file with another: mctrack "
+            f"compare {track / 'tracks.json'} OTHER_TRACKS --gt GT.json --out DIR)"
+        )
 
 
 # ---------------------------------------------------------------------------------------------
