@@ -31,7 +31,7 @@ from app import report_html as h
 from app.common import command_line, remove_earlier_outputs
 from app.compare import compare_result
 from app.inputs import host_address, port_or_any, refuse_unused_option
-from app.outputs import outputs_of
+from app.outputs import holds_a_run, outputs_of
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -103,6 +103,11 @@ def run(args: argparse.Namespace) -> int:
     if args.tolerance < 0:
         raise InputError(f"--tolerance {args.tolerance}: must be >= 0")
     out = check_output_folder(args.out)
+    if holds_a_run(out):  # (a new run there removes the run's files, not a report's)
+        raise InputError(
+            f"{out}: --out is a run folder (a run's summary.json): a report there would outlive "
+            "the run, describing it after a new run into the folder; give another --out"
+        )
     labels = Path(args.labels) if args.labels else None
     path_a = Path(args.run)
     for given in (args.run, args.compare):

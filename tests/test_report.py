@@ -235,6 +235,23 @@ def test_report_into_a_folder_with_plots_of_its_own_keeps_them(tmp_path: Path) -
     assert not stale.exists() and (out / "plots" / "figure.pdf").is_file()
 
 
+def test_report_refuses_a_run_folder_as_out(tmp_path: Path, capsys) -> None:
+    """A report written into a run's folder outlived the run: a later run into the folder
+    removes the run's files (of any command), not index.html and plots/, which then described
+    the old run. Refused in one line, the run folder untouched (its own or another run's)."""
+    a, b, _ = make_runs(tmp_path)
+    before = sorted(p.relative_to(a) for p in a.rglob("*"))
+    for args in ([str(a)], [str(b), "--compare", str(a)]):
+        assert main(["report", *args, "--out", str(a)]) == 2
+        assert capsys.readouterr().err.strip() == (
+            f"mctrack report: error: {a}: --out is a run folder (a run's summary.json): a report "
+            "there would outlive the run, describing it after a new run into the folder; give "
+            "another --out"
+        )
+        assert sorted(p.relative_to(a) for p in a.rglob("*")) == before
+    assert main(["report", str(a), "--out", str(tmp_path / "r")]) == 0
+
+
 def test_report_of_a_tracks_file_says_it_reads_run_folders(tmp_path: Path, capsys) -> None:
     """(was "pass --gt GT.json", an option mctrack report does not have)"""
     a, _, _ = make_runs(tmp_path)
