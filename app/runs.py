@@ -126,8 +126,11 @@ def read_summary(folder: Path, command: str = "compare") -> dict[str, Any]:
     ):
         if summary.get(key) is not None:
             _check_objects(file, repr(key), summary[key], depth)
+            if key.startswith(("metrics", "per_sequence")):  # (shown, plotted, subtracted)
+                _check_numbers(file, repr(key), summary[key], depth)
     if isinstance(summary.get("motion"), dict) and "metrics" in summary["motion"]:
         _check_objects(file, "'motion' 'metrics'", summary["motion"]["metrics"], 3)
+        _check_numbers(file, "'motion' 'metrics'", summary["motion"]["metrics"], 3, ("note",))
     for key in ("labels", "kitti_root"):
         if summary.get(key) is not None and not isinstance(summary[key], str):
             raise InputError(f"{file}: field {key!r}: expected a folder path")
@@ -152,6 +155,22 @@ def _check_objects(file: Path, field: str, value: Any, depth: int) -> None:
     if depth > 1:
         for key, inner in value.items():
             _check_objects(file, f"{field} {key!r}", inner, depth - 1)
+
+
+def _check_numbers(
+    file: Path, field: str, value: dict[str, Any], depth: int, text: tuple[str, ...] = ()
+) -> None:
+    """The values ``depth`` levels down in ``value`` (checked by :func:`_check_objects`) are
+    numbers or null (unknown), but those named in ``text`` (InputError naming the first that is
+    not: a hand-edited "x" was shown as ``x → 79.177``)."""
+    for key, inner in value.items():
+        where = f"{field} {key!r}"
+        if depth > 1:
+            _check_numbers(file, where, inner, depth - 1, text)
+        elif key not in text and (
+            isinstance(inner, bool) or not isinstance(inner, int | float | None)
+        ):
+            raise InputError(f"{file}: field {where}: expected a number, got {inner!r}")
 
 
 def scored_sequences(summary: dict[str, Any]) -> list[str]:

@@ -196,6 +196,18 @@ def test_compare_record_into_a_compared_run_is_refused(which: str, tmp_path: Pat
         ("per_sequence_metrics", {SEQ: "x"}, f"field 'per_sequence_metrics' '{SEQ}': expected"),
         ("per_sequence", {SEQ: {"car": [1]}}, f"field 'per_sequence' '{SEQ}' 'car': expected"),
         ("motion", {"metrics": {"kalman": "x"}}, "field 'motion' 'metrics' 'kalman': expected"),
+        # a value shown, plotted and subtracted (a hand-edited "x" was shown as "x → 79.177")
+        ("metrics", {"car": {"HOTA": "x"}}, "field 'metrics' 'car' 'HOTA': expected a number, got"),
+        (
+            "per_sequence",
+            {SEQ: {"car": {"IDSW": True}}},
+            f"field 'per_sequence' '{SEQ}' 'car' 'IDSW': expected a number, got True",
+        ),
+        (
+            "motion",
+            {"metrics": {"kalman": {"car": {"vae_deg": "1.5", "note": "n/a"}}}},
+            "field 'motion' 'metrics' 'kalman' 'car' 'vae_deg': expected a number, got '1.5'",
+        ),
         ("failed", 3, "field 'failed': expected an object"),
         ("failed", SEQ, "field 'failed': expected an object"),  # ("1" in "0001": failed)
         ("config", "x", "field 'config': expected an object"),
