@@ -290,3 +290,34 @@ def warn_undetected_classes(detector: str, classes: Sequence[str]) -> None:
             detector,
             " or ".join(classes),
         )
+
+
+#: The columns of the per-class metrics table `mctrack kitti` and `mctrack eval` print.
+METRIC_COLUMNS = ("HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "FP", "FN", "Frag")
+MOTION_COLUMNS = ("vae_deg", "vne_mps", "vir_ratio", "vse_mps", "vde_secs", "n_samples")
+
+
+def print_metrics(metrics: Mapping[str, Mapping[str, object]], absent: Mapping[str, str]) -> None:
+    """The per-class KITTI metrics table, then each class without ground truth and why."""
+    print(f"{'class':<12}" + "".join(f"{c:>9}" for c in METRIC_COLUMNS))
+    for cls, m in metrics.items():
+        print(f"{cls:<12}" + "".join(f"{m[c]!s:>9}" for c in METRIC_COLUMNS))
+    for cls, why in absent.items():
+        print(f"{cls:<12}  absent: {why}")
+
+
+def print_motion(motion: object) -> None:
+    """The motion metrics over all classes per estimator (or why there are none)."""
+    if isinstance(motion, Mapping):
+        print(f"{'motion (all)':<14}" + "".join(f"{c:>11}" for c in MOTION_COLUMNS))
+        for est, rows in motion["metrics"].items():
+            row = rows["all"]
+            print(f"{est:<14}" + "".join(_cell(row[c]) for c in MOTION_COLUMNS))
+    elif isinstance(motion, str):
+        print(f"motion: {motion}")
+
+
+def _cell(value: object) -> str:
+    if value is None:
+        return f"{'n/a':>11}"
+    return f"{value:>11.3f}" if isinstance(value, float) else f"{value!s:>11}"

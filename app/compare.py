@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from app.common import command_line, refuse_inputs_among_outputs, remove_earlier_outputs
+from app.inputs import refuse_unused_option
 from app.outputs import holds_a_run, outputs_of
 from app.runs import Run, load_run, run_names, scored_sequences
 from tracker.errors import InputError
@@ -65,6 +66,19 @@ def load_pair(args: argparse.Namespace) -> tuple[Run, Run]:
     a, b = Path(args.run_a), Path(args.run_b)
     labels = Path(args.labels) if args.labels else None
     gt = Path(args.gt) if args.gt else None
+    # each option goes with one kind of run (the other kind's loading ignored it unsaid, and
+    # compare.md's "Made by" line listed it)
+    if a.is_file() and b.is_file():
+        refuse_unused_option(
+            "--labels", args.labels, "run folders (`mctrack kitti --out`: the KITTI labels their "
+            "result files are scored against)", "tracks files are compared against --gt, by the "
+            "CLEAR replay with BEV IoU",
+        )  # fmt: skip
+    if a.is_dir() and b.is_dir():
+        refuse_unused_option(
+            "--gt", args.gt, "tracks files (their ground truth)", "run folders are scored "
+            "against their KITTI labels (their summary.json's, or --labels DIR)",
+        )  # fmt: skip
     na, nb = run_names(a, b)
     run_a = load_run(a, labels=labels, gt=gt, name=na)
     run_b = load_run(b, labels=labels, gt=gt, name=nb)

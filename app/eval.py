@@ -10,6 +10,7 @@ metrics of a tracks file."""
 from __future__ import annotations
 
 import argparse
+import copy
 import dataclasses
 import gc
 import json
@@ -22,11 +23,18 @@ from typing import Any
 
 import numpy as np
 
-from app.common import outputs_removed_on_failure
+from app.common import outputs_removed_on_failure, print_metrics, print_motion
 from app.inputs import class_list
-from app.outputs import outputs_of
+from app.outputs import holds_a_run, outputs_of
 from tracker.categories import CATEGORIES
-from tracker.config import ImageBoxes, load_config
+from tracker.config import (
+    BUILTIN,
+    ImageBoxes,
+    TrackerConfig,
+    config_from_dict,
+    config_to_dict,
+    load_config,
+)
 from tracker.errors import InputError
 from tracker.events import TrackOutput
 from tracker.frame import Frame
@@ -91,10 +99,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--motion", action="store_true", help="motion metrics")
     parser.add_argument(
         "--config",
-        default="kitti",
+        default=None,
         help="the config the tracks were made with: it shapes the 2D boxes written for the KITTI "
         "2D-box protocol as the tracking run wrote them (image_width_scale per class; with "
-        "--detections, image_boxes and the offline own-box smoothing) (default: kitti)",
+        "--detections, image_boxes and the offline own-box smoothing) (default: the run's, "
+        "from the summary.json beside a run's tracks.json; else kitti)",
     )
     parser.add_argument("--out", default=None, help="output folder (default: the tracks folder)")
 
@@ -106,26 +115,32 @@ def run(args: argparse.Namespace) -> int:
         return _run_nuscenes(args)
     if args.gt is None:
         raise InputError("--gt is required for --dataset kitti")
+    if args.labels is None and not args.motion:  # (it wrote an eval.json of nothing, exit 0)
+        raise InputError(
+            "nothing to evaluate: add --labels DIR (KITTI label_02: the static metrics) and/or "
+            "--motion (the motion metrics)"
+        )
     if args.labels is not None and not Path(args.labels).is_dir():
         raise InputError(f"{args.labels}: --labels folder not found (KITTI label_02)")
     from tracker.eval.kitti import SUPPORTED_CLASSES
 
     classes = args.classes or list(SUPPORTED_CLASSES)
-    config = load_config(args.config)
-    writer = config.kitti_writer_options()
-    if (
-        args.labels is not None  # (the 2D boxes are the static metrics' alone)
-        and args.detections is None
-        and writer["image_boxes"] is not ImageBoxes.PROJECTION
-    ):
-        # the tracks file keeps the tracked boxes, not the detections' own 2D boxes
-        print(
-            f"mctrack eval: {args.config}: image_boxes = {config.image_boxes.value!r} needs the"
-            " detections' 2D boxes (--detections); without them the KITTI files are written with"
-            " the tracked boxes' projections (the same for a LiDAR detector, whose 2D boxes are"
-            " projections)",
-            file=sys.stderr,
-        )
+    writer: dict[str, Any] | None = None
+    config_name = config_note = None
+    if args.labels is not None:  # (the config shapes the static metrics' 2D boxes alone)
+        config, config_name, config_note = eval_config(Path(args.tracks), args.config)
+        writer = config.kitti_writer_options()
+        if args.detections is None and writer["image_boxes"] is not ImageBoxes.PROJECTION:
+            # the tracks file keeps the tracked boxes, not the detections' own 2D boxes
+            print(
+                f"mctrack eval: {config_name}: image_boxes = {config.image_boxes.value!r} needs "
+                "the detections' 2D boxes (--detections); without them the KITTI files are "
+                "written with the tracked boxes' projections (the same for a LiDAR detector, "
+                "whose 2D boxes are projections)",
+                file=sys.stderr,
+            )
+    elif args.config is not None:
+        load_config(args.config)  # (unused without --labels, but a bad one is said)
     out = Path(args.out) if args.out else Path(args.tracks).parent
     track_frames, outputs = read_tracks_file(args.tracks)
     if args.labels is not None:
@@ -134,6 +149,11 @@ def run(args: argparse.Namespace) -> int:
         # labels, its file over A's. Refused on every filesystem, as by the other commands.
         refuse_case_collisions(outputs, args.tracks, suffix=".txt")
     gt = read_baseversion(args.gt)
+    if not _any_track_id(gt):  # (its objects' ids are what the motion metrics follow)
+        raise InputError(
+            f"{args.gt}: no box has a track_id: not ground truth (a detections file?); --gt "
+            "takes the ground truth (`mctrack convert kitti` writes gt.json)"
+        )
     if is_ground_truth(track_frames, gt):
         LOG.warning(
             "%s: the tracks file looks like the ground truth itself (--gt %s: the same boxes and"
@@ -144,8 +164,7 @@ def run(args: argparse.Namespace) -> int:
     check_unique_track_ids(outputs, args.tracks)
     if args.motion:  # (the static metrics read the labels, checked as TrackEval checks them)
         check_unique_track_ids(gt, args.gt, "object")
-    track_ids = [o.boxes.track_id for frames in outputs.values() for o in frames]
-    if any(len(ids) for ids in track_ids) and not any((ids >= 0).any() for ids in track_ids):
+    if not _any_track_id(outputs):
         raise InputError(
             f"{args.tracks}: no box has a track_id (a detections file? eval scores a tracker's"
             " output: `mctrack track` writes one)"
@@ -154,6 +173,8 @@ def run(args: argparse.Namespace) -> int:
     if dets is not None:
         check_detections_match(dets, outputs, args.detections)
     check_output_folder(out)  # before the evaluation: a bad --out fails now, not at the end
+    if config_note is not None:
+        print(config_note)
     result = evaluate_tracks(
         track_frames,
         outputs,
@@ -165,13 +186,92 @@ def run(args: argparse.Namespace) -> int:
         out=out,
         writer=writer,
         tracks_name=args.tracks,
+        config_name=config_name,
     )
+    # the metrics as `mctrack kitti` prints them
+    if isinstance(result.get("static"), dict):
+        print_metrics(result["static"], result.get("static_absent", {}))
+    elif isinstance(result.get("static"), str):
+        print(f"static: {result['static']}")
+    if "motion" in result:
+        print_motion(result["motion"])
     print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
-    if isinstance(result.get("static"), str):
-        print(result["static"])
-    for cls, why in result.get("static_absent", {}).items():
-        print(f"{cls:<12}  absent: {why}")  # (as mctrack kitti prints it)
     return 0
+
+
+def _any_track_id(frames: Mapping[str, Sequence[TrackOutput | Frame]]) -> bool:
+    """Whether a box of ``frames`` has a track id (or there is no box): a detections file's
+    boxes have none (-1)."""
+    ids = [f.boxes.track_id for scene in frames.values() for f in scene]
+    return not any(len(i) for i in ids) or any((i >= 0).any() for i in ids)
+
+
+def eval_config(tracks: Path, given: str | None) -> tuple[TrackerConfig, str, str]:
+    """The config whose KITTI writer options eval uses, its name, and the line saying which.
+    ``given`` (--config) when set, with a warning where the run beside ``tracks`` was made with
+    another (:func:`run_config`); else the run's, so the default scores what the run scored;
+    else (not a run's tracks file) ``kitti``."""
+    if given is None:
+        found = run_config(tracks)
+        if found is None:
+            note = f"config kitti (the default: {tracks} is no run's tracks.json; --config C)"
+            return load_config("kitti"), "kitti", note
+        config, name, file = found
+        return config, name, f"config {name} (the run's: {file})"
+    config = load_config(given)
+    try:
+        found = run_config(tracks)
+    except InputError:  # (the run's config unreadable or gone: nothing to compare with)
+        found = None
+    if found is not None and _settings(found[0]) != _settings(config):
+        print(
+            f"mctrack eval: --config {given} is not the config the tracks were made with "
+            f"({found[1]}, {found[2]}): the KITTI 2D boxes are written as {given} writes them, "
+            "not as the run did (leave --config out to use the run's)",
+            file=sys.stderr,
+        )
+    return config, given, f"config {given}"
+
+
+def _settings(config: TrackerConfig) -> dict[str, Any]:
+    """A config's settings, without where it was read from."""
+    settings = config_to_dict(config)
+    settings.pop("source", None)
+    return settings
+
+
+def run_config(tracks: Path) -> tuple[TrackerConfig, str, Path] | None:
+    """The config the run whose tracks.json ``tracks`` is was made with, its name and the run's
+    summary.json; None when ``tracks`` is not a run's (no run's summary.json beside it,
+    :func:`app.outputs.holds_a_run`). The config the summary recorded ("config": every setting,
+    written by `mctrack kitti`, `nuscenes` and `waymo`), else the one it names (`mctrack track`:
+    a built-in, or a file, refused when gone), with the run's mode."""
+    file = tracks.parent / "summary.json"
+    if tracks.name != "tracks.json" or not holds_a_run(tracks.parent) or not file.is_file():
+        return None
+    try:
+        summary = json.loads(file.read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # (holds_a_run read it a moment ago)
+        return None
+    recorded = summary.get("config")
+    name = summary.get("config_name")
+    if isinstance(recorded, dict):
+        source = f"{file}: field 'config'"
+        config = config_from_dict(copy.deepcopy(recorded), source=source)
+        return config, name if isinstance(name, str) else "the run's recorded config", file
+    name = recorded if isinstance(recorded, str) else name
+    if not isinstance(name, str):
+        raise InputError(
+            f"{file}: no field 'config' naming the config the run was made with: pass --config"
+        )
+    if name not in BUILTIN and not Path(name).is_file():
+        raise InputError(
+            f"{file}: field 'config': the run's config file {name} is gone (not found): pass "
+            "--config, the config the tracks were made with"
+        )
+    mode = summary.get("mode")
+    overrides = {"mode": mode} if mode in ("online", "offline") else None
+    return load_config(name, overrides=overrides), name, file
 
 
 def evaluate_tracks(
@@ -186,6 +286,7 @@ def evaluate_tracks(
     out: Path,
     writer: Mapping[str, Any] | None = None,
     tracks_name: str = "the tracks file",
+    config_name: str | None = None,
 ) -> dict[str, Any]:
     """Static and/or motion metrics of tracker output; writes ``out/eval.json`` and
     ``out/eval.md`` and returns the JSON content. ``writer``: the keywords of
@@ -193,7 +294,8 @@ def evaluate_tracks(
     None: projections, full width); a mode other than projection takes its 2D boxes from
     ``dets`` (:func:`check_detections_match` them first), and without them writes projections.
     ``tracks_name``: what an error calls the tracks (TrackEval scores temporary KITTI files of
-    them: an error names the tracks and the scene instead)."""
+    them: an error names the tracks and the scene instead). ``config_name``: the config the
+    writer's options are of (eval.json "config", with the static metrics)."""
     from tracker.eval.kitti import absent_class_notes
     from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
@@ -212,6 +314,8 @@ def evaluate_tracks(
             if absent:
                 result["static_absent"] = absent
         result["static"] = static
+        if config_name is not None:
+            result["config"] = config_name
     else:
         result["static"] = "skipped: static metrics need --labels (KITTI label_02 folder)"
     md += _static_markdown(result["static"], result.get("static_absent", {}))

@@ -18,6 +18,8 @@ from app.common import (
     log_self_profile,
     outputs_removed_on_failure,
     peak_rss_mb,
+    print_metrics,
+    print_motion,
     profile_argument,
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
@@ -640,12 +642,7 @@ def _print_summary(summary: dict[str, Any]) -> None:
             print(f"detection rows skipped at load, {kind.replace('_', ' ')}: {counts}")
     metrics = summary.get("metrics")
     if isinstance(metrics, dict):
-        cols = ["HOTA", "DetA", "AssA", "MOTA", "IDF1", "IDSW", "FP", "FN", "Frag"]
-        print(f"{'class':<12}" + "".join(f"{c:>9}" for c in cols))
-        for cls, m in metrics.items():
-            print(f"{cls:<12}" + "".join(f"{m[c]:>9}" for c in cols))
-        for cls, why in summary.get("metrics_absent", {}).items():
-            print(f"{cls:<12}  absent: {why}")
+        print_metrics(metrics, summary.get("metrics_absent", {}))
     if "evaluation" in summary and not failed:  # (a failed run's is said above)
         print(summary["evaluation"])
     per_seq = summary.get("per_sequence")
@@ -659,18 +656,4 @@ def _print_summary(summary: dict[str, Any]) -> None:
         print(f"recording {seq}: {path}")
     if "causes_markdown" in summary:
         print(f"causes of ID switches and fragmentations: {summary['causes_markdown']}")
-    motion = summary.get("motion")
-    if isinstance(motion, dict):
-        cols = ["vae_deg", "vne_mps", "vir_ratio", "vse_mps", "vde_secs", "n_samples"]
-        print(f"{'motion (all)':<14}" + "".join(f"{c:>11}" for c in cols))
-        for est, rows in motion["metrics"].items():
-            row = rows["all"]
-            print(f"{est:<14}" + "".join(_cell(row[c]) for c in cols))
-    elif isinstance(motion, str):
-        print(f"motion: {motion}")
-
-
-def _cell(value: float | int | None) -> str:
-    if value is None:
-        return f"{'n/a':>11}"
-    return f"{value:>11.3f}" if isinstance(value, float) else f"{value:>11}"
+    print_motion(summary.get("motion"))

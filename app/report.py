@@ -31,7 +31,7 @@ from app import report_html as h
 from app.common import command_line, remove_earlier_outputs
 from app.compare import compare_result
 from app.inputs import host_address, port_or_any, refuse_unused_option
-from app.outputs import outputs_of
+from app.outputs import holds_a_run, outputs_of
 from app.runs import Run, load_run, run_names
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -103,6 +103,11 @@ def run(args: argparse.Namespace) -> int:
     if args.tolerance < 0:
         raise InputError(f"--tolerance {args.tolerance}: must be >= 0")
     out = check_output_folder(args.out)
+    if holds_a_run(out):  # (a new run there removes the run's files, not a report's)
+        raise InputError(
+            f"{out}: --out is a run folder (a run's summary.json): a report there would outlive "
+            "the run, describing it after a new run into the folder; give another --out"
+        )
     labels = Path(args.labels) if args.labels else None
     path_a = Path(args.run)
     for given in (args.run, args.compare):
@@ -115,10 +120,10 @@ def run(args: argparse.Namespace) -> int:
     if args.compare:
         path_b = Path(args.compare)
         na, nb = run_names(path_a, path_b)
-        run_a = load_run(path_a, labels=labels, name=na)
-        run_b: Run | None = load_run(path_b, labels=labels, name=nb)
+        run_a = load_run(path_a, labels=labels, name=na, command="report")
+        run_b: Run | None = load_run(path_b, labels=labels, name=nb, command="report")
     else:
-        run_a, run_b = load_run(path_a, labels=labels), None
+        run_a, run_b = load_run(path_a, labels=labels, command="report"), None
     # every option that changes the report, quoted: the line makes it again (--serve and its
     # address only show it)
     words = [
@@ -228,42 +233,68 @@ def _num(v: Any) -> float:
     return float(v) if isinstance(v, int | float) else 0.0
 
 
-def make_plots(run_a: Run, run_b: Run | None, out: Path) -> list[tuple[str, str]]:
-    """The report's plots: [(file relative to out, caption)]."""
+def make_plots(
+    run_a: Run, run_b: Run | None, out: Path, result: Mapping[str, Any] | None = None
+) -> list[tuple[str, str]]:
+    """The report's plots: [(file relative to out, caption)]. With a comparison (``result``,
+    :func:`app.compare.compare_result`) they show what its tables compare: its metrics and
+    events, on the sequences both runs scored (a run's own figures over other sequences would
+    be set against the other's over fewer, or against 0 where it never ran), and no motion
+    plots where it leaves the motion metrics out."""
     plots: list[tuple[str, str]] = []
     runs = [(run_a, RGB_A)] + ([(run_b, RGB_B)] if run_b is not None else [])
-    metrics = [r.summary.get("metrics") or {} for r, _ in runs]
+    if result is None:
+        metrics = [r.summary.get("metrics") or {} for r, _ in runs]
+        events = [r.events for r, _ in runs]
+        seqs = list(run_a.summary["sequences"])
+        motion = [r.summary.get("motion") for r, _ in runs]
+        per = [m.get("metrics", {}).get("kalman", {}) if isinstance(m, Mapping) else None
+               for m in motion]  # fmt: skip
+        scope = ""
+    else:
+        metrics = [
+            {c: {k: d[side] for k, d in m.items()} for c, m in result["metrics"].items()}
+            for side in ("a", "b")
+        ]
+        events = [[p[side] for p in result["events"] if p[side]] for side in ("a", "b")]
+        shared = result.get("sequences_compared")
+        seqs = list(shared or run_a.summary["sequences"])
+        if isinstance(result.get("motion"), Mapping):
+            per = [
+                {c: {k: d[side] for k, d in m.items()} for c, m in result["motion"].items()}
+                for side in ("a", "b")
+            ]
+        else:
+            per = [None, None]
+        scope = f", the {len(seqs)} compared sequence(s)" if shared else ""
+    order = {c: k for k, c in enumerate(run_a.summary.get("classes") or ())}  # (A's order)
     classes = [c for c in (metrics[0] or {}) if isinstance(metrics[0][c], Mapping)]
+    classes.sort(key=lambda c: order.get(c, len(order)))
     if classes and all("HOTA" in metrics[0][c] for c in classes):
-        keys = ["HOTA", "AssA", "MOTA", "IDF1"]
-        for key in keys[:1]:
-            _bars(
-                out / "plots" / "hota.svg",
-                classes,
-                [
-                    (r.name, [_num(m.get(c, {}).get(key)) for c in classes], col)
-                    for (r, col), m in zip(runs, metrics, strict=True)
-                ],
-                title="HOTA per class",
-                ylabel="HOTA (%)",
-            )
-            plots.append(("plots/hota.svg", "HOTA per class"))
-    seqs = list(run_a.summary["sequences"])
+        _bars(
+            out / "plots" / "hota.svg",
+            classes,
+            [
+                (r.name, [_num(m.get(c, {}).get("HOTA")) for c in classes], col)
+                for (r, col), m in zip(runs, metrics, strict=True)
+            ],
+            title=f"HOTA per class{scope}",
+            ylabel="HOTA (%)",
+        )
+        plots.append(("plots/hota.svg", f"HOTA per class{_scope_caption(seqs, scope)}"))
     for kind in ("IDSW", "Frag"):
         series = []
-        for r, col in runs:
+        for (r, col), evs in zip(runs, events, strict=True):
             counts = {s: 0 for s in seqs}
-            for e in r.events:
+            for e in evs:
                 if e["kind"] == kind and e["sequence"] in counts:
                     counts[e["sequence"]] += 1
             series.append((r.name, [counts[s] for s in seqs], col))
         if any(any(v) for _, v, _ in series):
             name = f"plots/{kind.lower()}_per_sequence.svg"
-            _bars(out / name, seqs, series, title=f"{kind} per sequence", ylabel=kind)
-            plots.append((name, f"{kind} per sequence (all classes)"))
-    motion = [r.summary.get("motion") for r, _ in runs]
-    if all(isinstance(m, Mapping) for m in motion):
-        per = [m.get("metrics", {}).get("kalman", {}) for m in motion]
+            _bars(out / name, seqs, series, title=f"{kind} per sequence{scope}", ylabel=kind)
+            plots.append((name, f"{kind} per sequence (all classes){_scope_caption(seqs, scope)}"))
+    if all(p is not None for p in per):
         mclasses = [c for c in per[0] if isinstance(per[0][c], Mapping)]
         for key, label in (("vae_deg", "VAE (deg)"), ("vne_mps", "VNE (m/s)")):
             _bars(
@@ -278,6 +309,39 @@ def make_plots(run_a: Run, run_b: Run | None, out: Path) -> list[tuple[str, str]
             )
             plots.append((f"plots/motion_{key}.svg", f"motion: {label}"))
     return plots
+
+
+def _scope_caption(seqs: Sequence[str], scope: str) -> str:
+    """A caption's note of the sequences a comparison's plot covers ("": all of both runs')."""
+    if not scope:
+        return ""
+    return f", on the {len(seqs)} sequence(s) both runs scored ({', '.join(seqs)})"
+
+
+def _plots_section(
+    plots: Sequence[tuple[str, str]],
+    run_a: Run,
+    run_b: Run | None,
+    result: Mapping[str, Any] | None,
+) -> str:
+    notes = ""
+    if result is not None and result.get("sequences_left_out"):
+        notes += (
+            '<p class="note">Plots of A against B show what the tables compare: the sequences '
+            "both runs scored.</p>"
+        )
+    both_motion = run_b is not None and all(
+        isinstance(r.summary.get("motion"), Mapping) for r in (run_a, run_b)
+    )
+    if result is not None and both_motion and isinstance(result.get("motion"), str):
+        notes += (
+            f'<p class="note">No motion plots: {h.esc(result["motion"].removeprefix("absent: "))}'
+            " (each run's own are under Motion metrics).</p>"
+        )
+    if not plots:
+        return notes + '<p class="note">No plots: the runs have no metrics.</p>'
+    figures = "".join(h.figure(src, cap) for src, cap in plots)
+    return notes + '<div class="plots">' + figures + "</div>"
 
 
 # ---------------------------------------------------------------------------------------------
@@ -342,12 +406,18 @@ def build_report(
     (out / "plots").mkdir(parents=True, exist_ok=True)  # (files of anyone else's stay)
     if result is not None:
         write_text_atomic(out / "compare.json", [json.dumps(result, indent=1)])
-    plots = make_plots(run_a, run_b, out)
+    plots = make_plots(run_a, run_b, out, result)
     motion_png = _run_png(run_a.folder / "motion_velocity.png")
     if motion_png is not None:
         write_bytes_atomic(out / "plots" / "motion_velocity.png", motion_png)
+        # (A's own picture: over all its sequences, also where fewer are compared)
+        whose = run_a.name + (
+            f", all its {len(run_a.summary['sequences'])} sequence(s)"
+            if result is not None and result.get("sequences_left_out")
+            else ""
+        )
         plots.append(
-            ("plots/motion_velocity.png", f"velocity curves of the largest lags ({run_a.name})")
+            ("plots/motion_velocity.png", f"velocity curves of the largest lags ({whose})")
         )
     shot_files = take_event_shots(run_a, out, shots) if shots > 0 else {}
     if run_b is not None and shots > 0:
@@ -368,20 +438,14 @@ def build_report(
         ("runs", "Runs", _runs_section(run_a, run_b, command) + _links(links)),
         ("metrics", "Metrics per class", _metrics_section(run_a, run_b, result)),
         ("sequences", "Per sequence", _sequence_section(run_a, run_b, result)),
-        (
-            "plots",
-            "Plots",
-            '<div class="plots">' + "".join(h.figure(src, cap) for src, cap in plots) + "</div>"
-            if plots
-            else '<p class="note">No plots: the runs have no metrics.</p>',
-        ),
+        ("plots", "Plots", _plots_section(plots, run_a, run_b, result)),
         (
             "events",
             "ID switches and fragmentations",
             _events_section(run_a, run_b, result, shot_files),
         ),
         ("causes", "Causes", _causes_section(run_a, run_b, result)),
-        ("motion", "Motion metrics", _motion_section(run_a, run_b)),
+        ("motion", "Motion metrics", _motion_section(run_a, run_b, result)),
         ("shots", "Shots", _shots_section(shot_files, shots, (run_a, run_b))),
         ("recordings", "Recordings", _recordings_section(run_a, run_b)),
     ]
@@ -732,9 +796,14 @@ def _causes_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] | N
     )
 
 
-def _motion_section(run_a: Run, run_b: Run | None) -> str:
+def _motion_section(run_a: Run, run_b: Run | None, result: Mapping[str, Any] | None) -> str:
     runs = [run_a] + ([run_b] if run_b else [])
     blocks = []
+    if result is not None and result.get("sequences_left_out"):
+        blocks.append(
+            '<p class="note">Each run\'s own, over all the sequences it tracked (not only the '
+            "compared ones).</p>"
+        )
     for r in runs:
         m = r.summary.get("motion")
         if not isinstance(m, Mapping):

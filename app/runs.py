@@ -43,12 +43,18 @@ class Run:
 
 
 def load_run(
-    path: str | Path, *, labels: Path | None = None, gt: Path | None = None, name: str | None = None
+    path: str | Path,
+    *,
+    labels: Path | None = None,
+    gt: Path | None = None,
+    name: str | None = None,
+    command: str = "compare",
 ) -> Run:
-    """Read a run folder or a tracks file (InputError naming the file and field when bad)."""
+    """Read a run folder or a tracks file (InputError naming the file and field when bad).
+    ``command``: the one reading it ("compare", "report"), whose options an error advises."""
     path = Path(path)
     if path.is_dir():
-        return _load_kitti_run(path, labels, name or path.name)
+        return _load_kitti_run(path, labels, name or path.name, command)
     if path.is_file():
         if gt is None:
             raise InputError(
@@ -59,7 +65,9 @@ def load_run(
     raise InputError(f"{path}: not found (pass a `mctrack kitti --out` folder or a tracks.json)")
 
 
-def read_summary(folder: Path) -> dict[str, Any]:
+def read_summary(folder: Path, command: str = "compare") -> dict[str, Any]:
+    """A run folder's summary.json, checked (InputError naming the file and field). ``command``:
+    the one reading it ("compare", "report"), whose options an error advises."""
     file = folder / "summary.json"
     if not file.is_file():
         raise InputError(
@@ -79,11 +87,18 @@ def read_summary(folder: Path) -> dict[str, Any]:
         )
     seqs = summary.get("sequences")
     if seqs is None and "input" in summary and "tracks" in summary:
-        raise InputError(
-            f"{folder}: a `mctrack track` output folder; compare and report read `mctrack kitti "
-            f"--out` folders, or tracks files with their ground truth ({folder / 'tracks.json'} "
-            "--gt GT.json)"
-        )
+        tracks = folder / "tracks.json"
+        if command == "report":  # (report reads run folders alone: it has no --gt)
+            advice = (
+                "report reads `mctrack kitti --out` folders (compare its tracks file with "
+                f"another: mctrack compare {tracks} OTHER_TRACKS --gt GT.json --out DIR)"
+            )
+        else:
+            advice = (
+                f"{command} reads `mctrack kitti --out` folders, or tracks files with their "
+                f"ground truth ({tracks} --gt GT.json)"
+            )
+        raise InputError(f"{folder}: a `mctrack track` output folder; {advice}")
     if seqs is None:
         raise InputError(
             f"{file}: no field 'sequences': not the summary of a `mctrack kitti --out` folder"
@@ -111,8 +126,11 @@ def read_summary(folder: Path) -> dict[str, Any]:
     ):
         if summary.get(key) is not None:
             _check_objects(file, repr(key), summary[key], depth)
+            if key.startswith(("metrics", "per_sequence")):  # (shown, plotted, subtracted)
+                _check_numbers(file, repr(key), summary[key], depth)
     if isinstance(summary.get("motion"), dict) and "metrics" in summary["motion"]:
         _check_objects(file, "'motion' 'metrics'", summary["motion"]["metrics"], 3)
+        _check_numbers(file, "'motion' 'metrics'", summary["motion"]["metrics"], 3, ("note",))
     for key in ("labels", "kitti_root"):
         if summary.get(key) is not None and not isinstance(summary[key], str):
             raise InputError(f"{file}: field {key!r}: expected a folder path")
@@ -139,6 +157,22 @@ def _check_objects(file: Path, field: str, value: Any, depth: int) -> None:
             _check_objects(file, f"{field} {key!r}", inner, depth - 1)
 
 
+def _check_numbers(
+    file: Path, field: str, value: dict[str, Any], depth: int, text: tuple[str, ...] = ()
+) -> None:
+    """The values ``depth`` levels down in ``value`` (checked by :func:`_check_objects`) are
+    numbers or null (unknown), but those named in ``text`` (InputError naming the first that is
+    not: a hand-edited "x" was shown as ``x → 79.177``)."""
+    for key, inner in value.items():
+        where = f"{field} {key!r}"
+        if depth > 1:
+            _check_numbers(file, where, inner, depth - 1, text)
+        elif key not in text and (
+            isinstance(inner, bool) or not isinstance(inner, int | float | None)
+        ):
+            raise InputError(f"{file}: field {where}: expected a number, got {inner!r}")
+
+
 def scored_sequences(summary: dict[str, Any]) -> list[str]:
     """The sequences a run tracked and scored (whose events it has): the labelled ones of a
     run over labelled and unlabelled sequences (app.kitti), without the failed ones."""
@@ -162,10 +196,10 @@ def _label_dir(summary: dict[str, Any], labels: Path | None, file: Path) -> Path
     return found
 
 
-def _load_kitti_run(folder: Path, labels: Path | None, name: str) -> Run:
+def _load_kitti_run(folder: Path, labels: Path | None, name: str, command: str) -> Run:
     from tracker.eval.id_switches import result_file_id_events
 
-    summary = read_summary(folder)
+    summary = read_summary(folder, command)
     summary["path"] = str(folder)
     label_dir = _label_dir(summary, labels, folder / "summary.json")
     classes = [c for c in summary["classes"] if c in ("car", "pedestrian", "cyclist")]

@@ -461,7 +461,7 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
     ),
     (
         "eval truncated tracks",
-        lambda f: ["eval", str(f["truncated"]), "--gt", str(f["gt"])],
+        lambda f: ["eval", str(f["truncated"]), "--gt", str(f["gt"]), "--motion"],
         ("truncated.json",),
     ),
     ("eval without --gt", lambda f: ["eval", str(f["detections"])], ("--gt",)),

@@ -196,6 +196,18 @@ def test_compare_record_into_a_compared_run_is_refused(which: str, tmp_path: Pat
         ("per_sequence_metrics", {SEQ: "x"}, f"field 'per_sequence_metrics' '{SEQ}': expected"),
         ("per_sequence", {SEQ: {"car": [1]}}, f"field 'per_sequence' '{SEQ}' 'car': expected"),
         ("motion", {"metrics": {"kalman": "x"}}, "field 'motion' 'metrics' 'kalman': expected"),
+        # a value shown, plotted and subtracted (a hand-edited "x" was shown as "x → 79.177")
+        ("metrics", {"car": {"HOTA": "x"}}, "field 'metrics' 'car' 'HOTA': expected a number, got"),
+        (
+            "per_sequence",
+            {SEQ: {"car": {"IDSW": True}}},
+            f"field 'per_sequence' '{SEQ}' 'car' 'IDSW': expected a number, got True",
+        ),
+        (
+            "motion",
+            {"metrics": {"kalman": {"car": {"vae_deg": "1.5", "note": "n/a"}}}},
+            "field 'motion' 'metrics' 'kalman' 'car' 'vae_deg': expected a number, got '1.5'",
+        ),
         ("failed", 3, "field 'failed': expected an object"),
         ("failed", SEQ, "field 'failed': expected an object"),  # ("1" in "0001": failed)
         ("config", "x", "field 'config': expected an object"),
@@ -385,7 +397,9 @@ def test_compare_refuses_runs_without_a_shared_sequence(tmp_path: Path, capsys) 
     )
 
 
-def test_compare_says_a_track_folder_is_the_wrong_kind(tmp_path: Path, capsys) -> None:
+def test_compare_and_report_say_a_track_folder_is_the_wrong_kind(tmp_path: Path, capsys) -> None:
+    """Each with advice it can follow: report, which has no --gt, advised `report
+    t/tracks.json --gt GT.json` (as compare does), an unrecognized argument."""
     sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
     track = tmp_path / "t"
     args = ["track", str(sample / "detections.json.gz"), "--frames", "0:20", "--out", str(track)]
@@ -395,10 +409,18 @@ def test_compare_says_a_track_folder_is_the_wrong_kind(tmp_path: Path, capsys) -
     assert main(["compare", str(a), str(track), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert err == (
-        f"mctrack compare: error: {track}: a `mctrack track` output folder; compare and report "
-        f"read `mctrack kitti --out` folders, or tracks files with their ground truth "
+        f"mctrack compare: error: {track}: a `mctrack track` output folder; compare reads "
+        f"`mctrack kitti --out` folders, or tracks files with their ground truth "
         f"({track / 'tracks.json'} --gt GT.json)"
     )
+    for args in ([str(track)], [str(a), "--compare", str(track)]):
+        assert main(["report", *args, "--out", str(tmp_path / "r")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err == (
+            f"mctrack report: error: {track}: a `mctrack track` output folder; report reads "
+            "`mctrack kitti --out` folders (compare its tracks file with another: mctrack "
+            f"compare {track / 'tracks.json'} OTHER_TRACKS --gt GT.json --out DIR)"
+        )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -498,3 +520,32 @@ def test_compare_tracks_files_against_the_same_ground_truth(tmp_path: Path) -> N
     assert np.isclose(result["metrics"][e["class"]]["IDSW"]["delta"], 1)
     # without --gt: one line saying what is missing
     assert main([*args, "--out", str(out)]) == 2
+
+
+def test_compare_refuses_an_option_of_the_other_kind_of_run(tmp_path: Path, capsys) -> None:
+    """--labels with tracks files (compared by the BEV-IoU replay against --gt) and --gt with
+    run folders (scored against their labels) changed nothing, and compare.md's "Made by"
+    line listed them: a usage error, one line, saying what the option is for."""
+    a, b, labels = make_runs(tmp_path)
+    sample = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001"
+    gt = sample / "gt.json.gz"
+    out = tmp_path / "cmp"
+    tracks = []
+    for name in ("ta", "tb"):  # (the ground truth as both runs' tracks: no event)
+        (tmp_path / name).mkdir()
+        tracks.append(str(shutil.copy(gt, tmp_path / name / "tracks.json.gz")))
+    args = ["compare", *tracks, "--gt", str(gt), "--out", str(out)]
+    assert main([*args, "--labels", str(labels)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack compare: error: --labels {labels}: only with run folders (`mctrack kitti "
+        "--out`: the KITTI labels their result files are scored against); tracks files are "
+        "compared against --gt, by the CLEAR replay with BEV IoU"
+    )
+    assert not out.exists()
+    assert main(args) == 0  # (without it: compared)
+    args = ["compare", str(a), str(b), "--out", str(tmp_path / "runs")]
+    assert main([*args, "--gt", str(gt)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"mctrack compare: error: --gt {gt}: only with tracks files")
+    assert len(err.splitlines()) == 1 and not (tmp_path / "runs").exists()
+    assert main([*args, "--labels", str(labels)]) == 0

@@ -236,8 +236,8 @@ def test_eval_refuses_ground_truth_beyond_the_bound_detections_have(
     gt["0001"][5]["bboxes"][1][field] = [3.0, 1e300, 1.5]
     bad = tmp_path / "gt.json"
     bad.write_text(json.dumps(gt))
-    for motion in ([], ["--motion"]):
-        argv = ["eval", str(sample_tracks["all"]), "--gt", str(bad), *motion]
+    for what in (["--labels", str(LABEL.parent)], ["--motion"]):  # (one of them: else nothing)
+        argv = ["eval", str(sample_tracks["all"]), "--gt", str(bad), *what]
         code, err = _run([*argv, "--out", str(tmp_path / "o")], capsys)
         _one_line_error(
             code,
@@ -466,6 +466,57 @@ def test_eval_refuses_a_detections_file_given_as_the_tracks(
     code, err = _run([*argv, *(["--motion"] if motion else []), "--out", str(tmp_path)], capsys)
     _one_line_error(code, err, f"{dets}: no box has a track_id (a detections file?")
     assert not (tmp_path / "eval.json").exists()
+
+
+@pytest.mark.parametrize("motion", [False, True])
+def test_eval_refuses_a_detections_file_given_as_the_ground_truth(
+    motion: bool,
+    sample_tracks: dict[str, Path],
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """A detections file (no box has a track id) given as --gt: the motion metrics followed its
+    "objects" (every box one without an id), the static ones took its frames as the ground
+    truth's, without a word."""
+    dets = SAMPLE / "detections.json.gz"
+    argv = ["eval", str(sample_tracks["all"]), "--gt", str(dets), "--out", str(tmp_path)]
+    argv += ["--motion"] if motion else ["--labels", str(LABEL.parent)]
+    code, err = _run(argv, capsys)
+    _one_line_error(code, err, f"{dets}: no box has a track_id: not ground truth")
+    assert not (tmp_path / "eval.json").exists()
+
+
+def test_eval_refuses_to_evaluate_nothing(
+    sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Without --labels and --motion eval computed nothing, wrote an eval.json of nothing and
+    exited 0."""
+    argv = ["eval", str(sample_tracks["all"]), "--gt", str(SAMPLE / "gt.json.gz")]
+    code, err = _run([*argv, "--out", str(tmp_path)], capsys)
+    _one_line_error(code, err, "nothing to evaluate: add --labels DIR", "--motion")
+    assert not (tmp_path / "eval.json").exists()
+
+
+def test_eval_prints_the_metrics_as_kitti_does(
+    sample_tracks: dict[str, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The static and motion metrics are printed (it printed only "wrote eval.json and
+    eval.md"), in `mctrack kitti`'s table."""
+    from app.common import METRIC_COLUMNS
+
+    argv = ["eval", str(sample_tracks["all"]), "--gt", str(SAMPLE / "gt.json.gz"), "--motion"]
+    assert main([*argv, "--labels", str(LABEL.parent), "--out", str(tmp_path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    record = json.loads((tmp_path / "eval.json").read_text())
+    assert lines[1].split() == ["class", *METRIC_COLUMNS]
+    car = next(line.split() for line in lines if line.startswith("car "))
+    assert car == ["car", *(str(record["static"]["car"][c]) for c in METRIC_COLUMNS)]
+    assert any(line.startswith("cyclist       absent: ") for line in lines)
+    kalman = next(line.split() for line in lines if line.startswith("kalman "))
+    assert float(kalman[1]) == pytest.approx(
+        record["motion"]["metrics"]["kalman"]["all"]["vae_deg"], abs=1e-3
+    )
+    assert lines[-1].startswith("wrote ")
 
 
 @pytest.mark.parametrize("motion", [False, True])

@@ -10,6 +10,7 @@ from __future__ import annotations
 import html
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -143,6 +144,46 @@ def test_report_shows_names_from_the_runs_as_text(tmp_path: Path) -> None:
     assert html.escape(seq) in (out / "plots" / "idsw_per_sequence.svg").read_text()
 
 
+def _svg_texts(path: Path) -> list[str]:
+    """The texts of a matplotlib SVG (each kept in a comment beside its glyphs)."""
+    return re.findall(r"<!-- (.*?) -->", path.read_text())
+
+
+def test_report_plots_compare_what_the_tables_compare(tmp_path: Path) -> None:
+    """A over two sequences, B over one: the plots show the shared sequence only (A's switches
+    on 0002 were plotted against B's 0 there, and A's HOTA over both against B's over one), as
+    the metrics table does, and say so; the motion plots, which compare leaves out, are not
+    drawn. Runs of the same sequences keep them."""
+    from tests.test_compare import _with_second_sequence
+
+    motion = {"metrics": {"kalman": {"car": {"vae_deg": 3.0, "vne_mps": 0.25}}}}
+    a, b, labels = make_runs(tmp_path)
+    for run in (a, b):
+        summary = json.loads((run / "summary.json").read_text())
+        (run / "summary.json").write_text(json.dumps({**summary, "motion": motion}))
+    out = tmp_path / "same"
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 0
+    assert (out / "plots" / "motion_vae_deg.svg").is_file()
+    assert "3" in _svg_texts(out / "plots" / "motion_vae_deg.svg")
+    assert "90" in _svg_texts(out / "plots" / "hota.svg")  # (A's summary: over SEQ exactly)
+
+    _with_second_sequence(a, labels)
+    out = tmp_path / "report"
+    assert main(["report", str(a), "--compare", str(b), "--out", str(out)]) == 0
+    result = json.loads((out / "compare.json").read_text())
+    assert result["sequences_compared"] == [SEQ]
+    idsw = _svg_texts(out / "plots" / "idsw_per_sequence.svg")
+    assert SEQ in idsw and "0002" not in idsw
+    assert "IDSW per sequence, the 1 compared sequence(s)" in idsw
+    hota = _svg_texts(out / "plots" / "hota.svg")
+    rescored = result["metrics"]["car"]["HOTA"]["a"]
+    assert f"{rescored:.4g}" in hota and "90" not in hota  # (90: A's summary, both sequences)
+    assert not list((out / "plots").glob("motion_*.svg"))
+    page = (out / "index.html").read_text()
+    assert f"HOTA per class, on the 1 sequence(s) both runs scored ({SEQ})" in page
+    assert "No motion plots: the runs&#x27; motion metrics cover different sequences" in page
+
+
 def test_report_into_an_earlier_report_removes_what_it_does_not_write(tmp_path: Path) -> None:
     """A report without --compare into an earlier --compare report's folder leaves no
     compare.json of the earlier pair, nor its shots, nor a killed one's temporary files
@@ -192,6 +233,23 @@ def test_report_into_a_folder_with_plots_of_its_own_keeps_them(tmp_path: Path) -
     stale.write_text("<svg/>")
     assert main(["report", str(a), "--out", str(out)]) == 0
     assert not stale.exists() and (out / "plots" / "figure.pdf").is_file()
+
+
+def test_report_refuses_a_run_folder_as_out(tmp_path: Path, capsys) -> None:
+    """A report written into a run's folder outlived the run: a later run into the folder
+    removes the run's files (of any command), not index.html and plots/, which then described
+    the old run. Refused in one line, the run folder untouched (its own or another run's)."""
+    a, b, _ = make_runs(tmp_path)
+    before = sorted(p.relative_to(a) for p in a.rglob("*"))
+    for args in ([str(a)], [str(b), "--compare", str(a)]):
+        assert main(["report", *args, "--out", str(a)]) == 2
+        assert capsys.readouterr().err.strip() == (
+            f"mctrack report: error: {a}: --out is a run folder (a run's summary.json): a report "
+            "there would outlive the run, describing it after a new run into the folder; give "
+            "another --out"
+        )
+        assert sorted(p.relative_to(a) for p in a.rglob("*")) == before
+    assert main(["report", str(a), "--out", str(tmp_path / "r")]) == 0
 
 
 def test_report_of_a_tracks_file_says_it_reads_run_folders(tmp_path: Path, capsys) -> None:
