@@ -522,6 +522,23 @@ def test_compare_tracks_files_against_the_same_ground_truth(tmp_path: Path) -> N
     assert main([*args, "--out", str(out)]) == 2
 
 
+def test_compare_tracks_files_of_part_of_the_ground_truths_frames(tmp_path: Path) -> None:
+    """Tracks files that cover the ground truth's first 20 frames only (`track --frames 0:20`):
+    the replay's frames without output took `gt[:0]`, which Boxes refused (IndexError, "an
+    unexpected error")."""
+    from tracker.io.baseversion import read_baseversion, write_baseversion
+
+    gt_file = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001" / "gt.json.gz"
+    gt = read_baseversion(gt_file, fallback_frame_rate_hz=10.0)
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        write_baseversion(tmp_path / name / "tracks.json", {"0001": gt["0001"][:20]})
+    args = ["compare", str(tmp_path / "a" / "tracks.json"), str(tmp_path / "b" / "tracks.json")]
+    assert main([*args, "--gt", str(gt_file), "--out", str(tmp_path / "cmp")]) == 0
+    result = json.loads((tmp_path / "cmp" / "compare.json").read_text())
+    assert result["events"] == []
+
+
 def test_compare_refuses_an_option_of_the_other_kind_of_run(tmp_path: Path, capsys) -> None:
     """--labels with tracks files (compared by the BEV-IoU replay against --gt) and --gt with
     run folders (scored against their labels) changed nothing, and compare.md's "Made by"

@@ -144,7 +144,10 @@ class Boxes:
         return len(self.yaw)
 
     def __getitem__(self, index: Any) -> Boxes:
-        """Rows selected by a boolean mask or an index array (a new batch; rows keep order)."""
+        """Rows selected by a boolean mask, an index array or a slice (a new batch, never a
+        view of this one; rows keep order)."""
+        if isinstance(index, slice):  # (np.asarray(slice) is an object array numpy refuses)
+            index = np.arange(len(self))[index]
         if not isinstance(index, np.ndarray) or index.ndim == 0:
             index = np.asarray(index).reshape(-1) if np.ndim(index) == 0 else np.asarray(index)
         return Boxes._trusted({name: getattr(self, name)[index] for name in _FIELDS})
