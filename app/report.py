@@ -644,6 +644,7 @@ def _inspect_cmd(run: Run, e: Mapping[str, Any]) -> str:
     rec = run.recordings.get(e["sequence"])
     if rec is None:
         return ""
+    rec = rec.resolve()  # (the page is read, and its command pasted, from any folder)
     if e.get("event") is None:
         return f"mctrack inspect {shlex.quote(str(rec))} --frame {e['frame']}"
     return f"mctrack inspect {shlex.quote(str(rec))} --event {e['event']}"
@@ -871,8 +872,9 @@ def _recordings_section(run_a: Run, run_b: Run | None) -> str:
                     h.td(seq),
                     h.td(f"<code>{h.esc(str(rec))}</code>", raw=True),
                     h.td(n, num=True),
-                    h.td(
-                        f"<code>mctrack inspect {h.esc(shlex.quote(str(rec)))} --event K</code>",
+                    h.td(  # (absolute: pasted from any folder)
+                        "<code>mctrack inspect "
+                        f"{h.esc(shlex.quote(str(rec.resolve())))} --event K</code>",
                         raw=True,
                     ),
                 ]

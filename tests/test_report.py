@@ -610,3 +610,22 @@ def stopped_by_sigterm(proc: subprocess.Popen[str]) -> str:
             proc.kill()
             proc.wait()
     return out
+
+
+def test_the_pages_inspect_commands_name_the_recording_from_any_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A report made with a relative run folder (`mctrack report krec`) printed `mctrack inspect
+    krec/recordings/0001.rrd --event K`, which works only from the folder it was made in."""
+    import shlex
+
+    from app.report import _inspect_cmd, _recordings_section
+    from app.runs import Run
+
+    monkeypatch.chdir(tmp_path)
+    rec = Path("krec") / "recordings" / "0001.rrd"
+    run = Run("A", Path("krec"), {}, [], recordings={"0001": rec})
+    absolute = shlex.quote(str(tmp_path / rec))
+    event = {"sequence": "0001", "event": 3, "frame": 7}
+    assert _inspect_cmd(run, event) == f"mctrack inspect {absolute} --event 3"
+    assert f"mctrack inspect {absolute} --event K" in _recordings_section(run, None)

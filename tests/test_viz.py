@@ -524,3 +524,19 @@ def test_synthetic_scene_without_labels(tmp_path: Path, with_gt: bool) -> None:
         assert result.id_evaluation is not None and "BEV IoU" in result.id_evaluation.method
     else:
         assert result.id_evaluation is None and result.lag is None
+
+
+def test_the_recordings_summary_names_it_from_any_folder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`mctrack demo` and `kitti --record` record to a relative path; the summary document's
+    `mctrack inspect` line named it so, which works only from the folder the run was in."""
+    from tracker.config import load_config
+    from tracker.eval.id_switches import IdEvaluation
+    from viz.record import RecordResult, summary_markdown
+
+    monkeypatch.chdir(tmp_path)
+    result = RecordResult("0001", Path("out") / "demo.rrd", [], 0.0, 0.0)
+    result.id_evaluation = IdEvaluation("x", (), (), {})
+    text = summary_markdown(result, load_config("kitti"), "")
+    assert f"`mctrack inspect {tmp_path / 'out' / 'demo.rrd'} --event K`" in text

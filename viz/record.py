@@ -16,6 +16,7 @@ import itertools
 import json
 import logging
 import math
+import shlex
 import time
 import uuid
 from collections.abc import Callable, Mapping, Sequence
@@ -1177,7 +1178,8 @@ def summary_markdown(
             lines += ["### Causes", ""]
             lines += cause_table_markdown({result.scene: cause_counts(result.causes)})
             lines.append("")
-        rec_arg = str(result.path) if result.path is not None else "REC.rrd"
+        # (absolute: the summary is read in the viewer, whatever folder it was started from)
+        rec_arg = shlex.quote(str(result.path.resolve())) if result.path is not None else "REC.rrd"
         lines += [
             "### Events",
             "",
