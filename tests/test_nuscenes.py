@@ -894,3 +894,126 @@ def test_coordinates_that_overflow_the_transforms_are_named(
             f"{table}: ego_pose '{pose['token']}': field 'translation' = [1.7e+308, 1.7e+308, "
             f"0.0]: {_FAR}"
         )
+
+
+def _table_case(
+    table: str, key: str, value: Any, pick: Callable[[dict[str, list[Any]]], dict[str, Any]]
+) -> Callable[[dict[str, list[Any]]], str]:
+    """An edit setting ``key`` of the record ``pick`` chooses; it returns the record's token."""
+
+    def edit(tables: dict[str, list[Any]]) -> str:
+        record = pick(tables)
+        record[key] = value
+        return str(record["token"])
+
+    return edit
+
+
+def _val_sample(tables: dict[str, list[Any]]) -> dict[str, Any]:
+    return tables["sample"][1]  # (the fixture's tables start with scene-0103, a val scene)
+
+
+def _front_camera_data(tables: dict[str, list[Any]]) -> dict[str, Any]:
+    first = tables["sample"][0]["token"]
+    return next(
+        r
+        for r in tables["sample_data"]
+        if r["sample_token"] == first and "/CAM_FRONT/" in r["filename"]
+    )
+
+
+def _front_camera_sensor(tables: dict[str, list[Any]]) -> dict[str, Any]:
+    token = _front_camera_data(tables)["calibrated_sensor_token"]
+    return next(r for r in tables["calibrated_sensor"] if r["token"] == token)
+
+
+def _car_annotation(tables: dict[str, list[Any]]) -> dict[str, Any]:
+    return tables["sample_annotation"][0]  # (the fixture's first object is a car)
+
+
+_NOT_TOKEN = "is not the token of a"
+_TABLE_FIELDS = {
+    "timestamp_text": (
+        "sample", _table_case("sample", "timestamp", "1533151603500000", _val_sample),
+        "field 'timestamp' must be an integer >= 0, got '1533151603500000'",
+    ),
+    "timestamp_float": (
+        "sample", _table_case("sample", "timestamp", 1.5e15, _val_sample),
+        "field 'timestamp' must be an integer >= 0",
+    ),
+    "next_int": (
+        "sample", _table_case("sample", "next", 7, _val_sample),
+        f"field 'next' = 7 {_NOT_TOKEN} sample record",
+    ),
+    "first_sample_unknown": (
+        "scene", _table_case("scene", "first_sample_token", "nope", lambda t: t["scene"][0]),
+        f"field 'first_sample_token' = 'nope' {_NOT_TOKEN} sample record",
+    ),
+    "scene_name_list": (
+        "scene", _table_case("scene", "name", ["scene-0103"], lambda t: t["scene"][0]),
+        "field 'name' must be a string",
+    ),
+    "ego_pose_token": (
+        "sample_data", _table_case("sample_data", "ego_pose_token", None, _front_camera_data),
+        f"field 'ego_pose_token' = None {_NOT_TOKEN} ego_pose record",
+    ),
+    "width_text": (
+        "sample_data", _table_case("sample_data", "width", "1600", _front_camera_data),
+        "field 'width' must be an integer >= 0, got '1600'",
+    ),
+    "filename_number": (
+        "sample_data", _table_case("sample_data", "filename", 3, _front_camera_data),
+        "field 'filename' must be a path (a string), got 3",
+    ),
+    "intrinsic_text": (
+        "calibrated_sensor",
+        _table_case("calibrated_sensor", "camera_intrinsic", [["1"] * 3] * 3, _front_camera_sensor),
+        "(CAM_FRONT): field 'camera_intrinsic' must be 3x3 finite numbers",
+    ),
+    "intrinsic_nan": (
+        "calibrated_sensor",
+        _table_case(
+            "calibrated_sensor", "camera_intrinsic", [[math.nan] * 3] * 3, _front_camera_sensor
+        ),
+        "(CAM_FRONT): field 'camera_intrinsic' must be 3x3 finite numbers",
+    ),
+    "lidar_points_text": (
+        "sample_annotation",
+        _table_case("sample_annotation", "num_lidar_pts", "40", _car_annotation),
+        "field 'num_lidar_pts' must be an integer >= 0, got '40'",
+    ),
+    "radar_points_negative": (
+        "sample_annotation",
+        _table_case("sample_annotation", "num_radar_pts", -1, _car_annotation),
+        "field 'num_radar_pts' must be an integer >= 0, got -1",
+    ),
+    "annotation_next_list": (
+        "sample_annotation",
+        _table_case("sample_annotation", "next", ["x"], _car_annotation),
+        f"field 'next' = ['x'] {_NOT_TOKEN} sample_annotation record",
+    ),
+}  # fmt: skip
+
+
+@needs_devkit
+@pytest.mark.parametrize("case", sorted(_TABLE_FIELDS))
+def test_every_table_field_read_is_type_checked(
+    dataset: SyntheticNuScenes, clean_path: Path, tmp_path: Path, case: str
+) -> None:
+    """A table field of the wrong type (a string timestamp or point count, a token that is no
+    token): one error naming the table file, the record and the field (was 'unexpected error:
+    TypeError' or KeyError, or a string of digits silently read as a number)."""
+    table, edit, said = _TABLE_FIELDS[case]
+    tokens: list[str] = []
+    root = _edited_dataset(dataset, tmp_path / case, lambda t: tokens.append(edit(t)))
+    with pytest.raises(InputError) as err:
+        convert_nuscenes(
+            root,
+            version=dataset.version,
+            detections=clean_path,
+            split="mini_val",
+            with_gt=True,
+        )
+    where = f"{root / dataset.version / f'{table}.json'}: {table} '{tokens[0]}'"
+    assert str(err.value).startswith(where), str(err.value)
+    assert said in str(err.value)

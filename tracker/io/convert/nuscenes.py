@@ -533,6 +533,61 @@ def _record_pose(nusc: Any, table: str, record: dict[str, Any]) -> FloatArray:
     return pose_matrix(values["translation"], values["rotation"])
 
 
+def _table_record(nusc: Any, table: str, record: dict[str, Any]) -> str:
+    """``TABLE_FILE: table 'token'``: where a table record's errors point."""
+    return f"{Path(nusc.dataroot) / nusc.version / f'{table}.json'}: {table} {record['token']!r}"
+
+
+def _int_field(nusc: Any, table: str, record: dict[str, Any], key: str) -> int:
+    """``record[key]``, an integer (not a bool, not a string of digits) >= 0; InputError naming
+    the table file, the record and the field otherwise (it crashed later, as a TypeError)."""
+    value = record.get(key)
+    if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+        raise InputError(
+            f"{_table_record(nusc, table, record)}: field {key!r} must be an integer >= 0, "
+            f"got {value!r}"
+        )
+    return value
+
+
+def _linked(
+    nusc: Any, table: str, record: dict[str, Any], key: str, target: str, *, end: bool = False
+) -> dict[str, Any] | None:
+    """The ``target`` record named by token field ``key`` of ``record`` (None for the empty
+    token when ``end``: the end of a chain); InputError naming the table file, the record and
+    the field unless it is the token (a string) of a ``target`` record."""
+    value = record.get(key)
+    if end and value == "":
+        return None
+    if not isinstance(value, str) or value not in nusc._token2ind[target]:
+        raise InputError(
+            f"{_table_record(nusc, table, record)}: field {key!r} = {value!r} is not the token "
+            f"of a {target} record"
+        )
+    return nusc.get(target, value)
+
+
+def _camera_intrinsic(nusc: Any, cs: dict[str, Any], channel: str) -> FloatArray:
+    """The 3x3 intrinsic of a camera's calibrated_sensor record (finite numbers), or InputError
+    naming the table file, the record and the field."""
+    value = cs.get("camera_intrinsic")
+    if isinstance(value, list) and len(value) == 3 and all(_numeric(row) for row in value):
+        intrinsic = np.asarray(value, dtype=np.float64)
+        if intrinsic.shape == (3, 3) and np.isfinite(intrinsic).all():
+            return intrinsic
+    raise InputError(
+        f"{_table_record(nusc, 'calibrated_sensor', cs)} ({channel}): field 'camera_intrinsic' "
+        f"must be 3x3 finite numbers, got {value!r}"
+    )
+
+
+def _image_size(nusc: Any, sd: dict[str, Any], key: str, default: int) -> int:
+    """A camera sample_data's ``width`` or ``height``: absent, null or 0 → ``default``."""
+    if sd.get(key) is None:
+        return default
+    return _int_field(nusc, "sample_data", sd, key) or default
+
+
 def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
     """Ego pose (LIDAR_TOP keyframe), the six camera models and the official transform object."""
     data = sample["data"]
@@ -543,8 +598,8 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
             "(field 'sample_token', 'is_key_frame')"
         )
     lidar_sd = nusc.get("sample_data", data[LIDAR_CHANNEL])
-    ego = nusc.get("ego_pose", lidar_sd["ego_pose_token"])
-    lidar_cs = nusc.get("calibrated_sensor", lidar_sd["calibrated_sensor_token"])
+    ego = _linked(nusc, "sample_data", lidar_sd, "ego_pose_token", "ego_pose")
+    lidar_cs = nusc.get("calibrated_sensor", lidar_sd["calibrated_sensor_token"])  # (the devkit's)
     world_from_ego = _record_pose(nusc, "ego_pose", ego)
     ego_from_lidar = _record_pose(nusc, "calibrated_sensor", lidar_cs)
     table_dir = Path(nusc.dataroot) / nusc.version
@@ -571,12 +626,8 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
             continue
         sd = nusc.get("sample_data", data[name])
         cs = nusc.get("calibrated_sensor", sd["calibrated_sensor_token"])
-        cam_ego = nusc.get("ego_pose", sd["ego_pose_token"])
-        intrinsic = np.asarray(cs.get("camera_intrinsic") or [], dtype=np.float64)
-        if intrinsic.shape != (3, 3):
-            raise InputError(
-                f"calibrated_sensor {cs['token']!r} ({name}): camera_intrinsic must be 3x3"
-            )
+        cam_ego = _linked(nusc, "sample_data", sd, "ego_pose_token", "ego_pose")
+        intrinsic = _camera_intrinsic(nusc, cs, name)
         ego_from_camera = _record_pose(nusc, "calibrated_sensor", cs)
         world_from_cam_ego = _record_pose(nusc, "ego_pose", cam_ego)
         with np.errstate(over="ignore", invalid="ignore"):
@@ -594,8 +645,14 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
         )
         image_from_camera = np.zeros((3, 4))
         image_from_camera[:, :3] = intrinsic
-        width = int(sd.get("width") or DEFAULT_IMAGE_SIZE[0])
-        height = int(sd.get("height") or DEFAULT_IMAGE_SIZE[1])
+        width = _image_size(nusc, sd, "width", DEFAULT_IMAGE_SIZE[0])
+        height = _image_size(nusc, sd, "height", DEFAULT_IMAGE_SIZE[1])
+        filename = sd.get("filename")
+        if filename is not None and not isinstance(filename, str):
+            raise InputError(
+                f"{_table_record(nusc, 'sample_data', sd)}: field 'filename' must be a path "
+                f"(a string), got {filename!r}"
+            )
         cameras.append(Camera(name, image_from_camera, camera_from_world, width, height))
         camera2image = np.eye(4)
         camera2image[:3, :3] = intrinsic
@@ -605,7 +662,7 @@ def _sample_geometry(nusc: Any, sample: dict[str, Any]) -> _SampleGeometry:
             "camera2image": camera2image.tolist(),
             "lidar2camera": camera_from_lidar.tolist(),
             "camera_token": sd["token"],
-            "camera_path": sd.get("filename"),
+            "camera_path": filename,
         }
     transform = {
         "global2ego": ego_from_world.tolist(),
@@ -623,9 +680,10 @@ def _scene_samples(nusc: Any, scene: dict[str, Any]) -> list[dict[str, Any]]:
     not after the previous sample's."""
     samples: list[dict[str, Any]] = []
     seen: set[str] = set()
-    token = scene["first_sample_token"]
-    while token:
-        sample = nusc.get("sample", token)
+    sample = _linked(nusc, "scene", scene, "first_sample_token", "sample")
+    while sample is not None:
+        token = sample["token"]
+        _int_field(nusc, "sample", sample, "timestamp")
         via = (
             f"field 'next' of sample {samples[-1]['token']!r}"
             if samples
@@ -634,7 +692,7 @@ def _scene_samples(nusc: Any, scene: dict[str, Any]) -> list[dict[str, Any]]:
         where = f"{Path(nusc.dataroot) / nusc.version / 'sample.json'}: sample {token!r}"
         if token in seen:
             raise InputError(f"{where}: reached again through {via} (the samples form a loop)")
-        if sample["scene_token"] != scene["token"]:
+        if sample.get("scene_token") != scene["token"]:
             raise InputError(
                 f"{where}: of another scene (field 'scene_token'), reached through {via} of "
                 f"scene {scene['name']!r}"
@@ -647,7 +705,7 @@ def _scene_samples(nusc: Any, scene: dict[str, Any]) -> list[dict[str, Any]]:
             )
         seen.add(token)
         samples.append(sample)
-        token = sample["next"]
+        sample = _linked(nusc, "sample", sample, "next", "sample", end=True)
     return samples
 
 
@@ -669,9 +727,20 @@ def _check_annotations(nusc: Any, samples: Sequence[dict[str, Any]]) -> None:
     for sample in samples:
         for token in sample["anns"]:
             ann = nusc.get("sample_annotation", token)
+            if not isinstance(ann["category_name"], str):  # (the devkit's, from category.json)
+                category = nusc.get("instance", ann["instance_token"])["category_token"]
+                raise InputError(
+                    f"{_table_record(nusc, 'category', nusc.get('category', category))}: field "
+                    f"'name' must be a string, got {ann['category_name']!r}"
+                )
             if ann["category_name"] not in CATEGORY_TO_TRACKING_NAME:
                 continue
             at = f"{table}: sample_annotation {token!r} of sample {sample['token']!r}"
+            for key in ("num_lidar_pts", "num_radar_pts"):  # (absent: counted as points)
+                if key in ann:
+                    _int_field(nusc, "sample_annotation", ann, key)
+            for key in ("prev", "next"):  # (the devkit's box_velocity follows them)
+                _linked(nusc, "sample_annotation", ann, key, "sample_annotation", end=True)
             _check_translation(ann.get("translation"), at)
             rotations.append(_check_numbers(ann.get("rotation"), "rotation", 4, at))
             _check_size(ann.get("size"), at)
@@ -836,6 +905,12 @@ def convert_nuscenes(
 def split_scenes(nusc: Any, split: str) -> list[dict[str, Any]]:
     """The scene records of a split in table order (as the devkit); scenes of the split absent
     from the tables are skipped (logged), none present is an error."""
+    for scene in nusc.scene:
+        if not isinstance(scene.get("name"), str):  # (the splits are lists of names)
+            raise InputError(
+                f"{_table_record(nusc, 'scene', scene)}: field 'name' must be a string, "
+                f"got {scene.get('name')!r}"
+            )
     names = split_scene_names(nusc, split)
     present = {s["name"] for s in nusc.scene}
     absent = [n for n in names if n not in present]
