@@ -201,8 +201,6 @@ def _run_nuscenes(args: argparse.Namespace) -> int:
     )
     write_baseversion(args.out, conv.detections)
     print(_summary("detections", conv.detections), "->", args.out)
-    if conv.skipped_detections:
-        print(f"skipped non-tracking classes: {dict(sorted(conv.skipped_detections.items()))}")
     if conv.gt is not None:
         write_baseversion(args.gt_out, conv.gt)
         print(_summary("gt", conv.gt), "->", args.gt_out)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,7 @@ from tests.test_nuscenes_fixture import (
     token,
     write_synthetic_nuscenes,
 )
+from tracker.categories import category_index
 from tracker.io.baseversion import read_baseversion
 from tracker.io.writers import read_tracks_file
 
@@ -392,3 +394,41 @@ def test_eval_frees_its_check_of_the_annotations_before_the_devkit_loads_them(
         assert len(loaded) == 1 and loaded[0]() is None
     finally:
         gc.enable()
+
+
+def test_a_detection_name_of_no_nuscenes_class_is_counted_apart_and_warned(
+    dataset: SyntheticNuScenes,
+    noisy: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """'Car', 'vehicle.car' or 'spaceship' is no nuScenes class: dropped, but counted apart from
+    the non-tracking classes and warned about with the file (was silently counted as one, e.g.
+    'Car': 90 then 0 boxes); the non-tracking count is said once (was also printed)."""
+    data = json.loads(noisy.read_text())
+    renamed = Counter()
+    for boxes in data["results"].values():
+        for box in boxes:
+            if box["detection_name"] == "car":
+                box["detection_name"] = "Car"
+                renamed["Car"] += 1
+        boxes.append({**boxes[0], "detection_name": "spaceship"})
+        renamed["spaceship"] += 1
+    path = tmp_path / "misspelt.json"
+    path.write_text(json.dumps(data))
+    argv = ["convert", "nuscenes", *_common(dataset), "--detections", str(path)]
+    with caplog.at_level("INFO"):
+        assert main([*argv, "--out", str(tmp_path / "x.json")]) == 0
+    warnings = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    said = f"{sum(renamed.values())} detections with a detection_name that is no nuScenes class"
+    assert [w for w in warnings if said in w] == [
+        f"{path}: {said} dropped: {dict(renamed.most_common())} (a misspelt class? the classes "
+        "are barrier, bicycle, bus, car, construction_vehicle, motorcycle, pedestrian, "
+        "traffic_cone, trailer, truck)"
+    ]
+    skips = [r.getMessage() for r in caplog.records if "non-tracking" in r.getMessage()]
+    assert len(skips) == 1 and "'barrier'" in skips[0] and "Car" not in skips[0]
+    assert "non-tracking" not in capsys.readouterr().out
+    frames = read_baseversion(tmp_path / "x.json")["scene-0103"]
+    assert category_index("car") not in {int(c) for f in frames for c in f.boxes.category}

@@ -99,6 +99,11 @@ TRACKING_NAMES: Final[tuple[str, ...]] = (
     "truck",
 )
 
+#: The detection classes without a tracking class (devkit ``detection_cvpr_2019``): dropped
+#: and counted. Any other name outside TRACKING_NAMES is no nuScenes class (a misspelling,
+#: ``Car``, a category ``vehicle.car``): dropped too, but counted apart and warned about.
+NON_TRACKING_NAMES: Final[tuple[str, ...]] = ("barrier", "construction_vehicle", "traffic_cone")
+
 #: nuScenes category → tracking class (identical to devkit ``category_to_tracking_name``).
 CATEGORY_TO_TRACKING_NAME: Final[dict[str, str]] = {
     "vehicle.bicycle": "bicycle",
@@ -141,9 +146,10 @@ class NuScenesConversion:
     detections: Scenes
     gt: Scenes | None
     meta: dict[str, Any]  # the detection file's "meta" (copied into the tracking submission)
-    skipped_detections: Counter[str] = field(default_factory=Counter)  # per detection_name
+    skipped_detections: Counter[str] = field(default_factory=Counter)  # non-tracking classes
     gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (kept NaN)
     velocity_unknown: int = 0  # detections without a velocity (absent, null, NaN: kept NaN)
+    unknown_detections: Counter[str] = field(default_factory=Counter)  # no nuScenes class
 
 
 # ---------------------------------------------------------------------------------------------
@@ -358,9 +364,11 @@ def _detection_boxes(
     path: Path,
     score_min: float,
     skipped: Counter[str],
+    unknown: Counter[str],
     cameras: Sequence[Camera] = (),
 ) -> tuple[Boxes, int]:
-    """Boxes of one sample's detections (tracking classes only), validated, and how many of
+    """Boxes of one sample's detections (tracking classes only; the others counted in
+    ``skipped``, names of no nuScenes class in ``unknown``), validated, and how many of
     them have no velocity estimate (absent, null or NaN: kept NaN, so the tracker does not
     measure it and BaseVersion writes null)."""
     keep: list[dict[str, Any]] = []
@@ -384,7 +392,10 @@ def _detection_boxes(
         if not isinstance(name, str):
             raise InputError(f"{at}: field 'detection_name' must be a string, got {name!r}")
         if name not in TRACKING_NAMES:
-            skipped[name] += 1
+            if name in NON_TRACKING_NAMES:
+                skipped[name] += 1
+            else:
+                unknown[name] += 1
             continue
         score = box["detection_score"]
         if not isinstance(score, int | float) or isinstance(score, bool):  # true is not 1.0
@@ -846,6 +857,7 @@ def convert_nuscenes(
     scenes = split_scenes(nusc, split)
     _check_result_tokens(nusc, results, {s["name"] for s in scenes}, split, det_path)
     skipped: Counter[str] = Counter()
+    unknown_names: Counter[str] = Counter()
     det_scenes: Scenes = {}
     gt_scenes: Scenes | None = {} if with_gt else None
     unknown_velocity = 0
@@ -864,7 +876,7 @@ def convert_nuscenes(
                 missing_samples += 1
                 raw = []
             boxes, no_velocity = _detection_boxes(
-                raw, sample["token"], det_path, score_min, skipped, geometry.cameras
+                raw, sample["token"], det_path, score_min, skipped, unknown_names, geometry.cameras
             )
             velocity_nan += no_velocity
 
@@ -878,6 +890,15 @@ def convert_nuscenes(
             gt_scenes[scene["name"]] = gt_frames
     if skipped:
         log.info("skipped detections of non-tracking classes: %s", dict(sorted(skipped.items())))
+    if unknown_names:
+        log.warning(
+            "%s: %d detections with a detection_name that is no nuScenes class dropped: %s "
+            "(a misspelt class? the classes are %s)",
+            det_path,
+            unknown_names.total(),
+            dict(unknown_names.most_common()),
+            ", ".join(sorted(TRACKING_NAMES + NON_TRACKING_NAMES)),
+        )
     if missing_samples:
         log.warning(
             "%s: %d samples of split %s have no entry (converted as empty frames)",
@@ -899,7 +920,9 @@ def convert_nuscenes(
             det_path,
             velocity_nan,
         )
-    return NuScenesConversion(det_scenes, gt_scenes, meta, skipped, unknown_velocity, velocity_nan)
+    return NuScenesConversion(
+        det_scenes, gt_scenes, meta, skipped, unknown_velocity, velocity_nan, unknown_names
+    )
 
 
 def split_scenes(nusc: Any, split: str) -> list[dict[str, Any]]:
