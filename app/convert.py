@@ -20,6 +20,7 @@ from app.inputs import (
     class_list,
     default_kitti_root,
     sequence_list,
+    unit_interval,
 )
 from tracker.errors import InputError
 from tracker.frame import Frame
@@ -106,9 +107,10 @@ def _add_nuscenes(datasets: argparse._SubParsersAction[argparse.ArgumentParser])
     )
     nusc.add_argument(
         "--score-min",
-        type=float,
+        type=unit_interval,
         default=0.0,
-        help="drop detections scoring below this (smaller files; the tracker filters anyway)",
+        help="drop detections scoring below this, in [0, 1], counted (smaller files; the "
+        "tracker filters anyway) (default: 0: keep all)",
     )
     nusc.add_argument("--gt-out", type=Path, default=None, help="also write the GT BaseVersion")
     nusc.add_argument("--out", type=Path, required=True, help="output FILE.json (or .json.gz)")

@@ -18,7 +18,7 @@ from app.common import (
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
 )
-from app.inputs import add_mode_argument
+from app.inputs import add_mode_argument, unit_interval
 from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, TrackingMode, config_to_dict, load_config
@@ -93,7 +93,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="comma-separated scene names (default: the whole split; a subset is not evaluated, "
         "the official evaluation needs every sample of the split)",
     )
-    parser.add_argument("--score-min", type=float, default=0.0, help="drop detections below this")
+    parser.add_argument(
+        "--score-min",
+        type=unit_interval,
+        default=0.0,
+        help="drop detections scoring below this at conversion, in [0, 1], counted "
+        "(default: 0: keep all)",
+    )
     parser.add_argument("--no-eval", action="store_true", help="skip the official evaluation")
     parser.add_argument(
         "--motion", action="store_true", help="also the motion metrics (needs the annotations)"

@@ -432,3 +432,60 @@ def test_a_detection_name_of_no_nuscenes_class_is_counted_apart_and_warned(
     assert "non-tracking" not in capsys.readouterr().out
     frames = read_baseversion(tmp_path / "x.json")["scene-0103"]
     assert category_index("car") not in {int(c) for f in frames for c in f.boxes.category}
+
+
+@pytest.mark.parametrize("value", ["2", "nan", "-1", "x"])
+@pytest.mark.parametrize("command", [["convert", "nuscenes"], ["nuscenes"]])
+def test_score_min_outside_0_1_is_a_usage_error(
+    dataset: SyntheticNuScenes,
+    noisy: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    command: list[str],
+    value: str,
+) -> None:
+    """--score-min 2 gave 0 boxes without a word, nan and -1 filtered nothing: refused."""
+    out = tmp_path / "out.json"
+    argv = [*command, *_common(dataset), "--detections", str(noisy), "--out", str(out)]
+    with pytest.raises(SystemExit) as exit_:
+        main([*argv, "--score-min", value])
+    assert exit_.value.code == 2 and not out.exists()
+    assert f"argument --score-min: expected a number in [0, 1], got '{value}'" in (
+        capsys.readouterr().err
+    )
+
+
+def test_score_min_counts_what_it_drops_and_help_shows_its_default(
+    dataset: SyntheticNuScenes,
+    noisy: Path,
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    data = json.loads(noisy.read_text())
+    tracked = {"bicycle", "bus", "car", "motorcycle", "pedestrian", "trailer", "truck"}
+    scores = [b["detection_score"] for v in data["results"].values() for b in v
+              if b["detection_name"] in tracked]  # fmt: skip
+    below = sum(s < 0.6 for s in scores)
+    assert 0 < below < len(scores)
+    out = tmp_path / "x.json"
+    argv = ["convert", "nuscenes", *_common(dataset), "--detections", str(noisy), "--out", str(out)]
+    with caplog.at_level("INFO"):
+        assert main([*argv, "--score-min", "0.6"]) == 0
+    said = f"{noisy}: {below} detections scoring below 0.6 (score_min) dropped, "
+    assert [r.levelname for r in caplog.records if said in r.getMessage()] == ["INFO"]
+    assert (
+        sum(len(f.boxes) for s in read_baseversion(out).values() for f in s) == len(scores) - below
+    )
+    caplog.clear()
+    with caplog.at_level("INFO"):  # all dropped: a warning
+        assert main([*argv, "--score-min", "1"]) == 0
+    assert any(
+        r.levelname == "WARNING" and f"{len(scores)} detections scoring below 1" in r.getMessage()
+        for r in caplog.records
+    )
+    capsys.readouterr()
+    for command in (["convert", "nuscenes"], ["nuscenes"]):
+        with pytest.raises(SystemExit):
+            main([*command, "--help"])
+        assert "(default: 0: keep all)" in " ".join(capsys.readouterr().out.split())

@@ -150,6 +150,7 @@ class NuScenesConversion:
     gt_velocity_unknown: int = 0  # GT boxes whose devkit velocity was NaN (kept NaN)
     velocity_unknown: int = 0  # detections without a velocity (absent, null, NaN: kept NaN)
     unknown_detections: Counter[str] = field(default_factory=Counter)  # no nuScenes class
+    below_score_min: int = 0  # detections dropped scoring below score_min
 
 
 # ---------------------------------------------------------------------------------------------
@@ -366,16 +367,16 @@ def _detection_boxes(
     skipped: Counter[str],
     unknown: Counter[str],
     cameras: Sequence[Camera] = (),
-) -> tuple[Boxes, int]:
+) -> tuple[Boxes, int, int]:
     """Boxes of one sample's detections (tracking classes only; the others counted in
     ``skipped``, names of no nuScenes class in ``unknown``), validated, and how many of
     them have no velocity estimate (absent, null or NaN: kept NaN, so the tracker does not
-    measure it and BaseVersion writes null)."""
+    measure it and BaseVersion writes null) or were dropped scoring below ``score_min``."""
     keep: list[dict[str, Any]] = []
     rows: list[int] = []
     velocities: list[tuple[float, float]] = []
     scores: list[float] = []
-    no_velocity = 0
+    no_velocity = below = 0
     for i, box in enumerate(raw):
         at = f"{path}: results[{token!r}][{i}]"
         if not isinstance(box, dict):
@@ -404,6 +405,7 @@ def _detection_boxes(
         if not 0.0 <= score <= 1.0:
             raise InputError(f"{at}: field 'detection_score' = {score} is outside [0, 1]")
         if score < score_min:
+            below += 1
             continue
         _check_translation(box["translation"], at)
         _check_numbers(box["rotation"], "rotation", 4, at)
@@ -415,7 +417,7 @@ def _detection_boxes(
         keep.append(box)
         rows.append(i)
     if not keep:
-        return Boxes.empty(), 0
+        return Boxes.empty(), 0, below
     size = np.array([b["size"] for b in keep], dtype=np.float64)
     xyz = np.array([b["translation"] for b in keep], dtype=np.float64)
     rotation = np.array([b["rotation"] for b in keep], dtype=np.float64)
@@ -429,14 +431,18 @@ def _detection_boxes(
             f"{raw[i]['translation']}, {raw[i]['size']}: not finite in the world or camera "
             "frames (too large)"
         )
-    return Boxes.create(
-        xyz=xyz,
-        lwh=size[:, [1, 0, 2]],
-        yaw=yaw,
-        velocity=np.array(velocities),
-        score=np.array(scores),
-        category=[category_index(b["detection_name"]) for b in keep],
-    ), no_velocity
+    return (
+        Boxes.create(
+            xyz=xyz,
+            lwh=size[:, [1, 0, 2]],
+            yaw=yaw,
+            velocity=np.array(velocities),
+            score=np.array(scores),
+            category=[category_index(b["detection_name"]) for b in keep],
+        ),
+        no_velocity,
+        below,
+    )
 
 
 def _check_numbers(value: Any, key: str, size: int, at: str) -> FloatArray:
@@ -836,8 +842,8 @@ def convert_nuscenes(
     detections : the detection results JSON (nuScenes submission format).
     split : ``val``, ``mini_val``, ``test``, ... or a custom split of ``splits.json``.
     with_gt : also convert the sample annotations (not for ``test``).
-    score_min : drop detections scoring below this at conversion (keeps files small; the
-        tracker's own thresholds still apply).
+    score_min : drop detections scoring below this at conversion, in [0, 1] (keeps files small;
+        the tracker's own thresholds still apply); how many is logged.
     keep_empty_gt : keep GT boxes without lidar/radar points (the official eval drops them).
     check_gt : check the split's annotations as ``with_gt`` does, without converting them
         (before the official evaluation, which reads them unchecked).
@@ -848,6 +854,8 @@ def convert_nuscenes(
     InputError naming the missing table, the unknown sample token, or the sample outside the
     split (with its scene), or the bad detection or annotation field.
     """
+    if not 0.0 <= score_min <= 1.0:  # (NaN filtered nothing, above 1 everything)
+        raise InputError(f"score_min must be in [0, 1], got {score_min}")
     if nusc is None:
         nusc = load_nuscenes(dataroot, version)
     else:
@@ -862,6 +870,7 @@ def convert_nuscenes(
     gt_scenes: Scenes | None = {} if with_gt else None
     unknown_velocity = 0
     velocity_nan = 0
+    below_score_min = kept = 0
     missing_samples = 0
     for scene in scenes:
         det_frames: list[Frame] = []
@@ -875,10 +884,12 @@ def convert_nuscenes(
             if raw is None:
                 missing_samples += 1
                 raw = []
-            boxes, no_velocity = _detection_boxes(
+            boxes, no_velocity, below = _detection_boxes(
                 raw, sample["token"], det_path, score_min, skipped, unknown_names, geometry.cameras
             )
             velocity_nan += no_velocity
+            below_score_min += below
+            kept += len(boxes)
 
             det_frames.append(_frame(scene["name"], frame_id, sample, geometry, boxes))
             if gt_scenes is not None:
@@ -890,6 +901,15 @@ def convert_nuscenes(
             gt_scenes[scene["name"]] = gt_frames
     if skipped:
         log.info("skipped detections of non-tracking classes: %s", dict(sorted(skipped.items())))
+    if below_score_min:
+        log.log(
+            logging.INFO if kept else logging.WARNING,
+            "%s: %d detections scoring below %g (score_min) dropped, %d kept",
+            det_path,
+            below_score_min,
+            score_min,
+            kept,
+        )
     if unknown_names:
         log.warning(
             "%s: %d detections with a detection_name that is no nuScenes class dropped: %s "
@@ -921,7 +941,14 @@ def convert_nuscenes(
             velocity_nan,
         )
     return NuScenesConversion(
-        det_scenes, gt_scenes, meta, skipped, unknown_velocity, velocity_nan, unknown_names
+        det_scenes,
+        gt_scenes,
+        meta,
+        skipped,
+        unknown_velocity,
+        velocity_nan,
+        unknown_names,
+        below_score_min,
     )
 
 
