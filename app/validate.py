@@ -19,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--frame-rate",
         type=float,
         default=None,
-        help="frame rate used for frames whose timestamp is null (official KITTI files)",
+        help="frame rate used for frames whose timestamp is null (official KITTI files) "
+        "(default: none: such frames get no time, NaN)",
     )
     parser.add_argument(
         "--max-errors", type=positive_int, default=50, help="errors listed at most (all counted)"

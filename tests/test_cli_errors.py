@@ -1952,3 +1952,14 @@ def test_track_says_the_scenes_a_frame_range_empties_once(
     assert "--frames 1:3 selects no frame of 1 scene(s): '0002' 0:0" in caplog.text
     assert "without frames" not in printed
     assert json.loads((tmp_path / "out" / "tracks.json").read_text())["0002"] == []
+
+
+def test_validate_frame_rate_help_says_what_its_default_means(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Its default is None, which the help formatter does not show: the help says it."""
+    with pytest.raises(SystemExit):
+        main(["validate", "--help"])
+    assert "(default: none: such frames get no time, NaN)" in " ".join(
+        capsys.readouterr().out.split()
+    )
