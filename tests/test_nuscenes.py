@@ -1017,3 +1017,53 @@ def test_every_table_field_read_is_type_checked(
     where = f"{root / dataset.version / f'{table}.json'}: {table} '{tokens[0]}'"
     assert str(err.value).startswith(where), str(err.value)
     assert said in str(err.value)
+
+
+def _break_json(root: Path, version: str) -> None:
+    (root / version / "instance.json").write_text('[{"token": ')
+
+
+_LOAD_PROBLEMS: dict[str, tuple[Callable[[dict[str, list[Any]]], None], str, str]] = {
+    "not_a_list": (
+        lambda t: t.__setitem__("sensor", {"token": "x"}),
+        "sensor.json", ": not a nuScenes table (a JSON list of records)",
+    ),
+    "token_not_a_string": (
+        lambda t: t["visibility"][0].__setitem__("token", ["x"]),
+        "visibility.json", ": record 0: field 'token' must be a string, got ['x']",
+    ),
+    "dangling_instance": (
+        lambda t: t["sample_annotation"][2].__setitem__("instance_token", "gone"),
+        "sample_annotation.json",
+        "field 'instance_token' = 'gone' is not the token of a instance record",
+    ),
+    "sensor_without_channel": (
+        lambda t: t["sensor"][0].pop("channel"),
+        "sensor.json", "field 'channel' must be a str, got None",
+    ),
+    "log_of_no_map": (
+        lambda t: t["map"][0].__setitem__("log_tokens", []),
+        "log.json", "in the field 'log_tokens' of no map record (map.json)",
+    ),
+}  # fmt: skip
+
+
+@needs_devkit
+@pytest.mark.parametrize("case", ["malformed_json", *sorted(_LOAD_PROBLEMS)])
+def test_tables_the_devkit_cannot_load_are_named(
+    dataset: SyntheticNuScenes, tmp_path: Path, case: str
+) -> None:
+    """A table the devkit fails to load or index: the error names its file (and the record and
+    field); it was '<dataroot>/v1.0-mini: malformed nuScenes tables (JSONDecodeError(...))' or
+    (KeyError('gone')), naming no table."""
+    if case == "malformed_json":
+        root = _edited_dataset(dataset, tmp_path / case, lambda t: None)
+        _break_json(root, dataset.version)
+        table, said = "instance.json", ": malformed JSON (Expecting value: line 1 column 12"
+    else:
+        edit, table, said = _LOAD_PROBLEMS[case]
+        root = _edited_dataset(dataset, tmp_path / case, edit)
+    with pytest.raises(InputError) as err:
+        load_nuscenes(root, dataset.version)
+    assert str(err.value).startswith(f"{root / dataset.version / table}"), str(err.value)
+    assert said in str(err.value)

@@ -194,8 +194,86 @@ def load_nuscenes(dataroot: str | Path, version: str) -> Any:
         return NuScenes(version=version, dataroot=str(dataroot), verbose=False)
     except AssertionError as exc:  # the devkit asserts, e.g. "map mask ... does not exist"
         raise InputError(f"{dataroot}/{version}: nuScenes devkit: {exc}") from None
-    except (KeyError, json.JSONDecodeError) as exc:
-        raise InputError(f"{dataroot}/{version}: malformed nuScenes tables ({exc!r})") from None
+    except (KeyError, TypeError, AttributeError, IndexError, ValueError) as exc:
+        # (JSONDecodeError and UnicodeDecodeError are ValueErrors) the devkit says neither the
+        # table nor the record: find them
+        problem = table_problem(Path(dataroot) / version)
+        raise InputError(
+            problem or f"{dataroot}/{version}: malformed nuScenes tables ({exc!r})"
+        ) from None
+
+
+#: The token fields the devkit follows while loading (``NuScenes.__make_reverse_index__``):
+#: (table, field, the table it names).
+_LOAD_LINKS: Final[tuple[tuple[str, str, str], ...]] = (
+    ("sample_annotation", "instance_token", "instance"),
+    ("instance", "category_token", "category"),
+    ("sample_data", "calibrated_sensor_token", "calibrated_sensor"),
+    ("calibrated_sensor", "sensor_token", "sensor"),
+    ("sample_data", "sample_token", "sample"),
+    ("sample_annotation", "sample_token", "sample"),
+)
+
+#: Other fields the devkit reads while loading, and what they must be.
+_LOAD_FIELDS: Final[tuple[tuple[str, str, type], ...]] = (
+    ("category", "name", str),
+    ("sensor", "channel", str),
+    ("sensor", "modality", str),
+    ("sample_data", "is_key_frame", bool),
+    ("map", "filename", str),
+    ("map", "log_tokens", list),
+)
+
+
+def table_problem(table_dir: Path) -> str | None:
+    """The first problem of the tables that stops the devkit loading them, naming the table
+    file (and the record and field): malformed JSON, not a list of records, a token that is
+    no string, a field it reads missing or of the wrong type, a token naming no record. None
+    if none is found. Reads every table again: only after the devkit failed."""
+    tables: dict[str, list[dict[str, Any]]] = {}
+    for name in REQUIRED_TABLES:
+        path = table_dir / f"{name}.json"
+        try:
+            with open(path, "rb") as fh:
+                rows = json.load(fh)
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            return f"{path}: malformed JSON ({exc})"
+        if not isinstance(rows, list) or not all(isinstance(r, dict) for r in rows):
+            return f"{path}: not a nuScenes table (a JSON list of records)"
+        for index, record in enumerate(rows):
+            if not isinstance(record.get("token"), str):
+                return (
+                    f"{path}: record {index}: field 'token' must be a string, got "
+                    f"{record.get('token')!r}"
+                )
+        tables[name] = rows
+
+    def at(table: str, record: dict[str, Any]) -> str:
+        return f"{table_dir / f'{table}.json'}: {table} {record['token']!r}"
+
+    for table, key, kind in _LOAD_FIELDS:
+        for record in tables[table]:
+            if not isinstance(record.get(key), kind):
+                return (
+                    f"{at(table, record)}: field {key!r} must be a {kind.__name__}, got "
+                    f"{record.get(key)!r}"
+                )
+    tokens = {name: {r["token"] for r in rows} for name, rows in tables.items()}
+    for table, key, target in _LOAD_LINKS:
+        for record in tables[table]:
+            value = record.get(key)
+            if not isinstance(value, str) or value not in tokens[target]:
+                return (
+                    f"{at(table, record)}: field {key!r} = {value!r} is not the token of a "
+                    f"{target} record"
+                )
+    if not tables["map"]:
+        return f"{table_dir / 'map.json'}: no map record"
+    mapped = {t for record in tables["map"] for t in record["log_tokens"] if isinstance(t, str)}
+    for record in tables["log"]:
+        if record["token"] not in mapped:
+            return f"{at('log', record)}: in the field 'log_tokens' of no map record (map.json)"
+    return None
 
 
 def split_scene_names(nusc: Any, split: str) -> list[str]:
