@@ -90,7 +90,7 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         if (
             "%(default)" in text
             or "default" in text.lower()
-            or default in (None, False, argparse.SUPPRESS)
+            or any(default is d for d in (None, False, argparse.SUPPRESS))  # (not 0: 0 == False)
             or not action.option_strings
             or (isinstance(default, list | tuple) and not default)
         ):

@@ -1963,3 +1963,13 @@ def test_validate_frame_rate_help_says_what_its_default_means(
     assert "(default: none: such frames get no time, NaN)" in " ".join(
         capsys.readouterr().out.split()
     )
+
+
+def test_help_shows_a_default_of_zero(capsys: pytest.CaptureFixture[str]) -> None:
+    """The help formatter left out every default equal to False, so 0 too (`0 == False`):
+    `tune --seed`'s and `report --shots`' defaults did not show."""
+    for command, option in (("tune", "sampler seed"), ("report", "0: no shots")):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        text = " ".join(capsys.readouterr().out.split())
+        assert f"{option} (default: 0)" in text, (command, text)
