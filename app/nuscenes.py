@@ -254,9 +254,16 @@ def run_nuscenes(
             # (the benchmark scores every scene of the split, or nothing)
             summary["evaluation"] = f"not scored: the run failed on {', '.join(summary['failed'])}"
         else:
-            summary["metrics"] = evaluate_nuscenes(
-                results_path, dataroot=dataroot, version=version, split=split, out_dir=out / "eval"
+            metrics = evaluate_nuscenes(
+                results_path,
+                dataroot=dataroot,
+                version=version,
+                split=split,
+                out_dir=out / "eval",
+                boxes=n_boxes,
             )
+            # (a run that wrote no box is a result, not an error: the devkit cannot score it)
+            summary["metrics" if isinstance(metrics, dict) else "evaluation"] = metrics
         if motion:
             outputs = {r.scene: r.kept for r in ok}
             det_ok = {s: det_scenes[s] for s in outputs}
