@@ -613,5 +613,7 @@ def _evaluate_nuscenes(args: argparse.Namespace, tracks: Path, out: Path) -> int
         )
     else:  # (no box to evaluate)
         print(f"nuScenes metrics: {static}")
+    if "motion" in result:  # (as `mctrack eval` prints them for KITTI)
+        print_motion(result["motion"])
     print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
     return 0

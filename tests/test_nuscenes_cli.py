@@ -66,7 +66,7 @@ def test_convert_nuscenes_cli_names_the_bad_token(
 
 
 def test_nuscenes_end_to_end_and_eval(
-    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "run"
     argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--motion"]
@@ -89,6 +89,15 @@ def test_nuscenes_end_to_end_and_eval(
     direct = json.loads((tmp_path / "e2" / "eval.json").read_text())
     assert direct["static"]["overall"]["amota"] == pytest.approx(amota)
     assert "AMOTA" in (tmp_path / "e2" / "eval.md").read_text()
+
+    # with --motion the motion metrics are printed too, as for KITTI (they were only in eval.md)
+    capsys.readouterr()
+    motion = ["--motion", "--gt", str(out / "gt.json"), "--out", str(tmp_path / "e3")]
+    assert main(["eval", str(out / "tracks.json"), *common, *motion]) == 0
+    printed = capsys.readouterr().out
+    kalman = json.loads((tmp_path / "e3" / "eval.json").read_text())["motion"]["metrics"]["kalman"]
+    assert "AMOTA" in printed and "motion (all)" in printed
+    assert f"{kalman['all']['vae_deg']:>11.3f}" in printed.split("kalman", 1)[1].splitlines()[0]
 
 
 def test_a_run_that_tracks_nothing_is_not_evaluated_and_says_why(
