@@ -17,6 +17,7 @@ from app.common import (
     peak_rss_mb,
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
+    write_motion_metrics,
 )
 from app.inputs import add_mode_argument
 from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
@@ -279,21 +280,13 @@ def _motion(
     classes: tuple[str, ...],
     out: Path,
 ) -> dict[str, Any] | str:
-    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
     from tracker.io.baseversion import write_baseversion
-    from tracker.io.fileio import write_text_atomic
 
     if gt is None:
         return "skipped: no annotations (test split)"
     gt = {s: gt[s] for s in det_scenes}
     write_baseversion(out / "gt.json", gt)
-    result = evaluate_motion(
-        det_scenes, gt, outputs, classes=list(classes), plot_path=out / MOTION_PLOT
-    )
-    write_text_atomic(
-        out / "motion.md", ["\n".join(["# Motion metrics", "", *motion_report_lines(result)])]
-    )
-    return result
+    return write_motion_metrics(det_scenes, gt, outputs, classes, out)
 
 
 def _print_summary(summary: dict[str, Any]) -> None:

@@ -17,8 +17,10 @@ from typing import Any
 from app import scenes
 from app.common import (
     outputs_removed_on_failure,
+    print_motion,
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
+    write_motion_metrics,
 )
 from app.inputs import add_mode_argument
 from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
@@ -84,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     if failed:
         note = "results written for the others alone" if summary["segments"] else "no results"
         print(scenes.failed_run_line(failed, names, "segment", note))
+    print_motion(summary.get("motion"))  # (as `mctrack kitti`: the table; motion.md beside)
     return scenes.print_failures("waymo", failed)
 
 
@@ -191,17 +194,17 @@ def run_waymo(
         if recordings:
             summary["recordings"] = recordings
         if motion and gt is not None:
-            from tracker.eval.motion_eval import evaluate_motion
             from tracker.io.baseversion import write_baseversion
 
             det_scenes = {r.scene: r.kept[0] for r in ok}
             gt_scenes = {r.scene: r.kept[1] for r in ok}
             write_baseversion(out / "gt.json", gt_scenes)
-            summary["motion"] = evaluate_motion(
+            summary["motion"] = write_motion_metrics(
                 det_scenes,
                 gt_scenes,
                 {r.scene: r.kept[2] for r in ok},
-                classes=["car", "pedestrian", "cyclist"],
+                ["car", "pedestrian", "cyclist"],
+                out,
             )
         write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
     return summary

@@ -400,6 +400,22 @@ def test_ground_truth_without_velos_has_an_unknown_velocity(segment: Path, tmp_p
     assert kalman["n_samples"] > 0 and kalman["n_gt_velocity_unknown"] == 0
 
 
+def test_waymo_motion_is_printed_and_written_as_kitti_does(
+    segment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """mctrack waymo --motion prints the motion table and writes motion.md with the velocity
+    PNG, as mctrack kitti does (the metrics were only in summary.json, and nothing said so)."""
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--motion", "--out", str(run)]) == 0
+    printed = capsys.readouterr().out
+    kalman = json.loads((run / "summary.json").read_text())["motion"]["metrics"]["kalman"]
+    assert "motion (all)" in printed
+    assert f"{kalman['all']['vae_deg']:>11.3f}" in printed.split("kalman", 1)[1].splitlines()[0]
+    assert (run / "motion.md").read_text().startswith("# Motion metrics")
+    assert (run / "motion_velocity.png").stat().st_size > 0
+
+
 def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
     (segment / "ts_info" / f"{SEGMENT}.json").unlink()
     with pytest.raises(InputError, match=rf"ts_info/{SEGMENT}\.json: ts_info file not found"):
@@ -459,6 +475,7 @@ def test_waymo_run_into_an_earlier_run_replaces_it(segment: Path, tmp_path: Path
         f"results/{kind}/other.npz" for kind in ("cyclist", "pedestrian", "vehicle")
     ]
     assert not (run / "gt.json").exists() and (run / "notes.txt").read_text() == "mine"
+    assert not (run / "motion.md").exists() and not (run / "motion_velocity.png").exists()
     assert json.loads((run / "summary.json").read_text())["segments"] == ["other"]
 
 
@@ -480,6 +497,26 @@ def test_waymo_stopped_after_its_segments_leaves_no_partial_outputs(
     argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
     assert main([*argv, "--out", str(run)]) == 130
     assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*")) == ["notes.txt"]
+
+
+def test_waymo_stopped_after_its_motion_report_leaves_no_motion_md(
+    segment: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C once motion.md and its PNG are written (summary.json not yet): they go too."""
+    import app.waymo
+
+    run = tmp_path / "run"
+    write_motion_metrics = app.waymo.write_motion_metrics
+
+    def interrupted(*args: Any) -> None:
+        write_motion_metrics(*args)
+        assert (run / "motion.md").is_file() and (run / "motion_velocity.png").is_file()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(app.waymo, "write_motion_metrics", interrupted)
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--motion", "--out", str(run)]) == 130
+    assert not run.exists() or not any(run.iterdir())
 
 
 def test_waymo_refuses_inputs_among_its_outputs(
