@@ -109,7 +109,10 @@ class WaymoSceneJob:
         conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
         frames = conv.detections[scene]
         gt_frames = conv.gt[scene] if conv.gt is not None else None
-        info: dict[str, Any] = {"skipped_types": dict(conv.skipped_types)}
+        info: dict[str, Any] = {
+            "skipped_types": dict(conv.skipped_types),
+            "unknown_types": dict(conv.unknown_types),
+        }
         result = scenes.track_or_record(frames, gt_frames, self.config, self.out, scene,
                                         record=self.record, info=info)  # fmt: skip
         written = write_waymo_results(self.out / "results", {scene: (frames, result.outputs)})
@@ -171,9 +174,11 @@ def run_waymo(
         scenes.write_tracks(out, ok)
         written = dict.fromkeys(RESULT_TYPES, 0)
         skipped: Counter[int] = Counter()
+        unknown: Counter[int] = Counter()
         for r in ok:
             written.update({k: written[k] + v for k, v in r.info["written"].items()})
             skipped.update(r.info["skipped_types"])
+            unknown.update(r.info["unknown_types"])
         frames = sum(r.frames for r in ok)
         seconds = sum(r.tracker_seconds for r in ok)
         summary: dict[str, Any] = {
@@ -186,6 +191,8 @@ def run_waymo(
             "tracker_seconds": round(seconds, 4),
             "tracker_fps": round(frames / seconds, 1) if seconds > 0 else None,
             "skipped_types": {str(k): v for k, v in sorted(skipped.items())},
+            # (codes that are no Waymo type: dropped, each file warned about)
+            "unknown_types": {str(k): v for k, v in sorted(unknown.items())},
             **scenes.summary_fields(records, parallel, wall_secs),
             "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
             "config": config_to_dict(config),

@@ -299,6 +299,47 @@ def test_flat_layout_is_checked(segment: Path) -> None:
         assert str(path) in str(err.value), name
 
 
+def test_a_type_code_that_is_no_waymo_type_is_counted_apart_and_named(
+    segment: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Type 9 (Waymo's are 0-4) is no untracked type like a sign (3): it is counted apart and
+    warned about with the file's name (it went silently into the skipped types)."""
+    path = segment / "dets" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))
+    types = good["types"].copy()
+    sign = int(np.flatnonzero(types == 3)[0])
+    types[sign] = 9
+    np.savez_compressed(path, **{**good, "types": types})
+    with caplog.at_level("WARNING", logger="tracker.io.convert.waymo"):
+        conv = convert_waymo(segment, segment / "dets")
+    assert conv.unknown_types == {9: 1} and conv.skipped_types == {3: N_DET_FRAMES - 1}
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and str(path) in warned[0] and "{9: 1}" in warned[0]
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--out", str(run)]) == 0
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["unknown_types"] == {"9": 1}
+    assert summary["skipped_types"] == {"3": N_DET_FRAMES - 1}
+
+
+def test_a_score_outside_0_1_names_its_row(segment: Path) -> None:
+    """A score beyond [0, 1]: the error names the row, as the other Waymo errors do (it named
+    the frame alone)."""
+    path = segment / "dets" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))
+    bboxes = good["bboxes"].copy()
+    row = int(np.flatnonzero(good["types"] == 2)[1])  # (a tracked type: signs are dropped first)
+    bboxes[row, 7] = 1.5
+    np.savez_compressed(path, **{**good, "bboxes": bboxes})
+    frame = int(good["frame_index"][row])
+    with pytest.raises(InputError) as err:
+        convert_waymo(segment, segment / "dets")
+    assert str(err.value) == (
+        f"{path}: bboxes row {row} (frame {frame}): score 1.5 must be in [0, 1]"
+    )
+
+
 def test_ego_info_poses_and_cameras_are_checked(segment: Path, tmp_path: Path) -> None:
     """A singular or non-rigid ego pose or camera extrinsic, or a camera without a focal length:
     one InputError naming the file and the array entry. A singular one ended mctrack waymo in
