@@ -11,13 +11,15 @@ import signal
 import threading
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path, PurePosixPath
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from tracker.errors import InputError
 
 if TYPE_CHECKING:
     from tracker.calibration import ScoreProfile
     from tracker.config import TrackerConfig
+    from tracker.events import TrackOutput
+    from tracker.frame import Frame
 
 LOG = logging.getLogger("mctrack")
 SELF_PROFILE = "self"  # --profile self: fitted without labels on the run's detections
@@ -304,6 +306,27 @@ def print_metrics(metrics: Mapping[str, Mapping[str, object]], absent: Mapping[s
         print(f"{cls:<12}" + "".join(f"{m[c]!s:>9}" for c in METRIC_COLUMNS))
     for cls, why in absent.items():
         print(f"{cls:<12}  absent: {why}")
+
+
+def write_motion_metrics(
+    detections: Mapping[str, Sequence[Frame]] | None,
+    gt: Mapping[str, Sequence[Frame]],
+    outputs: Mapping[str, Sequence[TrackOutput]],
+    classes: Sequence[str],
+    out: Path,
+) -> dict[str, Any]:
+    """A run's motion metrics, with ``out/motion.md`` and the velocity-curve PNG beside them
+    (`mctrack kitti`, `nuscenes` and `waymo` alike)."""
+    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
+    from tracker.io.fileio import write_text_atomic
+
+    motion = evaluate_motion(
+        detections, gt, outputs, classes=list(classes), plot_path=out / MOTION_PLOT
+    )
+    write_text_atomic(
+        out / "motion.md", ["\n".join(["# Motion metrics", "", *motion_report_lines(motion)])]
+    )
+    return motion
 
 
 def print_motion(motion: object) -> None:

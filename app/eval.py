@@ -591,7 +591,8 @@ def _evaluate_nuscenes(args: argparse.Namespace, tracks: Path, out: Path) -> int
         split=args.split,
         out_dir=out / "nuscenes_eval",
     )
-    md.append(nuscenes_markdown(result["static"]))
+    static = result["static"]
+    md.append(nuscenes_markdown(static) if isinstance(static, dict) else f"{static}\n")
     if args.motion and motion_inputs is not None:
         from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
 
@@ -604,10 +605,15 @@ def _evaluate_nuscenes(args: argparse.Namespace, tracks: Path, out: Path) -> int
         md += motion_report_lines(result["motion"])
     write_text_atomic(out / "eval.json", [json.dumps(result, indent=2, allow_nan=False)])
     write_text_atomic(out / "eval.md", ["\n".join(md) + "\n"])
-    overall = result["static"]["overall"]
-    print(
-        "AMOTA {amota:.3f}  AMOTP {amotp:.3f}  recall {recall:.3f}  MOTA {mota:.3f}  "
-        "IDS {ids:.0f}".format(**{k: overall.get(k) or 0.0 for k in overall})
-    )
+    if isinstance(static, dict):
+        overall = static["overall"]
+        print(
+            "AMOTA {amota:.3f}  AMOTP {amotp:.3f}  recall {recall:.3f}  MOTA {mota:.3f}  "
+            "IDS {ids:.0f}".format(**{k: overall.get(k) or 0.0 for k in overall})
+        )
+    else:  # (no box to evaluate)
+        print(f"nuScenes metrics: {static}")
+    if "motion" in result:  # (as `mctrack eval` prints them for KITTI)
+        print_motion(result["motion"])
     print(f"wrote {out / 'eval.json'} and {out / 'eval.md'}")
     return 0

@@ -26,6 +26,7 @@ from app.common import (
     score_source,
     self_calibrated_note,
     warn_undetected_classes,
+    write_motion_metrics,
 )
 from app.inputs import (
     IMAGE_DETECTOR_HELP,
@@ -600,22 +601,10 @@ def _motion(
     out: Path,
 ) -> dict[str, Any] | str:
     """Motion metrics of the run, and ``out/motion.md`` with the velocity-curve PNG."""
-    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
-
     missing = sorted(s for s in detections if gt is None or s not in gt)
     if gt is None or missing:
         return f"skipped: no labels for {missing}"
-    motion = evaluate_motion(
-        detections,
-        gt,
-        outputs,
-        classes=classes,
-        plot_path=out / MOTION_PLOT,
-    )
-    write_text_atomic(
-        out / "motion.md", ["\n".join(["# Motion metrics", "", *motion_report_lines(motion)])]
-    )
-    return motion
+    return write_motion_metrics(detections, gt, outputs, classes, out)
 
 
 def _print_summary(summary: dict[str, Any]) -> None:

@@ -17,6 +17,7 @@ from app.common import (
     peak_rss_mb,
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
+    write_motion_metrics,
 )
 from app.inputs import add_mode_argument, unit_interval
 from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
@@ -260,9 +261,16 @@ def run_nuscenes(
             # (the benchmark scores every scene of the split, or nothing)
             summary["evaluation"] = f"not scored: the run failed on {', '.join(summary['failed'])}"
         else:
-            summary["metrics"] = evaluate_nuscenes(
-                results_path, dataroot=dataroot, version=version, split=split, out_dir=out / "eval"
+            metrics = evaluate_nuscenes(
+                results_path,
+                dataroot=dataroot,
+                version=version,
+                split=split,
+                out_dir=out / "eval",
+                boxes=n_boxes,
             )
+            # (a run that wrote no box is a result, not an error: the devkit cannot score it)
+            summary["metrics" if isinstance(metrics, dict) else "evaluation"] = metrics
         if motion:
             outputs = {r.scene: r.kept for r in ok}
             det_ok = {s: det_scenes[s] for s in outputs}
@@ -278,21 +286,13 @@ def _motion(
     classes: tuple[str, ...],
     out: Path,
 ) -> dict[str, Any] | str:
-    from tracker.eval.motion_eval import MOTION_PLOT, evaluate_motion, motion_report_lines
     from tracker.io.baseversion import write_baseversion
-    from tracker.io.fileio import write_text_atomic
 
     if gt is None:
         return "skipped: no annotations (test split)"
     gt = {s: gt[s] for s in det_scenes}
     write_baseversion(out / "gt.json", gt)
-    result = evaluate_motion(
-        det_scenes, gt, outputs, classes=list(classes), plot_path=out / MOTION_PLOT
-    )
-    write_text_atomic(
-        out / "motion.md", ["\n".join(["# Motion metrics", "", *motion_report_lines(result)])]
-    )
-    return result
+    return write_motion_metrics(det_scenes, gt, outputs, classes, out)
 
 
 def _print_summary(summary: dict[str, Any]) -> None:

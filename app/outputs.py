@@ -25,8 +25,8 @@ FILES: dict[str, tuple[str, ...]] = {
         "motion_velocity.png", "eval/*.json", "recordings/*.rrd", ".scenes/*",
     ),
     "waymo": (
-        "summary.json", "tracks.json", "gt.json", "results/*/*.npz", "recordings/*.rrd",
-        ".scenes/*",
+        "summary.json", "tracks.json", "gt.json", "motion.md", "motion_velocity.png",
+        "results/*/*.npz", "recordings/*.rrd", ".scenes/*",
     ),
     # (its --out defaults to the tracks file's folder: a run's)
     "eval": (

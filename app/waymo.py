@@ -17,8 +17,10 @@ from typing import Any
 from app import scenes
 from app.common import (
     outputs_removed_on_failure,
+    print_motion,
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
+    write_motion_metrics,
 )
 from app.inputs import add_mode_argument
 from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
@@ -84,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     if failed:
         note = "results written for the others alone" if summary["segments"] else "no results"
         print(scenes.failed_run_line(failed, names, "segment", note))
+    print_motion(summary.get("motion"))  # (as `mctrack kitti`: the table; motion.md beside)
     return scenes.print_failures("waymo", failed)
 
 
@@ -106,7 +109,10 @@ class WaymoSceneJob:
         conv = convert_waymo(self.data_root, self.detections, gt=self.gt, segments=[scene])
         frames = conv.detections[scene]
         gt_frames = conv.gt[scene] if conv.gt is not None else None
-        info: dict[str, Any] = {"skipped_types": dict(conv.skipped_types)}
+        info: dict[str, Any] = {
+            "skipped_types": dict(conv.skipped_types),
+            "unknown_types": dict(conv.unknown_types),
+        }
         result = scenes.track_or_record(frames, gt_frames, self.config, self.out, scene,
                                         record=self.record, info=info)  # fmt: skip
         written = write_waymo_results(self.out / "results", {scene: (frames, result.outputs)})
@@ -168,9 +174,11 @@ def run_waymo(
         scenes.write_tracks(out, ok)
         written = dict.fromkeys(RESULT_TYPES, 0)
         skipped: Counter[int] = Counter()
+        unknown: Counter[int] = Counter()
         for r in ok:
             written.update({k: written[k] + v for k, v in r.info["written"].items()})
             skipped.update(r.info["skipped_types"])
+            unknown.update(r.info["unknown_types"])
         frames = sum(r.frames for r in ok)
         seconds = sum(r.tracker_seconds for r in ok)
         summary: dict[str, Any] = {
@@ -183,6 +191,8 @@ def run_waymo(
             "tracker_seconds": round(seconds, 4),
             "tracker_fps": round(frames / seconds, 1) if seconds > 0 else None,
             "skipped_types": {str(k): v for k, v in sorted(skipped.items())},
+            # (codes that are no Waymo type: dropped, each file warned about)
+            "unknown_types": {str(k): v for k, v in sorted(unknown.items())},
             **scenes.summary_fields(records, parallel, wall_secs),
             "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
             "config": config_to_dict(config),
@@ -191,17 +201,17 @@ def run_waymo(
         if recordings:
             summary["recordings"] = recordings
         if motion and gt is not None:
-            from tracker.eval.motion_eval import evaluate_motion
             from tracker.io.baseversion import write_baseversion
 
             det_scenes = {r.scene: r.kept[0] for r in ok}
             gt_scenes = {r.scene: r.kept[1] for r in ok}
             write_baseversion(out / "gt.json", gt_scenes)
-            summary["motion"] = evaluate_motion(
+            summary["motion"] = write_motion_metrics(
                 det_scenes,
                 gt_scenes,
                 {r.scene: r.kept[2] for r in ok},
-                classes=["car", "pedestrian", "cyclist"],
+                ["car", "pedestrian", "cyclist"],
+                out,
             )
         write_text_atomic(out / "summary.json", [json.dumps(summary, indent=2, allow_nan=False)])
     return summary

@@ -68,7 +68,7 @@ def test_convert_nuscenes_cli_names_the_bad_token(
 
 
 def test_nuscenes_end_to_end_and_eval(
-    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "run"
     argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--motion"]
@@ -91,6 +91,44 @@ def test_nuscenes_end_to_end_and_eval(
     direct = json.loads((tmp_path / "e2" / "eval.json").read_text())
     assert direct["static"]["overall"]["amota"] == pytest.approx(amota)
     assert "AMOTA" in (tmp_path / "e2" / "eval.md").read_text()
+
+    # with --motion the motion metrics are printed too, as for KITTI (they were only in eval.md)
+    capsys.readouterr()
+    motion = ["--motion", "--gt", str(out / "gt.json"), "--out", str(tmp_path / "e3")]
+    assert main(["eval", str(out / "tracks.json"), *common, *motion]) == 0
+    printed = capsys.readouterr().out
+    kalman = json.loads((tmp_path / "e3" / "eval.json").read_text())["motion"]["metrics"]["kalman"]
+    assert "AMOTA" in printed and "motion (all)" in printed
+    assert f"{kalman['all']['vae_deg']:>11.3f}" in printed.split("kalman", 1)[1].splitlines()[0]
+
+
+def test_a_run_that_tracks_nothing_is_not_evaluated_and_says_why(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No detection kept (every sample's list empty): mctrack nuscenes, then mctrack eval of its
+    tracks file and of its submission, say the evaluation is skipped, exit 0 (the devkit's
+    TrackingEval stopped on the empty submission: 'unexpected error: Invalid box type: None')."""
+    from tracker.eval.nuscenes import NO_BOXES_NOTE
+
+    data = json.loads(noisy.read_text())
+    data["results"] = {sample: [] for sample in data["results"]}
+    empty = tmp_path / "empty.json"
+    empty.write_text(json.dumps(data))
+    out = tmp_path / "run"
+    argv = ["nuscenes", *_common(dataset), "--detections", str(empty), "--motion"]
+    assert main([*argv, "--out", str(out)]) == 0
+    said = capsys.readouterr()
+    assert NO_BOXES_NOTE in said.out and "unexpected" not in said.err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["boxes_written"] == 0 and summary["evaluation"] == NO_BOXES_NOTE
+    assert "metrics" not in summary and isinstance(summary["motion"], dict)
+    common = [*_common(dataset), "--dataset", "nuscenes"]
+    for i, path in enumerate((out / "tracks.json", out / "results.json")):
+        assert main(["eval", str(path), *common, "--out", str(tmp_path / f"e{i}")]) == 0
+        said = capsys.readouterr()
+        assert NO_BOXES_NOTE in said.out and "unexpected" not in said.err
+        assert json.loads((tmp_path / f"e{i}" / "eval.json").read_text())["static"] == NO_BOXES_NOTE
+        assert NO_BOXES_NOTE in (tmp_path / f"e{i}" / "eval.md").read_text()
 
 
 def test_nuscenes_record(dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path) -> None:

@@ -299,6 +299,47 @@ def test_flat_layout_is_checked(segment: Path) -> None:
         assert str(path) in str(err.value), name
 
 
+def test_a_type_code_that_is_no_waymo_type_is_counted_apart_and_named(
+    segment: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Type 9 (Waymo's are 0-4) is no untracked type like a sign (3): it is counted apart and
+    warned about with the file's name (it went silently into the skipped types)."""
+    path = segment / "dets" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))
+    types = good["types"].copy()
+    sign = int(np.flatnonzero(types == 3)[0])
+    types[sign] = 9
+    np.savez_compressed(path, **{**good, "types": types})
+    with caplog.at_level("WARNING", logger="tracker.io.convert.waymo"):
+        conv = convert_waymo(segment, segment / "dets")
+    assert conv.unknown_types == {9: 1} and conv.skipped_types == {3: N_DET_FRAMES - 1}
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and str(path) in warned[0] and "{9: 1}" in warned[0]
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--out", str(run)]) == 0
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["unknown_types"] == {"9": 1}
+    assert summary["skipped_types"] == {"3": N_DET_FRAMES - 1}
+
+
+def test_a_score_outside_0_1_names_its_row(segment: Path) -> None:
+    """A score beyond [0, 1]: the error names the row, as the other Waymo errors do (it named
+    the frame alone)."""
+    path = segment / "dets" / f"{SEGMENT}.npz"
+    good = dict(np.load(path))
+    bboxes = good["bboxes"].copy()
+    row = int(np.flatnonzero(good["types"] == 2)[1])  # (a tracked type: signs are dropped first)
+    bboxes[row, 7] = 1.5
+    np.savez_compressed(path, **{**good, "bboxes": bboxes})
+    frame = int(good["frame_index"][row])
+    with pytest.raises(InputError) as err:
+        convert_waymo(segment, segment / "dets")
+    assert str(err.value) == (
+        f"{path}: bboxes row {row} (frame {frame}): score 1.5 must be in [0, 1]"
+    )
+
+
 def test_ego_info_poses_and_cameras_are_checked(segment: Path, tmp_path: Path) -> None:
     """A singular or non-rigid ego pose or camera extrinsic, or a camera without a focal length:
     one InputError naming the file and the array entry. A singular one ended mctrack waymo in
@@ -400,6 +441,22 @@ def test_ground_truth_without_velos_has_an_unknown_velocity(segment: Path, tmp_p
     assert kalman["n_samples"] > 0 and kalman["n_gt_velocity_unknown"] == 0
 
 
+def test_waymo_motion_is_printed_and_written_as_kitti_does(
+    segment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """mctrack waymo --motion prints the motion table and writes motion.md with the velocity
+    PNG, as mctrack kitti does (the metrics were only in summary.json, and nothing said so)."""
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--motion", "--out", str(run)]) == 0
+    printed = capsys.readouterr().out
+    kalman = json.loads((run / "summary.json").read_text())["motion"]["metrics"]["kalman"]
+    assert "motion (all)" in printed
+    assert f"{kalman['all']['vae_deg']:>11.3f}" in printed.split("kalman", 1)[1].splitlines()[0]
+    assert (run / "motion.md").read_text().startswith("# Motion metrics")
+    assert (run / "motion_velocity.png").stat().st_size > 0
+
+
 def test_bad_waymo_inputs_name_the_file(segment: Path) -> None:
     (segment / "ts_info" / f"{SEGMENT}.json").unlink()
     with pytest.raises(InputError, match=rf"ts_info/{SEGMENT}\.json: ts_info file not found"):
@@ -459,6 +516,7 @@ def test_waymo_run_into_an_earlier_run_replaces_it(segment: Path, tmp_path: Path
         f"results/{kind}/other.npz" for kind in ("cyclist", "pedestrian", "vehicle")
     ]
     assert not (run / "gt.json").exists() and (run / "notes.txt").read_text() == "mine"
+    assert not (run / "motion.md").exists() and not (run / "motion_velocity.png").exists()
     assert json.loads((run / "summary.json").read_text())["segments"] == ["other"]
 
 
@@ -480,6 +538,26 @@ def test_waymo_stopped_after_its_segments_leaves_no_partial_outputs(
     argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
     assert main([*argv, "--out", str(run)]) == 130
     assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*")) == ["notes.txt"]
+
+
+def test_waymo_stopped_after_its_motion_report_leaves_no_motion_md(
+    segment: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Ctrl-C once motion.md and its PNG are written (summary.json not yet): they go too."""
+    import app.waymo
+
+    run = tmp_path / "run"
+    write_motion_metrics = app.waymo.write_motion_metrics
+
+    def interrupted(*args: Any) -> None:
+        write_motion_metrics(*args)
+        assert (run / "motion.md").is_file() and (run / "motion_velocity.png").is_file()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(app.waymo, "write_motion_metrics", interrupted)
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--gt", str(segment / "gt"), "--motion", "--out", str(run)]) == 130
+    assert not run.exists() or not any(run.iterdir())
 
 
 def test_waymo_refuses_inputs_among_its_outputs(

@@ -48,6 +48,10 @@ SUBMISSION_BOX_FIELDS: Final = frozenset(
      "tracking_name", "tracking_score")
 )  # fmt: skip
 
+#: Why a submission without a single box is not evaluated: the devkit's TrackingEval cannot
+#: (it stops with "Invalid box type: None"), and no metric it did not compute is made up here.
+NO_BOXES_NOTE: Final = "skipped: no boxes to evaluate (the submission is empty: nothing tracked)"
+
 
 def evaluate_nuscenes(
     results_path: str | Path,
@@ -57,7 +61,8 @@ def evaluate_nuscenes(
     split: str,
     out_dir: str | Path,
     verbose: bool = False,
-) -> dict[str, Any]:
+    boxes: int | None = None,
+) -> dict[str, Any] | str:
     """Run the devkit's ``TrackingEval`` on a tracking submission file.
 
     Parameters
@@ -68,15 +73,19 @@ def evaluate_nuscenes(
         exactly the samples of the results file.
     out_dir : the devkit's output folder; ``metrics_summary.json`` is written there.
     verbose : let the devkit print its progress and tables.
+    boxes : the submission's number of boxes when the caller knows it (else counted here).
 
     Returns
     -------
     ``{"overall": {metric: value}, "per_class": {class: {metric: value}}, ...}`` with NaN as
-    None (classes without ground truth in the split are NaN and left out of the averages).
+    None (classes without ground truth in the split are NaN and left out of the averages); for a
+    submission without a box, :data:`NO_BOXES_NOTE` (nothing written to ``out_dir``).
     """
     require_devkit()
     check_tables(dataroot, version)
     check_split_has_ground_truth(split)
+    if (boxes if boxes is not None else submission_box_count(results_path)) == 0:
+        return NO_BOXES_NOTE
     from nuscenes.eval.common.config import config_factory
     from nuscenes.eval.tracking.evaluate import TrackingEval
 
@@ -126,6 +135,20 @@ def evaluate_nuscenes(
     }
     write_text_atomic(out / "metrics_summary.json", [json.dumps(result, indent=2) + "\n"])
     return result
+
+
+def submission_box_count(results_path: str | Path) -> int | None:
+    """The number of boxes in a submission, or None when it is not one the devkit would read
+    (its own loader then names what is wrong)."""
+    try:
+        with open(results_path, encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (OSError, ValueError):
+        return None
+    results = data.get("results") if isinstance(data, dict) else None
+    if not isinstance(results, dict):
+        return None
+    return sum(len(v) if isinstance(v, list) else 1 for v in results.values())
 
 
 def check_split_has_ground_truth(split: str) -> None:

@@ -32,8 +32,9 @@ Output
 * Boxes in the world frame: ``xyz = ego2global · xyz_ego``; the heading is the world direction of
   the box's x axis (``atan2`` of the rotated heading vector; the reference took it from the
   front-edge midpoint, the same angle). Types 1 → ``car``, 2 → ``pedestrian``, 4 → ``cyclist``
-  (the reference said "bicycle"); other types are counted and dropped. Velocity 0 (the detector
-  gives none).
+  (the reference said "bicycle"); the untracked types 0 (unknown) and 3 (sign) are counted and
+  dropped; a code that is no Waymo type at all is counted apart and dropped with a warning naming
+  the file. Velocity 0 (the detector gives none).
 * Five cameras named ``CAM_FRONT``, ``CAM_FRONT_LEFT``, ``CAM_FRONT_RIGHT``, ``CAM_SIDE_LEFT``,
   ``CAM_SIDE_RIGHT`` (**fixed**: the reference's names lacked the ``CAM_`` prefix, so its
   image-plane stage never ran). Waymo camera frames are x forward, y left, z up; ours are x right,
@@ -77,6 +78,10 @@ WAYMO_CAMERAS: Final[tuple[tuple[str, str, int, int], ...]] = (
 )
 #: Waymo object type codes → our categories (3 = sign and 0 = unknown are not tracked).
 WAYMO_TYPES: Final[dict[int, str]] = {1: "car", 2: "pedestrian", 4: "cyclist"}
+#: Every Waymo object type code (``label.proto`` ``Type``); any other code is not a Waymo type.
+WAYMO_TYPE_CODES: Final[dict[int, str]] = {
+    0: "unknown", 1: "vehicle", 2: "pedestrian", 3: "sign", 4: "cyclist"
+}  # fmt: skip
 
 #: Our camera axes (x right, y down, z forward) from Waymo's (x forward, y left, z up).
 OURS_FROM_WAYMO_CAMERA: Final[FloatArray] = np.array(
@@ -91,6 +96,8 @@ class WaymoConversion:
     detections: Scenes
     gt: Scenes | None
     skipped_types: Counter[int] = field(default_factory=Counter)
+    #: detections whose type code is no Waymo type (not 0-4): dropped, counted apart, warned
+    unknown_types: Counter[int] = field(default_factory=Counter)
 
 
 @dataclass(frozen=True, slots=True)
@@ -407,7 +414,7 @@ def _segment_boxes(
     names = [WAYMO_TYPES.get(int(c)) for c in codes]
     for c, n in zip(codes, names, strict=True):
         if n is None:
-            skipped[int(c)] += 1
+            skipped[int(c)] += 1  # (the caller tells the untracked types from invalid codes)
     keep = np.array([n is not None for n in names], dtype=bool)
     arr = arr[keep]
     with np.errstate(over="ignore", invalid="ignore"):
@@ -436,8 +443,13 @@ def _segment_boxes(
         else:  # unknown, not 0: the motion metrics would score a measured standstill
             velocity = np.full((int(keep.sum()), 2), np.nan)
     score = arr[:, 7] if arr.shape[1] == 8 and ids is None else np.ones(len(arr))
-    if ((score < 0) | (score > 1)).any():
-        raise InputError(f"{path}: frame {i}: scores must be in [0, 1]")
+    outside = np.flatnonzero((score < 0) | (score > 1))
+    if len(outside):
+        k = np.arange(a, b)[keep][outside[0]]
+        raise InputError(
+            f"{path}: bboxes row {int(table.rows[k])} (frame {i}): score "
+            f"{float(score[outside[0]])!r} must be in [0, 1]"
+        )
     boxes = Boxes.create(
         xyz=xyz,
         lwh=arr[:, 4:7],
@@ -513,6 +525,7 @@ def convert_waymo(
     data_root, det_dir = Path(data_root), Path(detections)
     names = segment_names(data_root, det_dir, segments)
     skipped: Counter[int] = Counter()
+    unknown: Counter[int] = Counter()
     det_scenes: Scenes = {}
     gt_scenes: Scenes | None = {} if gt is not None else None
     for name in names:
@@ -530,20 +543,43 @@ def convert_waymo(
         )
         ids: dict[str, int] = {}
         det_frames, gt_frames = [], []
+        det_skipped: Counter[int] = Counter()
+        gt_skipped: Counter[int] = Counter()
         for i, (t_micros, e) in enumerate(zip(timestamps, ego, strict=True)):
-            boxes = _segment_boxes(dets, i, det_path, e.world_from_ego, e.cameras, skipped, None)
+            boxes = _segment_boxes(
+                dets, i, det_path, e.world_from_ego, e.cameras, det_skipped, None
+            )
             det_frames.append(_frame(name, i, t_micros, e, boxes))
             if gt_table is not None and gt_path is not None:
                 boxes = _segment_boxes(
-                    gt_table, i, gt_path, e.world_from_ego, e.cameras, Counter(), ids
+                    gt_table, i, gt_path, e.world_from_ego, e.cameras, gt_skipped, ids
                 )
                 gt_frames.append(_frame(name, i, t_micros, e, boxes))
+        unknown.update(_invalid_type_codes(det_skipped, det_path))
+        _invalid_type_codes(gt_skipped, gt_path)  # (the GT's untracked types are not counted)
+        skipped.update(det_skipped)
         det_scenes[name] = det_frames
         if gt_scenes is not None:
             gt_scenes[name] = gt_frames
     if skipped:
         log.info("skipped detections of untracked Waymo types: %s", dict(sorted(skipped.items())))
-    return WaymoConversion(det_scenes, gt_scenes, skipped)
+    return WaymoConversion(det_scenes, gt_scenes, skipped, unknown)
+
+
+def _invalid_type_codes(skipped: Counter[int], path: Path | None) -> Counter[int]:
+    """Move the codes of ``skipped`` that are no Waymo type (not 0-4) out of it, warning with
+    the file's name: a corrupt or foreign file, not an untracked type like a sign."""
+    invalid = Counter({c: n for c, n in skipped.items() if c not in WAYMO_TYPE_CODES})
+    for code in invalid:
+        del skipped[code]
+    if invalid:
+        log.warning(
+            "%s: dropped boxes whose type code is no Waymo type (0-4: %s): %s",
+            path,
+            ", ".join(WAYMO_TYPE_CODES.values()),
+            dict(sorted(invalid.items())),
+        )
+    return invalid
 
 
 def flatten_per_frame(arrays: Mapping[str, Any]) -> dict[str, np.ndarray]:
