@@ -15,6 +15,7 @@ from app import scenes
 from app.common import (
     outputs_removed_on_failure,
     peak_rss_mb,
+    print_motion,
     refuse_inputs_among_outputs,
     remove_earlier_outputs,
     write_motion_metrics,
@@ -245,6 +246,9 @@ def run_nuscenes(
             "convert_seconds": round(convert_secs, 3),
             "peak_rss_mb": peak_rss_mb(),
             "skipped_detections": dict(sorted(conv.skipped_detections.items())),
+            # (dropped too: names of no nuScenes class, likely misspelt; below --score-min)
+            "unknown_detections": dict(sorted(conv.unknown_detections.items())),
+            "below_score_min": conv.below_score_min,
             **scenes.summary_fields(records, parallel, wall_secs),
             "detection_fates": combine_fates([r.info["fates"] for r in records if r.error is None]),
             "config": config_to_dict(config),
@@ -297,10 +301,10 @@ def _motion(
 
 def _print_summary(summary: dict[str, Any]) -> None:
     failed, names = summary.get("failed") or {}, summary["scenes"]
-    if len(failed) < len(names):  # (with none tracked, a speed of 0 frames says nothing)
-        head = f"tracked {len(names) - len(failed)} of {len(names)}" if failed else len(names)
+    head = scenes.tracked_head(failed, names, "scene")
+    if head:
         print(
-            f"{head} scenes, {summary['frames']} frames, tracker "
+            f"{head}, {summary['frames']} frames, tracker "
             f"{summary['tracker_seconds']:.2f} s ({summary['tracker_fps'] or '-'} frames/s), "
             f"{summary['boxes_written']} boxes -> {summary['results']}"
         )
@@ -318,7 +322,4 @@ def _print_summary(summary: dict[str, Any]) -> None:
             print(f"{name:<12}{cells}")
     elif "evaluation" in summary and not failed:  # (a failed run's is said above)
         print(summary["evaluation"])
-    if isinstance(summary.get("motion"), str):
-        print(f"motion: {summary['motion']}")
-    elif "motion" in summary:
-        print("motion metrics: see motion.md")
+    print_motion(summary.get("motion"))  # (as `mctrack kitti`: the table; motion.md beside)

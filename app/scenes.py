@@ -359,6 +359,16 @@ def summary_fields(
     }
 
 
+def tracked_head(failed: Mapping[str, str], names: Sequence[str], unit: str) -> str | None:
+    """ "2 scenes", or "tracked 1 of 2 scenes" when some failed: the start of a run's speed
+    line; None when every one failed (a speed of 0 frames says nothing)."""
+    if len(failed) >= len(names):
+        return None
+    if failed:
+        return f"tracked {len(names) - len(failed)} of {len(names)} {unit}s"
+    return f"{len(names)} {unit}s"
+
+
 def failed_run_line(
     failed: Mapping[str, str], names: Sequence[str], unit: str, scored_note: str
 ) -> str:

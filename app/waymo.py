@@ -76,10 +76,10 @@ def run(args: argparse.Namespace) -> int:
     )
     failed = summary["failed"]
     names = [*summary["segments"], *failed]  # (its "segments" are those tracked)
-    if len(failed) < len(names):  # (with none tracked, a speed of 0 frames says nothing)
-        head = f"tracked {len(names) - len(failed)} of {len(names)}" if failed else len(names)
+    head = scenes.tracked_head(failed, names, "segment")
+    if head:
         print(
-            f"{head} segments, {summary['frames']} frames, "
+            f"{head}, {summary['frames']} frames, "
             f"{summary['tracker_fps'] or '-'} frames/s -> {summary['results']} "
             f"{summary['boxes_written']}"
         )

@@ -527,3 +527,26 @@ def test_score_min_counts_what_it_drops_and_help_shows_its_default(
         with pytest.raises(SystemExit):
             main([*command, "--help"])
         assert "(default: 0: keep all)" in " ".join(capsys.readouterr().out.split())
+
+
+def test_a_runs_summary_counts_the_detections_its_conversion_dropped(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path
+) -> None:
+    """summary.json held the non-tracking classes' count only: the names of no nuScenes class
+    and the boxes below --score-min, dropped too, were said on the log alone."""
+    data = json.loads(noisy.read_text())
+    for boxes in data["results"].values():
+        boxes.append({**boxes[0], "detection_name": "spaceship"})
+    path = tmp_path / "misspelt.json"
+    path.write_text(json.dumps(data))
+    scores = [b["detection_score"] for bs in data["results"].values() for b in bs]
+    argv = ["nuscenes", *_common(dataset), "--detections", str(path), "--no-eval"]
+    assert main([*argv, "--score-min", "0.3", "--out", str(tmp_path / "run")]) == 0
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    spaceships = len(data["results"])
+    assert summary["unknown_detections"] == {"spaceship": spaceships}
+    tracked = {"bicycle", "bus", "car", "motorcycle", "pedestrian", "trailer", "truck"}
+    below = [b["detection_score"] < 0.3 for bs in data["results"].values() for b in bs]
+    names = [b["detection_name"] for bs in data["results"].values() for b in bs]
+    expected = sum(low and name in tracked for low, name in zip(below, names, strict=True))
+    assert 0 < summary["below_score_min"] == expected < len(scores)
