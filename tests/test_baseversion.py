@@ -282,6 +282,10 @@ def _box(d: dict[str, Any]) -> dict[str, Any]:
     return d["0007"][0]["bboxes"][0]
 
 
+def _cam(d: dict[str, Any]) -> dict[str, Any]:
+    return d["0007"][0]["transform_matrix"]["cameras_transform_matrix"]["CAM_FRONT"]
+
+
 BAD_CASES = [
     ("missing key", lambda d: _box(d).pop("lwh"), "box 0: missing key 'lwh'"),
     ("wrong shape", lambda d: _box(d).update(global_xyz=[1, 2]), "field 'global_xyz'"),
@@ -298,6 +302,14 @@ BAD_CASES = [
     ("frame id order", lambda d: d["0007"][1].update(frame_id=0), "field 'frame_id'"),
     ("timestamp order", lambda d: d["scene-0103"][1].update(timestamp=5), "field 'timestamp'"),
     ("scene not list", lambda d: d.update({"0007": {"a": 1}}), "scene '0007'"),
+    # (a camera without a size was read as 0 x 0: every box projected into it was clipped away,
+    # the image-plane stage matched nothing and the KITTI results were empty, exit 0)
+    ("image_shape missing", lambda d: _cam(d).pop("image_shape"), "image_shape' is missing"),
+    ("image_shape null", lambda d: _cam(d).update(image_shape=None), "image_shape' is missing"),
+    ("image_shape zero", lambda d: _cam(d).update(image_shape=[0, 0]), "image_shape' = [0, 0]"),
+    ("image_shape negative", lambda d: _cam(d).update(image_shape=[-1242, 375]), "[-1242, 375]"),
+    ("image_shape huge", lambda d: _cam(d).update(image_shape=[10**7, 375]), "image_shape' = ["),
+    ("image_shape float", lambda d: _cam(d).update(image_shape=[1242.0, 375]), "whole pixels"),
     (
         "bad camera matrix",
         lambda d: d["0007"][0]["transform_matrix"]["cameras_transform_matrix"]["CAM_FRONT"].update(

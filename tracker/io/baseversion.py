@@ -65,6 +65,9 @@ INT64_MAX = 2**63 - 1
 MAX_EXACT_INT = 2**53
 MAX_TRANSFORM_DEPTH = 8  # transform_matrix is copied to outputs: bounded, finite, encodable
 MAX_SCENE_NAME_CHARS = 200  # scene names become file names (at most 255 bytes on most systems)
+# A camera image's width and height: boxes are clipped to [0, width - 1], so 1 px holds none;
+# no camera takes images a million pixels wide (the widest sensors are ~20 000 px)
+MIN_IMAGE_PX, MAX_IMAGE_PX = 2, 1_000_000
 
 
 class _Refused(ValueError):
@@ -516,12 +519,29 @@ def _read_cameras(transform: dict[str, Any] | None, at: str) -> list[Camera]:
                 f"{at}: field '{field_at}': camera_from_world has translation "
                 f"{cam_from_world[:3, 3].tolist()}: {BOUND_NOTE}"
             )
-        shape = cam.get("image_shape") or [0, 0]
-        if not (isinstance(shape, list) and len(shape) == 2):
-            raise InputError(f"{at}: field '{field_at}.image_shape' must be [width, height]")
-        width, height = (_int_field(v, at, f"{field_at}.image_shape") for v in shape)
+        width, height = _image_shape(cam.get("image_shape"), at, f"{field_at}.image_shape")
         out.append(Camera(name, image_from_camera, cam_from_world, width, height))
     return out
+
+
+def _image_shape(value: Any, at: str, name: str) -> tuple[int, int]:
+    """A usable camera's ``[width, height]``: whole pixels, each at least 2. Boxes are projected
+    and clipped to ``[0, width - 1] x [0, height - 1]``: without a size (read as 0 once) every
+    projection was clipped away, so the image-plane stage matched nothing and the KITTI results
+    were empty, silently."""
+    if value is None:
+        raise InputError(
+            f"{at}: field '{name}' is missing: a camera with a projection and extrinsics "
+            "needs its image size [width, height] in pixels (boxes are projected into it)"
+        )
+    if not (isinstance(value, list) and len(value) == 2):
+        raise InputError(f"{at}: field '{name}' must be [width, height], got {_short(value)}")
+    if not all(type(v) is int and MIN_IMAGE_PX <= v <= MAX_IMAGE_PX for v in value):
+        raise InputError(
+            f"{at}: field '{name}' = {_short(value)}: width and height must be whole pixels "
+            f"in [{MIN_IMAGE_PX}, {MAX_IMAGE_PX}]"
+        )
+    return value[0], value[1]
 
 
 def _front_first(cams: dict[str, Any]) -> list[str]:
