@@ -411,3 +411,31 @@ def test_box_fields_at_their_limits_stay_accepted(tmp_path: Path) -> None:
     boxes = read_baseversion(path, fallback_frame_rate_hz=10.0)["0007"][0].boxes
     assert boxes.camera.tolist() == [0, -1]  # CAM_FRONT; CAM_BACK has no model
     assert boxes.xyxy_image[0].tolist() == [612.0, 170.5, 612.0, 221.8]
+
+
+def test_validate_json_prints_the_errors_as_json(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """With --json, a file with errors gave an empty stdout (the errors only as text on
+    stderr): a script reading the JSON got nothing to parse."""
+    path = write(tmp_path, _official_with(lambda d: _box(d).update(status="1")))
+    assert main(["validate", str(path), "--frame-rate", "10", "--json"]) == 2
+    out, err = capsys.readouterr()
+    report = json.loads(out)
+    assert report["ok"] is False and report["file"] == str(path)
+    assert report["error_count"] == 1 and "field 'status'" in report["errors"][0]
+    assert err.strip() == f"mctrack validate: error: {report['errors'][0]}"  # text as before
+
+    def two_errors(d: dict[str, Any]) -> None:
+        _box(d).update(status="1")
+        d["scene-0103"][0]["bboxes"][0].update(global_yaw=1e300)
+
+    path = write(tmp_path, _official_with(two_errors))
+    assert main(["validate", str(path), "--json", "--max-errors", "1"]) == 2
+    report = json.loads(capsys.readouterr().out)
+    assert report["error_count"] == 2 and len(report["errors"]) == 1  # counted, one shown
+
+    path = write(tmp_path, {})  # well-formed, nothing to track: an error too
+    assert main(["validate", str(path), "--json"]) == 2
+    report = json.loads(capsys.readouterr().out)
+    assert report["error_count"] == 1 and "no scene to track" in report["errors"][0]
