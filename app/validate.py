@@ -1,5 +1,6 @@
 """`mctrack validate FILE`: check a BaseVersion file; print a summary, or every error (up to
---max-errors) with their count."""
+--max-errors) with their count. With --json, either goes to stdout as JSON (the errors as
+``{"file", "ok": false, "error_count", "errors"}``; the text lines still go to stderr, exit 2)."""
 
 from __future__ import annotations
 
@@ -25,13 +26,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-errors", type=positive_int, default=50, help="errors listed at most (all counted)"
     )
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print the summary, or the errors (exit status 2), as JSON on stdout",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     result = validate_baseversion(
         args.file, max_errors=args.max_errors, fallback_frame_rate_hz=args.frame_rate
     )
+    if not result.ok and args.json:  # a script reading stdout gets the errors, not nothing
+        _print_errors_json(args.file, result.errors, result.error_count)
     if result.error_count == 1:  # the usual case: one line, as every other command's errors
         raise InputError(result.errors[0])
     if not result.ok:
@@ -42,7 +49,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"mctrack validate: {args.file}: {result.error_count} errors{more}", file=sys.stderr)
         return 2
     # well-formed but empty: mctrack track and view refuse it, so "OK" would mislead
-    require_frames(result.scenes, args.file, "track")
+    try:
+        require_frames(result.scenes, args.file, "track")
+    except InputError as exc:
+        if args.json:
+            _print_errors_json(args.file, [str(exc)], 1)
+        raise
     summary = summarize(result.scenes, result.report)
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -57,3 +69,8 @@ def run(args: argparse.Namespace) -> int:
     for name, file_name in summary.get("scene_names_escaped_in_file_names", {}).items():
         print(f"  warning: scene {name!a} is written to files as {file_name!r}")
     return 0
+
+
+def _print_errors_json(file: str, errors: list[str], count: int) -> None:
+    """The errors as JSON on stdout: the first ``len(errors)`` messages of ``count``."""
+    print(json.dumps({"file": file, "ok": False, "error_count": count, "errors": errors}, indent=2))

@@ -188,6 +188,10 @@ def make_frames() -> dict[str, list[Frame]]:
     frames = []
     for i in range(3):
         n = i * 2
+        corners = rng.uniform(0, 300, (n, 4))  # ordered: x1 <= x2, y1 <= y2
+        xyxy = np.hstack(
+            [np.minimum(corners[:, :2], corners[:, 2:]), np.maximum(corners[:, :2], corners[:, 2:])]
+        )
         boxes = Boxes.create(
             xyz=rng.normal(size=(n, 3)) * 20,
             lwh=rng.uniform(0.5, 5, size=(n, 3)),
@@ -195,9 +199,7 @@ def make_frames() -> dict[str, list[Frame]]:
             category=rng.integers(0, 3, size=n),
             score=rng.uniform(size=n),
             velocity=rng.normal(size=(n, 2)),
-            xyxy_image=np.where(
-                rng.uniform(size=(n, 1)) < 0.5, np.nan, rng.uniform(0, 300, (n, 4))
-            ),
+            xyxy_image=np.where(rng.uniform(size=(n, 1)) < 0.5, np.nan, xyxy),
             camera=np.where(rng.uniform(size=n) < 0.5, -1, 0),
             track_id=np.arange(n),
             score_raw=rng.normal(size=n),
@@ -282,6 +284,14 @@ def _box(d: dict[str, Any]) -> dict[str, Any]:
     return d["0007"][0]["bboxes"][0]
 
 
+def _image(d: dict[str, Any]) -> dict[str, Any]:
+    return _box(d)["bbox_image"]
+
+
+def _cam(d: dict[str, Any]) -> dict[str, Any]:
+    return d["0007"][0]["transform_matrix"]["cameras_transform_matrix"]["CAM_FRONT"]
+
+
 BAD_CASES = [
     ("missing key", lambda d: _box(d).pop("lwh"), "box 0: missing key 'lwh'"),
     ("wrong shape", lambda d: _box(d).update(global_xyz=[1, 2]), "field 'global_xyz'"),
@@ -298,6 +308,27 @@ BAD_CASES = [
     ("frame id order", lambda d: d["0007"][1].update(frame_id=0), "field 'frame_id'"),
     ("timestamp order", lambda d: d["scene-0103"][1].update(timestamp=5), "field 'timestamp'"),
     ("scene not list", lambda d: d.update({"0007": {"a": 1}}), "scene '0007'"),
+    # (a camera without a size was read as 0 x 0: every box projected into it was clipped away,
+    # the image-plane stage matched nothing and the KITTI results were empty, exit 0)
+    ("image_shape missing", lambda d: _cam(d).pop("image_shape"), "image_shape' is missing"),
+    ("image_shape null", lambda d: _cam(d).update(image_shape=None), "image_shape' is missing"),
+    ("image_shape zero", lambda d: _cam(d).update(image_shape=[0, 0]), "image_shape' = [0, 0]"),
+    ("image_shape negative", lambda d: _cam(d).update(image_shape=[-1242, 375]), "[-1242, 375]"),
+    ("image_shape huge", lambda d: _cam(d).update(image_shape=[10**7, 375]), "image_shape' = ["),
+    ("image_shape float", lambda d: _cam(d).update(image_shape=[1242.0, 375]), "whole pixels"),
+    # (each was read and `mctrack validate` said OK)
+    ("2D box x2 < x1", lambda d: _image(d).update(x1y1x2y2=[690, 170, 612, 221]), "x1 <= x2"),
+    ("2D box y2 < y1", lambda d: _image(d).update(x1y1x2y2=[612, 221, 690, 170]), "y1 <= y2"),
+    (
+        "2D box in a camera the frame lacks",  # (read as no camera: out of the image stage)
+        lambda d: _image(d).update(camera_type="CAM_BACK"),
+        "field 'bbox_image.camera_type' = 'CAM_BACK' names no camera of this frame",
+    ),
+    ("status a string", lambda d: _box(d).update(status="1"), "field 'status' must be an int"),
+    ("status a boolean", lambda d: _box(d).update(status=True), "field 'status' must be an int"),
+    ("status unknown", lambda d: _box(d).update(status=7), "field 'status' = 7 is outside [0, 4]"),
+    ("yaw absurd", lambda d: _box(d).update(global_yaw=1e300), "'global_yaw' = 1e+300: beyond"),
+    ("yaw absurd < 0", lambda d: _box(d).update(global_yaw=-2e4), "'global_yaw' = -20000: beyond"),
     (
         "bad camera matrix",
         lambda d: d["0007"][0]["transform_matrix"]["cameras_transform_matrix"]["CAM_FRONT"].update(
@@ -316,6 +347,8 @@ def test_bad_input_names_the_field(tmp_path: Path, case: str, edit: Any, expecte
     message = str(info.value)
     assert str(path) in message
     assert expected in message
+    # validate is the reader run over the whole file: it refuses the same, in the same words
+    assert message in validate_baseversion(path, fallback_frame_rate_hz=10.0).errors
 
 
 def test_malformed_json_and_cli_exit_code(
@@ -360,3 +393,49 @@ def test_validate_cli_summary(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert summary["scenes"] == 2 and summary["frames"] == 4
     assert summary["boxes_per_category"] == {"car": 1, "pedestrian": 1, "tram": 1}
     assert summary["skipped_unknown_categories"] == {"traffic_cone": 1}
+
+
+def test_box_fields_at_their_limits_stay_accepted(tmp_path: Path) -> None:
+    """What the checks on 2D boxes, cameras, status and yaw still accept: a 2D box of zero
+    width, a camera the frame lists without a model (read as no camera), a frame listing no
+    camera (camera_type unchecked), tracks files' statuses, the official KITTI yaw range."""
+    data = copy.deepcopy(OFFICIAL)
+    frame = data["0007"][0]
+    frame["transform_matrix"]["cameras_transform_matrix"]["CAM_BACK"] = {"image_shape": None}
+    car, tram = frame["bboxes"]
+    car.update(status=2, global_yaw=9 * math.pi / 2 - 1e-9)
+    car["bbox_image"]["x1y1x2y2"] = [612.0, 170.5, 612.0, 221.8]
+    tram.update(status=1, bbox_image={"camera_type": "CAM_BACK", "x1y1x2y2": [1, 2, 3, 4]})
+    path = write(tmp_path, data)
+    assert validate_baseversion(path, fallback_frame_rate_hz=10.0).ok
+    boxes = read_baseversion(path, fallback_frame_rate_hz=10.0)["0007"][0].boxes
+    assert boxes.camera.tolist() == [0, -1]  # CAM_FRONT; CAM_BACK has no model
+    assert boxes.xyxy_image[0].tolist() == [612.0, 170.5, 612.0, 221.8]
+
+
+def test_validate_json_prints_the_errors_as_json(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """With --json, a file with errors gave an empty stdout (the errors only as text on
+    stderr): a script reading the JSON got nothing to parse."""
+    path = write(tmp_path, _official_with(lambda d: _box(d).update(status="1")))
+    assert main(["validate", str(path), "--frame-rate", "10", "--json"]) == 2
+    out, err = capsys.readouterr()
+    report = json.loads(out)
+    assert report["ok"] is False and report["file"] == str(path)
+    assert report["error_count"] == 1 and "field 'status'" in report["errors"][0]
+    assert err.strip() == f"mctrack validate: error: {report['errors'][0]}"  # text as before
+
+    def two_errors(d: dict[str, Any]) -> None:
+        _box(d).update(status="1")
+        d["scene-0103"][0]["bboxes"][0].update(global_yaw=1e300)
+
+    path = write(tmp_path, _official_with(two_errors))
+    assert main(["validate", str(path), "--json", "--max-errors", "1"]) == 2
+    report = json.loads(capsys.readouterr().out)
+    assert report["error_count"] == 2 and len(report["errors"]) == 1  # counted, one shown
+
+    path = write(tmp_path, {})  # well-formed, nothing to track: an error too
+    assert main(["validate", str(path), "--json"]) == 2
+    report = json.loads(capsys.readouterr().out)
+    assert report["error_count"] == 1 and "no scene to track" in report["errors"][0]

@@ -304,6 +304,10 @@ def files(tmp_path: Path) -> dict[str, Path]:
         for box in frame["bboxes"]:
             box.pop("bbox_image", None)
     no_camera.write_text(json.dumps({"0001": frames}))
+    no_image_shape = tmp_path / "no_image_shape.json"
+    frames = _sample_frames()[:3]
+    del frames[2]["transform_matrix"]["cameras_transform_matrix"]["CAM_FRONT"]["image_shape"]
+    no_image_shape.write_text(json.dumps({"0001": frames}))
     return {
         "truncated": truncated,
         "not_rrd": not_rrd,
@@ -319,6 +323,7 @@ def files(tmp_path: Path) -> dict[str, Path]:
         "empty_dir": empty_dir,
         "bad_labels": bad_labels,
         "no_camera": no_camera,
+        "no_image_shape": no_image_shape,
         "out": tmp_path / "out",
         "detections": SAMPLE / "detections.json.gz",
         "gt": SAMPLE / "gt.json.gz",
@@ -339,6 +344,11 @@ CASES: list[tuple[str, Callable[[F], list[str]], tuple[str, ...]]] = [
         "validate no frames",
         lambda f: ["validate", str(f["no_frames"]), "--json"],
         ("no_frames.json", "no frames to track", "2 scene(s)"),
+    ),
+    (  # (was a KITTI results file of 0 lines, exit 0: a camera without a size held no box)
+        "track camera without image_shape",
+        lambda f: ["track", str(f["no_image_shape"]), "--out", str(f["out"]), "--kitti-results"],
+        ("no_image_shape.json", "frame index 2", "CAM_FRONT.image_shape' is missing"),
     ),
     (  # (was "0 scenes, 0 frames" and an empty tracks.json, exit 0)
         "track no scene",

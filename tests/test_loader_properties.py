@@ -100,7 +100,11 @@ def documents(draw: st.DrawFn) -> dict[str, Any]:
                 "frame_id": start + i,
                 "timestamp": draw(st.sampled_from([None, (start + i) * 100_000])),
                 "cur_sample_token": draw(st.sampled_from([None, "tok"])),
-                "transform_matrix": {"cameras_transform_matrix": {"CAM_FRONT": CAM}}
+                # CAM_OTHER: a camera listed without a model (its boxes get no camera); without
+                # a camera list, a box's camera_type is not checked
+                "transform_matrix": {
+                    "cameras_transform_matrix": {"CAM_FRONT": CAM, "CAM_OTHER": {}}
+                }
                 if with_camera
                 else None,
                 "bboxes": draw(st.lists(boxes(), max_size=3)),
@@ -146,7 +150,10 @@ def _random_document(seed: int) -> dict[str, Any]:
                     "cur_sample_token": rng.choice([None, "tok"]),
                     # a copy: the edits below change documents in place
                     "transform_matrix": {
-                        "cameras_transform_matrix": {"CAM_FRONT": copy.deepcopy(CAM)}
+                        "cameras_transform_matrix": {
+                            "CAM_FRONT": copy.deepcopy(CAM),
+                            "CAM_OTHER": {},
+                        }
                     }
                     if with_camera
                     else None,
@@ -210,7 +217,9 @@ def edited_documents(draw: st.DrawFn) -> dict[str, Any]:
         elif action == "delete":
             del parent[key]
         elif action == "add" and isinstance(parent, dict):
-            parent[draw(st.sampled_from([*HOSTILE_TEXT, "track_id", "x"]))] = draw(json_values)
+            parent[draw(st.sampled_from([*HOSTILE_TEXT, "track_id", "status", "x"]))] = draw(
+                json_values
+            )
         elif action == "numeric" and isinstance(parent[key], int | float):
             parent[key] = draw(
                 st.sampled_from([math.nan, math.inf, -math.inf, 0, -1, 2**64, 1e300, True, "1"])

@@ -23,9 +23,17 @@ import numpy as np
 from tracker.boxes import Boxes, FloatArray
 from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
+from tracker.events import TrackStatus
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
-from tracker.io.bounds import BOUND_NOTE, MAX_SPEED_MPS, SPEED_NOTE, beyond_bound
+from tracker.io.bounds import (
+    ANGLE_NOTE,
+    BOUND_NOTE,
+    MAX_ANGLE_RAD,
+    MAX_SPEED_MPS,
+    SPEED_NOTE,
+    beyond_bound,
+)
 from tracker.io.fileio import (
     MAX_INPUT_BYTES_ENV,
     max_input_bytes,
@@ -40,6 +48,7 @@ Scenes = dict[str, list[Frame]]
 
 REQUIRED_FRAME_KEYS = ("frame_id", "bboxes")
 REQUIRED_BOX_KEYS = ("category", "detection_score", "global_xyz", "lwh", "global_yaw")
+MAX_STATUS = int(max(TrackStatus))  # tracks files: 1 confirmed, 2 coasting are written
 MICROS_PER_SEC = 1_000_000
 
 
@@ -65,6 +74,9 @@ INT64_MAX = 2**63 - 1
 MAX_EXACT_INT = 2**53
 MAX_TRANSFORM_DEPTH = 8  # transform_matrix is copied to outputs: bounded, finite, encodable
 MAX_SCENE_NAME_CHARS = 200  # scene names become file names (at most 255 bytes on most systems)
+# A camera image's width and height: boxes are clipped to [0, width - 1], so 1 px holds none;
+# no camera takes images a million pixels wide (the widest sensors are ~20 000 px)
+MIN_IMAGE_PX, MAX_IMAGE_PX = 2, 1_000_000
 
 
 class _Refused(ValueError):
@@ -344,7 +356,11 @@ def _read_frame(
     bboxes = raw["bboxes"]
     if not isinstance(bboxes, list):
         raise InputError(f"{at}: field 'bboxes' must be a list")
-    boxes = _read_boxes(bboxes, camera_names, at, report, errors)
+    # A box may name any camera the frame lists, also one left out for want of a model (read as
+    # no camera). A frame listing none (cameras stripped) has no image plane to check against:
+    # its boxes' camera_type is read as no camera.
+    frame_cameras = frozenset((transform or {}).get("cameras_transform_matrix") or ())
+    boxes = _read_boxes(bboxes, camera_names, frame_cameras, at, report, errors)
     ignore_xyxy, ignore_cam = _read_ignore(raw.get("ignore_regions_image"), camera_names, at)
     token = raw.get("cur_sample_token")
     if token is not None and not isinstance(token, str):
@@ -516,12 +532,29 @@ def _read_cameras(transform: dict[str, Any] | None, at: str) -> list[Camera]:
                 f"{at}: field '{field_at}': camera_from_world has translation "
                 f"{cam_from_world[:3, 3].tolist()}: {BOUND_NOTE}"
             )
-        shape = cam.get("image_shape") or [0, 0]
-        if not (isinstance(shape, list) and len(shape) == 2):
-            raise InputError(f"{at}: field '{field_at}.image_shape' must be [width, height]")
-        width, height = (_int_field(v, at, f"{field_at}.image_shape") for v in shape)
+        width, height = _image_shape(cam.get("image_shape"), at, f"{field_at}.image_shape")
         out.append(Camera(name, image_from_camera, cam_from_world, width, height))
     return out
+
+
+def _image_shape(value: Any, at: str, name: str) -> tuple[int, int]:
+    """A usable camera's ``[width, height]``: whole pixels, each at least 2. Boxes are projected
+    and clipped to ``[0, width - 1] x [0, height - 1]``: without a size (read as 0 once) every
+    projection was clipped away, so the image-plane stage matched nothing and the KITTI results
+    were empty, silently."""
+    if value is None:
+        raise InputError(
+            f"{at}: field '{name}' is missing: a camera with a projection and extrinsics "
+            "needs its image size [width, height] in pixels (boxes are projected into it)"
+        )
+    if not (isinstance(value, list) and len(value) == 2):
+        raise InputError(f"{at}: field '{name}' must be [width, height], got {_short(value)}")
+    if not all(type(v) is int and MIN_IMAGE_PX <= v <= MAX_IMAGE_PX for v in value):
+        raise InputError(
+            f"{at}: field '{name}' = {_short(value)}: width and height must be whole pixels "
+            f"in [{MIN_IMAGE_PX}, {MAX_IMAGE_PX}]"
+        )
+    return value[0], value[1]
 
 
 def _front_first(cams: dict[str, Any]) -> list[str]:
@@ -545,13 +578,18 @@ def _read_ignore(value: Any, camera_names: list[str], at: str) -> tuple[FloatArr
 
 
 def _read_boxes(
-    bboxes: list[Any], camera_names: list[str], at: str, report: LoadReport, errors: _Errors
+    bboxes: list[Any],
+    camera_names: list[str],
+    frame_cameras: frozenset[str],
+    at: str,
+    report: LoadReport,
+    errors: _Errors,
 ) -> Boxes:
     """Fast path: one array per field. On any failure, re-walk to name every bad box and field."""
     if not bboxes:
         return Boxes.empty()
     try:
-        boxes = _boxes_fast(bboxes, camera_names, report)
+        boxes = _boxes_fast(bboxes, camera_names, frame_cameras, report)
         report.boxes_read += len(bboxes)
         return boxes
     except (KeyError, TypeError, ValueError, AttributeError, OverflowError):
@@ -559,7 +597,7 @@ def _read_boxes(
     recorded = False
     for i, b in enumerate(bboxes):
         try:
-            _check_box(b, f"{at}, box {i}")
+            _check_box(b, frame_cameras, f"{at}, box {i}")
         except InputError as exc:
             errors.add(str(exc))  # raises the first when not collecting
             recorded = True
@@ -579,7 +617,9 @@ def _numbers(rows: list[Any]) -> bool:
     )
 
 
-def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) -> Boxes:
+def _boxes_fast(
+    bboxes: list[Any], camera_names: list[str], frame_cameras: frozenset[str], report: LoadReport
+) -> Boxes:
     names = [b["category"] for b in bboxes]
     if set(map(type, names)) != {str}:
         raise ValueError("category must be a string")
@@ -597,6 +637,7 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
     given = [im.get("x1y1x2y2") for im in images]
     xyxy_rows = [v if v is not None else [math.nan] * 4 for v in given]
     cam_names = [im.get("camera_type") for im in images]
+    status_list = [b["status"] for b in bboxes if "status" in b]  # (tracks files)
     # JSON booleans and strings would pass numpy's float conversion: check the types first
     if not (
         _numbers(xyz_rows)
@@ -608,6 +649,9 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         and set(map(type, raw_list)) <= {int, float, type(None)}
         and set(map(type, tid_list)) <= {int}
         and set(map(type, cam_names)) <= {str, type(None)}
+        and set(map(type, status_list)) <= {int}
+        and (not frame_cameras or set(cam_names) - {None, ""} <= frame_cameras)
+        and all(0 <= s <= MAX_STATUS for s in status_list)
     ):
         raise TypeError("slow path names the field")
     xyz = np.array(xyz_rows, dtype=np.float64)
@@ -631,6 +675,7 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         and np.isfinite(xyz).all()
         and np.isfinite(lwh).all()
         and np.isfinite(yaw).all()
+        and not beyond_bound(yaw, MAX_ANGLE_RAD).any()
         and np.isfinite(score).all()
         and np.isfinite(vel[[b.get("global_velocity") is not None for b in bboxes]]).all()
         and (lwh[:, :2] > 0).all()
@@ -640,6 +685,7 @@ def _boxes_fast(bboxes: list[Any], camera_names: list[str], report: LoadReport) 
         and not beyond_bound(vel, MAX_SPEED_MPS).any()
         and ((score >= 0) & (score <= 1)).all()
         and np.isfinite(xyxy[[v is not None for v in given]]).all()
+        and not (xyxy[:, 2:] < xyxy[:, :2]).any()  # (NaN rows: no box, False)
         and not np.isinf(raw).any()
     )
     if not values_ok:
@@ -677,7 +723,7 @@ def _opt_float(value: Any) -> float:
     return math.nan if value is None else float(value)
 
 
-def _check_box(b: Any, at: str) -> None:
+def _check_box(b: Any, frame_cameras: frozenset[str], at: str) -> None:
     """Raise an InputError naming the first bad field of one box."""
     if not isinstance(b, dict):
         raise InputError(f"{at}: a box must be an object")
@@ -695,7 +741,9 @@ def _check_box(b: Any, at: str) -> None:
     for key, value in (("global_xyz", xyz), ("lwh", lwh)):
         if beyond_bound([value])[0]:
             raise InputError(f"{at}: field '{key}' = {value.tolist()}: {BOUND_NOTE}")
-    _vector(b, "global_yaw", None, at)
+    yaw = float(_vector(b, "global_yaw", None, at))
+    if abs(yaw) > MAX_ANGLE_RAD:
+        raise InputError(f"{at}: field 'global_yaw' = {yaw:g}: {ANGLE_NOTE}")
     score = _vector(b, "detection_score", None, at)
     if not 0.0 <= float(score) <= 1.0:
         raise InputError(f"{at}: field 'detection_score' = {float(score)} is outside [0, 1]")
@@ -707,16 +755,29 @@ def _check_box(b: Any, at: str) -> None:
         _vector(b, "detection_score_raw", None, at, allow_nan=True)
     if "track_id" in b:
         _int_field(b["track_id"], at, "track_id", low=-1)
+    if "status" in b:  # (read by tracks-file readers as a number: "1" passed as 1)
+        _int_field(b["status"], at, "status", low=0, high=MAX_STATUS)
     image = b.get("bbox_image")
     if image is not None:
         if not isinstance(image, dict):
             raise InputError(f"{at}: field 'bbox_image' must be an object or null")
         box = image.get("x1y1x2y2")
         if box is not None:
-            _vector(image, "x1y1x2y2", 4, at, prefix="bbox_image.")
+            x1, y1, x2, y2 = _vector(image, "x1y1x2y2", 4, at, prefix="bbox_image.").tolist()
+            if x2 < x1 or y2 < y1:
+                raise InputError(
+                    f"{at}: field 'bbox_image.x1y1x2y2' = {[x1, y1, x2, y2]}: "
+                    "must be [x1, y1, x2, y2] with x1 <= x2 and y1 <= y2"
+                )
         cam = image.get("camera_type")
         if cam is not None and not isinstance(cam, str):
             raise InputError(f"{at}: field 'bbox_image.camera_type' must be a string or null")
+        if cam and frame_cameras and cam not in frame_cameras:
+            has = ", ".join(map(_short, sorted(frame_cameras)))
+            raise InputError(
+                f"{at}: field 'bbox_image.camera_type' = {_short(cam)} names no camera of "
+                f"this frame (its transform_matrix.cameras_transform_matrix has {has})"
+            )
 
 
 def _vector(

@@ -9,7 +9,8 @@ and the field that ends in :data:`BOUND_NOTE`. Every reader of poses (KITTI pose
 files, nuScenes ego_pose and calibrated_sensor, BaseVersion ``transform_matrix``, Waymo
 ``ego_info``) refuses a translation beyond the same bound (a pose at 1e300 m puts every box of
 its frame there), and every reader of velocities (detections and ground truth) one beyond
-:data:`MAX_SPEED_MPS`, ending in :data:`SPEED_NOTE`.
+:data:`MAX_SPEED_MPS`, ending in :data:`SPEED_NOTE`. The BaseVersion reader refuses a heading
+(``global_yaw``) beyond :data:`MAX_ANGLE_RAD`, ending in :data:`ANGLE_NOTE`.
 """
 
 from __future__ import annotations
@@ -32,11 +33,20 @@ MAX_SPEED_MPS: Final = 1e4
 #: The end of a velocity bound error.
 SPEED_NOTE: Final = f"beyond ±{MAX_SPEED_MPS:g} m/s (faster than anything on or near Earth)"
 
+#: 10 000 rad (~1600 turns) for a heading: converters write one within a few turns of zero (the
+#: official KITTI one in [π/2, 9π/2)), so no real heading reaches it; below it the float spacing
+#: stays under 2e-12 rad and wrapping to (−π, π] keeps the heading. At 1e300 the spacing (1e284)
+#: is more than a turn: the wrapped heading would be an arbitrary angle, read without a word.
+MAX_ANGLE_RAD: Final = 1e4
+#: The end of an angle bound error.
+ANGLE_NOTE: Final = f"beyond ±{MAX_ANGLE_RAD:g} rad (a heading is within a few turns of zero)"
+
 
 def beyond_bound(values: ArrayLike, bound: float = MAX_BOX_METRES) -> NDArray[np.bool_]:
     """(N,) whether each row of (N, k) or (N,) values has an entry beyond ±``bound``
-    (:data:`MAX_BOX_METRES`, or :data:`MAX_SPEED_MPS` for velocities; inf included; NaN is not:
-    the readers refuse it as not finite, or read it as unknown)."""
+    (:data:`MAX_BOX_METRES`, :data:`MAX_SPEED_MPS` for velocities or :data:`MAX_ANGLE_RAD` for
+    headings; inf included; NaN is not: the readers refuse it as not finite, or read it as
+    unknown)."""
     magnitude = np.abs(np.asarray(values, dtype=np.float64))
     if magnitude.ndim == 1:
         magnitude = magnitude[:, None]
