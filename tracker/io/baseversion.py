@@ -431,7 +431,15 @@ def _short(value: Any) -> str:
 def _timestamp(value: Any, frame_id: int, fallback_rate: float | None, at: str) -> float:
     """Seconds. BaseVersion stores integer microseconds (nuScenes convention) or null."""
     if value is None:
-        return frame_id / fallback_rate if fallback_rate else math.nan
+        if not fallback_rate:
+            return math.nan
+        # the time a written tracks file stores (integer µs) must read back, as a given one does
+        if frame_id / fallback_rate * MICROS_PER_SEC > MAX_EXACT_INT:
+            raise InputError(
+                f"{at}: field 'frame_id' = {frame_id}: its time at the fallback rate of "
+                f"{fallback_rate:g} Hz (the timestamp is null) is outside ±2^53 µs"
+            )
+        return frame_id / fallback_rate
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise InputError(f"{at}: field 'timestamp' must be microseconds (a number) or null")
     if isinstance(value, float) and not math.isfinite(value):
