@@ -34,7 +34,13 @@ from tracker.calibration import (
     warn_classes_without_map,
 )
 from tracker.categories import CATEGORIES, category_index
-from tracker.config import ScoreSource, TrackerConfig, config_for_mode, load_config
+from tracker.config import (
+    ScoreSource,
+    TrackerConfig,
+    config_for_mode,
+    config_to_dict,
+    load_config,
+)
 from tracker.errors import InputError
 from tracker.eval.fates import FateCounter, combine_fates, format_fates
 from tracker.frame import Frame
@@ -333,7 +339,11 @@ def run(args: argparse.Namespace) -> int:
         summary = {
             "command": "track",  # (marks its folder a run's: app.outputs.holds_a_run)
             "input": str(args.input),
-            "config": str(config_for_mode(args.config, config.mode.value)),  # the one that ran
+            "config_name": str(config_for_mode(args.config, config.mode.value)),  # (that ran)
+            # every setting, as `mctrack kitti` records them: `mctrack eval` of these tracks
+            # reproduces the run from them (a config file named relative to the folder it ran
+            # in, edited or gone since, would not)
+            "config": config_to_dict(config),
             "mode": config.mode.value,
             "scenes": len(ok),
             "frames": frames,

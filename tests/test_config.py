@@ -303,7 +303,7 @@ def test_track_offline_writes_what_the_offline_variant_writes(
         assert main(argv) == 0, capsys.readouterr().err
         written.append((out / "tracks.json").read_bytes())
         # the summary names the config that ran
-        assert json.loads((out / "summary.json").read_text())["config"] == "kitti_offline"
+        assert json.loads((out / "summary.json").read_text())["config_name"] == "kitti_offline"
     assert written[0] == written[1]
 
 
@@ -396,7 +396,7 @@ def test_track_online_with_kitti_offline_writes_what_kitti_writes(
         assert main(argv) == 0, capsys.readouterr().err
         written.append((out / "tracks.json").read_bytes())
         summary = json.loads((out / "summary.json").read_text())
-        assert summary["config"] == "kitti" and summary["mode"] == "online"
+        assert summary["config_name"] == "kitti" and summary["mode"] == "online"
     assert written[0] == written[1]
 
 

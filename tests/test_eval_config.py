@@ -66,28 +66,30 @@ def test_eval_uses_the_config_of_the_track_run_beside_the_tracks(
     assert abs(_pedestrian_hota(tmp_path / "alone") - hota["default"]) > 1.0
 
 
-def test_eval_refuses_a_run_whose_config_file_is_gone(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+def test_eval_reproduces_a_track_run_whose_config_file_is_elsewhere_or_gone(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """The run's config was a file that is gone: eval cannot write the boxes as the run did,
-    and says so in one line naming the summary; --config then scores them, as given."""
-    mine = tmp_path / "mine.toml"
-    mine.write_text('base = "kitti_reference"\n')
-    run = tmp_path / "run"
-    argv = ["track", str(SAMPLE / "detections.json.gz"), "--config", str(mine)]
-    assert main([*argv, "--out", str(run)]) == 0
-    mine.unlink()
-    capsys.readouterr()
+    """`track --config mine.toml`, then eval from another folder: the summary named the file
+    as typed, and eval looked it up from its own folder: refused ("gone") though it was there,
+    or another folder's mine.toml silently used. The run's settings are recorded now."""
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    (tmp_path / "a" / "mine.toml").write_text('base = "kitti_reference"\n')
+    (tmp_path / "b" / "mine.toml").write_text('base = "kitti"\n')  # (another file, same name)
+    monkeypatch.chdir(tmp_path / "a")
+    argv = ["track", str(SAMPLE / "detections.json.gz"), "--config", "mine.toml"]
+    assert main([*argv, "--out", "run"]) == 0
+    run = tmp_path / "a" / "run"
     tracks, gt = run / "tracks.json", SAMPLE / "gt.json.gz"
-    assert _eval(tracks, gt, LABELS, tmp_path / "e") == 2
-    err = capsys.readouterr().err.strip()
-    assert err == (
-        f"mctrack eval: error: {run / 'summary.json'}: field 'config': the run's config file "
-        f"{mine} is gone (not found): pass --config, the config the tracks were made with"
-    )
-    assert not (tmp_path / "e" / "eval.json").exists()
-    assert _eval(tracks, gt, LABELS, tmp_path / "e", "--config", "kitti_reference") == 0
-    assert (tmp_path / "e" / "eval.json").is_file()
+    assert _eval(tracks, gt, LABELS, tmp_path / "as_run", "--config", "kitti_reference") == 0
+    monkeypatch.chdir(tmp_path / "b")
+    (tmp_path / "a" / "mine.toml").unlink()
+    capsys.readouterr()
+    assert _eval(tracks, gt, LABELS, tmp_path / "e") == 0
+    out, err = capsys.readouterr()
+    assert _pedestrian_hota(tmp_path / "e") == _pedestrian_hota(tmp_path / "as_run")
+    assert out.splitlines()[0] == f"config mine.toml (the run's: {run / 'summary.json'})"
+    assert "not the config the tracks were made with" not in err
 
 
 def test_eval_of_a_kitti_run_scores_what_the_run_scored(
