@@ -32,7 +32,6 @@ from tracker.config import (
     ImageBoxes,
     TrackerConfig,
     config_from_dict,
-    config_to_dict,
     load_config,
 )
 from tracker.errors import InputError
@@ -223,7 +222,7 @@ def eval_config(tracks: Path, given: str | None) -> tuple[TrackerConfig, str, st
         found = run_config(tracks)
     except InputError:  # (the run's config unreadable or gone: nothing to compare with)
         found = None
-    if found is not None and _settings(found[0]) != _settings(config):
+    if found is not None and not _writes_alike(found[0], config):
         print(
             f"mctrack eval: --config {given} is not the config the tracks were made with "
             f"({found[1]}, {found[2]}): the KITTI 2D boxes are written as {given} writes them, "
@@ -233,11 +232,11 @@ def eval_config(tracks: Path, given: str | None) -> tuple[TrackerConfig, str, st
     return config, given, f"config {given}"
 
 
-def _settings(config: TrackerConfig) -> dict[str, Any]:
-    """A config's settings, without where it was read from."""
-    settings = config_to_dict(config)
-    settings.pop("source", None)
-    return settings
+def _writes_alike(a: TrackerConfig, b: TrackerConfig) -> bool:
+    """Whether two configs write a tracks file's KITTI 2D boxes alike (all eval takes from one:
+    a run's other settings, its classes or gates, change nothing here)."""
+    wa, wb = a.kitti_writer_options(), b.kitti_writer_options()
+    return wa.keys() == wb.keys() and all(np.array_equal(wa[k], wb[k]) for k in wa)
 
 
 def run_config(tracks: Path) -> tuple[TrackerConfig, str, Path] | None:

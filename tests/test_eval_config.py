@@ -114,3 +114,21 @@ def test_eval_of_a_kitti_run_scores_what_the_run_scored(
     assert _eval(run / "tracks.json", conv / "gt.json", labels, tmp_path / "k", *args) == 0
     kitti = _pedestrian_hota(tmp_path / "k")
     assert abs(kitti - ref["metrics"]["pedestrian"]["HOTA"]) > 1.0
+
+
+def test_eval_warns_of_another_config_only_where_it_writes_other_boxes(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The warning compared every setting: a run whose config differs from --config in a gate
+    alone (the same 2D boxes) was warned of too; kitti_reference writes other boxes."""
+    mine = tmp_path / "mine.toml"
+    mine.write_text('base = "kitti"\n[category.car]\nscore_min = 0.4\n')
+    run = tmp_path / "run"
+    argv = ["track", str(SAMPLE / "detections.json.gz"), "--frames", "0:40"]
+    assert main([*argv, "--config", str(mine), "--out", str(run)]) == 0
+    capsys.readouterr()
+    tracks, gt = run / "tracks.json", SAMPLE / "gt.json.gz"
+    warning = "is not the config the tracks were made with"
+    for given, warned in (("kitti", False), ("kitti_reference", True)):
+        assert _eval(tracks, gt, LABELS, tmp_path / given, "--config", given) == 0
+        assert (warning in capsys.readouterr().err) is warned, given
