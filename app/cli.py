@@ -264,7 +264,12 @@ def _kernel_cache_note(folder: Path | None) -> str:
         return "not cached"
     existing = next((p for p in (folder, *folder.parents) if p.exists()), folder)
     if not os.access(existing, os.W_OK):
-        return f"on every run: {folder} is not writable; set NUMBA_CACHE_DIR to a folder that is"
+        # (numba then caches in its user-wide folder: later runs load them, but this note,
+        # whose stamp cannot be kept here, comes back)
+        return (
+            f"cached in numba's user-wide folder: {folder} is not writable (NUMBA_CACHE_DIR "
+            "chooses the folder)"
+        )
     return (
         f"cached in {folder}: later runs of this copy of the source load them, until a "
         "kernel's source changes"
