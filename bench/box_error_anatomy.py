@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import sys
 from pathlib import Path
 
@@ -31,15 +32,10 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from app.inputs import default_kitti_root  # noqa: E402
-from bench.kitti_box_shapes import iou  # noqa: E402
-from tracker.camera import project_boxes  # noqa: E402
-from tracker.frame import Camera  # noqa: E402
+from bench.kitti_box_shapes import iou, projected_cuboids  # noqa: E402
 from tracker.io.convert.kitti import (  # noqa: E402
     VALIDATION_SEQS,
-    WORLD_FROM_CAMERA_AXES,
     KittiObjects,
-    boxes_rect_to_world,
-    image_size_px,
     read_kitti_calib,
     read_kitti_labels,
 )
@@ -52,13 +48,6 @@ PARTS = (
     ("size", "hwl", None),
     ("heading", "rotation_y", None),
 )
-
-
-def projected(objects: KittiObjects, camera: Camera) -> np.ndarray:
-    """(N, 4) image boxes of KITTI cuboids, clipped to the image as the result writer does."""
-    one = dataclasses.replace(objects, frame=np.zeros(len(objects.frame), dtype=np.int64))
-    world_from_rect = np.broadcast_to(WORLD_FROM_CAMERA_AXES, (1, 4, 4))
-    return project_boxes(boxes_rect_to_world(one, world_from_rect), camera, clip_to_image=True)[0]
 
 
 def with_part(base: KittiObjects, other: KittiObjects, field: str, column: int | None):
@@ -100,9 +89,7 @@ def anatomy(results: Path, root: Path, seqs: list[str]) -> tuple[dict, dict]:
     keys: list[np.ndarray] = []
     for seq in seqs:
         calib = read_kitti_calib(root / "training" / "calib" / f"{seq}.txt")
-        width, height = image_size_px(calib)
-        inverse = np.linalg.inv(WORLD_FROM_CAMERA_AXES)
-        camera = Camera("P2", calib.image_from_rect, inverse, width, height)
+        projected = functools.partial(projected_cuboids, calib=calib, clip_to_image=True)
         labels = read_kitti_labels(root / "training" / "label_02" / f"{seq}.txt")
         rows = read_kitti_labels(results / f"{seq}.txt")
         g, r = matched_pairs(labels, rows)
@@ -112,16 +99,12 @@ def anatomy(results: Path, root: Path, seqs: list[str]) -> tuple[dict, dict]:
         annotated = gt.xyxy_image
         variants = {
             "written 2D box": run.xyxy_image,
-            "ground truth's 3D box": projected(gt, camera),
+            "ground truth's 3D box": projected(gt),
         }
         for name, field, column in PARTS:
-            variants[f"ground truth, run's {name}"] = projected(
-                with_part(gt, run, field, column), camera
-            )
+            variants[f"ground truth, run's {name}"] = projected(with_part(gt, run, field, column))
         for name, field, column in PARTS:
-            variants[f"run, ground truth's {name}"] = projected(
-                with_part(run, gt, field, column), camera
-            )
+            variants[f"run, ground truth's {name}"] = projected(with_part(run, gt, field, column))
         for name, boxes in variants.items():
             ious.setdefault(name, []).append(iou(boxes, annotated))
         for name, field, column in PARTS:

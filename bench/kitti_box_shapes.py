@@ -39,15 +39,17 @@ from tracker.io.convert.kitti import (  # noqa: E402
 CLASSES = ("Car", "Pedestrian", "Cyclist")
 
 
-def projected_cuboids(objects: KittiObjects, calib: KittiCalib) -> np.ndarray:
-    """(N, 4) unclipped image boxes of KITTI cuboids, projected as the result writer does
-    (upright in camera axes: world = the camera's own axes, z up)."""
+def projected_cuboids(
+    objects: KittiObjects, calib: KittiCalib, *, clip_to_image: bool = False
+) -> np.ndarray:
+    """(N, 4) image boxes of KITTI cuboids, projected as the result writer does (upright in
+    camera axes: world = the camera's own axes, z up); unclipped unless ``clip_to_image``."""
     world_from_rect = np.broadcast_to(WORLD_FROM_CAMERA_AXES, (objects.frame.max() + 1, 4, 4))
     xyz, lwh, yaw = boxes_rect_to_world(objects, world_from_rect)
     width, height = image_size_px(calib)
     camera = Camera("P2", calib.image_from_rect, np.linalg.inv(WORLD_FROM_CAMERA_AXES), width,
                     height)  # fmt: skip
-    return project_boxes((xyz, lwh, yaw), camera, clip_to_image=False)[0]
+    return project_boxes((xyz, lwh, yaw), camera, clip_to_image=clip_to_image)[0]
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
