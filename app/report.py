@@ -252,18 +252,12 @@ def make_plots(
                for m in motion]  # fmt: skip
         scope = ""
     else:
-        metrics = [
-            {c: {k: d[side] for k, d in m.items()} for c, m in result["metrics"].items()}
-            for side in ("a", "b")
-        ]
+        metrics = [_one_side(result["metrics"], side) for side in ("a", "b")]
         events = [[p[side] for p in result["events"] if p[side]] for side in ("a", "b")]
         shared = result.get("sequences_compared")
         seqs = list(shared or run_a.summary["sequences"])
         if isinstance(result.get("motion"), Mapping):
-            per = [
-                {c: {k: d[side] for k, d in m.items()} for c, m in result["motion"].items()}
-                for side in ("a", "b")
-            ]
+            per = [_one_side(result["motion"], side) for side in ("a", "b")]
         else:
             per = [None, None]
         scope = f", the {len(seqs)} compared sequence(s)" if shared else ""
@@ -309,6 +303,11 @@ def make_plots(
             )
             plots.append((f"plots/motion_{key}.svg", f"motion: {label}"))
     return plots
+
+
+def _one_side(table: Mapping[str, Mapping[str, Mapping[str, Any]]], side: str) -> dict:
+    """One run's figures of a comparison's ``{class: {metric: {"a": .., "b": ..}}}`` table."""
+    return {c: {k: d[side] for k, d in m.items()} for c, m in table.items()}
 
 
 def _scope_caption(seqs: Sequence[str], scope: str) -> str:
