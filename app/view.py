@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--save",
         default=None,
         metavar="OUT.rrd",
-        help="write a recording file (the default, as ./mctrack_<scene>.rrd)",
+        help="write a recording file, named *.rrd (the default, as ./mctrack_<scene>.rrd)",
     )
     sink.add_argument("--spawn", action="store_true", help="stream to a new native viewer")
     sink.add_argument("--serve-web", action="store_true", help="serve a web viewer (until Ctrl-C)")
@@ -254,6 +254,18 @@ def _save_paths(save: str | None, scenes: dict[str, list[Frame]], source: str) -
     return paths
 
 
+def _refuse_save_suffix(save: str) -> None:
+    """``--save`` names a recording: without the ``.rrd`` suffix (``--save conv``) it was
+    written as given (``conv_<scene>`` with several scenes), a file `mctrack inspect --list`
+    of its folder does not find; `kitti --record` and the others name theirs ``<seq>.rrd``."""
+    path = Path(save)
+    if path.suffix == ".rrd":
+        return
+    upper = path.suffix.lower() == ".rrd"  # (conv.RRD: conv.rrd)
+    named = path.with_suffix(".rrd") if upper else path.with_name(f"{path.name}.rrd")
+    raise InputError(f"--save {save}: a recording file's name ends in .rrd (e.g. {named})")
+
+
 def _refuse_unused_options(args: argparse.Namespace) -> None:
     """The viewer's options where they have no effect (each was ignored without a word)."""
     if not (args.spawn or args.serve_web):
@@ -274,6 +286,7 @@ def run(args: argparse.Namespace) -> int:
     _refuse_unused_options(args)
     if args.save is not None:  # (with several scenes, its files would go beside a folder)
         check_output_file(args.save, "--save")
+        _refuse_save_suffix(args.save)
     args.host = args.host or LOOPBACK
     args.grpc_port = DEFAULT_GRPC_PORT if args.grpc_port is None else args.grpc_port
     args.web_port = DEFAULT_WEB_PORT if args.web_port is None else args.web_port

@@ -1216,6 +1216,37 @@ def test_view_refuses_save_naming_a_folder_however_many_scenes(
     assert sorted(p.name for p in tmp_path.iterdir()) == ["conv", "in.json"]
 
 
+@pytest.mark.parametrize(
+    ("save", "named"), [("conv", "conv.rrd"), ("conv.RRD", "conv.rrd"), ("run.v2", "run.v2.rrd")]
+)
+@pytest.mark.parametrize("scenes", [("0001",), ("0001", "0006")])
+def test_view_refuses_save_without_the_rrd_suffix(
+    tmp_path: Path,
+    capsys: pytest.CaptureFixture[str],
+    monkeypatch: pytest.MonkeyPatch,
+    scenes: tuple[str, ...],
+    save: str,
+    named: str,
+) -> None:
+    """--save conv wrote a recording named conv (conv_0001, conv_0006 with several scenes),
+    which `mctrack inspect --list` of its folder and a file dialog do not take for one, exit 0:
+    now one line naming the option and a name that works, before the input is read."""
+    import tracker.io.baseversion
+
+    monkeypatch.chdir(tmp_path)
+    data = tmp_path / "in.json"
+    data.write_text(json.dumps(dict.fromkeys(scenes, _sample_frames()[:3])))
+    monkeypatch.setattr(
+        tracker.io.baseversion, "read_baseversion", lambda *a, **k: pytest.fail("read")
+    )
+    code, printed, err = _run(["view", str(data), "--no-motion", "--save", save], capsys)
+    _assert_one_line_error(
+        code, err, "view", f"--save {save}: a recording file's name ends in .rrd (e.g. {named})"
+    )
+    assert printed == ""
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.json"]
+
+
 @pytest.mark.parametrize("bad", ["broken link", "folder"])
 @pytest.mark.parametrize("given", ["--images", "image_02 beside the input"])
 def test_view_refuses_an_unreadable_image_of_a_recorded_frame(
