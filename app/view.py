@@ -364,11 +364,19 @@ def _start_viewer(args: argparse.Namespace) -> tuple[subprocess.Popen[bytes] | N
     if args.spawn:
         if port_open(local_address(host), port):  # a viewer there already: as rr.spawn, use it
             print(f"viewer: {url} (already running)")
+            if note:  # (it listens where it was started: this run binds nothing)
+                print(f"  --host {host} not applied: that viewer listens where it was started")
             return None, url
         try:
             process, url = start_viewer(headless=False, host=host, port=port, detach=True)
         except (RuntimeError, TimeoutError, OSError) as exc:
             raise ViewerError(f"--spawn: the viewer did not start on {host}: {exc}") from None
+        # as --serve-web's: on all interfaces, the URL another machine's viewer or SDK uses
+        # (`rerun URL` there), with this machine's after it
+        shown, listening = served_at(host, lambda at: f"rerun+http://{at}:{port}/proxy")
+        print(f"viewer: {shown}")
+        if listening:
+            print(listening)
     else:
         for option, taken in (("--grpc-port", port), ("--web-port", args.web_port)):
             if port_open(local_address(host), taken):  # (else that server would answer)

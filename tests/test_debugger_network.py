@@ -221,6 +221,51 @@ def test_view_serve_web_host_is_passed_to_the_binary_with_a_note(
     ]
 
 
+@pytest.mark.parametrize("host", ["0.0.0.0", "127.0.0.1"])
+def test_view_spawn_prints_the_url_another_machine_uses(
+    host: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--spawn --host 0.0.0.0 exposes the viewer's gRPC server (recordings from elsewhere,
+    `rerun URL` on another machine) but printed no URL at all, only the note: now the one
+    another machine uses and this machine's after it, as --serve-web prints them; on loopback
+    the URL alone (nothing is started here)."""
+    seen = _fake_start(monkeypatch)
+    monkeypatch.setattr(rerun_process, "port_open", lambda *a: False)
+    monkeypatch.setattr(rerun_process.socket, "gethostname", lambda: "studio-box")
+    monkeypatch.setenv("DISPLAY", ":mctrack-test")
+    det = SAMPLE / "detections.json.gz"
+    argv = ["view", str(det), "--frames", "0:5", "--spawn", "--host", host, "--grpc-port", "9001"]
+    assert main(argv) == 0
+    assert seen == [["rerun", "--bind", host, *rerun_process.viewer_args(9001, headless=False)]]
+    expected = {
+        "0.0.0.0": [
+            "viewer: rerun+http://studio-box:9001/proxy",
+            "  listening on all interfaces; on this machine: rerun+http://127.0.0.1:9001/proxy",
+            "note: --host 0.0.0.0 exposes the recording to the network",
+        ],
+        "127.0.0.1": ["viewer: rerun+http://127.0.0.1:9001/proxy"],
+    }
+    assert capsys.readouterr().out.splitlines() == expected[host]
+
+
+def test_view_spawn_to_a_running_viewer_says_host_is_not_applied(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A viewer already on the port is used as it is: --host 0.0.0.0 binds nothing then, and
+    no note says the recording is exposed."""
+    seen = _fake_start(monkeypatch)
+    monkeypatch.setattr(rerun_process, "port_open", lambda *a: True)
+    monkeypatch.setenv("DISPLAY", ":mctrack-test")
+    det = SAMPLE / "detections.json.gz"
+    argv = ["view", str(det), "--frames", "0:5", "--spawn", "--host", "0.0.0.0"]
+    assert main([*argv, "--grpc-port", "9001"]) == 0
+    assert seen == []
+    assert capsys.readouterr().out.splitlines() == [
+        "viewer: rerun+http://127.0.0.1:9001/proxy (already running)",
+        "  --host 0.0.0.0 not applied: that viewer listens where it was started",
+    ]
+
+
 def test_served_at_names_an_address_a_browser_can_use(monkeypatch: pytest.MonkeyPatch) -> None:
     def url(at: str) -> str:
         return f"http://{at}:80/"
