@@ -60,22 +60,49 @@ ABLATION = {
 QUOTE_LEFT_OUT = ("config", "per_sequence_metrics")  # too long to quote in full
 
 
+#: What the prose says of each entry :data:`QUOTE_LEFT_OUT` leaves out.
+_LEFT_OUT_PROSE = {
+    "config": "its `config` entry, the resolved `kitti` config",
+    "per_sequence_metrics": "`per_sequence_metrics`, every metric per sequence and class",
+}
+
+
 def summary_quote(summary: dict[str, Any], cwd: Path | None = None) -> list[str]:
     """The lines quoting the online run's ``summary.json``: every entry but
     :data:`QUOTE_LEFT_OUT`, its paths (absolute in the file) shown relative to ``cwd`` (default:
-    the working directory) so the page does not name this machine's folders."""
+    the working directory) so the page does not name this machine's folders. The prose names
+    only the entries the summary has: a run without labels (or ``--no-eval``) has no
+    ``metrics`` nor ``per_sequence_metrics``, and it says so, with the run's ``evaluation``
+    note when there is one."""
     prefix = f"{(cwd or Path.cwd()).absolute()}/"
+    paths = [k for k in ("kitti_root", "labels") if isinstance(summary.get(k), str)]
     quoted = {
-        k: v.removeprefix(prefix) if k in ("kitti_root", "labels") else v
+        k: v.removeprefix(prefix) if k in paths else v
         for k, v in summary.items()
         if k not in QUOTE_LEFT_OUT
     }
+    notes = []
+    left_out = [_LEFT_OUT_PROSE[k] for k in QUOTE_LEFT_OUT if k in summary]
+    if left_out:
+        notes.append(", and ".join(left_out) + ", left out here")
+    if paths:
+        named = " and ".join(f"`{k}`" for k in paths)
+        notes.append(
+            f"{named}, absolute in the file, {'are' if len(paths) > 1 else 'is'} shown relative"
+            " to the folder the command ran in"
+        )
+    if "tracker_fps" in summary:
+        notes.append(
+            "`tracker_fps` is one run on this machine, the speed section below is the best of"
+            " several"
+        )
+    if "metrics" not in summary:
+        why = summary.get("evaluation")
+        why = why if isinstance(why, str) else "not scored, without labels or with --no-eval"
+        notes.append(f"the run has no `metrics`: {why}")
+    said = f" ({'; '.join(notes)})" if notes else ""
     return [
-        "The `summary.json` that `mctrack kitti --out DIR` wrote for the online run (its"
-        " `config` entry, the resolved `kitti` config, and `per_sequence_metrics`, every"
-        " metric per sequence and class, left out here; `kitti_root` and `labels`, absolute in"
-        " the file, are shown relative to the folder the command ran in; `tracker_fps` is one"
-        " run on this machine, the speed section below is the best of several):",
+        f"The `summary.json` that `mctrack kitti --out DIR` wrote for the online run{said}:",
         "",
         "```json",
         json.dumps(quoted, indent=1),

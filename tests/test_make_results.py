@@ -32,3 +32,32 @@ def test_the_summary_quote_leaves_out_what_it_says_and_no_machine_path() -> None
     }
     prose = " ".join(lines[0].split())
     assert all(f"`{k}`" in prose for k in QUOTE_LEFT_OUT) and "relative to the folder" in prose
+
+
+def test_the_summary_quote_of_a_run_without_labels_says_what_is_absent() -> None:
+    """A run without labels (--no-eval, or none found) has no metrics nor
+    per_sequence_metrics, and a summary may lack the paths: the prose said they were left out
+    or made relative all the same (a None "labels" was an AttributeError). Now it names only
+    what is there, and says the metrics are absent, with the run's own note when it has one."""
+    summary = {
+        "command": "kitti",
+        "kitti_root": "/home/me/work/kit",
+        "labels": None,
+        "config": {"long": 1},
+        "tracker_fps": 100.0,
+    }
+    lines = summary_quote(summary, cwd=Path("/home/me/work"))
+    quoted = json.loads("\n".join(lines).split("```json\n")[1].split("\n```")[0])
+    assert quoted == {"command": "kitti", "kitti_root": "kit", "labels": None, "tracker_fps": 100.0}
+    assert lines[0] == (
+        "The `summary.json` that `mctrack kitti --out DIR` wrote for the online run (its `config`"
+        " entry, the resolved `kitti` config, left out here; `kitti_root`, absolute in the file,"
+        " is shown relative to the folder the command ran in; `tracker_fps` is one run on this"
+        " machine, the speed section below is the best of several; the run has no `metrics`:"
+        " not scored, without labels or with --no-eval):"
+    )
+    skipped = {"command": "kitti", "evaluation": "skipped: no labels for ['0001'] in lab"}
+    assert summary_quote(skipped)[0] == (
+        "The `summary.json` that `mctrack kitti --out DIR` wrote for the online run (the run has"
+        " no `metrics`: skipped: no labels for ['0001'] in lab):"
+    )
