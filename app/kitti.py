@@ -381,8 +381,9 @@ def run_kitti(
     # once the config, the profile and the labels are read: a refused run keeps the earlier one.
     # Only in a folder a run has written (data/*.txt alone could be anyone's); a sequence the
     # new run leaves out does not keep its old results, nor any command's file of the old run
-    if holds_a_run(out):
-        remove_earlier_outputs(out, outputs_replaced_by("kitti"))
+    if holds_a_run(out):  # (of data/*.txt, the earlier run's files and this run's alone)
+        written = [_normalise_seq(s) for s in seqs]
+        remove_earlier_outputs(out, outputs_replaced_by("kitti", out, written))
     # from here on the run writes: one that fails after the tracking (the motion metrics or
     # the recordings refuse, Ctrl-C) removes what it wrote, so OUT never holds data/*.txt and
     # tracks.json without the summary.json that marks a complete run

@@ -196,7 +196,7 @@ def run_nuscenes(
         det_scenes = {s: det_scenes[s] for s in scene_names}
     convert_secs = time.perf_counter() - t0
     if holds_a_run(out):  # a refused run keeps the earlier one; a run's files of any command go
-        remove_earlier_outputs(out, outputs_replaced_by("nuscenes"))
+        remove_earlier_outputs(out, outputs_replaced_by("nuscenes", out, []))
 
     # from here on the run writes: one that fails (the devkit refuses the submission, an
     # evaluation error, Ctrl-C) removes what it wrote, so OUT never holds a results.json

@@ -6,9 +6,12 @@ imports here."""
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterable
 from pathlib import Path, PurePosixPath
+from typing import Any
 
+from tracker.errors import InputError
 from tracker.io.fileio import safe_filename
 
 #: Each command's output files in --out (globs relative to it; .scenes/: the scene parts of a
@@ -95,13 +98,26 @@ def outputs_of(command: str, scenes: Iterable[str] | None = None) -> tuple[str, 
     return _with_temps(patterns)
 
 
-def outputs_replaced_by(command: str) -> tuple[str, ...]:
+def outputs_replaced_by(
+    command: str, folder: Path | None = None, scenes: Iterable[str] | None = None
+) -> tuple[str, ...]:
     """What a run of ``command`` removes of an earlier run in its folder, once its inputs are
     accepted: for a run (:data:`RUN_COMMANDS`), everything a run folder may hold of any
     command (:data:`RUN_FOLDER`: a `track` into a `kitti` run's folder removes its motion.md
-    and recordings too); for the others, their own outputs."""
+    and recordings too); for the others, their own outputs.
+
+    Of the files per scene (:data:`PER_SCENE`, data/<scene>.txt), given the run's ``folder``:
+    only those the earlier run there wrote (:func:`earlier_scene_files`) and this run's own
+    (of ``scenes``), not every data/*.txt: a file of anyone's there stays."""
     commands = RUN_FOLDER if command in RUN_COMMANDS else (command,)
-    return tuple(dict.fromkeys(p for c in commands for p in outputs_of(c)))
+    if folder is None or command not in RUN_COMMANDS:
+        return tuple(dict.fromkeys(p for c in commands for p in outputs_of(c)))
+    shared = [p for c in commands for p in FILES[c] if p not in PER_SCENE]
+    # (a per-scene file's temporary name, .<scene>.txt.<pid>.<random>.tmp, is only ever ours)
+    temps = [q for p in PER_SCENE for q in _with_temps((p,)) if q != p]
+    earlier = earlier_scene_files(folder) or []
+    patterns = [*_with_temps(tuple(shared)), *temps, *_with_temps(tuple(earlier))]
+    return tuple(dict.fromkeys([*patterns, *outputs_of(command, scenes)]))
 
 
 def is_run_summary(summary: object) -> bool:
@@ -115,15 +131,47 @@ def is_run_summary(summary: object) -> bool:
     return isinstance(summary.get("detection_fates"), dict)
 
 
-def _run_summary(path: Path) -> bool:
-    """Whether ``path`` is a run's summary.json (:func:`is_run_summary`)."""
+def _run_summary(path: Path) -> dict[str, Any] | None:
+    """``path``'s JSON when it is a run's summary.json (:func:`is_run_summary`), else None."""
     try:
         if not path.is_file() or path.stat().st_size > _SUMMARY_MAX_BYTES:
-            return False
+            return None
         summary = json.loads(path.read_bytes())
     except (OSError, ValueError, RecursionError):  # (unreadable, not JSON, not UTF-8)
-        return False
-    return is_run_summary(summary)
+        return None
+    return summary if is_run_summary(summary) else None
+
+
+#: A per-scene file as a summary may list it: a :data:`PER_SCENE` pattern with a
+#: safe_filename for ``*``, nothing else (a summary is a file anyone may edit: no glob
+#: character, no other folder)
+_LISTED_SCENE_FILES = tuple(
+    re.compile(re.escape(before) + r"[A-Za-z0-9_%~-][A-Za-z0-9._%~-]*" + re.escape(after))
+    for before, after in (p.split("*") for p in PER_SCENE)
+)
+
+
+def earlier_scene_files(folder: Path) -> list[str] | None:
+    """The files per scene (:data:`PER_SCENE`, relative to ``folder``) the run in ``folder``
+    wrote, as its summary.json says: the files its "outputs" list names (`track`), those of
+    its "sequences" (`kitti`), none for a command that writes none (`nuscenes`, `waymo`).
+    None when that is not known: a run cut short (its scene parts, no summary), a summary
+    that says neither."""
+    summary = _run_summary(folder / "summary.json")
+    if summary is None:
+        return None
+    outputs = summary.get("outputs")
+    if isinstance(outputs, list):
+        paths = [o.get("path") for o in outputs if isinstance(o, dict)]
+        listed = [p for p in paths if isinstance(p, str)]
+        return sorted(p for p in listed if any(r.fullmatch(p) for r in _LISTED_SCENE_FILES))
+    sequences = summary.get("sequences")
+    if isinstance(sequences, list) and all(isinstance(q, str) for q in sequences):
+        return sorted(p.replace("*", safe_filename(q)) for p in PER_SCENE for q in sequences)
+    command = summary.get("command")
+    if command in RUN_COMMANDS and not set(FILES[command]) & set(PER_SCENE):
+        return []
+    return None
 
 
 def holds_a_run(folder: Path) -> bool:
@@ -131,7 +179,7 @@ def holds_a_run(folder: Path) -> bool:
     scene parts (:data:`RUN_PARTS`, a run cut short). Only then are the files there an earlier
     run's, which a new run removes (:func:`outputs_replaced_by`): a results.json or gt.json
     alone could be anyone's."""
-    return _run_summary(folder / "summary.json") or (folder / RUN_PARTS).is_dir()
+    return _run_summary(folder / "summary.json") is not None or (folder / RUN_PARTS).is_dir()
 
 
 def outputs_at_stake(
@@ -139,9 +187,37 @@ def outputs_at_stake(
 ) -> tuple[str, ...]:
     """What a run of ``command`` into ``folder`` writes or removes there, once its inputs are
     accepted (an input among them is refused): in a folder holding a run
-    (:func:`holds_a_run`), all it replaces of it (:func:`outputs_replaced_by`: every
-    data/*.txt); else only what it writes (:func:`outputs_of`, of ``scenes`` where known:
-    data/<scene>.txt of its own scenes), which is all it may touch there."""
-    if command in RUN_COMMANDS and holds_a_run(folder):
-        return outputs_replaced_by(command)
-    return outputs_of(command, scenes)
+    (:func:`holds_a_run`), all it replaces of it (:func:`outputs_replaced_by`: of data/*.txt,
+    the earlier run's files and its own); else only what it writes (:func:`outputs_of`, of
+    ``scenes`` where known: data/<scene>.txt of its own scenes), which is all it may touch
+    there. Called before any work: where the earlier run's files per scene are not known
+    (:func:`earlier_scene_files`), a data/*.txt this run does not write is refused (InputError
+    naming it), as it may be anyone's or the earlier run's."""
+    if command not in RUN_COMMANDS or not holds_a_run(folder):
+        return outputs_of(command, scenes)
+    at_stake = outputs_replaced_by(command, folder, scenes)
+    if earlier_scene_files(folder) is None:
+        _refuse_unknown_scene_files(folder, at_stake)
+    return at_stake
+
+
+def _refuse_unknown_scene_files(folder: Path, at_stake: tuple[str, ...]) -> None:
+    """InputError naming a file per scene in ``folder`` that is not ``at_stake`` (this run's):
+    the earlier run there does not say which are its own, so that one may be anyone's (kept,
+    the folder would mix two runs; removed, a user's file would be lost)."""
+    ours = {p for pattern in at_stake for p in folder.glob(pattern)}
+    for pattern in PER_SCENE:
+        if (folder / PurePosixPath(pattern).parent).is_symlink():
+            continue  # (a linked data/ leads anywhere: no run removes a file through it)
+        for path in sorted(folder.glob(pattern)):
+            if path in ours or not (path.is_file() or path.is_symlink()):
+                continue
+            why = (
+                f"its summary.json does not list its {pattern} files"
+                if _run_summary(folder / "summary.json") is not None
+                else f"it was cut short ({RUN_PARTS}/ is there, no summary.json)"
+            )
+            raise InputError(
+                f"{path}: {folder} holds an earlier run, and {why}: this file may be anyone's; "
+                "move or remove it, or give another --out"
+            )

@@ -314,8 +314,8 @@ def run(args: argparse.Namespace) -> int:
     # go, summary.json with them (written last: its absence marks a run cut short), and what
     # any command wrote beside them (a kitti run's recordings, an eval). Only in a folder a
     # run has written (data/*.txt alone could be anyone's)
-    if holds_a_run(out):
-        remove_earlier_outputs(out, outputs_replaced_by("track"))
+    if holds_a_run(out):  # (of data/*.txt, the earlier run's files and this run's alone)
+        remove_earlier_outputs(out, outputs_replaced_by("track", out, written))
     # from here on the run writes: one stopped (Ctrl-C, an error) removes what it wrote, so
     # OUT never holds data/*.txt or scene parts without the summary.json that marks a run
     with outputs_removed_on_failure(out, outputs_of("track")):

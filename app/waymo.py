@@ -162,7 +162,7 @@ def run_waymo(
     # a refused run keeps the earlier one; else its files (of any command) go: pred_bin.py reads
     # every file of results/, and a segment left out or failing now would keep its old results
     if holds_a_run(out):
-        remove_earlier_outputs(out, outputs_replaced_by("waymo"))
+        remove_earlier_outputs(out, outputs_replaced_by("waymo", out, []))
     # from here on the run writes: one stopped (Ctrl-C, an error) removes what it wrote, so
     # OUT never holds results/ without the summary.json that marks a complete run
     with outputs_removed_on_failure(out, outputs_of("waymo")):

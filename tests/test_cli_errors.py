@@ -1611,7 +1611,8 @@ def test_an_input_in_data_is_refused_only_where_the_run_writes_or_removes_it(
     """`mctrack track w/data/dets.txt --out w`, w holding no run: track writes data/<scene>.txt
     of its own scenes alone (with --kitti-results), never data/dets.txt, yet every data/*.txt
     was refused as "a file this run writes". Now a file of a scene it writes is refused, and in
-    a run's folder every data/*.txt (the earlier run's names, which a run removes)."""
+    a run's folder the data/*.txt the earlier run wrote (its summary lists them), which a run
+    removes."""
     from app.outputs import outputs_at_stake
 
     detections = gzip.decompress((SAMPLE / "detections.json.gz").read_bytes())
@@ -1626,7 +1627,9 @@ def test_an_input_in_data_is_refused_only_where_the_run_writes_or_removes_it(
         assert dets.read_bytes() == detections
         (out / "summary.json").unlink()  # (w again a folder of anyone's files)
     assert (out / "data" / "0001.txt").is_file()
-    (out / "summary.json").write_text('{"command": "track"}')  # (now a run's folder)
+    # now a run's folder, whose summary lists data/dets.txt among the run's outputs
+    listed = [{"path": "data/dets.txt", "bytes": 1}, {"path": "data/0001.txt", "bytes": 1}]
+    (out / "summary.json").write_text(json.dumps({"command": "track", "outputs": listed}))
     code, _, err = _run(argv, capsys)
     _assert_one_line_error(
         code, err, "track", f"{dets}: INPUT is an earlier run's output, which this run removes"
@@ -1646,7 +1649,116 @@ def test_an_input_in_data_is_refused_only_where_the_run_writes_or_removes_it(
     # kitti alike: data/<seq>.txt of its sequences in a folder holding no run
     anyones = outputs_at_stake("kitti", tmp_path / "new", ["0001"])
     assert "data/0001.txt" in anyones and "data/*.txt" not in anyones
-    assert "data/*.txt" in outputs_at_stake("kitti", out, ["0001"])  # (w holds a run)
+    in_run = outputs_at_stake("kitti", out, ["0002"])  # (w holds a run: its files too)
+    assert {"data/dets.txt", "data/0001.txt", "data/0002.txt"} <= set(in_run)
+    assert "data/*.txt" not in in_run
+
+
+def _sample_run_argv(out: Path, *extra: str) -> list[str]:
+    return [
+        "track",
+        str(SAMPLE / "detections.json.gz"),
+        "--frames",
+        "0:5",
+        "--out",
+        str(out),
+        *extra,
+    ]
+
+
+def test_a_run_into_an_earlier_runs_folder_keeps_a_data_file_it_did_not_write(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run into a folder holding an earlier run removed every data/*.txt, a user's own
+    data/notes.txt too. Now, of data/*.txt, the files the earlier run wrote go (its summary
+    lists them: track's "outputs", kitti's "sequences"), this run's are rewritten, anyone's
+    other file stays."""
+    out = tmp_path / "w"
+    code, _, err = _run(_sample_run_argv(out, "--kitti-results"), capsys)
+    assert code == 0, err
+    notes = out / "data" / "notes.txt"
+    notes.write_text("mine\n")
+    for extra in (["--kitti-results"], []):  # (its 0001.txt rewritten, then removed)
+        code, _, err = _run(_sample_run_argv(out, *extra), capsys)
+        assert code == 0, err
+        assert notes.read_text() == "mine\n"
+    assert sorted(p.name for p in (out / "data").iterdir()) == ["notes.txt"]
+    # an earlier kitti run's sequences (its summary has no "outputs"): theirs go, notes stay
+    (out / "summary.json").write_text(json.dumps({"command": "kitti", "sequences": ["0007"]}))
+    (out / "data" / "0007.txt").write_text("kitti's\n")
+    code, _, err = _run(_sample_run_argv(out), capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in (out / "data").iterdir()) == ["notes.txt"]
+
+
+def test_kitti_into_an_earlier_runs_folder_keeps_a_data_file_it_did_not_write(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack kitti` alike: its sequences' data/<seq>.txt (the name normalised: --seqs 1 is
+    0001) and the earlier run's go, a user's data/notes.txt stays."""
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--no-eval", "--out", str(out)]
+    code, _, err = _run([*argv, "--seqs", "0001"], capsys)
+    assert code == 0, err
+    (out / "data" / "notes.txt").write_text("mine\n")
+    (out / "data" / "0001.txt").write_text("stale\n")
+    code, _, err = _run([*argv, "--seqs", "1"], capsys)
+    assert code == 0, err
+    assert (out / "data" / "notes.txt").read_text() == "mine\n"
+    assert (out / "data" / "0001.txt").read_text().startswith("0 ")  # (this run's, rewritten)
+
+
+@pytest.mark.parametrize("earlier", ["cut short", "summary without a list"])
+def test_a_data_file_of_an_earlier_run_not_known_is_refused(
+    earlier: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Where the earlier run does not say which data/*.txt are its own (cut short: its scene
+    parts and no summary.json; a summary listing neither outputs nor sequences), a data file
+    this run does not write is refused, naming it, before any work: it may be a user's (kept,
+    or removed). This run's own files are no obstacle; without any other, the run goes on."""
+    out = tmp_path / "w"
+    (out / "data").mkdir(parents=True)
+    if earlier == "cut short":
+        (out / ".scenes").mkdir()
+        why = "it was cut short (.scenes/ is there, no summary.json)"
+    else:
+        (out / "summary.json").write_text('{"command": "track"}')
+        why = "its summary.json does not list its data/*.txt files"
+    (out / "data" / "0001.txt").write_text("this run's scene\n")
+    notes = out / "data" / "notes.txt"
+    notes.write_text("mine\n")
+    before = _tree(out)
+    code, printed, err = _run(_sample_run_argv(out, "--kitti-results"), capsys)
+    _assert_one_line_error(
+        code,
+        err,
+        "track",
+        f"{notes}: {out} holds an earlier run, and {why}: this file may be anyone's; move or "
+        "remove it, or give another --out",
+    )
+    assert printed == "" and _tree(out) == before
+    notes.unlink()
+    code, _, err = _run(_sample_run_argv(out, "--kitti-results"), capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in (out / "data").iterdir()) == ["0001.txt"]
+    assert (out / "data" / "0001.txt").read_text() != "this run's scene\n"
+
+
+def test_a_summary_lists_data_files_of_the_folder_alone(tmp_path: Path) -> None:
+    """A summary.json is anyone's to edit: a listed path outside data/, with a glob character
+    or a folder, is no file of the run's (never a pattern that reaches other files)."""
+    from app.outputs import earlier_scene_files
+
+    listed = ["data/0001.txt", "data/*.txt", "../x/data/a.txt", "data/a/b.txt", "data/.x.txt"]
+    outputs = [{"path": p, "bytes": 1} for p in listed]
+    (tmp_path / "summary.json").write_text(json.dumps({"command": "track", "outputs": outputs}))
+    assert earlier_scene_files(tmp_path) == ["data/0001.txt"]
+    (tmp_path / "summary.json").write_text(json.dumps({"command": "kitti", "sequences": ["*"]}))
+    assert earlier_scene_files(tmp_path) == ["data/%2A.txt"]
+    (tmp_path / "summary.json").write_text('{"command": "waymo"}')
+    assert earlier_scene_files(tmp_path) == []
+    (tmp_path / "summary.json").write_text('{"command": "kitti"}')
+    assert earlier_scene_files(tmp_path) is None
 
 
 def test_an_input_among_another_commands_outputs_is_refused(
