@@ -691,6 +691,67 @@ def test_a_box_beyond_the_bound_names_file_line_frame_and_field(
     )
 
 
+@pytest.mark.parametrize("value", ["2e4", "-1e300"])
+@pytest.mark.parametrize("layout", [*_LAYOUTS, "ab3dmot"])
+def test_a_rotation_y_beyond_the_heading_bound_names_file_line_frame_and_field(
+    tmp_path: Path, layout: str, value: str
+) -> None:
+    """rotation_y may be unwrapped, but not beyond the bound the BaseVersion reader puts on a
+    heading (tracker.io.bounds): at 1e300 a float's spacing is more than a turn, and the heading
+    converted from it was an arbitrary angle, written without a word."""
+    bad = _replace_column(_CAR, " ", 14, value)
+    if layout == "ab3dmot":  # (frame, type code, 2D box, score, h, w, l, x, y, z, ry, alpha)
+        row = bad.split()
+        path = tmp_path / "Car" / "0001.txt"
+        path.parent.mkdir()
+        path.write_text(f"{_GOOD_DET}\n4," + ",".join(["2", *row[4:8], "0.9", *row[8:15], "0"]))
+        with pytest.raises(InputError) as excinfo:
+            read_ab3dmot_detections([path])
+        line, frame, field = 2, 4, "rot_y"
+    else:
+        path = _write_layout(layout, [_DONTCARE, _CAR, bad], tmp_path)
+        with pytest.raises(InputError) as excinfo:
+            _read_layout(layout, path)
+        line, frame, field = 3, 0, "rotation_y"
+    assert str(excinfo.value) == (
+        f"{path}:{line}: field '{field}': {value} (frame {frame}) is beyond ±10000 rad (a "
+        "heading is within a few turns of zero)"
+    )
+
+
+def test_a_converted_file_with_unwrapped_rotation_y_reads_back(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    """Detections and labels whose rotation_y is unwrapped by a thousand turns (as tracker
+    results carry it, here far beyond a few turns): the converted headings are wrapped into
+    (-pi, pi], so `mctrack convert kitti` writes files its own reader accepts, with the
+    headings of the wrapped input."""
+    from tracker.io.baseversion import read_baseversion
+
+    root = _kit_copy(kitti_root, tmp_path)
+    argv = ["convert", "kitti", "--kitti-root", str(root), "--seqs", "0001", "--detector"]
+    assert main([*argv, "pointrcnn", "--out", str(tmp_path / "wrapped")]) == 0
+    turns = 2 * np.pi * 1000
+    for path, sep, column in (
+        *((root / "detections" / "pointrcnn" / "training" / c / "0001.txt", ",", 13)
+          for c in ("Car", "Pedestrian", "Cyclist")),
+        (root / "training" / "label_02" / "0001.txt", " ", 16),
+    ):  # fmt: skip
+        rows = [line.split(sep) for line in path.read_text().splitlines() if line.strip()]
+        for row in rows:
+            row[column] = f"{float(row[column]) + turns:.17g}"
+        path.write_text("\n".join(sep.join(row) for row in rows) + "\n")
+    assert main([*argv, "pointrcnn", "--out", str(tmp_path / "unwrapped")]) == 0
+    for name in ("detections.json", "gt.json"):
+        raw = json.loads((tmp_path / "unwrapped" / name).read_text())
+        yaws = np.array([b["global_yaw"] for f in raw["0001"] for b in f["bboxes"]])
+        assert len(yaws) > 100 and (np.abs(yaws) <= np.pi).all()
+        expected = read_baseversion(tmp_path / "wrapped" / name)["0001"]
+        got = read_baseversion(tmp_path / "unwrapped" / name)["0001"]
+        for a, b in zip(expected, got, strict=True):
+            assert np.abs(wrap_angle(a.boxes.yaw - b.boxes.yaw)).max(initial=0.0) < 1e-9
+
+
 @pytest.mark.parametrize("layout", _LAYOUTS)
 def test_a_dontcare_row_with_the_kits_sizes_still_reads(tmp_path: Path, layout: str) -> None:
     objects = _read_layout(layout, _write_layout(layout, [_DONTCARE, _CAR], tmp_path))

@@ -65,7 +65,7 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
-from tracker.io.bounds import BOUND_NOTE, beyond_bound
+from tracker.io.bounds import ANGLE_NOTE, BOUND_NOTE, MAX_ANGLE_RAD, beyond_bound
 
 LOG = logging.getLogger(__name__)
 
@@ -563,6 +563,7 @@ def _objects_from_label_columns(
     score_raw = table.floats([offset + 15])[:, 0] if has_score and n else np.full(n, np.nan)
     _check_positive(table, numbers[:, 7:10], [offset + 8, offset + 9, offset + 10], type_name)
     _check_bound(table, numbers[:, 7:13], list(range(offset + 8, offset + 14)), frame)
+    _check_angle(table, numbers[:, 13], offset + 14, frame)
     occluded = numbers[:, 1]
     return KittiObjects(
         frame=frame,
@@ -611,6 +612,20 @@ def _check_bound(table: _Table, values: FloatArray, columns: list[int], frame: I
         raise InputError(
             f"{table.tokens[columns[j]][row].strip()} (frame {frame[row]}) is {BOUND_NOTE}",
             path=path, line=line, field=table.columns[columns[j]],
+        )  # fmt: skip
+
+
+def _check_angle(table: _Table, values: FloatArray, column: int, frame: IntArray) -> None:
+    """``rotation_y`` may be unwrapped (tracker results carry it so), but within the heading
+    bound of :mod:`tracker.io.bounds`: beyond it a float's spacing nears a turn and the heading
+    taken from it is arbitrary (as the BaseVersion reader refuses such a ``global_yaw``)."""
+    far = beyond_bound(values, MAX_ANGLE_RAD)
+    if far.any():
+        row = int(np.argmax(far))
+        path, line = table.where(row)
+        raise InputError(
+            f"{table.tokens[column][row].strip()} (frame {frame[row]}) is {ANGLE_NOTE}",
+            path=path, line=line, field=table.columns[column],
         )  # fmt: skip
 
 
@@ -669,6 +684,7 @@ def read_ab3dmot_detections(paths: Sequence[str | Path]) -> KittiObjects:
     numbers = table.floats([2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13])  # x1 .. rot_y
     _check_positive(table, numbers[:, 5:8], [7, 8, 9], None)
     _check_bound(table, numbers[:, 5:11], list(range(7, 13)), frame)
+    _check_angle(table, numbers[:, 11], 13, frame)
     category = code_to_category[codes]
     return KittiObjects(
         frame=frame,
@@ -708,7 +724,8 @@ def read_kitti_tracking_detections(path: str | Path) -> KittiObjects:
 
     Class names decide the category (unknown ones are counted, logged and dropped by the
     caller's class filter); ``alpha``/``rotation_y`` may be unwrapped (headings are wrapped
-    when the boxes move to the world frame). A frame without boxes simply has no line.
+    when the boxes move to the world frame; a ``rotation_y`` beyond ±1e4 rad is refused). A
+    frame without boxes simply has no line.
     """
     path = Path(path)
     table = _read_table([path], columns=TRACKING_DET_COLUMNS, counts=(17, 18))
