@@ -331,6 +331,21 @@ BAD_CASES = [
         lambda d: _image(d).update(camera_type="CAM_BACK"),
         "field 'bbox_image.camera_type' = 'CAM_BACK' names no camera of this frame",
     ),
+    (
+        "ignore region in a camera the frame lacks",  # (read as no camera, silently)
+        lambda d: d["0007"][0].update(
+            ignore_regions_image=[{"camera_type": "CAM_BACK", "x1y1x2y2": [1, 2, 3, 4]}]
+        ),
+        "frame index 0: field 'ignore_regions_image[0].camera_type' = 'CAM_BACK' names no camera "
+        "of this frame (its transform_matrix.cameras_transform_matrix has 'CAM_FRONT')",
+    ),
+    (
+        "ignore region camera not a string",
+        lambda d: d["0007"][0].update(
+            ignore_regions_image=[{"camera_type": 0, "x1y1x2y2": [1, 2, 3, 4]}]
+        ),
+        "field 'ignore_regions_image[0].camera_type' must be a string or null",
+    ),
     ("status a string", lambda d: _box(d).update(status="1"), "field 'status' must be an int"),
     ("status a boolean", lambda d: _box(d).update(status=True), "field 'status' must be an int"),
     ("status unknown", lambda d: _box(d).update(status=7), "field 'status' = 7 is outside [0, 4]"),
@@ -413,10 +428,18 @@ def test_box_fields_at_their_limits_stay_accepted(tmp_path: Path) -> None:
     car.update(status=2, global_yaw=9 * math.pi / 2 - 1e-9)
     car["bbox_image"]["x1y1x2y2"] = [612.0, 170.5, 612.0, 221.8]
     tram.update(status=1, bbox_image={"camera_type": "CAM_BACK", "x1y1x2y2": [1, 2, 3, 4]})
+    # ignore regions: the same cameras accepted (and in a frame listing none, any name)
+    frame["ignore_regions_image"] = [
+        {"camera_type": c, "x1y1x2y2": [1, 2, 3, 4]} for c in ("CAM_FRONT", "CAM_BACK", None)
+    ]
+    data["0007"][1]["ignore_regions_image"] = [{"camera_type": "CAM_X", "x1y1x2y2": [1, 2, 3, 4]}]
     path = write(tmp_path, data)
     assert validate_baseversion(path, fallback_frame_rate_hz=10.0).ok
-    boxes = read_baseversion(path, fallback_frame_rate_hz=10.0)["0007"][0].boxes
+    frames = read_baseversion(path, fallback_frame_rate_hz=10.0)["0007"]
+    boxes = frames[0].boxes
     assert boxes.camera.tolist() == [0, -1]  # CAM_FRONT; CAM_BACK has no model
+    assert frames[0].ignore_camera.tolist() == [0, -1, -1]
+    assert frames[1].ignore_camera.tolist() == [-1]
     assert boxes.xyxy_image[0].tolist() == [612.0, 170.5, 612.0, 221.8]
 
 
@@ -446,3 +469,20 @@ def test_validate_json_prints_the_errors_as_json(
     assert main(["validate", str(path), "--json"]) == 2
     report = json.loads(capsys.readouterr().out)
     assert report["error_count"] == 1 and "no scene to track" in report["errors"][0]
+
+
+def test_validate_cli_refuses_an_ignore_region_in_an_unlisted_camera(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`mctrack validate` said OK to a DontCare region naming a camera the frame lacks (the
+    reader took it as no camera): now one line naming the file, frame and field, exit 2."""
+    region = {"camera_type": "CAM_BACK", "x1y1x2y2": [1, 2, 3, 4]}
+    path = write(
+        tmp_path, _official_with(lambda d: d["0007"][0].update(ignore_regions_image=[region]))
+    )
+    assert main(["validate", str(path), "--frame-rate", "10"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert (
+        f"{path}: scene '0007', frame index 0: field 'ignore_regions_image[0].camera_type'" in err
+    )

@@ -345,7 +345,6 @@ def test_a_pose_beyond_the_bound_is_refused_naming_its_line_frame_and_field(
     ("key", "column", "value", "said"),
     [
         ("Tr_velo_to_cam", 3, "1e300", "translation [1e+300, "),
-        ("Tr_imu_to_velo", 11, "-3e8", "translation ["),
         ("P2", 3, "1e300", "the camera's translation K⁻¹ P2[:, 3] [1.38"),
         ("P2", 0, "0", "its left 3x3 (the intrinsics) is singular: not a camera"),
     ],
@@ -375,6 +374,92 @@ def test_a_calib_translation_beyond_the_bound_or_a_singular_camera_is_refused(
     assert "singular" in said or message.endswith(
         "is beyond ±1e+08 m (farther or larger than anything on Earth)"
     )
+
+
+def _edit_calib_line(calib: Path, key: str, text: str) -> int:
+    """Replace the values of ``key``'s line in ``calib`` by ``text``; its 1-based line number."""
+    lines = calib.read_text().splitlines()
+    line = next(i for i, row in enumerate(lines) if row.split()[0].rstrip(":") == key)
+    lines[line] = f"{lines[line].split()[0]} {text}".rstrip()
+    calib.write_text("\n".join(lines) + "\n")
+    return line + 1
+
+
+_ZEROS_12 = " ".join(["0"] * 12)
+_UNUSED_CALIB_CASES = [
+    ("P0", "1 2 3", "expected 12 values, got 3"),
+    ("P0", "", "expected 12 values, got 0"),
+    ("P1", " ".join(["x"] * 12), "not a number (could not convert string to float: 'x')"),
+    ("P3", " ".join(["nan"] * 12), "non-finite value"),
+    ("P3", _ZEROS_12, "its left 3x3 (the intrinsics) is singular: not a camera"),
+    ("P1", "1 0 0 1e300 0 1 0 0 0 0 1 0", "the camera's translation K⁻¹ P1[:, 3] [1e+300, "),
+    ("Tr_imu_to_velo", "1 0 0 0 0 1 0 0 0 0", "expected 12 values, got 10"),
+    ("Tr_imu_to_velo", "1 0 0 0 0 1 0 0 0 0 1 -3e8", "translation [0.0, 0.0, -300000000.0] is"),
+]
+
+
+@pytest.mark.parametrize(
+    ("key", "text", "said"),
+    _UNUSED_CALIB_CASES,
+    ids=[f"{k}:{s[:20]}" for k, _, s in _UNUSED_CALIB_CASES],
+)
+def test_a_malformed_calib_matrix_the_conversion_does_not_use_is_a_logged_skip(
+    kitti_root: Path,
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+    key: str,
+    text: str,
+    said: str,
+) -> None:
+    """P0, P1, P3 and Tr_imu_to_velo are read for the record and used by nothing: a malformed
+    one refused the whole sequence (or, all zeros, was kept as a projection that is no camera).
+    Now it is left out with a warning naming the file, line and key, and the conversion is the
+    same as with the file intact."""
+    root = _kit_copy(kitti_root, tmp_path)
+    calib = root / "training" / "calib" / "0001.txt"
+    intact = read_kitti_calib(calib)
+    reference, _ = convert_kitti(root, seqs=["0001"], poses=None, with_gt=False)
+    line = _edit_calib_line(calib, key, text)
+    with caplog.at_level(logging.WARNING, logger="tracker.io.convert.kitti"):
+        read = read_kitti_calib(calib)
+        converted, _ = convert_kitti(root, seqs=["0001"], poses=None, with_gt=False)
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert f"{calib}:{line}: field '{key}': {said}" in warnings[0]
+    assert warnings[0].endswith("(not used by the conversion: left out)")
+    if key.startswith("P"):
+        assert set(read.projections) == set(intact.projections) - {key}
+    else:
+        assert read.velo_from_imu is None and intact.velo_from_imu is not None
+    np.testing.assert_array_equal(read.image_from_rect, intact.image_from_rect)
+    np.testing.assert_array_equal(read.rect_from_velo, intact.rect_from_velo)
+    for a, b in zip(reference["0001"], converted["0001"], strict=True):
+        assert a.boxes.equals(b.boxes)
+
+
+_USED_CALIB_CASES = [
+    ("P2", "1 2 3", "expected 12 values, got 3"),
+    ("R0_rect", " ".join(["x"] * 9), "not a number (could not convert string to float: 'x')"),
+    ("R0_rect", _ZEROS_12, "expected 9 values, got 12"),
+    ("Tr_velo_to_cam", " ".join(["inf"] * 12), "non-finite value"),
+]
+
+
+@pytest.mark.parametrize(
+    ("key", "text", "said"),
+    _USED_CALIB_CASES,
+    ids=[f"{k}:{s[:20]}" for k, _, s in _USED_CALIB_CASES],
+)
+def test_a_malformed_calib_matrix_the_conversion_uses_is_refused(
+    kitti_root: Path, tmp_path: Path, key: str, text: str, said: str
+) -> None:
+    """P2, R0_rect and Tr_velo_to_cam place every box: a malformed one is one line naming the
+    calib file, the line and the key (the CLI's exit status 2), never a traceback."""
+    root = _kit_copy(kitti_root, tmp_path)
+    calib = root / "training" / "calib" / "0001.txt"
+    line = _edit_calib_line(calib, key, text)
+    with pytest.raises(InputError) as excinfo:
+        convert_kitti(root, seqs=["0001"], poses=None, with_gt=False)
+    assert str(excinfo.value) == f"{calib}:{line}: field '{key}': {said}"
 
 
 def test_poses_of_a_longer_sequence_are_a_warning(
@@ -604,6 +689,67 @@ def test_a_box_beyond_the_bound_names_file_line_frame_and_field(
         f"{path}:{line}: field '{field}': {value} (frame {frame}) is beyond ±1e+08 m (farther or "
         "larger than anything on Earth)"
     )
+
+
+@pytest.mark.parametrize("value", ["2e4", "-1e300"])
+@pytest.mark.parametrize("layout", [*_LAYOUTS, "ab3dmot"])
+def test_a_rotation_y_beyond_the_heading_bound_names_file_line_frame_and_field(
+    tmp_path: Path, layout: str, value: str
+) -> None:
+    """rotation_y may be unwrapped, but not beyond the bound the BaseVersion reader puts on a
+    heading (tracker.io.bounds): at 1e300 a float's spacing is more than a turn, and the heading
+    converted from it was an arbitrary angle, written without a word."""
+    bad = _replace_column(_CAR, " ", 14, value)
+    if layout == "ab3dmot":  # (frame, type code, 2D box, score, h, w, l, x, y, z, ry, alpha)
+        row = bad.split()
+        path = tmp_path / "Car" / "0001.txt"
+        path.parent.mkdir()
+        path.write_text(f"{_GOOD_DET}\n4," + ",".join(["2", *row[4:8], "0.9", *row[8:15], "0"]))
+        with pytest.raises(InputError) as excinfo:
+            read_ab3dmot_detections([path])
+        line, frame, field = 2, 4, "rot_y"
+    else:
+        path = _write_layout(layout, [_DONTCARE, _CAR, bad], tmp_path)
+        with pytest.raises(InputError) as excinfo:
+            _read_layout(layout, path)
+        line, frame, field = 3, 0, "rotation_y"
+    assert str(excinfo.value) == (
+        f"{path}:{line}: field '{field}': {value} (frame {frame}) is beyond ±10000 rad (a "
+        "heading is within a few turns of zero)"
+    )
+
+
+def test_a_converted_file_with_unwrapped_rotation_y_reads_back(
+    kitti_root: Path, tmp_path: Path
+) -> None:
+    """Detections and labels whose rotation_y is unwrapped by a thousand turns (as tracker
+    results carry it, here far beyond a few turns): the converted headings are wrapped into
+    (-pi, pi], so `mctrack convert kitti` writes files its own reader accepts, with the
+    headings of the wrapped input."""
+    from tracker.io.baseversion import read_baseversion
+
+    root = _kit_copy(kitti_root, tmp_path)
+    argv = ["convert", "kitti", "--kitti-root", str(root), "--seqs", "0001", "--detector"]
+    assert main([*argv, "pointrcnn", "--out", str(tmp_path / "wrapped")]) == 0
+    turns = 2 * np.pi * 1000
+    for path, sep, column in (
+        *((root / "detections" / "pointrcnn" / "training" / c / "0001.txt", ",", 13)
+          for c in ("Car", "Pedestrian", "Cyclist")),
+        (root / "training" / "label_02" / "0001.txt", " ", 16),
+    ):  # fmt: skip
+        rows = [line.split(sep) for line in path.read_text().splitlines() if line.strip()]
+        for row in rows:
+            row[column] = f"{float(row[column]) + turns:.17g}"
+        path.write_text("\n".join(sep.join(row) for row in rows) + "\n")
+    assert main([*argv, "pointrcnn", "--out", str(tmp_path / "unwrapped")]) == 0
+    for name in ("detections.json", "gt.json"):
+        raw = json.loads((tmp_path / "unwrapped" / name).read_text())
+        yaws = np.array([b["global_yaw"] for f in raw["0001"] for b in f["bboxes"]])
+        assert len(yaws) > 100 and (np.abs(yaws) <= np.pi).all()
+        expected = read_baseversion(tmp_path / "wrapped" / name)["0001"]
+        got = read_baseversion(tmp_path / "unwrapped" / name)["0001"]
+        for a, b in zip(expected, got, strict=True):
+            assert np.abs(wrap_angle(a.boxes.yaw - b.boxes.yaw)).max(initial=0.0) < 1e-9
 
 
 @pytest.mark.parametrize("layout", _LAYOUTS)

@@ -39,6 +39,7 @@ from tracker.io.convert.nuscenes import (
     assign_cameras,
     convert_nuscenes,
     load_nuscenes,
+    table_problem,
     yaw_from_quaternions,
 )
 from tracker.io.nuscenes_writer import nuscenes_results, write_nuscenes_results
@@ -1045,6 +1046,16 @@ _LOAD_PROBLEMS: dict[str, tuple[Callable[[dict[str, list[Any]]], None], str, str
         lambda t: t["map"][0].__setitem__("log_tokens", []),
         "log.json", "in the field 'log_tokens' of no map record (map.json)",
     ),
+    # (the log was said to be in no map: the map's token, the likelier typo, was not named)
+    "map_names_no_log": (
+        lambda t: t["map"][0].__setitem__("log_tokens", ["gone"]),
+        "map.json", "field 'log_tokens' names 'gone', which is not the token of a log record",
+    ),
+    # (was '<dataroot>/v1.0-mini: malformed nuScenes tables (TypeError("unhashable type..."))')
+    "map_log_token_a_list": (
+        lambda t: t["map"][0]["log_tokens"].append(["x"]),
+        "map.json", "field 'log_tokens' names ['x'], which is not the token of a log record",
+    ),
 }  # fmt: skip
 
 
@@ -1067,3 +1078,22 @@ def test_tables_the_devkit_cannot_load_are_named(
         load_nuscenes(root, dataset.version)
     assert str(err.value).startswith(f"{root / dataset.version / table}"), str(err.value)
     assert said in str(err.value)
+
+
+@needs_devkit
+def test_a_map_naming_no_log_is_a_table_problem(dataset: SyntheticNuScenes, tmp_path: Path) -> None:
+    """A map whose log_tokens names a log that does not exist, beside the logs it names: the
+    devkit loads it, but table_problem (run once the devkit failed, for whatever reason) names
+    it, as it names every token that names no record; the intact tables have no problem."""
+    assert table_problem(dataset.dataroot / dataset.version) is None
+    names: list[str] = []
+
+    def edit(tables: dict[str, list[Any]]) -> None:
+        tables["map"][0]["log_tokens"].append("gone")
+        names.append(tables["map"][0]["token"])
+
+    root = _edited_dataset(dataset, tmp_path / "map", edit)
+    assert table_problem(root / dataset.version) == (
+        f"{root / dataset.version / 'map.json'}: map {names[0]!r}: field 'log_tokens' names "
+        "'gone', which is not the token of a log record"
+    )

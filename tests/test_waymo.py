@@ -383,7 +383,8 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
     'GT track 0 has two samples', or NaN in gt.json). A box beyond the bound a detection's has
     (1e300: finite; tracker.io.bounds) is refused as a detection's, naming its frame too, and a
     velocity beyond the velocity bound (2e4 m/s: was converted, and overflowed downstream at
-    1e300) likewise."""
+    1e300) likewise, and a heading beyond the BaseVersion reader's bound (was converted to an
+    arbitrary angle)."""
     path = segment / "gt" / f"{SEGMENT}.npz"
     good = dict(np.load(path))
     ids, velos, bboxes = good["ids"].copy(), good["velos"].copy(), good["bboxes"].copy()
@@ -393,6 +394,8 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
     fast = good["velos"].copy()
     fast[7] = [1.5, 2e4]
     bboxes[5, 1] = 1e300
+    turned = good["bboxes"].copy()
+    turned[6, 3] = -1e300  # (a heading: its float spacing is more than a turn)
     cases = {
         "object twice in a frame": (
             {"ids": ids},
@@ -408,6 +411,11 @@ def test_ground_truth_ids_and_velocities_are_checked(segment: Path, tmp_path: Pa
             {"bboxes": bboxes},
             rf"bboxes row 5 \(frame {good['frame_index'][5]}\): x, y, z = \[.*, 1e\+300, .*\]: "
             r"beyond ±1e\+08 m",
+        ),
+        "heading beyond the bound": (
+            {"bboxes": turned},
+            rf"bboxes row 6 \(frame {good['frame_index'][6]}\): heading = -1e\+300: beyond "
+            r"±10000 rad \(a heading is within a few turns of zero\)$",
         ),
     }
     argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]

@@ -356,12 +356,14 @@ def _read_frame(
     bboxes = raw["bboxes"]
     if not isinstance(bboxes, list):
         raise InputError(f"{at}: field 'bboxes' must be a list")
-    # A box may name any camera the frame lists, also one left out for want of a model (read as
-    # no camera). A frame listing none (cameras stripped) has no image plane to check against:
-    # its boxes' camera_type is read as no camera.
+    # A box or ignore region may name any camera the frame lists, also one left out for want of
+    # a model (read as no camera). A frame listing none (cameras stripped) has no image plane to
+    # check against: its boxes' and regions' camera_type is read as no camera.
     frame_cameras = frozenset((transform or {}).get("cameras_transform_matrix") or ())
     boxes = _read_boxes(bboxes, camera_names, frame_cameras, at, report, errors)
-    ignore_xyxy, ignore_cam = _read_ignore(raw.get("ignore_regions_image"), camera_names, at)
+    ignore_xyxy, ignore_cam = _read_ignore(
+        raw.get("ignore_regions_image"), camera_names, frame_cameras, at
+    )
     token = raw.get("cur_sample_token")
     if token is not None and not isinstance(token, str):
         raise InputError(f"{at}: field 'cur_sample_token' must be a string or null")
@@ -569,7 +571,11 @@ def _front_first(cams: dict[str, Any]) -> list[str]:
     return ["CAM_FRONT", *sorted(n for n in cams if n != "CAM_FRONT")]
 
 
-def _read_ignore(value: Any, camera_names: list[str], at: str) -> tuple[FloatArray, np.ndarray]:
+def _read_ignore(
+    value: Any, camera_names: list[str], frame_cameras: frozenset[str], at: str
+) -> tuple[FloatArray, np.ndarray]:
+    """Ignore regions, each in a camera the frame lists (checked as a box's ``camera_type``:
+    a region in an unlisted camera was read as no camera, silently)."""
     if not value:
         return np.zeros((0, 4)), np.zeros(0, dtype=np.int64)
     if not isinstance(value, list):
@@ -581,6 +587,16 @@ def _read_ignore(value: Any, camera_names: list[str], at: str) -> tuple[FloatArr
             raise InputError(f"{at}, ignore region {i}: field 'x1y1x2y2' missing")
         xyxy[i] = _matrix([region["x1y1x2y2"]], ((1, 4),), at, f"ignore_regions_image[{i}]")[0]
         name = region.get("camera_type")
+        if name is not None and not isinstance(name, str):
+            raise InputError(
+                f"{at}: field 'ignore_regions_image[{i}].camera_type' must be a string or null"
+            )
+        if name and frame_cameras and name not in frame_cameras:
+            has = ", ".join(map(_short, sorted(frame_cameras)))
+            raise InputError(
+                f"{at}: field 'ignore_regions_image[{i}].camera_type' = {_short(name)} names no "
+                f"camera of this frame (its transform_matrix.cameras_transform_matrix has {has})"
+            )
         cam[i] = camera_names.index(name) if name in camera_names else -1
     return xyxy, cam
 

@@ -10,7 +10,9 @@ files, nuScenes ego_pose and calibrated_sensor, BaseVersion ``transform_matrix``
 ``ego_info``) refuses a translation beyond the same bound (a pose at 1e300 m puts every box of
 its frame there), and every reader of velocities (detections and ground truth) one beyond
 :data:`MAX_SPEED_MPS`, ending in :data:`SPEED_NOTE`. The BaseVersion reader refuses a heading
-(``global_yaw``) beyond :data:`MAX_ANGLE_RAD`, ending in :data:`ANGLE_NOTE`.
+(``global_yaw``) beyond :data:`MAX_ANGLE_RAD`, ending in :data:`ANGLE_NOTE`, and so do the
+converters' readers of headings that may be unwrapped (KITTI ``rotation_y``, Waymo ``heading``;
+nuScenes headings are quaternions); the converters write headings wrapped into (−π, π].
 """
 
 from __future__ import annotations

@@ -65,7 +65,7 @@ from tracker.categories import CATEGORIES, category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
-from tracker.io.bounds import BOUND_NOTE, beyond_bound
+from tracker.io.bounds import ANGLE_NOTE, BOUND_NOTE, MAX_ANGLE_RAD, beyond_bound
 
 LOG = logging.getLogger(__name__)
 
@@ -162,8 +162,9 @@ class KittiCalib:
     image_from_rect : (3, 4) ``P2``, rectified reference camera → image 2 pixels.
     rect_from_cam0 : (4, 4) ``R0_rect`` padded, or None when absent.
     cam0_from_velo : (4, 4) ``Tr_velo_to_cam`` padded, or None when absent.
-    velo_from_imu : (4, 4) ``Tr_imu_to_velo`` padded, or None when absent.
-    projections : (3, 4) ``P0`` .. ``P3`` by name.
+    velo_from_imu : (4, 4) ``Tr_imu_to_velo`` padded, or None when absent or malformed (unused).
+    projections : (3, 4) ``P0`` .. ``P3`` by name (all but ``P2`` unused here, and left out
+        when malformed).
     """
 
     path: Path
@@ -202,6 +203,8 @@ _CALIB_KEYS = {
     "P0": "P0", "P1": "P1", "P2": "P2", "P3": "P3",
 }  # fmt: skip
 _CALIB_SIZES = {"R0_rect": 9, "Tr_velo_to_cam": 12, "Tr_imu_to_velo": 12}
+# read for the record (KittiCalib.projections, velo_from_imu), used by nothing in the conversion
+_CALIB_UNUSED = frozenset({"P0", "P1", "P3", "Tr_imu_to_velo"})
 
 
 def _pad_4x4(matrix: FloatArray) -> FloatArray:
@@ -215,8 +218,12 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
 
     The object benchmark (and AB3DMOT's copies) write ``R0_rect:``, ``Tr_velo_to_cam:``,
     ``Tr_imu_to_velo:``; the official tracking files write ``R_rect``, ``Tr_velo_cam``,
-    ``Tr_imu_velo`` (no colon). Unknown keys are ignored. Raises :class:`InputError` naming the
-    file, line and key on a missing ``P2``, a wrong value count or a bad number.
+    ``Tr_imu_velo`` (no colon). Unknown keys are ignored. The matrices the conversion uses
+    (``P2``, ``R0_rect``, ``Tr_velo_to_cam``) are checked: a missing ``P2``, a wrong value
+    count, a bad number, a ``P2`` that is not a camera or a translation beyond the bound raise
+    :class:`InputError` naming the file, line and key. The others (``P0``, ``P1``, ``P3``,
+    ``Tr_imu_to_velo``) are read for the record and checked the same way, but a malformed one
+    is left out with a logged warning: a sequence is not refused over a matrix nothing reads.
     """
     path = Path(path)
     values: dict[str, FloatArray] = {}
@@ -228,25 +235,21 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
         key = _CALIB_KEYS.get(tokens[0].rstrip(":"))
         if key is None:
             continue
-        expected = _CALIB_SIZES.get(key, 12)
-        if len(tokens) - 1 != expected:
-            raise InputError(
-                f"expected {expected} values, got {len(tokens) - 1}",
-                path=path,
-                line=line_no,
-                field=key,
-            )
         try:
-            numbers = np.array(tokens[1:], dtype=np.float64)
+            matrix = _calib_matrix(tokens[1:], key)
+            if key != "R0_rect":
+                _check_calib_matrix(matrix, key)
         except ValueError as exc:
-            raise InputError(f"not a number ({exc})", path=path, line=line_no, field=key) from None
-        if not np.isfinite(numbers).all():
-            raise InputError("non-finite value", path=path, line=line_no, field=key)
-        values[key] = numbers.reshape(3, 3) if expected == 9 else numbers.reshape(3, 4)
+            error = InputError(str(exc), path=path, line=line_no, field=key)
+            if key not in _CALIB_UNUSED:
+                raise error from None
+            LOG.warning("%s (not used by the conversion: left out)", error)
+            values.pop(key, None)  # (a later line of the key: not an earlier one in its place)
+            continue
+        values[key] = matrix
         lines[key] = line_no
     if "P2" not in values:
         raise InputError("missing key 'P2'", path=path, field="P2")
-    _check_calib_translations(path, values, lines)
     padded = {k: _pad_4x4(values[k]) for k in _CALIB_SIZES if k in values}
     return KittiCalib(
         path=path,
@@ -258,33 +261,36 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
     )
 
 
-def _check_calib_translations(
-    path: Path, values: Mapping[str, FloatArray], lines: Mapping[str, int]
-) -> None:
-    """The calib's translations (``Tr_velo_to_cam`` and camera 2's ``K⁻¹ P2[:, 3]``, applied
-    to every box, and ``Tr_imu_to_velo``) within the bound of :mod:`tracker.io.bounds`, and
-    ``P2`` a camera (its left 3x3 invertible: else :attr:`KittiCalib.cam2_from_rect` failed in
-    a traceback)."""
-    p2 = values["P2"]
+def _calib_matrix(tokens: Sequence[str], key: str) -> FloatArray:
+    """One calib line's values as its matrix; ValueError saying what is wrong."""
+    expected = _CALIB_SIZES.get(key, 12)
+    if len(tokens) != expected:
+        raise ValueError(f"expected {expected} values, got {len(tokens)}")
     try:
-        with np.errstate(all="ignore"):
-            cam2 = np.linalg.solve(p2[:, :3], p2[:, 3])
-    except np.linalg.LinAlgError:
-        raise InputError(
-            "its left 3x3 (the intrinsics) is singular: not a camera",
-            path=path, line=lines["P2"], field="P2",
-        ) from None  # fmt: skip
-    translations = {"P2": cam2}
-    translations |= {
-        k: values[k][:, 3] for k in ("Tr_velo_to_cam", "Tr_imu_to_velo") if k in values
-    }
-    for key, translation in translations.items():
-        if not np.isfinite(translation).all() or beyond_bound(translation[None])[0]:
-            what = "the camera's translation K⁻¹ P2[:, 3]" if key == "P2" else "translation"
-            raise InputError(
-                f"{what} {translation.tolist()} is {BOUND_NOTE}",
-                path=path, line=lines[key], field=key,
-            )  # fmt: skip
+        numbers = np.array(tokens, dtype=np.float64)
+    except ValueError as exc:
+        raise ValueError(f"not a number ({exc})") from None
+    if not np.isfinite(numbers).all():
+        raise ValueError("non-finite value")
+    return numbers.reshape(3, 3) if expected == 9 else numbers.reshape(3, 4)
+
+
+def _check_calib_matrix(matrix: FloatArray, key: str) -> None:
+    """A projection ``P0`` .. ``P3`` is a camera (its left 3x3 invertible: else
+    :attr:`KittiCalib.cam2_from_rect` failed in a traceback) whose translation ``K⁻¹ P[:, 3]``
+    is within the bound of :mod:`tracker.io.bounds`, as ``Tr_velo_to_cam``'s (applied to every
+    box) and ``Tr_imu_to_velo``'s translations are; ValueError saying what is wrong."""
+    if key.startswith("P"):
+        try:
+            with np.errstate(all="ignore"):
+                translation = np.linalg.solve(matrix[:, :3], matrix[:, 3])
+        except np.linalg.LinAlgError:
+            raise ValueError("its left 3x3 (the intrinsics) is singular: not a camera") from None
+        what = f"the camera's translation K⁻¹ {key}[:, 3]"
+    else:
+        translation, what = matrix[:, 3], "translation"
+    if not np.isfinite(translation).all() or beyond_bound(translation[None])[0]:
+        raise ValueError(f"{what} {translation.tolist()} is {BOUND_NOTE}")
 
 
 def read_kitti_poses(path: str | Path) -> FloatArray:
@@ -557,6 +563,7 @@ def _objects_from_label_columns(
     score_raw = table.floats([offset + 15])[:, 0] if has_score and n else np.full(n, np.nan)
     _check_positive(table, numbers[:, 7:10], [offset + 8, offset + 9, offset + 10], type_name)
     _check_bound(table, numbers[:, 7:13], list(range(offset + 8, offset + 14)), frame)
+    _check_angle(table, numbers[:, 13], offset + 14, frame)
     occluded = numbers[:, 1]
     return KittiObjects(
         frame=frame,
@@ -605,6 +612,20 @@ def _check_bound(table: _Table, values: FloatArray, columns: list[int], frame: I
         raise InputError(
             f"{table.tokens[columns[j]][row].strip()} (frame {frame[row]}) is {BOUND_NOTE}",
             path=path, line=line, field=table.columns[columns[j]],
+        )  # fmt: skip
+
+
+def _check_angle(table: _Table, values: FloatArray, column: int, frame: IntArray) -> None:
+    """``rotation_y`` may be unwrapped (tracker results carry it so), but within the heading
+    bound of :mod:`tracker.io.bounds`: beyond it a float's spacing nears a turn and the heading
+    taken from it is arbitrary (as the BaseVersion reader refuses such a ``global_yaw``)."""
+    far = beyond_bound(values, MAX_ANGLE_RAD)
+    if far.any():
+        row = int(np.argmax(far))
+        path, line = table.where(row)
+        raise InputError(
+            f"{table.tokens[column][row].strip()} (frame {frame[row]}) is {ANGLE_NOTE}",
+            path=path, line=line, field=table.columns[column],
         )  # fmt: skip
 
 
@@ -663,6 +684,7 @@ def read_ab3dmot_detections(paths: Sequence[str | Path]) -> KittiObjects:
     numbers = table.floats([2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13])  # x1 .. rot_y
     _check_positive(table, numbers[:, 5:8], [7, 8, 9], None)
     _check_bound(table, numbers[:, 5:11], list(range(7, 13)), frame)
+    _check_angle(table, numbers[:, 11], 13, frame)
     category = code_to_category[codes]
     return KittiObjects(
         frame=frame,
@@ -702,7 +724,8 @@ def read_kitti_tracking_detections(path: str | Path) -> KittiObjects:
 
     Class names decide the category (unknown ones are counted, logged and dropped by the
     caller's class filter); ``alpha``/``rotation_y`` may be unwrapped (headings are wrapped
-    when the boxes move to the world frame). A frame without boxes simply has no line.
+    when the boxes move to the world frame; a ``rotation_y`` beyond ±1e4 rad is refused). A
+    frame without boxes simply has no line.
     """
     path = Path(path)
     table = _read_table([path], columns=TRACKING_DET_COLUMNS, counts=(17, 18))

@@ -62,7 +62,14 @@ from tracker.boxes import Boxes, FloatArray
 from tracker.categories import category_index
 from tracker.errors import InputError
 from tracker.frame import Camera, Frame
-from tracker.io.bounds import BOUND_NOTE, MAX_SPEED_MPS, SPEED_NOTE, beyond_bound
+from tracker.io.bounds import (
+    ANGLE_NOTE,
+    BOUND_NOTE,
+    MAX_ANGLE_RAD,
+    MAX_SPEED_MPS,
+    SPEED_NOTE,
+    beyond_bound,
+)
 from tracker.io.convert.nuscenes import assign_cameras, overflowing_boxes
 from tracker.io.fileio import SafeNpz, load_npz
 
@@ -364,6 +371,14 @@ def read_box_table(npz: SafeNpz, path: Path, n_frames: int, *, gt: bool) -> _Box
                 f"{path}: bboxes row {k} (frame {frame_index[k]}): {names} = "
                 f"{bboxes[k, columns].tolist()}: {BOUND_NOTE}"
             )
+    # (beyond the heading bound a float's spacing nears a turn: the heading would be arbitrary)
+    far = np.flatnonzero(beyond_bound(bboxes[:, 3], MAX_ANGLE_RAD))
+    if len(far):
+        k = far[0]
+        raise InputError(
+            f"{path}: bboxes row {k} (frame {frame_index[k]}): heading = {bboxes[k, 3]:g}: "
+            f"{ANGLE_NOTE}"
+        )
     order = np.argsort(frame_index, kind="stable")
     bounds = np.searchsorted(frame_index[order], np.arange(n_frames + 1))
     ids = velos = None
