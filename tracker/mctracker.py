@@ -65,7 +65,7 @@ from tracker.kernels import load as load_kernels
 from tracker.matching import Matches, greedy, hungarian
 from tracker.noise import PositionNoise
 from tracker.track import TrackTable
-from tracker.velocity_baselines import WINDOW, latest_velocities
+from tracker.velocity_baselines import WINDOW
 
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
 HEADING_FLIP_VOTES = 3  # consecutive detections disagreeing by > 90° that flip a static track
@@ -273,7 +273,7 @@ class MCTracker:
         assoc = self._image_stage(frame, dets, kept_rows, m1, bev_mask)  # SDIoU, greedy
         self._update(assoc.rows, dets, assoc.dets)
         self._tracks.record_matches(assoc.rows, kept_rows[assoc.dets], assoc.stage)
-        self._tracks.push_detections(assoc.rows, time_secs, dets.xyz[assoc.dets, :2])
+        self._record_detections(assoc.rows, time_secs, dets.xyz[assoc.dets, :2])
         born = self._birth(dets, assoc.unmatched_dets, kept_rows, time_secs)
         born_rows = self._tracks.matched_det[len(self._tracks) - len(born) :]  # appended last
         changes = self._lifecycle(assoc.rows, born)
@@ -718,6 +718,16 @@ class MCTracker:
         tr.evidence[idx] += _evidence(dets.score[det_rows])
         tr.log_odds[idx] += _log_odds(dets.score[det_rows])
 
+    def _record_detections(self, idx: IntArray, time_secs: float, xy: FloatArray) -> None:
+        """Tracks ``idx`` took detections at ``xy`` (their velocity baselines follow)."""
+        tr = self._tracks
+        if self._kernels is not None:
+            self._kernels.record_detections_kernel(
+                idx, time_secs, xy, tr.det_t, tr.det_xy, tr.baseline
+            )
+        else:
+            tr.record_detections(idx, time_secs, xy)
+
     def _birth(
         self, dets: Boxes, det_index: IntArray, kept_rows: IntArray, time_secs: float
     ) -> IntArray:
@@ -765,6 +775,7 @@ class MCTracker:
             matched_stage=np.zeros(n, dtype=np.int8),
             det_t=det_t,
             det_xy=det_xy,
+            baseline=np.zeros((n, 2, 2)),  # (0 at a track's first detection, as the reference)
         )  # every array is fresh or only read: append() copies them into the table
         self._tracks = self._tracks.append(new)
         return track_id
@@ -889,11 +900,8 @@ class MCTracker:
         if self._cat.any_cv:
             cv = ~self._cat.has_acceleration[boxes.category]
             acceleration = np.where(cv[:, None], np.nan, acceleration)
-        baselines = np.full((len(rows), 2, 2), np.nan)  # (a coasting row has no detection)
-        hit_rows = rows[det_row >= 0]
-        baselines[det_row >= 0] = np.stack(
-            latest_velocities(tr.det_t[hit_rows], tr.det_xy[hit_rows]), axis=1
-        )
+        baselines = tr.baseline[rows]
+        baselines[det_row < 0] = np.nan  # (a coasting row has no detection of its own)
         return TrackOutput(
             scene=frame.scene,
             frame_id=frame.frame_id,
