@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import dataclasses
 import gc
 import json
 import logging
@@ -438,16 +437,7 @@ def _of_classes(
             others.update(
                 CATEGORIES[c] for c in out.boxes.category[~keep & ~kitti[out.boxes.category]]
             )
-            kept[scene].append(
-                dataclasses.replace(
-                    out,
-                    boxes=out.boxes[keep],
-                    acceleration=out.acceleration[keep],
-                    status=out.status[keep],
-                    det_row=out.det_row[keep],
-                    stage=out.stage[keep],
-                )
-            )
+            kept[scene].append(out.select(keep))
     return kept, dict(others)
 
 

@@ -8,10 +8,10 @@ markdown page: one estimator × metric table per class (car and pedestrian by de
 pooled, the box errors, and whether the paper's nuScenes ranking (Kalman lowest VAE, VNE and VIR;
 differencing lowest VDE) holds on this run, decided from the numbers in the file.
 
-Unless ``--no-controls``, it also re-runs the same job (the summary's sequences, detector,
-classes and exact config; about a minute on KITTI val) to score three control estimators on the
-same matched samples: the GT velocity delayed by exactly 0.3 s, the GT velocity plus white noise,
-and the difference baseline smoothed without lag. They show what VDE responds to.
+Unless ``--no-controls``, it also scores three control estimators on the run's matched samples
+(from its ``tracks.json`` beside the summary, and the kit's detections and labels): the GT
+velocity delayed by exactly 0.3 s, the GT velocity plus white noise, and the difference baseline
+smoothed without lag. They show what VDE responds to.
 """
 
 from __future__ import annotations
@@ -70,7 +70,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     controls = None
     if not args.no_controls:
         controls = control_metrics(
-            summary, Path(args.kitti_root), classes=classes, poses=args.poses
+            summary,
+            Path(args.kitti_root),
+            classes=classes,
+            poses=args.poses,
+            tracks=Path(args.summary).parent / "tracks.json",
         )
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -147,23 +151,32 @@ CONTROL_SMOOTH_WINDOW = 9
 
 
 def control_metrics(
-    summary: Mapping[str, Any], kitti_root: Path, *, classes: Sequence[str], poses: str
+    summary: Mapping[str, Any],
+    kitti_root: Path,
+    *,
+    classes: Sequence[str],
+    poses: str,
+    tracks: Path,
 ) -> dict[str, Any]:
-    """Re-run the summary's job and score control estimators on its matched samples.
+    """Score control estimators on the run's matched samples.
 
+    The samples come from the run's own tracks file (``tracks``, beside the summary) and the
+    kit's detections and labels, so they are the run's, whatever profile or config it used.
     Returns ``{"reproduced": bool, "rows": {class: {control name: MotionMetrics}}}``;
-    ``reproduced`` says whether the re-run's Kalman metrics equal the summary's.
+    ``reproduced`` says whether the Kalman metrics of those samples equal the summary's.
     """
     import numpy as np
     from scipy.signal import savgol_filter
 
-    from tracker.config import config_from_dict
     from tracker.eval.motion_eval import Estimator, collect_motion_samples
     from tracker.eval.motion_metrics import motion_metrics
     from tracker.io.convert.kitti import convert_kitti
-    from tracker.pipeline import run_scene
+    from tracker.io.writers import read_tracks_file
 
-    config = config_from_dict(summary["config"], source=f"{summary_source(summary)} config")
+    if not tracks.is_file():
+        raise SystemExit(
+            f"{tracks}: no tracks file beside the summary (the run's; or --no-controls)"
+        )
     dets, gt = convert_kitti(
         kitti_root,
         seqs=summary["sequences"],
@@ -171,10 +184,11 @@ def control_metrics(
         poses=None if poses == "none" else poses,
         classes=summary["classes"],
         with_gt=True,
+        image_detector=summary.get("image_detector"),
     )
     if gt is None:
         raise SystemExit(f"no labels under {kitti_root}")
-    outputs = {s: run_scene(frames, config).outputs for s, frames in dets.items()}
+    outputs = read_tracks_file(tracks)[1]
     samples = collect_motion_samples(dets, gt, outputs, classes=classes)
     rng = np.random.default_rng(0)
     rows: dict[str, dict[str, Any]] = {}
@@ -241,8 +255,9 @@ def _controls_section(controls: Mapping[str, Any]) -> list[str]:
     lines.append("")
     if not controls["reproduced"]:
         lines += [
-            "Note: the re-run's Kalman metrics differ from the summary's (the tracker changed "
-            "since the summary was written); the controls use the re-run's samples.",
+            "Note: the Kalman metrics of the tracks file's samples differ from the summary's "
+            "(the file was replaced since the summary was written); the controls use the "
+            "file's samples.",
             "",
         ]
     return lines

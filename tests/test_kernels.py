@@ -23,6 +23,7 @@ from tracker.matching import hungarian
 from tracker.mctracker import MCTracker
 from tracker.pipeline import run_scene
 from tracker.track import TrackTable
+from tracker.velocity_baselines import WINDOW
 
 from .test_mctracker_fast_paths import assert_same_tracking
 
@@ -53,6 +54,9 @@ def random_table(rng: np.random.Generator, n: int, k: int) -> TrackTable:
     x[: n // 2, :2, 1] *= 10  # clearly moving
     P = random_spd(rng, (n, 5), k) * 0.01
     zeros = np.zeros(n, dtype=np.int64)
+    # each track's last 1..W detection times (NaN before its first)
+    det_t = np.cumsum(rng.uniform(0.05, 0.3, (n, WINDOW)), axis=1)
+    det_t[np.arange(WINDOW) < WINDOW - rng.integers(1, WINDOW + 1, n)[:, None]] = np.nan
     return dataclasses.replace(
         table,
         track_id=np.arange(n, dtype=np.int64),
@@ -75,6 +79,9 @@ def random_table(rng: np.random.Generator, n: int, k: int) -> TrackTable:
         log_odds=rng.normal(0.0, 3.0, n),
         matched_det=zeros - 1,
         matched_stage=np.zeros(n, dtype=np.int8),
+        det_t=det_t,
+        det_xy=rng.normal(0.0, 20.0, (n, WINDOW, 2)) + np.isnan(det_t)[..., None] * np.nan,
+        baseline=rng.normal(size=(n, 2, 2)),
     )
 
 
@@ -255,6 +262,28 @@ def test_record_hits_kernel_equals_numpy(config_name: str) -> None:
         plain._record_hits(*args)
         assert_tables_close(compiled._tracks, plain._tracks)
         assert not np.array_equal(compiled._tracks.hits, table.hits)
+
+
+def test_record_detections_kernel_equals_numpy() -> None:
+    """The velocity baselines' windows move on and the baselines follow, for tracks with 1, 2
+    and W or more detections behind them."""
+    rng = np.random.default_rng(5)
+    cfg = load_config("kitti", overrides={"categories": ["car", "pedestrian", "cyclist"]})
+    compiled, plain = MCTracker(cfg), MCTracker(cfg, compiled=False)
+    assert compiled._kernels is not None and plain._kernels is None
+    n = 40
+    for step in range(4):
+        table = random_table(rng, n, 3)
+        idx = np.sort(rng.choice(n, 25, replace=False))
+        xy = rng.normal(0.0, 20.0, (25, 2))
+        compiled._tracks, plain._tracks = copy_table(table), copy_table(table)
+        compiled._record_detections(idx, 2.0 + step, xy)
+        plain._record_detections(idx, 2.0 + step, xy)
+        assert_tables_close(compiled._tracks, plain._tracks)
+        np.testing.assert_array_equal(plain._tracks.det_xy[idx, -1], xy)
+        one = idx[np.isnan(table.det_t[idx, -2])]  # a track's 2nd detection: no curve yet
+        assert len(one) and (plain._tracks.baseline[one, 1] == 0).all()
+        assert (plain._tracks.baseline[one, 0] != 0).all()
 
 
 def test_in_image_fraction_kernel_equals_numpy() -> None:

@@ -7,6 +7,7 @@ the default ``observer=None`` no event is even built, so observing costs nothing
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -139,7 +140,11 @@ class TrackOutput:
     category and ``track_id``; ``acceleration`` (K, 2) m/s² (NaN for a category tracked with
     the constant-velocity model, which has none); ``status`` (K,) TrackStatus;
     ``det_row`` (K,) the detection row matched this frame (-1 when coasting or interpolated);
-    ``stage`` (K,) 1 = BEV, 2 = RV, 0 = none.
+    ``stage`` (K,) 1 = BEV, 2 = RV, 0 = none; ``baselines`` (K, 2, 2) the paper's difference
+    ``[:, 0]`` and curve-fit ``[:, 1]`` velocities (m/s, world) over the track's latest
+    detections, tentative ones included (:mod:`tracker.velocity_baselines`), NaN where the row
+    has no detection, or None: not computed (the motion evaluation then takes them from the
+    output's own detection rows).
     """
 
     scene: str
@@ -150,9 +155,22 @@ class TrackOutput:
     status: NDArray[np.int8]
     det_row: IntArray
     stage: NDArray[np.int8]
+    baselines: FloatArray | None = None
 
     def __len__(self) -> int:
         return len(self.boxes)
+
+    def select(self, keep: NDArray[np.bool_] | IntArray) -> TrackOutput:
+        """The rows ``keep`` (a mask or indices) of every per-row field."""
+        return dataclasses.replace(
+            self,
+            boxes=self.boxes[keep],
+            acceleration=self.acceleration[keep],
+            status=self.status[keep],
+            det_row=self.det_row[keep],
+            stage=self.stage[keep],
+            baselines=None if self.baselines is None else self.baselines[keep],
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -65,6 +65,7 @@ from tracker.kernels import load as load_kernels
 from tracker.matching import Matches, greedy, hungarian
 from tracker.noise import PositionNoise
 from tracker.track import TrackTable
+from tracker.velocity_baselines import WINDOW
 
 _EMPTY_INT = np.zeros(0, dtype=np.int64)
 HEADING_FLIP_VOTES = 3  # consecutive detections disagreeing by > 90° that flip a static track
@@ -272,7 +273,8 @@ class MCTracker:
         assoc = self._image_stage(frame, dets, kept_rows, m1, bev_mask)  # SDIoU, greedy
         self._update(assoc.rows, dets, assoc.dets)
         self._tracks.record_matches(assoc.rows, kept_rows[assoc.dets], assoc.stage)
-        born = self._birth(dets, assoc.unmatched_dets, kept_rows)
+        self._record_detections(assoc.rows, time_secs, dets.xyz[assoc.dets, :2])
+        born = self._birth(dets, assoc.unmatched_dets, kept_rows, time_secs)
         born_rows = self._tracks.matched_det[len(self._tracks) - len(born) :]  # appended last
         changes = self._lifecycle(assoc.rows, born)
         self._emit(changes and dataclasses.replace(changes, born_det_rows=born_rows))
@@ -716,7 +718,19 @@ class MCTracker:
         tr.evidence[idx] += _evidence(dets.score[det_rows])
         tr.log_odds[idx] += _log_odds(dets.score[det_rows])
 
-    def _birth(self, dets: Boxes, det_index: IntArray, kept_rows: IntArray) -> IntArray:
+    def _record_detections(self, idx: IntArray, time_secs: float, xy: FloatArray) -> None:
+        """Tracks ``idx`` took detections at ``xy`` (their velocity baselines follow)."""
+        tr = self._tracks
+        if self._kernels is not None:
+            self._kernels.record_detections_kernel(
+                idx, time_secs, xy, tr.det_t, tr.det_xy, tr.baseline
+            )
+        else:
+            tr.record_detections(idx, time_secs, xy)
+
+    def _birth(
+        self, dets: Boxes, det_index: IntArray, kept_rows: IntArray, time_secs: float
+    ) -> IntArray:
         """New tracks from unmatched detections ``det_index`` scoring above the birth threshold."""
         cat = self._cat
         det_index = det_index[dets.score[det_index] > cat.birth_score_min[dets.category[det_index]]]
@@ -735,6 +749,9 @@ class MCTracker:
         track_id = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
         self._next_id += n
         zeros = np.zeros(n, dtype=np.int64)
+        det_t = np.full((n, WINDOW), np.nan)
+        det_xy = np.full((n, WINDOW, 2), np.nan)
+        det_t[:, -1], det_xy[:, -1] = time_secs, xyz[:, :2]
         new = TrackTable(
             track_id=track_id,
             category=c,
@@ -756,6 +773,9 @@ class MCTracker:
             log_odds=_log_odds(score),
             matched_det=kept_rows[det_index],
             matched_stage=np.zeros(n, dtype=np.int8),
+            det_t=det_t,
+            det_xy=det_xy,
+            baseline=np.zeros((n, 2, 2)),  # (0 at a track's first detection, as the reference)
         )  # every array is fresh or only read: append() copies them into the table
         self._tracks = self._tracks.append(new)
         return track_id
@@ -880,6 +900,8 @@ class MCTracker:
         if self._cat.any_cv:
             cv = ~self._cat.has_acceleration[boxes.category]
             acceleration = np.where(cv[:, None], np.nan, acceleration)
+        baselines = tr.baseline[rows]
+        baselines[det_row < 0] = np.nan  # (a coasting row has no detection of its own)
         return TrackOutput(
             scene=frame.scene,
             frame_id=frame.frame_id,
@@ -889,6 +911,7 @@ class MCTracker:
             status=tr.status[rows],
             det_row=det_row,
             stage=tr.matched_stage[rows],
+            baselines=baselines,
         )
 
 

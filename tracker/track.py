@@ -18,6 +18,7 @@ import numpy as np
 
 from tracker.boxes import Boxes, FloatArray, IntArray
 from tracker.kalman import N_AXES, Axis
+from tracker.velocity_baselines import WINDOW, latest_velocities
 
 
 @dataclass(slots=True)
@@ -42,6 +43,9 @@ class TrackTable:
     log_odds: FloatArray  # (T,) sum over hits of log(score / (1 - score)); / hits = the mean
     matched_det: IntArray  # (T,) this frame's matched detection row (-1: none)
     matched_stage: np.ndarray  # (T,) int8: 1 BEV, 2 RV, 0 none (births: 0)
+    det_t: FloatArray  # (T, W) the last W detections' times, oldest first (NaN: fewer yet)
+    det_xy: FloatArray  # (T, W, 2) and their centres (the velocity baselines' input)
+    baseline: FloatArray  # (T, 2, 2) difference and curve-fit velocity at the last detection
 
     @classmethod
     def empty(cls, *, order: int = 2) -> TrackTable:
@@ -67,6 +71,9 @@ class TrackTable:
             "log_odds": ((0,), np.float64),
             "matched_det": ((0,), np.int64),
             "matched_stage": ((0,), np.int8),
+            "det_t": ((0, WINDOW), np.float64),
+            "det_xy": ((0, WINDOW, 2), np.float64),
+            "baseline": ((0, 2, 2), np.float64),
         }
         return cls(**{k: np.zeros(shape, dtype=dt) for k, (shape, dt) in shapes.items()})
 
@@ -89,6 +96,13 @@ class TrackTable:
         self.matched_det[rows] = det_rows
         self.matched_stage = np.zeros(len(self), dtype=np.int8)
         self.matched_stage[rows] = stage
+
+    def record_detections(self, rows: IntArray, time_secs: float, xy: FloatArray) -> None:
+        """Tracks ``rows`` took detections centred at ``xy`` (R, 2) at ``time_secs``: their
+        detection windows move on and their velocity baselines are recomputed."""
+        self.det_t[rows] = np.column_stack([self.det_t[rows, 1:], np.full(len(rows), time_secs)])
+        self.det_xy[rows] = np.concatenate([self.det_xy[rows, 1:], xy[:, None, :]], axis=1)
+        self.baseline[rows] = np.stack(latest_velocities(self.det_t[rows], self.det_xy[rows]), 1)
 
     def xyz(self, rows: IntArray) -> FloatArray:
         """(R, 3) current box centres of the tracks ``rows`` (filtered x, y; smoothed z)."""

@@ -48,9 +48,14 @@ Protocol (differences from the reference ``evaluation/eval_motion.py``, spec §4
    - ``curve_fit``: least-squares line slope over the track's last 3 matched-detection centres
      against real time, m/s (the reference's was m/frame); 0 until 3 exist.
 
-   The two baselines run over each output track's own detection sequence in time order (causal),
-   using the raw centre of the detection the tracker matched (``det_row`` indexes the input
-   frame's boxes), and are then read at the GT-matched samples.
+   Both baselines are causal, over a track's detection centres in time order. Online, the
+   tracker computes them at every update (:mod:`tracker.velocity_baselines`, as the reference
+   does), so they also see the detections a track took before it was confirmed and output; a
+   track's first *output* row has a real estimate, not the 0 of a first detection. Where the
+   output carries none (offline, whose rows hold every detection of each final track; a tracks
+   file from before), they run over each output track's own detection rows, using the raw
+   centre of the detection the tracker matched (``det_row`` indexes the input frame's boxes).
+   Either way they are read at the GT-matched samples.
 5. **Keys**: GT and output tracks are keyed by :func:`~tracker.eval.motion_metrics.composite_key`
    of (scene, id), so ids never collide across scenes; frames are ordered by time, so the input
    order of frames does not matter.
@@ -401,12 +406,13 @@ def _scene_rows(
 
     outputs = [outputs[i] for i in _time_order([o.time_secs for o in outputs], scene)]
     out_parts, det_parts, gt_parts, gtv_parts, pair_parts = [], [], [], [], []
-    out_time, out_frame, det_rows = [], [], []
+    out_time, out_frame, det_rows, tracker_baselines = [], [], [], []
     n_out = n_gt = 0
     for out in outputs:
         boxes = out.boxes
         keep = np.isin(boxes.category, categories)
         boxes, det_row = boxes[keep], out.det_row[keep]
+        tracker_baselines.append(None if out.baselines is None else out.baselines[keep])
         out_parts.append(boxes)
         out_time.append(np.full(len(boxes), out.time_secs))
         out_frame.append(np.full(len(boxes), out.frame_id, dtype=np.int64))
@@ -446,7 +452,15 @@ def _scene_rows(
     det_row_all = np.concatenate(det_rows) if det_rows else np.zeros(0, dtype=np.int64)
     det_boxes = Boxes.concat(det_parts) if det_by_id is not None else None
     time_all = np.concatenate(out_time) if out_time else np.zeros(0)
-    baseline = _baseline_velocities(out_boxes.track_id, time_all, det_row_all, det_boxes)
+    if (
+        det_boxes is not None
+        and tracker_baselines
+        and all(b is not None for b in tracker_baselines)
+    ):  # the tracker's, over every detection its tracks took (tentative ones too)
+        both = np.concatenate(tracker_baselines)
+        baseline = {Estimator.DIFFERENCE: both[:, 0], Estimator.CURVE_FIT: both[:, 1]}
+    else:  # over the output's own detection rows
+        baseline = _baseline_velocities(out_boxes.track_id, time_all, det_row_all, det_boxes)
     return _SceneRows(
         out_time=time_all,
         out_frame=np.concatenate(out_frame) if out_frame else np.zeros(0, dtype=np.int64),

@@ -6,8 +6,10 @@ Every file is written to a temporary name and renamed into place: complete or no
 
 from __future__ import annotations
 
+import dataclasses
 import gzip
 import json
+import math
 from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -385,9 +387,11 @@ def write_tracks_file(
 
     Each box carries ``track_id``, the filtered ``global_velocity`` (m/s) and
     ``global_acceleration`` (m/s²), ``status`` and ``det_row`` (the row of the input frame's
-    detections matched this frame, -1 when coasting); frames keep the input's camera models, so
-    the file loads with :func:`tracker.io.baseversion.read_baseversion` for evaluation and viewing,
-    and with :func:`read_tracks_file` as tracker output.
+    detections matched this frame, -1 when coasting), and where the tracker computed them and the
+    row has a detection, the paper's velocity baselines ``global_velocity_diff`` and
+    ``global_velocity_curve`` (m/s; the reference's field names); frames keep the input's camera
+    models, so the file loads with :func:`tracker.io.baseversion.read_baseversion` for evaluation
+    and viewing, and with :func:`read_tracks_file` as tracker output.
     """
     payload = {scene: tracks_scene_records(scene, f, o) for scene, (f, o) in results.items()}
     write_json_atomic(Path(path), payload)
@@ -412,12 +416,15 @@ def tracks_scene_records(
             transform_matrix=src.transform_matrix,
         )
         record = frame_to_dict(frame)
-        for box, acc, status, det_row in zip(
-            record["bboxes"], out.acceleration, out.status, out.det_row, strict=True
+        for k, (box, acc, status, det_row) in enumerate(
+            zip(record["bboxes"], out.acceleration, out.status, out.det_row, strict=True)
         ):
             box["global_acceleration"] = [None if not np.isfinite(a) else float(a) for a in acc]
             box["status"] = int(status)
             box["det_row"] = int(det_row)
+            if out.baselines is not None and np.isfinite(out.baselines[k]).all():
+                box["global_velocity_diff"] = [float(v) for v in out.baselines[k, 0]]
+                box["global_velocity_curve"] = [float(v) for v in out.baselines[k, 1]]
         scene_frames.append(record)
     return scene_frames
 
@@ -454,7 +461,8 @@ def read_tracks_file(
 
     Returns the frames (boxes = tracker output, with the camera models) and the tracker output
     per scene. Fields an older or foreign file lacks get their "missing" value: ``status``
-    CONFIRMED, ``det_row`` -1, acceleration NaN, ``stage`` 0.
+    CONFIRMED, ``det_row`` -1, acceleration NaN, ``stage`` 0, and ``baselines`` None for a
+    scene where no box carries them (NaN for a box without them in a scene where others do).
 
     Raises
     ------
@@ -474,20 +482,69 @@ def read_tracks_file(
                     f"{path}: scene {scene!r} frame {frame.frame_id}: "
                     f"{len(bboxes) - len(frame.boxes)} boxes of unknown categories"
                 )
-            acc = [b.get("global_acceleration") or (None, None) for b in bboxes]
+            field = _TrackFields(f"{path}: scene {scene!r} frame {frame.frame_id}", bboxes)
             scene_out.append(
                 TrackOutput(
                     scene=scene,
                     frame_id=frame.frame_id,
                     time_secs=frame.timestamp_secs,
                     boxes=frame.boxes,
-                    acceleration=np.array(acc, dtype=np.float64).reshape(-1, 2),
-                    status=np.array(
+                    acceleration=field.pairs("global_acceleration"),
+                    status=np.array(  # (checked by read_baseversion)
                         [b.get("status", TrackStatus.CONFIRMED) for b in bboxes], dtype=np.int8
                     ),
-                    det_row=np.array([b.get("det_row", -1) for b in bboxes], dtype=np.int64),
+                    det_row=field.integers("det_row", -1, minimum=-1),
                     stage=np.zeros(len(bboxes), dtype=np.int8),
+                    baselines=np.stack(
+                        [field.pairs("global_velocity_diff"), field.pairs("global_velocity_curve")],
+                        axis=1,
+                    ),
                 )
             )
+        if not any(
+            "global_velocity_diff" in b for record in raw[scene] for b in record["bboxes"]
+        ):  # (a file from before the tracker kept them: the evaluation computes them itself)
+            scene_out = [dataclasses.replace(o, baselines=None) for o in scene_out]
         outputs[scene] = scene_out
     return scenes, outputs
+
+
+class _TrackFields:
+    """A tracks file frame's per-box tracker fields, each checked (the file is untrusted)."""
+
+    def __init__(self, where: str, bboxes: list[dict[str, Any]]) -> None:
+        self.where, self.bboxes = where, bboxes
+
+    def _bad(self, k: int, key: str, what: str) -> InputError:
+        return InputError(f"{self.where} box {k}: field {key!r} must be {what}")
+
+    def pairs(self, key: str) -> FloatArray:
+        """(K, 2) floats; NaN where absent or null."""
+        out = np.full((len(self.bboxes), 2), np.nan)
+        for k, box in enumerate(self.bboxes):
+            value = box.get(key)
+            if value is None:
+                continue
+            if not isinstance(value, list) or len(value) != 2:
+                raise self._bad(k, key, "a list of 2 numbers or nulls")
+            for j, v in enumerate(value):
+                if v is None:
+                    continue
+                if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+                    raise self._bad(k, key, "a list of 2 finite numbers or nulls")
+                out[k, j] = v
+        return out
+
+    def integers(self, key: str, missing: int, minimum: int) -> IntArray:
+        """(K,) integers >= ``minimum``; ``missing`` where absent."""
+        out = np.full(len(self.bboxes), missing, dtype=np.int64)
+        for k, box in enumerate(self.bboxes):
+            value = box.get(key, missing)
+            if (
+                isinstance(value, bool)
+                or not isinstance(value, int)
+                or not minimum <= value < 2**62
+            ):
+                raise self._bad(k, key, f"an integer >= {minimum}")
+            out[k] = value
+        return out

@@ -8,7 +8,8 @@ kernel module          speeds up                                   numpy referen
 ``kernels.kalman``     predict; update with the heading logic      :mod:`tracker.kalman`
 ``kernels.matching``   uncontested stage-1 assignment              :mod:`tracker.matching`
 ``kernels.lifecycle``  per-category lifecycle rules; hit records  ``MCTracker._lifecycle``,
-                                                                   ``._record_hits``
+                       and the velocity baselines' windows         ``._record_hits``,
+                                                                   ``TrackTable.record_detections``
 ``kernels.camera``     in-image fraction of coasting boxes        :mod:`tracker.camera`
 ``kernels.noise``      the detections' noise estimate (r_scale)   :mod:`tracker.noise`
 =====================  ==========================================  ===========================
@@ -47,6 +48,7 @@ def load() -> SimpleNamespace | None:
         isolated_pairs_kernel=matching.isolated_pairs_kernel,
         lifecycle_kernel=lifecycle.lifecycle_kernel,
         record_hits_kernel=lifecycle.record_hits_kernel,
+        record_detections_kernel=lifecycle.record_detections_kernel,
         in_image_fraction_kernel=camera.in_image_fraction_kernel,
         noise_update_kernel=noise.noise_update_kernel,
         noise_variance_kernel=noise.noise_variance_kernel,

@@ -1,5 +1,5 @@
 """Compiled lifecycle rules and hit bookkeeping (numpy reference: ``MCTracker._lifecycle``,
-``MCTracker._record_hits``)."""
+``MCTracker._record_hits``, ``TrackTable.record_detections``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,17 @@ import numpy as np
 
 from tracker.boxes import FloatArray, IntArray
 from tracker.events import TrackStatus
-from tracker.kernels._common import _B1, _F1, _F1_OUT, _F2, _F2_OUT, _I1, _I1_OUT, _S1
+from tracker.kernels._common import (
+    _B1,
+    _F1,
+    _F1_OUT,
+    _F2,
+    _F2_OUT,
+    _F3_OUT,
+    _I1,
+    _I1_OUT,
+    _S1,
+)
 
 # lifecycle outcome flags per track (lifecycle_kernel)
 CONFIRMED_NOW, REACQUIRED_FROM_LOST, LOST_NOW, DEAD = 1, 2, 4, 8
@@ -135,3 +145,53 @@ def record_hits_kernel(
         evidence[t] += -math.log1p(-p)
         if s == s:  # not NaN
             log_odds[t] += _logit(min(max(s, 1e-6), 1.0 - 1e-6))
+
+
+@numba.njit(
+    (_I1, numba.float64, _F2, _F2_OUT, _F3_OUT, _F3_OUT),
+    cache=True,
+    error_model="numpy",
+    nogil=True,
+)
+def record_detections_kernel(
+    idx: IntArray,
+    time_secs: float,
+    xy: FloatArray,
+    det_t: FloatArray,
+    det_xy: FloatArray,
+    baseline: FloatArray,
+) -> None:  # pragma: no cover (compiled)
+    """``TrackTable.record_detections`` in place: track ``idx[k]``'s window of its last W
+    detections moves on to ``xy[k]`` at ``time_secs``, and its difference (``baseline[t, 0]``)
+    and curve-fit (``[t, 1]``) velocities are recomputed (0 while too few detections)."""
+    w = det_t.shape[1]
+    for k in range(idx.shape[0]):
+        t = idx[k]
+        for j in range(w - 1):
+            det_t[t, j] = det_t[t, j + 1]
+            det_xy[t, j, 0], det_xy[t, j, 1] = det_xy[t, j + 1, 0], det_xy[t, j + 1, 1]
+        det_t[t, w - 1] = time_secs
+        det_xy[t, w - 1, 0], det_xy[t, w - 1, 1] = xy[k, 0], xy[k, 1]
+        dt = det_t[t, w - 1] - det_t[t, w - 2]
+        for a in range(2):
+            baseline[t, 0, a] = (
+                0.0 if dt != dt else (det_xy[t, w - 1, a] - det_xy[t, w - 2, a]) / dt
+            )
+        if det_t[t, 0] != det_t[t, 0]:  # (NaN: fewer than W detections yet)
+            baseline[t, 1, 0] = baseline[t, 1, 1] = 0.0
+            continue
+        mean_t = 0.0
+        for j in range(w):
+            mean_t += det_t[t, j]
+        mean_t /= w
+        for a in range(2):
+            mean_p = 0.0
+            for j in range(w):
+                mean_p += det_xy[t, j, a]
+            mean_p /= w
+            num = den = 0.0
+            for j in range(w):
+                u = det_t[t, j] - mean_t
+                num += u * (det_xy[t, j, a] - mean_p)
+                den += u * u
+            baseline[t, 1, a] = num / den
