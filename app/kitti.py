@@ -456,6 +456,8 @@ def run_kitti(
             "kitti_root": str(Path(kitti_root).absolute()),
             "labels": str(Path(label_dir).absolute()),
             "sequences": [r.scene for r in records],
+            # (None: none; a folder of the user's, absolute: bench/motion_table.py reads them)
+            "poses": poses if poses in (None, "orbslam3") else str(Path(poses).absolute()),
             "mode": config.mode.value,
             "classes": classes,
             "frames": total_frames,

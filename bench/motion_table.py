@@ -51,8 +51,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("summary", help="summary.json of `mctrack kitti --motion`")
     parser.add_argument("--out", default="docs/motion_results.md")
     parser.add_argument("--classes", default="car,pedestrian")
-    parser.add_argument("--kitti-root", default="../shared/data/kitti/tracking")
-    parser.add_argument("--poses", default="orbslam3", help="as given to mctrack kitti")
+    parser.add_argument(
+        "--kitti-root", default=None, help="default: the run's (its summary's kitti_root)"
+    )
+    parser.add_argument(
+        "--poses",
+        default=None,
+        help="as given to mctrack kitti; default: the run's (orbslam3 for a summary without it)",
+    )
     parser.add_argument("--no-controls", action="store_true", help="skip the control re-run")
     parser.add_argument(
         "--command",
@@ -69,11 +75,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     classes = [c.strip() for c in args.classes.split(",") if c.strip()]
     controls = None
     if not args.no_controls:
+        poses = args.poses or summary.get("poses", "orbslam3") or "none"  # (None: no poses)
+        kitti_root = args.kitti_root or summary.get("kitti_root", "../shared/data/kitti/tracking")
         controls = control_metrics(
             summary,
-            Path(args.kitti_root),
+            Path(kitti_root),
             classes=classes,
-            poses=args.poses,
+            poses=poses,
             tracks=Path(args.summary).parent / "tracks.json",
         )
     out = Path(args.out)

@@ -37,6 +37,9 @@ def assert_same_tracking(a: list[TrackOutput], b: list[TrackOutput], *, exact: b
         np.testing.assert_array_equal(x.status, y.status)
         np.testing.assert_array_equal(x.det_row, y.det_row)
         np.testing.assert_array_equal(x.stage, y.stage)
+        assert (x.baselines is None) == (y.baselines is None)
+        if x.baselines is not None:  # (NaN on the same rows: those without a detection)
+            np.testing.assert_allclose(x.baselines, y.baselines, rtol=1e-12, atol=1e-12)
         if exact:
             assert x.boxes.equals(y.boxes)
             np.testing.assert_array_equal(x.acceleration, y.acceleration)

@@ -28,6 +28,7 @@ def test_controls_use_the_runs_own_samples(kitti_root: Path, tmp_path: Path) -> 
         out=run, quiet=True,
     )  # fmt: skip
     summary = json.loads((run / "summary.json").read_text())
+    assert summary["poses"] == "orbslam3" and summary["kitti_root"] == str(kitti_root)
     controls = control_metrics(
         summary, kitti_root, classes=["car"], poses="orbslam3", tracks=run / "tracks.json"
     )
@@ -38,9 +39,8 @@ def test_controls_use_the_runs_own_samples(kitti_root: Path, tmp_path: Path) -> 
         assert np.isclose(difference[key], value, equal_nan=True), key
     page = tmp_path / "motion.md"
     code = main(
-        [str(run / "summary.json"), "--out", str(page), "--classes", "car",
-         "--kitti-root", str(kitti_root)]
-    )  # fmt: skip
+        [str(run / "summary.json"), "--out", str(page), "--classes", "car"]
+    )  # (the kit and the poses: the run's)
     assert code == 0
     text = page.read_text()
     assert "## Controls: what VDE responds to" in text and "differ from the summary" not in text

@@ -260,8 +260,13 @@ class MCTracker:
         return self._noise.variance()
 
     # -----------------------------------------------------------------------------------------
-    def step(self, frame: Frame) -> TrackOutput:
-        """Track one frame; returns the confirmed tracks (rows sorted by id)."""
+    def step(self, frame: Frame, unfused: Frame | None = None) -> TrackOutput:
+        """Track one frame; returns the confirmed tracks (rows sorted by id).
+
+        ``unfused``: the frame before bearing fusion (:func:`tracker.fusion.fuse_scene`) moved
+        its centres, when it did. The velocity baselines follow the detector's own centres, as
+        in the reference (and as the motion evaluation reads a detection).
+        """
         time_secs, dt = self._advance_clock(frame)
         self._emit(FrameStarted(frame, time_secs))
         dets, kept_rows = self._preprocess(frame)  # category, score, NMS
@@ -273,8 +278,9 @@ class MCTracker:
         assoc = self._image_stage(frame, dets, kept_rows, m1, bev_mask)  # SDIoU, greedy
         self._update(assoc.rows, dets, assoc.dets)
         self._tracks.record_matches(assoc.rows, kept_rows[assoc.dets], assoc.stage)
-        self._record_detections(assoc.rows, time_secs, dets.xyz[assoc.dets, :2])
-        born = self._birth(dets, assoc.unmatched_dets, kept_rows, time_secs)
+        centres = (frame if unfused is None else unfused).boxes.xyz[:, :2]  # (frame rows)
+        self._record_detections(assoc.rows, time_secs, centres[kept_rows[assoc.dets]])
+        born = self._birth(dets, assoc.unmatched_dets, kept_rows, time_secs, centres)
         born_rows = self._tracks.matched_det[len(self._tracks) - len(born) :]  # appended last
         changes = self._lifecycle(assoc.rows, born)
         self._emit(changes and dataclasses.replace(changes, born_det_rows=born_rows))
@@ -729,9 +735,15 @@ class MCTracker:
             tr.record_detections(idx, time_secs, xy)
 
     def _birth(
-        self, dets: Boxes, det_index: IntArray, kept_rows: IntArray, time_secs: float
+        self,
+        dets: Boxes,
+        det_index: IntArray,
+        kept_rows: IntArray,
+        time_secs: float,
+        centres: FloatArray,
     ) -> IntArray:
-        """New tracks from unmatched detections ``det_index`` scoring above the birth threshold."""
+        """New tracks from unmatched detections ``det_index`` scoring above the birth threshold
+        (``centres``: the frame's detector centres, the velocity baselines' first)."""
         cat = self._cat
         det_index = det_index[dets.score[det_index] > cat.birth_score_min[dets.category[det_index]]]
         n = len(det_index)
@@ -751,7 +763,7 @@ class MCTracker:
         zeros = np.zeros(n, dtype=np.int64)
         det_t = np.full((n, WINDOW), np.nan)
         det_xy = np.full((n, WINDOW, 2), np.nan)
-        det_t[:, -1], det_xy[:, -1] = time_secs, xyz[:, :2]
+        det_t[:, -1], det_xy[:, -1] = time_secs, centres[kept_rows[det_index]]
         new = TrackTable(
             track_id=track_id,
             category=c,

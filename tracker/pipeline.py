@@ -78,10 +78,11 @@ def run_scene(
     outputs: list[TrackOutput] = []
     removed: list[RemovedTrack] = []
     start = time.perf_counter()
+    unfused = frames
     if config.image_bearing:  # the tracker (and the offline smoothers) see the fused centres
         frames = fuse_scene(frames, len(CATEGORIES))
-    for frame in frames:
-        outputs.append(tracker.step(frame))
+    for frame, own in zip(frames, unfused, strict=True):
+        outputs.append(tracker.step(frame, None if own is frame else own))
     if config.mode is TrackingMode.OFFLINE:
         outputs = offline_postprocess(
             outputs, config, removed=removed, frames=frames, motion_r=tracker.motion_r,

@@ -502,7 +502,10 @@ def read_tracks_file(
                 )
             )
         if not any(
-            "global_velocity_diff" in b for record in raw[scene] for b in record["bboxes"]
+            key in b
+            for record in raw[scene]
+            for b in record["bboxes"]
+            for key in ("global_velocity_diff", "global_velocity_curve")
         ):  # (a file from before the tracker kept them: the evaluation computes them itself)
             scene_out = [dataclasses.replace(o, baselines=None) for o in scene_out]
         outputs[scene] = scene_out
