@@ -2128,3 +2128,34 @@ def test_help_shows_a_default_of_zero(capsys: pytest.CaptureFixture[str]) -> Non
             main([command, "--help"])
         text = " ".join(capsys.readouterr().out.split())
         assert f"{option} (default: 0)" in text, (command, text)
+
+
+@pytest.mark.parametrize(
+    "file",
+    [
+        "training/calib/0001.txt",
+        "training/label_02/0001.txt",
+        "detections/pointrcnn/training/Car/0001.txt",
+    ],
+)
+def test_a_kitti_file_that_is_not_utf8_is_named(
+    file: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A calib, label or detection file holding bytes that are not UTF-8 was refused as "not a
+    text file (invalid start byte)", naming no file. Now the one-line error names the file, the
+    line and the byte offset of the first bad byte."""
+    kit = tmp_path / "kit"
+    shutil.copytree(SAMPLE_KIT, kit)
+    path = kit / file
+    data = path.read_bytes()
+    line = data.count(b"\n") + 1  # (the bad line is appended after the last)
+    path.write_bytes(data + b"0 -1 Car\xff 0 0\n")
+    byte = len(data) + len(b"0 -1 Car")
+    argv = ["kitti", "--kitti-root", str(kit), "--seqs", "0001", "--out", str(tmp_path / "o")]
+    code, _, err = _run(argv, capsys)
+    _assert_one_line_error(
+        code,
+        err,
+        "kitti",
+        f"{path}:{line}: not a UTF-8 text file (byte {byte}: invalid start byte)",
+    )

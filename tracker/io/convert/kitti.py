@@ -66,6 +66,7 @@ from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
 from tracker.io.bounds import ANGLE_NOTE, BOUND_NOTE, MAX_ANGLE_RAD, beyond_bound
+from tracker.io.fileio import read_text
 
 LOG = logging.getLogger(__name__)
 
@@ -231,7 +232,7 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
     path = Path(path)
     values: dict[str, FloatArray] = {}
     lines: dict[str, int] = {}  # (every key's first line, a malformed one's too)
-    for line_no, line in enumerate(path.read_text().splitlines(), start=1):
+    for line_no, line in enumerate(read_text(path).splitlines(), start=1):
         tokens = line.split()
         if not tokens:
             continue
@@ -454,7 +455,7 @@ def _read_table(
     source: list[int] = []
     lines: list[int] = []
     for index, path in enumerate(paths):
-        for line_no, text in enumerate(path.read_text().splitlines(), start=1):
+        for line_no, text in enumerate(read_text(path).splitlines(), start=1):
             if not text.strip():
                 continue
             row = text.split(sep)
