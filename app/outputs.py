@@ -14,6 +14,9 @@ from typing import Any
 from tracker.errors import InputError
 from tracker.io.fileio import safe_filename
 
+#: What the nuScenes devkit's TrackingEval writes in its output folder (besides plots/)
+DEVKIT_FILES = ("metrics_summary.json", "metrics_details.json")
+
 #: Each command's output files in --out (globs relative to it; .scenes/: the scene parts of a
 #: run while it runs, see app.scenes.PARTS_DIR). The temporary files each is written under
 #: (``.<name>.<pid>.<random>.tmp``, tracker.io.fileio.temp_name) come with it (:func:`outputs_of`).
@@ -25,7 +28,8 @@ FILES: dict[str, tuple[str, ...]] = {
     ),
     "nuscenes": (
         "summary.json", "results.json", "tracks.json", "gt.json", "motion.md",
-        "motion_velocity.png", "eval/*.json", "recordings/*.rrd", ".scenes/*",
+        "motion_velocity.png", *(f"eval/{n}" for n in DEVKIT_FILES), "recordings/*.rrd",
+        ".scenes/*",
     ),
     "waymo": (
         "summary.json", "tracks.json", "gt.json", "motion.md", "motion_velocity.png",
@@ -34,7 +38,7 @@ FILES: dict[str, tuple[str, ...]] = {
     # (its --out defaults to the tracks file's folder: a run's)
     "eval": (
         "eval.json", "eval.md", "motion_velocity.png", "eval_results.json",
-        "nuscenes_eval/*.json",
+        *(f"nuscenes_eval/{n}" for n in DEVKIT_FILES),
     ),
     "compare": ("compare.json", "compare.md", "recordings/*.rrd"),
     "robustness": (
@@ -66,6 +70,10 @@ RUN_PARTS = ".scenes"
 #: The patterns of a file per scene (sequence), ``*`` its name (tracker.io.fileio.path_in): a
 #: run writes those of its own scenes alone (:func:`outputs_of` with ``scenes``).
 PER_SCENE = ("data/*.txt",)
+#: The other patterns of files named by input data, in a run folder: of these too only the
+#: earlier run's (its summary.json lists them: :func:`earlier_named_files`) are removed by a
+#: new run, never anyone's other file there (a user's recordings/mine.rrd).
+NAMED = ("recordings/*.rrd", "results/*/*.npz")
 #: The largest summary.json read to tell whether it is a run's.
 _SUMMARY_MAX_BYTES = 64 << 20
 
@@ -85,17 +93,24 @@ def _with_temps(patterns: tuple[str, ...]) -> tuple[str, ...]:
 def outputs_of(command: str, scenes: Iterable[str] | None = None) -> tuple[str, ...]:
     """What ``command`` writes in its folder, temporary files included: what a failed run of
     it removes (those it wrote), and what it refuses to take as an input there. ``scenes``:
-    the scenes a run writes a file of, once known: each per-scene pattern (:data:`PER_SCENE`)
-    becomes their files (none for no scenes: `track` without --kitti-results)."""
+    the scenes a run writes a file of, once known: each per-scene pattern (:data:`PER_SCENE`,
+    :data:`NAMED`: its last ``*`` the scene) becomes their files (none for no scenes: `track`
+    without --kitti-results)."""
     patterns = FILES[command]
     if scenes is not None:
         names = [safe_filename(s) for s in scenes]  # (no glob character: [A-Za-z0-9._%-])
         patterns = tuple(
             q
             for p in patterns
-            for q in ([p.replace("*", n) for n in names] if p in PER_SCENE else [p])
+            for q in ([_of_scene(p, n) for n in names] if p in (*PER_SCENE, *NAMED) else [p])
         )
     return _with_temps(patterns)
+
+
+def _of_scene(pattern: str, name: str) -> str:
+    """``pattern``'s file of scene ``name``: its last ``*`` (results/*/*.npz: results/*/n.npz)."""
+    head, _, tail = pattern.rpartition("*")
+    return f"{head}{name}{tail}"
 
 
 def outputs_replaced_by(
@@ -106,16 +121,18 @@ def outputs_replaced_by(
     command (:data:`RUN_FOLDER`: a `track` into a `kitti` run's folder removes its motion.md
     and recordings too); for the others, their own outputs.
 
-    Of the files per scene (:data:`PER_SCENE`, data/<scene>.txt), given the run's ``folder``:
-    only those the earlier run there wrote (:func:`earlier_scene_files`) and this run's own
-    (of ``scenes``), not every data/*.txt: a file of anyone's there stays."""
+    Of the files per scene (:data:`PER_SCENE`, data/<scene>.txt; :data:`NAMED`, the
+    recordings and Waymo results), given the run's ``folder``: only those the earlier run there
+    wrote (:func:`earlier_scene_files`, :func:`earlier_named_files`) and this run's own (of
+    ``scenes``), not every data/*.txt or recordings/*.rrd: a file of anyone's there stays."""
     commands = RUN_FOLDER if command in RUN_COMMANDS else (command,)
     if folder is None or command not in RUN_COMMANDS:
         return tuple(dict.fromkeys(p for c in commands for p in outputs_of(c)))
-    shared = [p for c in commands for p in FILES[c] if p not in PER_SCENE]
+    listed = (*PER_SCENE, *NAMED)
+    shared = [p for c in commands for p in FILES[c] if p not in listed]
     # (a per-scene file's temporary name, .<scene>.txt.<pid>.<random>.tmp, is only ever ours)
-    temps = [q for p in PER_SCENE for q in _with_temps((p,)) if q != p]
-    earlier = earlier_scene_files(folder) or []
+    temps = [q for p in listed for q in _with_temps((p,)) if q != p]
+    earlier = [*(earlier_scene_files(folder) or []), *(earlier_named_files(folder) or [])]
     patterns = [*_with_temps(tuple(shared)), *temps, *_with_temps(tuple(earlier))]
     return tuple(dict.fromkeys([*patterns, *outputs_of(command, scenes)]))
 
@@ -174,6 +191,50 @@ def earlier_scene_files(folder: Path) -> list[str] | None:
     return None
 
 
+#: A recording's name as a summary may list it (the folder it names aside): a safe_filename
+_LISTED_RECORDING = re.compile(r"[A-Za-z0-9_%~-][A-Za-z0-9._%~-]*\.rrd")
+
+
+def _listed_paths(value: object) -> list[str]:
+    """The strings of a summary's "recordings": a list of paths (nuscenes, waymo) or an object
+    of scene: path (kitti, compare); anything else none."""
+    items = value.values() if isinstance(value, dict) else value
+    return [v for v in items if isinstance(v, str)] if isinstance(items, Iterable) else []
+
+
+def earlier_named_files(folder: Path) -> list[str] | None:
+    """The files of :data:`NAMED` (relative to ``folder``) the run in ``folder`` wrote, as its
+    summary.json says: the recordings its "recordings" lists (and those a `compare --record`
+    there lists in its compare.json), a `waymo` run's results/<type>/<segment>.npz of its
+    "segments". A listed recording is taken by its name alone, and only as
+    recordings/<safe name>.rrd of a path whose folder is recordings/ (a summary is anyone's to
+    edit; its paths were absolute, or relative to where the run ran). None when the run was
+    cut short (its scene parts, no summary): then which files are its is not known."""
+    summary = _run_summary(folder / "summary.json")
+    if summary is None:
+        return None
+    paths = _listed_paths(summary.get("recordings"))
+    try:  # (compare.json goes with the run: its recordings with it)
+        compare = json.loads((folder / "compare.json").read_bytes())
+    except (OSError, ValueError, RecursionError):
+        compare = None
+    if isinstance(compare, dict):
+        paths += _listed_paths(compare.get("recordings"))
+    named = {
+        f"recordings/{PurePosixPath(p).name}"
+        for p in paths
+        if PurePosixPath(p).parent.name == "recordings"
+        and _LISTED_RECORDING.fullmatch(PurePosixPath(p).name)
+    }
+    segments = summary.get("segments")
+    if summary.get("command") == "waymo" and isinstance(segments, list):
+        from tracker.io.waymo_writer import RESULT_TYPES
+
+        names = [safe_filename(q) for q in segments if isinstance(q, str)]
+        named |= {f"results/{t}/{n}.npz" for t in RESULT_TYPES for n in names}
+    return sorted(named)
+
+
 def holds_a_run(folder: Path) -> bool:
     """Whether a run has written ``folder``: its summary.json (:func:`_run_summary`), or its
     scene parts (:data:`RUN_PARTS`, a run cut short). Only then are the files there an earlier
@@ -191,22 +252,27 @@ def outputs_at_stake(
     the earlier run's files and its own); else only what it writes (:func:`outputs_of`, of
     ``scenes`` where known: data/<scene>.txt of its own scenes), which is all it may touch
     there. Called before any work: where the earlier run's files per scene are not known
-    (:func:`earlier_scene_files`), a data/*.txt this run does not write is refused (InputError
-    naming it), as it may be anyone's or the earlier run's."""
+    (:func:`earlier_scene_files`, :func:`earlier_named_files`), a data/*.txt (a
+    recordings/*.rrd, results/*/*.npz) this run does not write is refused (InputError naming
+    it), as it may be anyone's or the earlier run's."""
     if command not in RUN_COMMANDS or not holds_a_run(folder):
         return outputs_of(command, scenes)
     at_stake = outputs_replaced_by(command, folder, scenes)
-    if earlier_scene_files(folder) is None:
-        _refuse_unknown_scene_files(folder, at_stake)
+    unknown = [
+        *(PER_SCENE if earlier_scene_files(folder) is None else ()),
+        *(NAMED if earlier_named_files(folder) is None else ()),
+    ]
+    _refuse_unknown_files(folder, at_stake, unknown)
     return at_stake
 
 
-def _refuse_unknown_scene_files(folder: Path, at_stake: tuple[str, ...]) -> None:
-    """InputError naming a file per scene in ``folder`` that is not ``at_stake`` (this run's):
-    the earlier run there does not say which are its own, so that one may be anyone's (kept,
-    the folder would mix two runs; removed, a user's file would be lost)."""
+def _refuse_unknown_files(folder: Path, at_stake: tuple[str, ...], patterns: Iterable[str]) -> None:
+    """InputError naming a file of ``patterns`` (:data:`PER_SCENE`, :data:`NAMED`) in
+    ``folder`` that is not ``at_stake`` (this run's): the earlier run there does not say which
+    are its own, so that one may be anyone's (kept, the folder would mix two runs; removed, a
+    user's file would be lost)."""
     ours = {p for pattern in at_stake for p in folder.glob(pattern)}
-    for pattern in PER_SCENE:
+    for pattern in patterns:
         if (folder / PurePosixPath(pattern).parent).is_symlink():
             continue  # (a linked data/ leads anywhere: no run removes a file through it)
         for path in sorted(folder.glob(pattern)):

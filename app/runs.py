@@ -22,7 +22,7 @@ from typing import Any
 from app.outputs import is_run_summary
 from tracker.errors import InputError
 from tracker.eval.compare import Event, event_record
-from tracker.io.fileio import path_in
+from tracker.io.fileio import path_in, read_text
 
 
 @dataclass
@@ -246,7 +246,7 @@ def _events_from_index(
     if any(len(x) != n for x in lists):
         return None
     types: dict[int, str] = {}
-    for line in label.read_text().splitlines():
+    for line in read_text(label).splitlines():
         parts = line.split()
         if len(parts) > 2 and parts[1].lstrip("-").isdigit():
             types[int(parts[1])] = parts[2].lower()

@@ -161,6 +161,7 @@ def run_waymo(
     refuse_case_collisions(names, "--segments" if segments else detections, "segments", ".npz")
     # a refused run keeps the earlier one; else its files (of any command) go: pred_bin.py reads
     # every file of results/, and a segment left out or failing now would keep its old results
+    # (of results/, the files of the segments its summary lists: a file of anyone's stays)
     if holds_a_run(out):
         remove_earlier_outputs(out, outputs_replaced_by("waymo", out, []))
     # from here on the run writes: one stopped (Ctrl-C, an error) removes what it wrote, so

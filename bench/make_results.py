@@ -42,6 +42,7 @@ from app.kitti import run_kitti
 from app.tune import base_level, record_seeds
 from tracker.categories import CATEGORIES, category_index
 from tracker.config import load_config
+from tracker.errors import InputError
 from tracker.io.fileio import work_folder
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -129,14 +130,39 @@ def kitti(
     root: Path, classes: list[str], inspect: Callable[[Path], Any] | None = None, **kw: Any
 ) -> dict[str, Any]:
     """One `mctrack kitti` run's summary; ``inspect`` (given the KITTI result files' folder,
-    before it is removed) adds its return value under ``"inspected"``."""
+    before it is removed) adds its return value under ``"inspected"``. Every table here reads
+    the run's ``metrics`` of each class: a run not scored (the kit has no labels) is refused
+    (:func:`require_metrics`), not a KeyError deep in a table."""
     with work_folder("results") as tmp:
         res = run_kitti(
             kitti_root=root, seqs=list(_val()), classes=classes, out=Path(tmp), quiet=True, **kw
         )
+        require_metrics(res, classes, f"`mctrack kitti` run of {root} ({_described(classes, kw)})")
         if inspect is not None:
             res["inspected"] = inspect(Path(tmp) / "data")
         return res
+
+
+def _described(classes: list[str], kw: dict[str, Any]) -> str:
+    return ", ".join([f"classes {' '.join(classes)}", *(f"{k} {v}" for k, v in kw.items())])
+
+
+def require_metrics(summary: dict[str, Any], classes: list[str], run: str) -> None:
+    """InputError, one line naming ``run``'s summary.json and the classes its ``metrics`` lack
+    (with the run's own ``evaluation`` note): an unscored run (no labels, --no-eval) has no
+    figures for these tables."""
+    metrics = summary.get("metrics")
+    scored = metrics if isinstance(metrics, dict) else {}
+    missing = [c for c in classes if not isinstance(scored.get(c), dict)]
+    if not missing:
+        return
+    why = summary.get("evaluation")
+    why = why if isinstance(why, str) else "not scored, without labels or with --no-eval"
+    what = "no `metrics`" if metrics is None else f"no `metrics` of {', '.join(missing)}"
+    raise InputError(
+        f"{run}: its summary.json has {what} ({why}); the results tables need scored runs "
+        "(a kit with the validation sequences' labels)"
+    )
 
 
 DETECTORS = {"pointrcnn": ["car", "pedestrian", "cyclist"], "virconv": ["car"],
@@ -1133,6 +1159,16 @@ def _val() -> tuple[str, ...]:
 
 
 def main() -> int:
+    """Every run, then the page; an input error (an unscored run: :func:`require_metrics`) is
+    one line on stderr and exit status 2, no page written."""
+    try:
+        return _main()
+    except InputError as exc:
+        print(f"make_results.py: error: {' '.join(str(exc).split())}", file=sys.stderr)
+        return 2
+
+
+def _main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--kitti-root", default="../shared/data/kitti/tracking")
     parser.add_argument("--skip-speed", action="store_true")

@@ -1397,7 +1397,10 @@ def test_kitti_into_an_earlier_runs_folder_replaces_that_run(
     for earlier in ("data/0099.txt", "recordings/0099.rrd", "motion.md",
                     "recordings/.0099.rrd.123.abc.tmp"):  # (a run stopped by Ctrl-C)  # fmt: skip
         (out / earlier).write_text("an earlier run's\n")
-    earlier_summary = '{"command": "kitti", "sequences": ["0099"]}\n'  # (a run's: it says so)
+    # (a run's: it says so, and which files it wrote, as a --record run's summary does)
+    earlier_summary = json.dumps(
+        {"command": "kitti", "sequences": ["0099"], "recordings": {"0099": "r/recordings/0099.rrd"}}
+    )
     (out / "summary.json").write_text(earlier_summary)
     (out / "notes.txt").write_text("mine\n")
     (out / ".notes.tmp").write_text("mine\n")
@@ -1759,6 +1762,96 @@ def test_a_summary_lists_data_files_of_the_folder_alone(tmp_path: Path) -> None:
     assert earlier_scene_files(tmp_path) == []
     (tmp_path / "summary.json").write_text('{"command": "kitti"}')
     assert earlier_scene_files(tmp_path) is None
+
+
+def test_a_run_into_an_earlier_runs_folder_keeps_a_recording_it_did_not_write(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run into a folder holding an earlier run removed every recordings/*.rrd and
+    eval/*.json, a user's recordings/mine.rrd too. Now, as of data/*.txt, only the recordings
+    the earlier run's summary lists go (and of eval/ only the devkit's two file names): a
+    user's files there stay."""
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--no-eval"]
+    code, _, err = _run([*argv, "--record", "--out", str(out)], capsys)
+    assert code == 0, err
+    assert (out / "recordings" / "0001.rrd").is_file()
+    (out / "recordings" / "mine.rrd").write_text("mine\n")
+    (out / "eval").mkdir()
+    (out / "eval" / "mine.json").write_text("{}\n")
+    (out / "eval" / "metrics_summary.json").write_text("{}\n")  # (the devkit's: goes)
+    code, _, err = _run([*argv, "--out", str(out)], capsys)
+    assert code == 0, err
+    assert sorted(p.name for p in (out / "recordings").iterdir()) == ["mine.rrd"]
+    assert (out / "recordings" / "mine.rrd").read_text() == "mine\n"
+    assert sorted(p.name for p in (out / "eval").iterdir()) == ["mine.json"]
+    # a `track` run into it alike (a `kitti` summary without recordings: none of them its)
+    code, _, err = _run(_sample_run_argv(out), capsys)
+    assert code == 0, err
+    assert (out / "recordings" / "mine.rrd").read_text() == "mine\n"
+
+
+def test_a_recording_of_a_run_cut_short_is_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run cut short (its scene parts, no summary.json) does not say which recordings are
+    its own: a recordings/*.rrd the new run does not write is refused, naming it, before any
+    work, as a data/*.txt is."""
+    out = tmp_path / "out"
+    (out / ".scenes").mkdir(parents=True)
+    (out / "recordings").mkdir()
+    mine = out / "recordings" / "mine.rrd"
+    mine.write_text("mine\n")
+    before = _tree(out)
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--no-eval"]
+    code, printed, err = _run([*argv, "--out", str(out)], capsys)
+    _assert_one_line_error(
+        code,
+        err,
+        "kitti",
+        f"{mine}: {out} holds an earlier run, and it was cut short (.scenes/ is there, no "
+        "summary.json): this file may be anyone's; move or remove it, or give another --out",
+    )
+    assert printed == "" and _tree(out) == before
+
+
+def test_a_summary_lists_recordings_and_results_of_the_folder_alone(tmp_path: Path) -> None:
+    """A summary.json (and a compare.json) is anyone's to edit: a listed recording is taken
+    by its name alone, a safe one in a recordings/ folder, never a pattern or another folder;
+    a Waymo run's results are those of its segments."""
+    from app.outputs import earlier_named_files, outputs_replaced_by
+
+    listed = [
+        "/abs/run/recordings/0001.rrd",
+        "rel/recordings/0002.rrd",
+        "recordings/*.rrd",
+        "recordings/.x.rrd",
+        "elsewhere/0003.rrd",
+        "recordings/notes.txt",
+        "recordings/sub/0004.rrd",
+    ]
+    summary = {"command": "nuscenes", "recordings": listed}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    (tmp_path / "compare.json").write_text(json.dumps({"recordings": {"7": "o/recordings/7.rrd"}}))
+    assert earlier_named_files(tmp_path) == [
+        "recordings/0001.rrd",
+        "recordings/0002.rrd",
+        "recordings/7.rrd",
+    ]
+    replaced = outputs_replaced_by("kitti", tmp_path, ["0009"])
+    assert "recordings/*.rrd" not in replaced and "recordings/0009.rrd" in replaced
+    assert "eval/*.json" not in replaced and "eval/metrics_details.json" in replaced
+    (tmp_path / "compare.json").unlink()
+    waymo = {"command": "waymo", "segments": ["seg-1", "../x"], "recordings": {"a": 1}}
+    (tmp_path / "summary.json").write_text(json.dumps(waymo))
+    assert earlier_named_files(tmp_path) == sorted(
+        f"results/{t}/{n}.npz"
+        for t in ("vehicle", "pedestrian", "cyclist")
+        for n in ("seg-1", "%2E.%2Fx")  # (safe_filename: no other folder)
+    )
+    (tmp_path / "summary.json").unlink()
+    (tmp_path / ".scenes").mkdir()
+    assert earlier_named_files(tmp_path) is None
 
 
 def test_an_input_among_another_commands_outputs_is_refused(
@@ -2128,3 +2221,34 @@ def test_help_shows_a_default_of_zero(capsys: pytest.CaptureFixture[str]) -> Non
             main([command, "--help"])
         text = " ".join(capsys.readouterr().out.split())
         assert f"{option} (default: 0)" in text, (command, text)
+
+
+@pytest.mark.parametrize(
+    "file",
+    [
+        "training/calib/0001.txt",
+        "training/label_02/0001.txt",
+        "detections/pointrcnn/training/Car/0001.txt",
+    ],
+)
+def test_a_kitti_file_that_is_not_utf8_is_named(
+    file: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A calib, label or detection file holding bytes that are not UTF-8 was refused as "not a
+    text file (invalid start byte)", naming no file. Now the one-line error names the file, the
+    line and the byte offset of the first bad byte."""
+    kit = tmp_path / "kit"
+    shutil.copytree(SAMPLE_KIT, kit)
+    path = kit / file
+    data = path.read_bytes()
+    line = data.count(b"\n") + 1  # (the bad line is appended after the last)
+    path.write_bytes(data + b"0 -1 Car\xff 0 0\n")
+    byte = len(data) + len(b"0 -1 Car")
+    argv = ["kitti", "--kitti-root", str(kit), "--seqs", "0001", "--out", str(tmp_path / "o")]
+    code, _, err = _run(argv, capsys)
+    _assert_one_line_error(
+        code,
+        err,
+        "kitti",
+        f"{path}:{line}: not a UTF-8 text file (byte {byte}: invalid start byte)",
+    )

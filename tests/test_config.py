@@ -428,3 +428,13 @@ def test_the_bench_configs_differ_from_kitti_only_in_the_written_2d_box() -> Non
     assert kitti["image_boxes"] == "auto" and kitti["image_bearing"] is True
     assert detection == {**kitti, "image_boxes": "detection"}
     assert projection == {**kitti, "image_boxes": "projection", "image_bearing": False}
+
+
+def test_a_config_file_that_is_not_utf8_is_named(tmp_path: Path) -> None:
+    """A --config file holding bytes that are not UTF-8 gave "not a text file (invalid start
+    byte)", naming no file; now the file and the byte offset are named."""
+    path = tmp_path / "bad.toml"
+    path.write_bytes(b'base = "kitti"\n# \xff\n')
+    with pytest.raises(InputError) as excinfo:
+        load_config(path)
+    assert str(excinfo.value) == f"{path}: not a UTF-8 text file (byte 17: invalid start byte)"

@@ -190,3 +190,14 @@ def test_a_work_folder_of_an_exited_process_not_yet_reaped_is_removed(tmp_path: 
         assert fileio.remove_stale_work_folders(tmp_path) == 1 and _names(tmp_path) == []
     finally:
         proc.wait()
+
+
+def test_read_text_names_the_file_line_and_byte_that_are_not_utf8(tmp_path: Path) -> None:
+    """The decoder's own error names no file: read_text names it, the line and the byte."""
+    path = tmp_path / "t.txt"
+    path.write_bytes("ok é\r\nsecond \xff line\n".encode("latin-1").replace(b"\xe9", "é".encode()))
+    with pytest.raises(fileio.InputError) as excinfo:
+        fileio.read_text(path)
+    assert str(excinfo.value) == (f"{path}:2: not a UTF-8 text file (byte 14: invalid start byte)")
+    path.write_bytes("ok é\r\nsecond\n".encode())
+    assert fileio.read_text(path).splitlines() == ["ok é", "second"]

@@ -462,6 +462,51 @@ def test_a_malformed_calib_matrix_the_conversion_uses_is_refused(
     assert str(excinfo.value) == f"{calib}:{line}: field '{key}': {said}"
 
 
+@pytest.mark.parametrize(
+    ("key", "spelling"),
+    [("P2", "P2:"), ("R0_rect", "R_rect"), ("Tr_velo_to_cam", "Tr_velo_cam")],
+)
+def test_a_repeated_calib_key_the_conversion_uses_is_refused(
+    kitti_root: Path, tmp_path: Path, key: str, spelling: str
+) -> None:
+    """A second P2, R0_rect or Tr_velo_to_cam line (in either spelling) silently replaced the
+    first, so the boxes were placed by whichever came last. Now it is one line naming the calib
+    file, the repeated line and the key; the CLI exits 2 without a traceback."""
+    root = _kit_copy(kitti_root, tmp_path)
+    calib = root / "training" / "calib" / "0001.txt"
+    rows = calib.read_text().splitlines()
+    first = next(i for i, row in enumerate(rows) if row.split()[0].rstrip(":") == key) + 1
+    values = rows[first - 1].split()[1:]
+    calib.write_text("\n".join([*rows, " ".join([spelling, *values])]) + "\n")
+    said = f"{calib}:{len(rows) + 1}: field '{key}': repeated key (first on line {first})"
+    with pytest.raises(InputError) as excinfo:
+        read_kitti_calib(calib)
+    assert str(excinfo.value) == said
+    argv = ["kitti", "--kitti-root", str(root), "--detector", "pointrcnn", "--seqs", "0001"]
+    assert main([*argv, "--no-eval", "--out", str(tmp_path / "out")]) == 2
+
+
+def test_a_repeated_calib_key_the_conversion_does_not_use_keeps_its_first_line(
+    kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A repeated P0 (read for the record, used by nothing) keeps its first line with a logged
+    warning naming the file, line and key; the sequence is not refused."""
+    root = _kit_copy(kitti_root, tmp_path)
+    calib = root / "training" / "calib" / "0001.txt"
+    intact = read_kitti_calib(calib)
+    rows = calib.read_text().splitlines()
+    calib.write_text("\n".join([*rows, "P0: " + " ".join(["7"] * 12)]) + "\n")
+    with caplog.at_level(logging.WARNING, logger="tracker.io.convert.kitti"):
+        read = read_kitti_calib(calib)
+    warnings = [r.getMessage() for r in caplog.records if r.levelno == logging.WARNING]
+    assert warnings == [
+        f"{calib}:{len(rows) + 1}: field 'P0': repeated key (first on line 1) "
+        "(not used by the conversion: this line ignored)"
+    ]
+    np.testing.assert_array_equal(read.projections["P0"], intact.projections["P0"])
+    np.testing.assert_array_equal(read.image_from_rect, intact.image_from_rect)
+
+
 def test_poses_of_a_longer_sequence_are_a_warning(
     kitti_root: Path, tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

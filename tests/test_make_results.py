@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 from pathlib import Path
+
+import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
 
 from make_results import QUOTE_LEFT_OUT, summary_quote
+
+SAMPLE_KIT = Path(__file__).resolve().parents[1] / "sample_data" / "kitti-0001" / "raw"
 
 
 def test_the_summary_quote_leaves_out_what_it_says_and_no_machine_path() -> None:
@@ -61,3 +66,48 @@ def test_the_summary_quote_of_a_run_without_labels_says_what_is_absent() -> None
         "The `summary.json` that `mctrack kitti --out DIR` wrote for the online run (the run has"
         " no `metrics`: skipped: no labels for ['0001'] in lab):"
     )
+
+
+def test_the_results_refuse_an_unscored_run_naming_it_and_what_is_absent(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Every table reads the runs' metrics of each class: an unscored run (a kit without labels,
+    --no-eval) crashed main() with KeyError 'metrics' after the first run. Now it is one line
+    naming the run, its summary.json and what it lacks (with the run's own evaluation note),
+    exit status 2, and no page is written. The summary is a real one: the sample kit's
+    sequence 0001 run without its labels."""
+    import make_results
+
+    from app.kitti import run_kitti
+
+    kit = tmp_path / "kit"
+    shutil.copytree(SAMPLE_KIT, kit, ignore=shutil.ignore_patterns("label_02"))
+    summary = run_kitti(kitti_root=kit, seqs=["0001"], classes=["car"], out=tmp_path / "run",
+                        quiet=True)  # fmt: skip
+    assert "metrics" not in summary and "no labels" in summary["evaluation"]
+    calls: list[dict[str, object]] = []
+
+    def unscored(**kw: object) -> dict[str, object]:
+        calls.append(kw)
+        return summary
+
+    monkeypatch.setattr(make_results, "run_kitti", unscored)
+    out = tmp_path / "results.md"
+    monkeypatch.setattr(
+        sys, "argv", ["make_results.py", "--kitti-root", str(kit), "--out", str(out)]
+    )
+    assert make_results.main() == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert err.startswith(
+        f"make_results.py: error: `mctrack kitti` run of {kit} (classes car pedestrian cyclist): "
+        f"its summary.json has no `metrics` ({summary['evaluation']}); the results tables need "
+        "scored runs"
+    )
+    assert len(calls) == 1 and not out.exists()
+    # a summary scored for some classes only names those it lacks
+    with pytest.raises(make_results.InputError, match=r"has no `metrics` of cyclist \(not scored"):
+        make_results.require_metrics(
+            {"metrics": {"car": {}, "pedestrian": {}}}, ["car", "pedestrian", "cyclist"], "run"
+        )
+    make_results.require_metrics({"metrics": {"car": {"HOTA": 1.0}}}, ["car"], "run")

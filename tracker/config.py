@@ -447,7 +447,11 @@ def _read_source(name_or_path: str | Path) -> tuple[str, str]:
     path = Path(name_or_path)
     if not path.is_file():
         raise InputError(f"{path}: config not found (built-in names: {', '.join(BUILTIN)})")
-    return path.read_text(), str(path)
+    try:
+        return path.read_text(encoding="utf-8"), str(path)
+    except UnicodeDecodeError as exc:  # (the decoder's message names no file)
+        why = f"not a UTF-8 text file (byte {exc.start}: {exc.reason})"
+        raise InputError(f"{path}: {why}") from None
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

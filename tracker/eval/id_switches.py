@@ -332,10 +332,11 @@ def result_file_timesteps(result_file: str | Path, label_file: str | Path) -> in
     """A finished run's sequence length for TrackEval: the last frame of the labels or the
     results, plus one (the frames after both hold nothing to score)."""
     from tracker.errors import InputError
+    from tracker.io.fileio import read_text
 
     last = -1
     for path in (label_file, result_file):
-        for n, line in enumerate(Path(path).read_text().splitlines(), 1):
+        for n, line in enumerate(read_text(path).splitlines(), 1):
             if line.strip():
                 head = line.split(maxsplit=1)[0]
                 if not head.isdigit():
@@ -346,9 +347,11 @@ def result_file_timesteps(result_file: str | Path, label_file: str | Path) -> in
 
 def kitti_num_timesteps(label_file: str | Path, frames: Sequence[Frame]) -> int:
     """Sequence length for TrackEval's seqmap: it rejects label or result frames beyond it."""
+    from tracker.io.fileio import read_text
+
     label_frames = [
         int(line.split(maxsplit=1)[0])
-        for line in Path(label_file).read_text().splitlines()
+        for line in read_text(label_file).splitlines()
         if line.strip()
     ]
     last_frame = max([f.frame_id for f in frames] + label_frames, default=-1)

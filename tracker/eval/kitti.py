@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tracker.errors import InputError
-from tracker.io.fileio import path_in, work_folder
+from tracker.io.fileio import path_in, read_text, work_folder
 
 if TYPE_CHECKING:
     from tracker.io.convert.kitti import KittiObjects
@@ -176,7 +176,7 @@ def _window(source: Path, target: Path, first: int, count: int) -> None:
     """``target``: the rows of KITTI file ``source`` at frames first .. first+count-1, their
     frames shifted to start at 0 (TrackEval scores frames 0 .. n-1)."""
     rows = []
-    for text in source.read_text().splitlines():
+    for text in read_text(source).splitlines():
         frame, _, rest = text.strip().partition(" ")
         if frame and first <= int(float(frame)) < first + count:
             rows.append(f"{int(float(frame)) - first} {rest}\n")

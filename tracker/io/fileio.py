@@ -267,6 +267,20 @@ def write_text_atomic(path: str | Path, lines: list[str]) -> None:
     write_bytes_atomic(path, "".join(lines).encode())
 
 
+def read_text(path: str | Path) -> str:
+    """``path``'s text, read as UTF-8 (as Path.read_text in a UTF-8 locale). A file that is not
+    UTF-8 is an :class:`InputError` naming it, the line and the byte offset: the decoder's own
+    error ("invalid start byte") names no file."""
+    data = Path(path).read_bytes()
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data.count(b"\n", 0, exc.start) + 1
+        raise InputError(
+            f"not a UTF-8 text file (byte {exc.start}: {exc.reason})", path=path, line=line
+        ) from None
+
+
 # ---------------------------------------------------------------------------------------------
 # input size cap
 

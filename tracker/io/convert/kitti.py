@@ -66,6 +66,7 @@ from tracker.errors import InputError
 from tracker.frame import Camera, Frame
 from tracker.geometry import wrap_angle
 from tracker.io.bounds import ANGLE_NOTE, BOUND_NOTE, MAX_ANGLE_RAD, beyond_bound
+from tracker.io.fileio import read_text
 
 LOG = logging.getLogger(__name__)
 
@@ -224,17 +225,29 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
     :class:`InputError` naming the file, line and key. The others (``P0``, ``P1``, ``P3``,
     ``Tr_imu_to_velo``) are read for the record and checked the same way, but a malformed one
     is left out with a logged warning: a sequence is not refused over a matrix nothing reads.
+    A key given twice (in either spelling) is refused naming its second line when the
+    conversion uses it (which line holds the camera is not ours to guess); an unused one keeps
+    its first line, with a logged warning.
     """
     path = Path(path)
     values: dict[str, FloatArray] = {}
-    lines: dict[str, int] = {}
-    for line_no, line in enumerate(path.read_text().splitlines(), start=1):
+    lines: dict[str, int] = {}  # (every key's first line, a malformed one's too)
+    for line_no, line in enumerate(read_text(path).splitlines(), start=1):
         tokens = line.split()
         if not tokens:
             continue
         key = _CALIB_KEYS.get(tokens[0].rstrip(":"))
         if key is None:
             continue
+        if key in lines:
+            error = InputError(
+                f"repeated key (first on line {lines[key]})", path=path, line=line_no, field=key
+            )
+            if key not in _CALIB_UNUSED:
+                raise error
+            LOG.warning("%s (not used by the conversion: this line ignored)", error)
+            continue
+        lines[key] = line_no
         try:
             matrix = _calib_matrix(tokens[1:], key)
             if key != "R0_rect":
@@ -244,10 +257,8 @@ def read_kitti_calib(path: str | Path) -> KittiCalib:
             if key not in _CALIB_UNUSED:
                 raise error from None
             LOG.warning("%s (not used by the conversion: left out)", error)
-            values.pop(key, None)  # (a later line of the key: not an earlier one in its place)
             continue
         values[key] = matrix
-        lines[key] = line_no
     if "P2" not in values:
         raise InputError("missing key 'P2'", path=path, field="P2")
     padded = {k: _pad_4x4(values[k]) for k in _CALIB_SIZES if k in values}
@@ -444,7 +455,7 @@ def _read_table(
     source: list[int] = []
     lines: list[int] = []
     for index, path in enumerate(paths):
-        for line_no, text in enumerate(path.read_text().splitlines(), start=1):
+        for line_no, text in enumerate(read_text(path).splitlines(), start=1):
             if not text.strip():
                 continue
             row = text.split(sep)

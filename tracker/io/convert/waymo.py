@@ -71,7 +71,7 @@ from tracker.io.bounds import (
     beyond_bound,
 )
 from tracker.io.convert.nuscenes import assign_cameras, overflowing_boxes
-from tracker.io.fileio import SafeNpz, load_npz
+from tracker.io.fileio import SafeNpz, load_npz, read_text
 
 log = logging.getLogger(__name__)
 
@@ -123,7 +123,7 @@ def read_timestamps(path: Path) -> list[int]:
     if not path.is_file():
         raise InputError(f"{path}: ts_info file not found")
     try:
-        values = json.loads(path.read_text())
+        values = json.loads(read_text(path))
     except json.JSONDecodeError as exc:
         raise InputError(f"{path}: malformed JSON ({exc})") from None
     if not isinstance(values, list) or not all(
