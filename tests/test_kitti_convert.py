@@ -716,7 +716,18 @@ def test_a_box_beyond_the_bound_names_file_line_frame_and_field(
     one line naming the file, the line, the field and the frame (was converted, and overflowed
     the motion metrics)."""
     column = {**_HWL, "x": 11, "y": 12, "z": 13}[field]
-    bad = _replace_column(_CAR, " ", column, value)
+    path, message, line, frame = _refusal(
+        layout, _replace_column(_CAR, " ", column, value), tmp_path
+    )
+    assert message == (
+        f"{path}:{line}: field '{field}': {value} (frame {frame}) is beyond ±1e+08 m (farther or "
+        "larger than anything on Earth)"
+    )
+
+
+def _refusal(layout: str, bad: str, tmp_path: Path) -> tuple[Path, str, int, int]:
+    """The label row ``bad`` after a good one, written in ``layout`` and read: the file, the
+    refusal's message, and the line and frame it should name."""
     if layout == "ab3dmot":  # (frame, type code, 2D box, score, h, w, l, x, y, z, ry, alpha)
         row = bad.split()
         path = tmp_path / "Car" / "0001.txt"
@@ -724,16 +735,11 @@ def test_a_box_beyond_the_bound_names_file_line_frame_and_field(
         path.write_text(f"{_GOOD_DET}\n4," + ",".join(["2", *row[4:8], "0.9", *row[8:15], "0"]))
         with pytest.raises(InputError) as excinfo:
             read_ab3dmot_detections([path])
-        line, frame = 2, 4
-    else:
-        path = _write_layout(layout, [_DONTCARE, _CAR, bad], tmp_path)
-        with pytest.raises(InputError) as excinfo:
-            _read_layout(layout, path)
-        line, frame = 3, 0
-    assert str(excinfo.value) == (
-        f"{path}:{line}: field '{field}': {value} (frame {frame}) is beyond ±1e+08 m (farther or "
-        "larger than anything on Earth)"
-    )
+        return path, str(excinfo.value), 2, 4
+    path = _write_layout(layout, [_DONTCARE, _CAR, bad], tmp_path)
+    with pytest.raises(InputError) as excinfo:
+        _read_layout(layout, path)
+    return path, str(excinfo.value), 3, 0
 
 
 @pytest.mark.parametrize("value", ["2e4", "-1e300"])
@@ -744,21 +750,9 @@ def test_a_rotation_y_beyond_the_heading_bound_names_file_line_frame_and_field(
     """rotation_y may be unwrapped, but not beyond the bound the BaseVersion reader puts on a
     heading (tracker.io.bounds): at 1e300 a float's spacing is more than a turn, and the heading
     converted from it was an arbitrary angle, written without a word."""
-    bad = _replace_column(_CAR, " ", 14, value)
-    if layout == "ab3dmot":  # (frame, type code, 2D box, score, h, w, l, x, y, z, ry, alpha)
-        row = bad.split()
-        path = tmp_path / "Car" / "0001.txt"
-        path.parent.mkdir()
-        path.write_text(f"{_GOOD_DET}\n4," + ",".join(["2", *row[4:8], "0.9", *row[8:15], "0"]))
-        with pytest.raises(InputError) as excinfo:
-            read_ab3dmot_detections([path])
-        line, frame, field = 2, 4, "rot_y"
-    else:
-        path = _write_layout(layout, [_DONTCARE, _CAR, bad], tmp_path)
-        with pytest.raises(InputError) as excinfo:
-            _read_layout(layout, path)
-        line, frame, field = 3, 0, "rotation_y"
-    assert str(excinfo.value) == (
+    path, message, line, frame = _refusal(layout, _replace_column(_CAR, " ", 14, value), tmp_path)
+    field = "rot_y" if layout == "ab3dmot" else "rotation_y"
+    assert message == (
         f"{path}:{line}: field '{field}': {value} (frame {frame}) is beyond ±10000 rad (a "
         "heading is within a few turns of zero)"
     )
