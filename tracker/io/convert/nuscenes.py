@@ -228,9 +228,10 @@ _LOAD_FIELDS: Final[tuple[tuple[str, str, type], ...]] = (
 def table_problem(table_dir: Path) -> str | None:
     """The first problem of the tables that stops the devkit loading them, naming the table
     file (and the record and field): malformed JSON, not a list of records, a token that is
-    no string, a field it reads missing or of the wrong type, a token naming no record (also
-    in a map's ``log_tokens``), a log in no map. None if none is found. Reads every table
-    again: only after the devkit failed."""
+    no string, a field it reads missing or of the wrong type, a token naming no record, a
+    map's ``log_tokens`` entry that is no string, a log in no map (with the map's tokens that
+    name no log, the likelier typo; alone they are no problem: mini's map names logs it
+    lacks). None if none is found. Reads every table again: only after the devkit failed."""
     tables: dict[str, list[dict[str, Any]]] = {}
     for name in REQUIRED_TABLES:
         path = table_dir / f"{name}.json"
@@ -270,19 +271,20 @@ def table_problem(table_dir: Path) -> str | None:
                 )
     if not tables["map"]:
         return f"{table_dir / 'map.json'}: no map record"
-    # (the devkit indexes logs by these: an unhashable one fails it; one naming no log does not,
-    # but a log then left in no map does, and the map's token is the likelier typo)
+    # (the devkit indexes logs by these: an unhashable one fails it; one naming no log does
+    # not, and the official v1.0-mini map lists the full dataset's logs)
     for record in tables["map"]:
         for token in record["log_tokens"]:
-            if not isinstance(token, str) or token not in tokens["log"]:
-                return (
-                    f"{at('map', record)}: field 'log_tokens' names {token!r}, which is not the "
-                    "token of a log record"
-                )
+            if not isinstance(token, str):
+                return f"{at('map', record)}: field 'log_tokens' holds {token!r}, not a log token"
     mapped = {t for record in tables["map"] for t in record["log_tokens"]}
     for record in tables["log"]:
         if record["token"] not in mapped:
-            return f"{at('log', record)}: in the field 'log_tokens' of no map record (map.json)"
+            said = f"{at('log', record)}: in the field 'log_tokens' of no map record (map.json"
+            unknown = sorted(t for t in mapped if t not in tokens["log"])
+            if unknown:
+                said += f"; it names {len(unknown)} of no log, first {unknown[0]!r}: a typo?"
+            return said + ")"
     return None
 
 
