@@ -74,7 +74,7 @@ PER_SCENE = ("data/*.txt",)
 #: earlier run's (its summary.json lists them: :func:`earlier_named_files`) are removed by a
 #: new run, never anyone's other file there (a user's recordings/mine.rrd).
 NAMED = ("recordings/*.rrd", "results/*/*.npz")
-#: The largest summary.json read to tell whether it is a run's.
+#: The largest summary.json (compare.json) read to tell whether it is a run's (what it lists).
 _SUMMARY_MAX_BYTES = 64 << 20
 
 
@@ -148,15 +148,22 @@ def is_run_summary(summary: object) -> bool:
     return isinstance(summary.get("detection_fates"), dict)
 
 
-def _run_summary(path: Path) -> dict[str, Any] | None:
-    """``path``'s JSON when it is a run's summary.json (:func:`is_run_summary`), else None."""
+def _json_file(path: Path) -> object:
+    """``path``'s JSON, or None: a file of anyone's name in a run folder, read only when it is
+    a regular file of at most :data:`_SUMMARY_MAX_BYTES` (a FIFO would hang the run, a link to
+    /dev/zero fill its memory)."""
     try:
         if not path.is_file() or path.stat().st_size > _SUMMARY_MAX_BYTES:
             return None
-        summary = json.loads(path.read_bytes())
+        return json.loads(path.read_bytes())
     except (OSError, ValueError, RecursionError):  # (unreadable, not JSON, not UTF-8)
         return None
-    return summary if is_run_summary(summary) else None
+
+
+def _run_summary(path: Path) -> dict[str, Any] | None:
+    """``path``'s JSON when it is a run's summary.json (:func:`is_run_summary`), else None."""
+    summary = _json_file(path)
+    return summary if isinstance(summary, dict) and is_run_summary(summary) else None
 
 
 #: A per-scene file as a summary may list it: a :data:`PER_SCENE` pattern with a
@@ -214,10 +221,7 @@ def earlier_named_files(folder: Path) -> list[str] | None:
     if summary is None:
         return None
     paths = _listed_paths(summary.get("recordings"))
-    try:  # (compare.json goes with the run: its recordings with it)
-        compare = json.loads((folder / "compare.json").read_bytes())
-    except (OSError, ValueError, RecursionError):
-        compare = None
+    compare = _json_file(folder / "compare.json")  # (goes with the run: its recordings too)
     if isinstance(compare, dict):
         paths += _listed_paths(compare.get("recordings"))
     named = {

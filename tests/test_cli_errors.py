@@ -1854,6 +1854,39 @@ def test_a_summary_lists_recordings_and_results_of_the_folder_alone(tmp_path: Pa
     assert earlier_named_files(tmp_path) is None
 
 
+def test_a_compare_json_is_read_as_guarded_as_a_summary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The compare.json beside a run's summary is read as the summary is: a FIFO of that name
+    hung every run into the folder, a link to /dev/zero filled its memory (MemoryError, "a
+    bug"); now only a regular file of at most the summary's size is read, else it lists none."""
+    import threading
+
+    from app import outputs
+
+    summary = {"command": "kitti", "recordings": {"1": "r/recordings/0001.rrd"}}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    compare = tmp_path / "compare.json"
+    os.mkfifo(compare)
+    found: list[object] = []
+    reader = threading.Thread(
+        target=lambda: found.append(outputs.earlier_named_files(tmp_path)), daemon=True
+    )
+    reader.start()
+    reader.join(5)
+    if reader.is_alive():  # (the old read blocks until a writer comes: let it end)
+        os.close(os.open(compare, os.O_WRONLY))
+        reader.join(5)
+        pytest.fail("a FIFO named compare.json was read")
+    assert found == [["recordings/0001.rrd"]]
+    compare.unlink()
+    compare.write_text(json.dumps({"recordings": {"7": "o/recordings/7.rrd"}}))
+    assert outputs.earlier_named_files(tmp_path) == ["recordings/0001.rrd", "recordings/7.rrd"]
+    monkeypatch.setattr(outputs, "_SUMMARY_MAX_BYTES", compare.stat().st_size - 1)
+    (tmp_path / "summary.json").write_text(json.dumps({"command": "kitti"}))  # (within it)
+    assert outputs.earlier_named_files(tmp_path) == []  # (the compare.json over the cap)
+
+
 def test_an_input_among_another_commands_outputs_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
