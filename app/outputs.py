@@ -272,22 +272,30 @@ def outputs_at_stake(
 
 def _refuse_unknown_files(folder: Path, at_stake: tuple[str, ...], patterns: Iterable[str]) -> None:
     """InputError naming a file of ``patterns`` (:data:`PER_SCENE`, :data:`NAMED`) in
-    ``folder`` that is not ``at_stake`` (this run's): the earlier run there does not say which
-    are its own, so that one may be anyone's (kept, the folder would mix two runs; removed, a
-    user's file would be lost)."""
+    ``folder`` that is not ``at_stake`` (this run's), and how many more there are (all fixed
+    in one go): the earlier run there does not say which are its own, so that one may be
+    anyone's (kept, the folder would mix two runs; removed, a user's file would be lost)."""
     ours = {p for pattern in at_stake for p in folder.glob(pattern)}
+    unknown: list[tuple[Path, str]] = []
     for pattern in patterns:
         if (folder / PurePosixPath(pattern).parent).is_symlink():
             continue  # (a linked data/ leads anywhere: no run removes a file through it)
-        for path in sorted(folder.glob(pattern)):
-            if path in ours or not (path.is_file() or path.is_symlink()):
-                continue
-            why = (
-                f"its summary.json does not list its {pattern} files"
-                if _run_summary(folder / "summary.json") is not None
-                else f"it was cut short ({RUN_PARTS}/ is there, no summary.json)"
-            )
-            raise InputError(
-                f"{path}: {folder} holds an earlier run, and {why}: this file may be anyone's; "
-                "move or remove it, or give another --out"
-            )
+        unknown += [
+            (path, pattern)
+            for path in sorted(folder.glob(pattern))
+            if path not in ours and (path.is_file() or path.is_symlink())
+        ]
+    if not unknown:
+        return
+    path, pattern = unknown[0]
+    why = (
+        f"its summary.json does not list its {pattern} files"
+        if _run_summary(folder / "summary.json") is not None
+        else f"it was cut short ({RUN_PARTS}/ is there, no summary.json)"
+    )
+    more = f" (and {len(unknown) - 1} more)" if len(unknown) > 1 else ""
+    which, them = ("these files", "them") if more else ("this file", "it")
+    raise InputError(
+        f"{path}{more}: {folder} holds an earlier run, and {why}: {which} may be anyone's; "
+        f"move or remove {them}, or give another --out"
+    )

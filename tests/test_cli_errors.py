@@ -1815,6 +1815,24 @@ def test_a_recording_of_a_run_cut_short_is_refused(
     assert printed == "" and _tree(out) == before
 
 
+def test_every_unknown_file_of_a_run_cut_short_is_counted(tmp_path: Path) -> None:
+    """The refusal named the first unknown file alone: a user moved it, ran again, and was
+    refused on the next. Now it says how many more there are, so all go in one go."""
+    from app.outputs import outputs_at_stake
+
+    (tmp_path / ".scenes").mkdir()
+    for name in ("data/0001.txt", "data/notes.txt", "recordings/a.rrd", "recordings/b.rrd"):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text("x\n")
+    with pytest.raises(InputError) as caught:
+        outputs_at_stake("kitti", tmp_path, ["0001"])
+    assert str(caught.value) == (
+        f"{tmp_path / 'data' / 'notes.txt'} (and 2 more): {tmp_path} holds an earlier run, and "
+        f"it was cut short (.scenes/ is there, no summary.json): these files may be anyone's; "
+        "move or remove them, or give another --out"
+    )
+
+
 def test_a_summary_lists_recordings_and_results_of_the_folder_alone(tmp_path: Path) -> None:
     """A summary.json (and a compare.json) is anyone's to edit: a listed recording is taken
     by its name alone, a safe one in a recordings/ folder, never a pattern or another folder;
