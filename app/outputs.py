@@ -74,6 +74,9 @@ PER_SCENE = ("data/*.txt",)
 #: earlier run's (its summary.json lists them: :func:`earlier_named_files`) are removed by a
 #: new run, never anyone's other file there (a user's recordings/mine.rrd).
 NAMED = ("recordings/*.rrd", "results/*/*.npz")
+#: The recording per scene of a run with --record (one of :data:`NAMED`): a run without it
+#: writes none, so a recordings/<scene>.rrd there is not its to rewrite (a user's stays)
+RECORDING = "recordings/*.rrd"
 #: The largest summary.json (compare.json) read to tell whether it is a run's (what it lists).
 _SUMMARY_MAX_BYTES = 64 << 20
 
@@ -90,19 +93,26 @@ def _with_temps(patterns: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def outputs_of(command: str, scenes: Iterable[str] | None = None) -> tuple[str, ...]:
+def outputs_of(
+    command: str, scenes: Iterable[str] | None = None, *, record: bool = True
+) -> tuple[str, ...]:
     """What ``command`` writes in its folder, temporary files included: what a failed run of
     it removes (those it wrote), and what it refuses to take as an input there. ``scenes``:
     the scenes a run writes a file of, once known: each per-scene pattern (:data:`PER_SCENE`,
     :data:`NAMED`: its last ``*`` the scene) becomes their files (none for no scenes: `track`
-    without --kitti-results)."""
+    without --kitti-results); of :data:`RECORDING` only with ``record`` (the run's --record)."""
     patterns = FILES[command]
     if scenes is not None:
         names = [safe_filename(s) for s in scenes]  # (no glob character: [A-Za-z0-9._%-])
+        named = names if record else []
         patterns = tuple(
             q
             for p in patterns
-            for q in ([_of_scene(p, n) for n in names] if p in (*PER_SCENE, *NAMED) else [p])
+            for q in (
+                [_of_scene(p, n) for n in (named if p == RECORDING else names)]
+                if p in (*PER_SCENE, *NAMED)
+                else [p]
+            )
         )
     return _with_temps(patterns)
 
@@ -114,7 +124,11 @@ def _of_scene(pattern: str, name: str) -> str:
 
 
 def outputs_replaced_by(
-    command: str, folder: Path | None = None, scenes: Iterable[str] | None = None
+    command: str,
+    folder: Path | None = None,
+    scenes: Iterable[str] | None = None,
+    *,
+    record: bool = True,
 ) -> tuple[str, ...]:
     """What a run of ``command`` removes of an earlier run in its folder, once its inputs are
     accepted: for a run (:data:`RUN_COMMANDS`), everything a run folder may hold of any
@@ -124,7 +138,8 @@ def outputs_replaced_by(
     Of the files per scene (:data:`PER_SCENE`, data/<scene>.txt; :data:`NAMED`, the
     recordings and Waymo results), given the run's ``folder``: only those the earlier run there
     wrote (:func:`earlier_scene_files`, :func:`earlier_named_files`) and this run's own (of
-    ``scenes``), not every data/*.txt or recordings/*.rrd: a file of anyone's there stays."""
+    ``scenes``; its recordings only with ``record``), not every data/*.txt or
+    recordings/*.rrd: a file of anyone's there stays."""
     commands = RUN_FOLDER if command in RUN_COMMANDS else (command,)
     if folder is None or command not in RUN_COMMANDS:
         return tuple(dict.fromkeys(p for c in commands for p in outputs_of(c)))
@@ -134,7 +149,7 @@ def outputs_replaced_by(
     temps = [q for p in listed for q in _with_temps((p,)) if q != p]
     earlier = [*(earlier_scene_files(folder) or []), *(earlier_named_files(folder) or [])]
     patterns = [*_with_temps(tuple(shared)), *temps, *_with_temps(tuple(earlier))]
-    return tuple(dict.fromkeys([*patterns, *outputs_of(command, scenes)]))
+    return tuple(dict.fromkeys([*patterns, *outputs_of(command, scenes, record=record)]))
 
 
 def is_run_summary(summary: object) -> bool:
@@ -248,7 +263,7 @@ def holds_a_run(folder: Path) -> bool:
 
 
 def outputs_at_stake(
-    command: str, folder: Path, scenes: Iterable[str] | None = None
+    command: str, folder: Path, scenes: Iterable[str] | None = None, *, record: bool = True
 ) -> tuple[str, ...]:
     """What a run of ``command`` into ``folder`` writes or removes there, once its inputs are
     accepted (an input among them is refused): in a folder holding a run
@@ -258,10 +273,11 @@ def outputs_at_stake(
     there. Called before any work: where the earlier run's files per scene are not known
     (:func:`earlier_scene_files`, :func:`earlier_named_files`), a data/*.txt (a
     recordings/*.rrd, results/*/*.npz) this run does not write is refused (InputError naming
-    it), as it may be anyone's or the earlier run's."""
+    it), as it may be anyone's or the earlier run's. ``record``: whether the run writes its
+    scenes' recordings (--record)."""
     if command not in RUN_COMMANDS or not holds_a_run(folder):
-        return outputs_of(command, scenes)
-    at_stake = outputs_replaced_by(command, folder, scenes)
+        return outputs_of(command, scenes, record=record)
+    at_stake = outputs_replaced_by(command, folder, scenes, record=record)
     unknown = [
         *(PER_SCENE if earlier_scene_files(folder) is None else ()),
         *(NAMED if earlier_named_files(folder) is None else ()),

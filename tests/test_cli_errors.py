@@ -1791,6 +1791,27 @@ def test_a_run_into_an_earlier_runs_folder_keeps_a_recording_it_did_not_write(
     assert (out / "recordings" / "mine.rrd").read_text() == "mine\n"
 
 
+def test_kitti_without_record_keeps_a_recording_of_its_sequence(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """recordings/<seq>.rrd was put at stake whether or not the run records: `kitti --seqs 0001`
+    without --record into a run folder deleted a user's recordings/0001.rrd (and refused it
+    as an input). Now only a --record run writes (and so replaces) it."""
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--no-eval"]
+    code, _, err = _run([*argv, "--out", str(out)], capsys)
+    assert code == 0, err
+    mine = out / "recordings" / "0001.rrd"
+    mine.parent.mkdir()
+    mine.write_text("mine\n")
+    code, _, err = _run([*argv, "--out", str(out)], capsys)
+    assert code == 0, err
+    assert mine.read_text() == "mine\n"
+    code, _, err = _run([*argv, "--labels", str(mine.parent), "--out", str(out)], capsys)
+    assert code == 0, err  # (nor is a folder holding it refused as an input)
+    assert mine.read_text() == "mine\n"
+
+
 def test_a_recording_of_a_run_cut_short_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
