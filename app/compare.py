@@ -24,7 +24,7 @@ from typing import Any
 
 from app.common import command_line, refuse_inputs_among_outputs, remove_earlier_outputs
 from app.inputs import refuse_unused_option
-from app.outputs import holds_a_run, outputs_of
+from app.outputs import compare_recordings, holds_a_run, outputs_of
 from app.runs import Run, load_run, run_names, scored_sequences
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -113,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     # recordings/ are the run's own): its recordings of other sequences or runs (or all of
     # them, before a comparison without --record) would sit beside this one's compare.json
     if (out / "compare.json").is_file() and not holds_a_run(out):
-        remove_earlier_outputs(out, outputs_of("compare"))
+        # (of recordings/, those its compare.json lists: a user's recordings/mine.rrd stays)
+        remove_earlier_outputs(out, [*outputs_of("compare", []), *compare_recordings(out)])
     # every option that changes the result, quoted: the line repeats the comparison
     words = [args.run_a, args.run_b, "--out", args.out, "--tolerance", str(args.tolerance)]
     words += [

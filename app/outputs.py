@@ -224,6 +224,29 @@ def _listed_paths(value: object) -> list[str]:
     return [v for v in items if isinstance(v, str)] if isinstance(items, Iterable) else []
 
 
+def _recordings_listed(listing: object) -> list[str]:
+    """The recordings (relative to the folder) a summary.json or compare.json (``listing``'s
+    JSON) lists under "recordings", each taken by its name alone, and only as
+    recordings/<safe name>.rrd of a path whose folder is recordings/ (the file is anyone's to
+    edit; its paths were absolute, or relative to where the command ran)."""
+    paths = _listed_paths(listing.get("recordings")) if isinstance(listing, dict) else []
+    return sorted(
+        {
+            f"recordings/{PurePosixPath(p).name}"
+            for p in paths
+            if PurePosixPath(p).parent.name == "recordings"
+            and _LISTED_RECORDING.fullmatch(PurePosixPath(p).name)
+        }
+    )
+
+
+def compare_recordings(folder: Path) -> list[str]:
+    """The recordings a `compare --record` wrote in ``folder``, as its compare.json there lists
+    them (:func:`_recordings_listed`): what the next comparison there removes (a user's
+    recordings/mine.rrd stays). None listed where it lists none, or is no comparison's."""
+    return _recordings_listed(_json_file(folder / "compare.json"))
+
+
 def earlier_named_files(folder: Path) -> list[str] | None:
     """The files of :data:`NAMED` (relative to ``folder``) the run in ``folder`` wrote, as its
     summary.json says: the recordings its "recordings" lists (and those a `compare --record`
@@ -235,16 +258,8 @@ def earlier_named_files(folder: Path) -> list[str] | None:
     summary = _run_summary(folder / "summary.json")
     if summary is None:
         return None
-    paths = _listed_paths(summary.get("recordings"))
-    compare = _json_file(folder / "compare.json")  # (goes with the run: its recordings too)
-    if isinstance(compare, dict):
-        paths += _listed_paths(compare.get("recordings"))
-    named = {
-        f"recordings/{PurePosixPath(p).name}"
-        for p in paths
-        if PurePosixPath(p).parent.name == "recordings"
-        and _LISTED_RECORDING.fullmatch(PurePosixPath(p).name)
-    }
+    # (compare.json goes with the run: its recordings too)
+    named = set(_recordings_listed(summary)) | set(compare_recordings(folder))
     segments = summary.get("segments")
     if summary.get("command") == "waymo" and isinstance(segments, list):
         from tracker.io.waymo_writer import RESULT_TYPES
