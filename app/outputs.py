@@ -247,6 +247,12 @@ def compare_recordings(folder: Path) -> list[str]:
     return _recordings_listed(_json_file(folder / "compare.json"))
 
 
+def run_recordings(folder: Path) -> list[str]:
+    """The recordings the run in ``folder`` wrote, as its summary.json lists them (none where
+    there is no run's summary): a comparison there leaves them alone."""
+    return _recordings_listed(_run_summary(folder / "summary.json"))
+
+
 def earlier_named_files(folder: Path) -> list[str] | None:
     """The files of :data:`NAMED` (relative to ``folder``) the run in ``folder`` wrote, as its
     summary.json says: the recordings its "recordings" lists (and those a `compare --record`

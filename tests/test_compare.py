@@ -174,6 +174,28 @@ def test_compare_into_an_earlier_comparison_removes_its_recordings(tmp_path: Pat
     assert (a / "recordings" / f"{SEQ}.rrd").read_bytes() == b"run a's own"
 
 
+def test_compare_into_a_run_folder_removes_the_recordings_its_compare_json_lists(
+    tmp_path: Path,
+) -> None:
+    """A second comparison into a run folder without --record rewrote compare.json without
+    "recordings": the first comparison's recordings were listed nowhere and outlived the next
+    run there. Now they go first; the run's own (its summary lists them) and a user's stay."""
+    a, b, _ = make_runs(tmp_path)
+    summary = json.loads((a / "summary.json").read_text())
+    summary["recordings"] = {SEQ: str(a / "recordings" / f"{SEQ}.rrd")}
+    (a / "summary.json").write_text(json.dumps(summary))
+    assert main(["compare", str(a), str(b), "--out", str(a)]) == 0
+    result = json.loads((a / "compare.json").read_text())
+    result["recordings"] = {s: str(a / "recordings" / f"{s}.rrd") for s in (SEQ, "0007")}
+    (a / "compare.json").write_text(json.dumps(result))
+    (a / "recordings").mkdir()
+    for name in (SEQ, "0007", "mine"):
+        (a / "recordings" / f"{name}.rrd").write_bytes(name.encode())
+    assert main(["compare", str(a), str(b), "--out", str(a)]) == 0
+    assert sorted(p.name for p in (a / "recordings").iterdir()) == [f"{SEQ}.rrd", "mine.rrd"]
+    assert (a / "recordings" / f"{SEQ}.rrd").read_bytes() == SEQ.encode()
+
+
 @pytest.mark.parametrize("which", ["a", "b"])
 def test_compare_record_into_a_compared_run_is_refused(which: str, tmp_path: Path, capsys) -> None:
     """--record --out RUN wrote the side-by-side recording over the run's own
