@@ -24,7 +24,7 @@ from typing import Any
 
 from app.common import command_line, refuse_inputs_among_outputs, remove_earlier_outputs
 from app.inputs import refuse_unused_option
-from app.outputs import holds_a_run, outputs_of
+from app.outputs import compare_recordings, holds_a_run, outputs_of, run_recordings
 from app.runs import Run, load_run, run_names, scored_sequences
 from tracker.errors import InputError
 from tracker.eval.compare import (
@@ -109,11 +109,19 @@ def run(args: argparse.Namespace) -> int:
     run_a, run_b = load_pair(args)
     result = compare_result(run_a, run_b, tolerance=args.tolerance)
     tracks = record_tracks(run_a, run_b) if args.record else None
-    # once the inputs are accepted; only in an earlier comparison's folder (a run folder's
-    # recordings/ are the run's own): its recordings of other sequences or runs (or all of
-    # them, before a comparison without --record) would sit beside this one's compare.json
-    if (out / "compare.json").is_file() and not holds_a_run(out):
-        remove_earlier_outputs(out, outputs_of("compare"))
+    # once the inputs are accepted, in an earlier comparison's folder: its recordings of other
+    # sequences or runs (or all of them, before a comparison without --record) would sit
+    # beside this one's compare.json. Of recordings/, those its compare.json lists alone: a
+    # user's recordings/mine.rrd stays
+    if (out / "compare.json").is_file():
+        earlier = compare_recordings(out)
+        if holds_a_run(out):
+            # (compare.json rewritten without them, they would be listed nowhere and outlive
+            # the next run there; the run's own recordings stay)
+            own = set(run_recordings(out))
+            remove_earlier_outputs(out, [p for p in earlier if p not in own])
+        else:
+            remove_earlier_outputs(out, [*outputs_of("compare", []), *earlier])
     # every option that changes the result, quoted: the line repeats the comparison
     words = [args.run_a, args.run_b, "--out", args.out, "--tolerance", str(args.tolerance)]
     words += [

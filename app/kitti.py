@@ -162,8 +162,11 @@ def run(args: argparse.Namespace) -> int:
         "--poses": Path(poses) if poses not in (None, "orbslam3") else None,
     }
     written = [_normalise_seq(s) for s in seqs]  # (data/<seq>.txt of its sequences alone)
-    at_stake = outputs_at_stake("kitti", out, written)
-    refuse_inputs_among_outputs(out, at_stake, inputs, outputs_of("kitti", written))
+    # (recordings/<seq>.rrd only with --record: without it a user's there stays)
+    at_stake = outputs_at_stake("kitti", out, written, record=args.record)
+    refuse_inputs_among_outputs(
+        out, at_stake, inputs, outputs_of("kitti", written, record=args.record)
+    )
     if poses is None:
         print(NO_POSES_NOTE, file=sys.stderr)
     summary = run_kitti(
@@ -383,7 +386,8 @@ def run_kitti(
     # new run leaves out does not keep its old results, nor any command's file of the old run
     if holds_a_run(out):  # (of data/*.txt, the earlier run's files and this run's alone)
         written = [_normalise_seq(s) for s in seqs]
-        remove_earlier_outputs(out, outputs_replaced_by("kitti", out, written))
+        replaced = outputs_replaced_by("kitti", out, written, record=record is not None)
+        remove_earlier_outputs(out, replaced)
     # from here on the run writes: one that fails after the tracking (the motion metrics or
     # the recordings refuse, Ctrl-C) removes what it wrote, so OUT never holds data/*.txt and
     # tracks.json without the summary.json that marks a complete run

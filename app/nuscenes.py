@@ -167,8 +167,14 @@ def run_nuscenes(
     from tracker.io.convert.nuscenes import convert_nuscenes, load_nuscenes
     from tracker.io.nuscenes_writer import write_nuscenes_parts
 
+    # its files per scene are recordings/<scene>.rrd (--record): of --scenes, else of the
+    # split's scenes, known once converted (checked again then)
+    early = (scene_names or []) if scene_names or not record else None
     refuse_inputs_among_outputs(
-        out, outputs_at_stake("nuscenes", out), {"--detections": detections}, outputs_of("nuscenes")
+        out,
+        outputs_at_stake("nuscenes", out, early, record=record),
+        {"--detections": detections},
+        outputs_of("nuscenes", early, record=record),
     )
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     has_gt = not version.endswith("test")
@@ -195,8 +201,11 @@ def run_nuscenes(
             raise InputError(f"--scenes: not in split {split!r}: {missing}")
         det_scenes = {s: det_scenes[s] for s in scene_names}
     convert_secs = time.perf_counter() - t0
+    written = list(det_scenes)
+    if early is None:  # (a cut-short run's recording of no scene of this split: refused)
+        outputs_at_stake("nuscenes", out, written, record=record)
     if holds_a_run(out):  # a refused run keeps the earlier one; a run's files of any command go
-        remove_earlier_outputs(out, outputs_replaced_by("nuscenes", out, []))
+        remove_earlier_outputs(out, outputs_replaced_by("nuscenes", out, written, record=record))
 
     # from here on the run writes: one that fails (the devkit refuses the submission, an
     # evaluation error, Ctrl-C) removes what it wrote, so OUT never holds a results.json

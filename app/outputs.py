@@ -74,7 +74,10 @@ PER_SCENE = ("data/*.txt",)
 #: earlier run's (its summary.json lists them: :func:`earlier_named_files`) are removed by a
 #: new run, never anyone's other file there (a user's recordings/mine.rrd).
 NAMED = ("recordings/*.rrd", "results/*/*.npz")
-#: The largest summary.json read to tell whether it is a run's.
+#: The recording per scene of a run with --record (one of :data:`NAMED`): a run without it
+#: writes none, so a recordings/<scene>.rrd there is not its to rewrite (a user's stays)
+RECORDING = "recordings/*.rrd"
+#: The largest summary.json (compare.json) read to tell whether it is a run's (what it lists).
 _SUMMARY_MAX_BYTES = 64 << 20
 
 
@@ -90,19 +93,26 @@ def _with_temps(patterns: tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
-def outputs_of(command: str, scenes: Iterable[str] | None = None) -> tuple[str, ...]:
+def outputs_of(
+    command: str, scenes: Iterable[str] | None = None, *, record: bool = True
+) -> tuple[str, ...]:
     """What ``command`` writes in its folder, temporary files included: what a failed run of
     it removes (those it wrote), and what it refuses to take as an input there. ``scenes``:
     the scenes a run writes a file of, once known: each per-scene pattern (:data:`PER_SCENE`,
     :data:`NAMED`: its last ``*`` the scene) becomes their files (none for no scenes: `track`
-    without --kitti-results)."""
+    without --kitti-results); of :data:`RECORDING` only with ``record`` (the run's --record)."""
     patterns = FILES[command]
     if scenes is not None:
         names = [safe_filename(s) for s in scenes]  # (no glob character: [A-Za-z0-9._%-])
+        named = names if record else []
         patterns = tuple(
             q
             for p in patterns
-            for q in ([_of_scene(p, n) for n in names] if p in (*PER_SCENE, *NAMED) else [p])
+            for q in (
+                [_of_scene(p, n) for n in (named if p == RECORDING else names)]
+                if p in (*PER_SCENE, *NAMED)
+                else [p]
+            )
         )
     return _with_temps(patterns)
 
@@ -114,7 +124,11 @@ def _of_scene(pattern: str, name: str) -> str:
 
 
 def outputs_replaced_by(
-    command: str, folder: Path | None = None, scenes: Iterable[str] | None = None
+    command: str,
+    folder: Path | None = None,
+    scenes: Iterable[str] | None = None,
+    *,
+    record: bool = True,
 ) -> tuple[str, ...]:
     """What a run of ``command`` removes of an earlier run in its folder, once its inputs are
     accepted: for a run (:data:`RUN_COMMANDS`), everything a run folder may hold of any
@@ -124,7 +138,8 @@ def outputs_replaced_by(
     Of the files per scene (:data:`PER_SCENE`, data/<scene>.txt; :data:`NAMED`, the
     recordings and Waymo results), given the run's ``folder``: only those the earlier run there
     wrote (:func:`earlier_scene_files`, :func:`earlier_named_files`) and this run's own (of
-    ``scenes``), not every data/*.txt or recordings/*.rrd: a file of anyone's there stays."""
+    ``scenes``; its recordings only with ``record``), not every data/*.txt or
+    recordings/*.rrd: a file of anyone's there stays."""
     commands = RUN_FOLDER if command in RUN_COMMANDS else (command,)
     if folder is None or command not in RUN_COMMANDS:
         return tuple(dict.fromkeys(p for c in commands for p in outputs_of(c)))
@@ -134,7 +149,7 @@ def outputs_replaced_by(
     temps = [q for p in listed for q in _with_temps((p,)) if q != p]
     earlier = [*(earlier_scene_files(folder) or []), *(earlier_named_files(folder) or [])]
     patterns = [*_with_temps(tuple(shared)), *temps, *_with_temps(tuple(earlier))]
-    return tuple(dict.fromkeys([*patterns, *outputs_of(command, scenes)]))
+    return tuple(dict.fromkeys([*patterns, *outputs_of(command, scenes, record=record)]))
 
 
 def is_run_summary(summary: object) -> bool:
@@ -148,15 +163,22 @@ def is_run_summary(summary: object) -> bool:
     return isinstance(summary.get("detection_fates"), dict)
 
 
-def _run_summary(path: Path) -> dict[str, Any] | None:
-    """``path``'s JSON when it is a run's summary.json (:func:`is_run_summary`), else None."""
+def _json_file(path: Path) -> object:
+    """``path``'s JSON, or None: a file of anyone's name in a run folder, read only when it is
+    a regular file of at most :data:`_SUMMARY_MAX_BYTES` (a FIFO would hang the run, a link to
+    /dev/zero fill its memory)."""
     try:
         if not path.is_file() or path.stat().st_size > _SUMMARY_MAX_BYTES:
             return None
-        summary = json.loads(path.read_bytes())
+        return json.loads(path.read_bytes())
     except (OSError, ValueError, RecursionError):  # (unreadable, not JSON, not UTF-8)
         return None
-    return summary if is_run_summary(summary) else None
+
+
+def _run_summary(path: Path) -> dict[str, Any] | None:
+    """``path``'s JSON when it is a run's summary.json (:func:`is_run_summary`), else None."""
+    summary = _json_file(path)
+    return summary if isinstance(summary, dict) and is_run_summary(summary) else None
 
 
 #: A per-scene file as a summary may list it: a :data:`PER_SCENE` pattern with a
@@ -202,6 +224,35 @@ def _listed_paths(value: object) -> list[str]:
     return [v for v in items if isinstance(v, str)] if isinstance(items, Iterable) else []
 
 
+def _recordings_listed(listing: object) -> list[str]:
+    """The recordings (relative to the folder) a summary.json or compare.json (``listing``'s
+    JSON) lists under "recordings", each taken by its name alone, and only as
+    recordings/<safe name>.rrd of a path whose folder is recordings/ (the file is anyone's to
+    edit; its paths were absolute, or relative to where the command ran)."""
+    paths = _listed_paths(listing.get("recordings")) if isinstance(listing, dict) else []
+    return sorted(
+        {
+            f"recordings/{PurePosixPath(p).name}"
+            for p in paths
+            if PurePosixPath(p).parent.name == "recordings"
+            and _LISTED_RECORDING.fullmatch(PurePosixPath(p).name)
+        }
+    )
+
+
+def compare_recordings(folder: Path) -> list[str]:
+    """The recordings a `compare --record` wrote in ``folder``, as its compare.json there lists
+    them (:func:`_recordings_listed`): what the next comparison there removes (a user's
+    recordings/mine.rrd stays). None listed where it lists none, or is no comparison's."""
+    return _recordings_listed(_json_file(folder / "compare.json"))
+
+
+def run_recordings(folder: Path) -> list[str]:
+    """The recordings the run in ``folder`` wrote, as its summary.json lists them (none where
+    there is no run's summary): a comparison there leaves them alone."""
+    return _recordings_listed(_run_summary(folder / "summary.json"))
+
+
 def earlier_named_files(folder: Path) -> list[str] | None:
     """The files of :data:`NAMED` (relative to ``folder``) the run in ``folder`` wrote, as its
     summary.json says: the recordings its "recordings" lists (and those a `compare --record`
@@ -213,19 +264,8 @@ def earlier_named_files(folder: Path) -> list[str] | None:
     summary = _run_summary(folder / "summary.json")
     if summary is None:
         return None
-    paths = _listed_paths(summary.get("recordings"))
-    try:  # (compare.json goes with the run: its recordings with it)
-        compare = json.loads((folder / "compare.json").read_bytes())
-    except (OSError, ValueError, RecursionError):
-        compare = None
-    if isinstance(compare, dict):
-        paths += _listed_paths(compare.get("recordings"))
-    named = {
-        f"recordings/{PurePosixPath(p).name}"
-        for p in paths
-        if PurePosixPath(p).parent.name == "recordings"
-        and _LISTED_RECORDING.fullmatch(PurePosixPath(p).name)
-    }
+    # (compare.json goes with the run: its recordings too)
+    named = set(_recordings_listed(summary)) | set(compare_recordings(folder))
     segments = summary.get("segments")
     if summary.get("command") == "waymo" and isinstance(segments, list):
         from tracker.io.waymo_writer import RESULT_TYPES
@@ -244,7 +284,7 @@ def holds_a_run(folder: Path) -> bool:
 
 
 def outputs_at_stake(
-    command: str, folder: Path, scenes: Iterable[str] | None = None
+    command: str, folder: Path, scenes: Iterable[str] | None = None, *, record: bool = True
 ) -> tuple[str, ...]:
     """What a run of ``command`` into ``folder`` writes or removes there, once its inputs are
     accepted (an input among them is refused): in a folder holding a run
@@ -254,10 +294,11 @@ def outputs_at_stake(
     there. Called before any work: where the earlier run's files per scene are not known
     (:func:`earlier_scene_files`, :func:`earlier_named_files`), a data/*.txt (a
     recordings/*.rrd, results/*/*.npz) this run does not write is refused (InputError naming
-    it), as it may be anyone's or the earlier run's."""
+    it), as it may be anyone's or the earlier run's. ``record``: whether the run writes its
+    scenes' recordings (--record)."""
     if command not in RUN_COMMANDS or not holds_a_run(folder):
-        return outputs_of(command, scenes)
-    at_stake = outputs_replaced_by(command, folder, scenes)
+        return outputs_of(command, scenes, record=record)
+    at_stake = outputs_replaced_by(command, folder, scenes, record=record)
     unknown = [
         *(PER_SCENE if earlier_scene_files(folder) is None else ()),
         *(NAMED if earlier_named_files(folder) is None else ()),
@@ -268,22 +309,30 @@ def outputs_at_stake(
 
 def _refuse_unknown_files(folder: Path, at_stake: tuple[str, ...], patterns: Iterable[str]) -> None:
     """InputError naming a file of ``patterns`` (:data:`PER_SCENE`, :data:`NAMED`) in
-    ``folder`` that is not ``at_stake`` (this run's): the earlier run there does not say which
-    are its own, so that one may be anyone's (kept, the folder would mix two runs; removed, a
-    user's file would be lost)."""
+    ``folder`` that is not ``at_stake`` (this run's), and how many more there are (all fixed
+    in one go): the earlier run there does not say which are its own, so that one may be
+    anyone's (kept, the folder would mix two runs; removed, a user's file would be lost)."""
     ours = {p for pattern in at_stake for p in folder.glob(pattern)}
+    unknown: list[tuple[Path, str]] = []
     for pattern in patterns:
         if (folder / PurePosixPath(pattern).parent).is_symlink():
             continue  # (a linked data/ leads anywhere: no run removes a file through it)
-        for path in sorted(folder.glob(pattern)):
-            if path in ours or not (path.is_file() or path.is_symlink()):
-                continue
-            why = (
-                f"its summary.json does not list its {pattern} files"
-                if _run_summary(folder / "summary.json") is not None
-                else f"it was cut short ({RUN_PARTS}/ is there, no summary.json)"
-            )
-            raise InputError(
-                f"{path}: {folder} holds an earlier run, and {why}: this file may be anyone's; "
-                "move or remove it, or give another --out"
-            )
+        unknown += [
+            (path, pattern)
+            for path in sorted(folder.glob(pattern))
+            if path not in ours and (path.is_file() or path.is_symlink())
+        ]
+    if not unknown:
+        return
+    path, pattern = unknown[0]
+    why = (
+        f"its summary.json does not list its {pattern} files"
+        if _run_summary(folder / "summary.json") is not None
+        else f"it was cut short ({RUN_PARTS}/ is there, no summary.json)"
+    )
+    more = f" (and {len(unknown) - 1} more)" if len(unknown) > 1 else ""
+    which, them = ("these files", "them") if more else ("this file", "it")
+    raise InputError(
+        f"{path}{more}: {folder} holds an earlier run, and {why}: {which} may be anyone's; "
+        f"move or remove {them}, or give another --out"
+    )

@@ -154,16 +154,19 @@ def run_waymo(
     config = load_config(config_name, overrides={"mode": mode} if mode else None)
     from tracker.io.convert.waymo import segment_names
 
-    inputs = {"--data-root": data_root, "--detections": detections, "--gt": gt}
-    refuse_inputs_among_outputs(out, outputs_at_stake("waymo", out), inputs, outputs_of("waymo"))
     names = segment_names(data_root, detections, segments)
     # (files per segment: results/<type>/<segment>.npz)
     refuse_case_collisions(names, "--segments" if segments else detections, "segments", ".npz")
+    # of its segments: in the folder of a run cut short, another results/*/*.npz (or
+    # recording) is refused, not kept to mix into the submission pred_bin.py reads
+    inputs = {"--data-root": data_root, "--detections": detections, "--gt": gt}
+    at_stake = outputs_at_stake("waymo", out, names, record=record)
+    refuse_inputs_among_outputs(out, at_stake, inputs, outputs_of("waymo", names, record=record))
     # a refused run keeps the earlier one; else its files (of any command) go: pred_bin.py reads
     # every file of results/, and a segment left out or failing now would keep its old results
     # (of results/, the files of the segments its summary lists: a file of anyone's stays)
     if holds_a_run(out):
-        remove_earlier_outputs(out, outputs_replaced_by("waymo", out, []))
+        remove_earlier_outputs(out, outputs_replaced_by("waymo", out, names, record=record))
     # from here on the run writes: one stopped (Ctrl-C, an error) removes what it wrote, so
     # OUT never holds results/ without the summary.json that marks a complete run
     with outputs_removed_on_failure(out, outputs_of("waymo")):

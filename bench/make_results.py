@@ -149,15 +149,22 @@ def _described(classes: list[str], kw: dict[str, Any]) -> str:
 
 def require_metrics(summary: dict[str, Any], classes: list[str], run: str) -> None:
     """InputError, one line naming ``run``'s summary.json and the classes its ``metrics`` lack
-    (with the run's own ``evaluation`` note): an unscored run (no labels, --no-eval) has no
-    figures for these tables."""
+    (with the run's own note why: its ``metrics_absent`` one of a class the scored sequences
+    hold no ground truth of, else its ``evaluation``): an unscored run (no labels, --no-eval)
+    has no figures for these tables."""
     metrics = summary.get("metrics")
     scored = metrics if isinstance(metrics, dict) else {}
     missing = [c for c in classes if not isinstance(scored.get(c), dict)]
     if not missing:
         return
-    why = summary.get("evaluation")
-    why = why if isinstance(why, str) else "not scored, without labels or with --no-eval"
+    evaluation = summary.get("evaluation")
+    if not isinstance(evaluation, str):
+        evaluation = "not scored, without labels or with --no-eval"
+    absent = summary.get("metrics_absent")
+    absent = absent if isinstance(absent, dict) else {}
+    # (a scored run lacks a class of no ground truth: "not scored" would be wrong there)
+    notes = [absent[c] if isinstance(absent.get(c), str) else evaluation for c in missing]
+    why = "; ".join(dict.fromkeys(notes))
     what = "no `metrics`" if metrics is None else f"no `metrics` of {', '.join(missing)}"
     raise InputError(
         f"{run}: its summary.json has {what} ({why}); the results tables need scored runs "

@@ -1791,6 +1791,27 @@ def test_a_run_into_an_earlier_runs_folder_keeps_a_recording_it_did_not_write(
     assert (out / "recordings" / "mine.rrd").read_text() == "mine\n"
 
 
+def test_kitti_without_record_keeps_a_recording_of_its_sequence(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """recordings/<seq>.rrd was put at stake whether or not the run records: `kitti --seqs 0001`
+    without --record into a run folder deleted a user's recordings/0001.rrd (and refused it
+    as an input). Now only a --record run writes (and so replaces) it."""
+    out = tmp_path / "out"
+    argv = ["kitti", "--kitti-root", str(SAMPLE_KIT), "--seqs", "0001", "--no-eval"]
+    code, _, err = _run([*argv, "--out", str(out)], capsys)
+    assert code == 0, err
+    mine = out / "recordings" / "0001.rrd"
+    mine.parent.mkdir()
+    mine.write_text("mine\n")
+    code, _, err = _run([*argv, "--out", str(out)], capsys)
+    assert code == 0, err
+    assert mine.read_text() == "mine\n"
+    code, _, err = _run([*argv, "--labels", str(mine.parent), "--out", str(out)], capsys)
+    assert code == 0, err  # (nor is a folder holding it refused as an input)
+    assert mine.read_text() == "mine\n"
+
+
 def test_a_recording_of_a_run_cut_short_is_refused(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -1813,6 +1834,24 @@ def test_a_recording_of_a_run_cut_short_is_refused(
         "summary.json): this file may be anyone's; move or remove it, or give another --out",
     )
     assert printed == "" and _tree(out) == before
+
+
+def test_every_unknown_file_of_a_run_cut_short_is_counted(tmp_path: Path) -> None:
+    """The refusal named the first unknown file alone: a user moved it, ran again, and was
+    refused on the next. Now it says how many more there are, so all go in one go."""
+    from app.outputs import outputs_at_stake
+
+    (tmp_path / ".scenes").mkdir()
+    for name in ("data/0001.txt", "data/notes.txt", "recordings/a.rrd", "recordings/b.rrd"):
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text("x\n")
+    with pytest.raises(InputError) as caught:
+        outputs_at_stake("kitti", tmp_path, ["0001"])
+    assert str(caught.value) == (
+        f"{tmp_path / 'data' / 'notes.txt'} (and 2 more): {tmp_path} holds an earlier run, and "
+        f"it was cut short (.scenes/ is there, no summary.json): these files may be anyone's; "
+        "move or remove them, or give another --out"
+    )
 
 
 def test_a_summary_lists_recordings_and_results_of_the_folder_alone(tmp_path: Path) -> None:
@@ -1852,6 +1891,39 @@ def test_a_summary_lists_recordings_and_results_of_the_folder_alone(tmp_path: Pa
     (tmp_path / "summary.json").unlink()
     (tmp_path / ".scenes").mkdir()
     assert earlier_named_files(tmp_path) is None
+
+
+def test_a_compare_json_is_read_as_guarded_as_a_summary(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The compare.json beside a run's summary is read as the summary is: a FIFO of that name
+    hung every run into the folder, a link to /dev/zero filled its memory (MemoryError, "a
+    bug"); now only a regular file of at most the summary's size is read, else it lists none."""
+    import threading
+
+    from app import outputs
+
+    summary = {"command": "kitti", "recordings": {"1": "r/recordings/0001.rrd"}}
+    (tmp_path / "summary.json").write_text(json.dumps(summary))
+    compare = tmp_path / "compare.json"
+    os.mkfifo(compare)
+    found: list[object] = []
+    reader = threading.Thread(
+        target=lambda: found.append(outputs.earlier_named_files(tmp_path)), daemon=True
+    )
+    reader.start()
+    reader.join(5)
+    if reader.is_alive():  # (the old read blocks until a writer comes: let it end)
+        os.close(os.open(compare, os.O_WRONLY))
+        reader.join(5)
+        pytest.fail("a FIFO named compare.json was read")
+    assert found == [["recordings/0001.rrd"]]
+    compare.unlink()
+    compare.write_text(json.dumps({"recordings": {"7": "o/recordings/7.rrd"}}))
+    assert outputs.earlier_named_files(tmp_path) == ["recordings/0001.rrd", "recordings/7.rrd"]
+    monkeypatch.setattr(outputs, "_SUMMARY_MAX_BYTES", compare.stat().st_size - 1)
+    (tmp_path / "summary.json").write_text(json.dumps({"command": "kitti"}))  # (within it)
+    assert outputs.earlier_named_files(tmp_path) == []  # (the compare.json over the cap)
 
 
 def test_an_input_among_another_commands_outputs_is_refused(

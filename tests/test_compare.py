@@ -137,26 +137,63 @@ def test_compare_record_refused_writes_nothing(tmp_path: Path, capsys) -> None:
     assert not out.exists()  # (was left behind, empty)
 
 
+def _as_if_recorded(out: Path) -> None:
+    """``out``'s comparison as a --record one leaves it: recordings/<SEQ>.rrd, listed in its
+    compare.json (hand-made runs have no tracks.json to record)."""
+    (out / "recordings").mkdir(exist_ok=True)
+    (out / "recordings" / f"{SEQ}.rrd").write_bytes(b"an earlier --record's")
+    result = json.loads((out / "compare.json").read_text())
+    result["recordings"] = {SEQ: str(out / "recordings" / f"{SEQ}.rrd")}
+    (out / "compare.json").write_text(json.dumps(result))
+
+
 def test_compare_into_an_earlier_comparison_removes_its_recordings(tmp_path: Path) -> None:
     """An earlier --record's recordings/<seq>.rrd (of other runs) do not stay beside the new
     compare.json; a run folder's own recordings are never touched."""
     a, b, _ = make_runs(tmp_path)
     out = tmp_path / "cmp"
     assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
-    (out / "recordings").mkdir()
-    (out / "recordings" / f"{SEQ}.rrd").write_bytes(b"an earlier --record's")
+    _as_if_recorded(out)
     (out / "notes.txt").write_text("mine")
     # a refused comparison (--record of runs without tracks.json) keeps the earlier one
     assert main(["compare", str(a), str(b), "--out", str(out), "--record"]) == 2
     assert (out / "recordings" / f"{SEQ}.rrd").is_file() and (out / "compare.json").is_file()
     assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["compare.json", "compare.md", "notes.txt"]
+    # of recordings/, only those its compare.json lists went: a user's stays
+    _as_if_recorded(out)
+    (out / "recordings" / "mine.rrd").write_bytes(b"mine")
+    assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
+    assert [p.name for p in (out / "recordings").iterdir()] == ["mine.rrd"]
+    assert "recordings" not in json.loads((out / "compare.json").read_text())
     # the output folder is run A itself (it has its summary.json): its recording stays
     (a / "recordings").mkdir()
     (a / "recordings" / f"{SEQ}.rrd").write_bytes(b"run a's own")
     for _ in range(2):
         assert main(["compare", str(a), str(b), "--out", str(a)]) == 0
     assert (a / "recordings" / f"{SEQ}.rrd").read_bytes() == b"run a's own"
+
+
+def test_compare_into_a_run_folder_removes_the_recordings_its_compare_json_lists(
+    tmp_path: Path,
+) -> None:
+    """A second comparison into a run folder without --record rewrote compare.json without
+    "recordings": the first comparison's recordings were listed nowhere and outlived the next
+    run there. Now they go first; the run's own (its summary lists them) and a user's stay."""
+    a, b, _ = make_runs(tmp_path)
+    summary = json.loads((a / "summary.json").read_text())
+    summary["recordings"] = {SEQ: str(a / "recordings" / f"{SEQ}.rrd")}
+    (a / "summary.json").write_text(json.dumps(summary))
+    assert main(["compare", str(a), str(b), "--out", str(a)]) == 0
+    result = json.loads((a / "compare.json").read_text())
+    result["recordings"] = {s: str(a / "recordings" / f"{s}.rrd") for s in (SEQ, "0007")}
+    (a / "compare.json").write_text(json.dumps(result))
+    (a / "recordings").mkdir()
+    for name in (SEQ, "0007", "mine"):
+        (a / "recordings" / f"{name}.rrd").write_bytes(name.encode())
+    assert main(["compare", str(a), str(b), "--out", str(a)]) == 0
+    assert sorted(p.name for p in (a / "recordings").iterdir()) == [f"{SEQ}.rrd", "mine.rrd"]
+    assert (a / "recordings" / f"{SEQ}.rrd").read_bytes() == SEQ.encode()
 
 
 @pytest.mark.parametrize("which", ["a", "b"])
@@ -264,8 +301,7 @@ def test_compare_into_a_folder_with_a_foreign_summary_replaces_its_earlier_compa
     out = tmp_path / "cmp"
     assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
     (out / "summary.json").write_text('{"mine": true}')
-    (out / "recordings").mkdir()
-    (out / "recordings" / f"{SEQ}.rrd").write_bytes(b"an earlier --record's")
+    _as_if_recorded(out)
     assert main(["compare", str(a), str(b), "--out", str(out)]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["compare.json", "compare.md", "summary.json"]
     assert (out / "summary.json").read_text() == '{"mine": true}'

@@ -111,3 +111,9 @@ def test_the_results_refuse_an_unscored_run_naming_it_and_what_is_absent(
             {"metrics": {"car": {}, "pedestrian": {}}}, ["car", "pedestrian", "cyclist"], "run"
         )
     make_results.require_metrics({"metrics": {"car": {"HOTA": 1.0}}}, ["car"], "run")
+    # a scored run lacking a class of no ground truth says so, not "not scored"
+    absent = "no ground-truth cyclist in these sequences; 3 tracked boxes, all false positives"
+    scored = {"metrics": {"car": {}}, "metrics_absent": {"cyclist": absent}}
+    with pytest.raises(make_results.InputError) as caught:
+        make_results.require_metrics(scored, ["car", "cyclist"], "run")
+    assert f"has no `metrics` of cyclist ({absent}); the results" in str(caught.value)

@@ -177,6 +177,37 @@ def test_nuscenes_run_into_an_earlier_run_replaces_it(
     assert (out / "results.json").is_file() and (out / "notes.txt").read_text() == "mine"
 
 
+def test_nuscenes_into_a_run_cut_short_refuses_recordings_it_does_not_write(
+    dataset: SyntheticNuScenes, noisy: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run killed mid-way leaves its scene parts and recordings, no summary.json saying whose
+    they are: a new run kept them all (beside its own, or in place of none). Now a recording
+    the run does not write is refused, named: before any work (without --record, or with
+    --scenes), else once the split's scenes are known; the run's own are replaced."""
+    pytest.importorskip("rerun")
+    out = tmp_path / "run"
+    (out / ".scenes").mkdir(parents=True)
+    (out / "recordings").mkdir()
+    for name in ("scene-0103", "mine"):
+        (out / "recordings" / f"{name}.rrd").write_text("earlier\n")
+    argv = ["nuscenes", *_common(dataset), "--detections", str(noisy), "--no-eval"]
+    refused = f": {out} holds an earlier run, and it was cut short"
+    for extra, named in (
+        ([], "mine.rrd (and 1 more)"),  # (without --record none is its own)
+        (["--record", "--scenes", "scene-0916"], "mine.rrd (and 1 more)"),
+        (["--record"], "mine.rrd"),  # (scene-0103's is its own)
+    ):
+        capsys.readouterr()
+        assert main([*argv, *extra, "--out", str(out)]) == 2, extra
+        assert f"{out / 'recordings' / named}{refused}" in capsys.readouterr().err, extra
+        assert sorted(p.name for p in (out / "recordings").iterdir()) == [
+            "mine.rrd", "scene-0103.rrd"
+        ]  # fmt: skip
+    (out / "recordings" / "mine.rrd").unlink()
+    assert main([*argv, "--record", "--scenes", "scene-0103", "--out", str(out)]) == 0
+    assert (out / "recordings" / "scene-0103.rrd").stat().st_size > 10_000
+
+
 @pytest.mark.parametrize(
     ("refusal", "said"),
     [("format check", "rejected by the nuScenes devkit"), ("evaluation", "nuScenes TrackingEval")],

@@ -528,6 +528,31 @@ def test_waymo_run_into_an_earlier_run_replaces_it(segment: Path, tmp_path: Path
     assert json.loads((run / "summary.json").read_text())["segments"] == ["other"]
 
 
+def test_waymo_into_a_run_cut_short_refuses_results_of_other_segments(
+    segment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A run killed mid-way leaves its scene parts and results, no summary.json saying whose
+    they are: a new run of fewer segments kept the others' results/*/*.npz (pred_bin.py reads
+    every file there: a submission mixing two runs). Now they are refused, named, before any
+    work; a run of every segment there replaces them."""
+    for sub, ext in (("ts_info", "json"), ("ego_info", "npz"), ("dets", "npz"), ("gt", "npz")):
+        shutil.copy(segment / sub / f"{SEGMENT}.{ext}", segment / sub / f"other.{ext}")
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--out", str(run)]) == 0
+    (run / "summary.json").unlink()  # (what a killed run leaves: deleted at its start)
+    (run / ".scenes").mkdir()
+    (run / ".scenes" / "000000.json").write_text("{}")
+    before = sorted(p.relative_to(run).as_posix() for p in run.rglob("*"))
+    capsys.readouterr()
+    assert main([*argv, "--segments", SEGMENT, "--out", str(run)]) == 2
+    err = capsys.readouterr().err
+    assert f"{run / 'results' / 'cyclist' / 'other.npz'} (and 2 more): {run} holds" in err
+    assert sorted(p.relative_to(run).as_posix() for p in run.rglob("*")) == before
+    assert main([*argv, "--out", str(run)]) == 0
+    assert sorted(json.loads((run / "summary.json").read_text())["segments"]) == ["other", SEGMENT]
+
+
 def test_waymo_stopped_after_its_segments_leaves_no_partial_outputs(
     segment: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
