@@ -8,10 +8,9 @@ MCTrack compares its Kalman velocity with the velocity a track's own detection c
 
 Both are 0 until enough detections exist, as in the reference. The tracker computes them over
 every detection a track took, tentative ones included, so a track's first output row has the
-detections before its confirmation behind it.
-:func:`tracker.eval.motion_metrics.velocity_differencing`
-and :func:`~tracker.eval.motion_metrics.velocity_curve_fit` are the same maths over a whole
-track; the tests keep the two equal.
+detections before its confirmation behind it. The same maths over a whole track is
+:func:`tracker.eval.motion_metrics.velocity_differencing` and ``velocity_curve_fit``; the tests
+keep the two equal.
 """
 
 from __future__ import annotations
