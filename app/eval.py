@@ -75,9 +75,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--detections",
         default=None,
-        help="the tracker's input BaseVersion file (needed for the detection, difference and "
-        "curve-fit velocity estimators, and for the detections' own 2D boxes that the config's "
-        "image_boxes writes)",
+        help="the tracker's input BaseVersion file (needed for the detection velocity "
+        "estimator, for the difference and curve-fit ones where the tracks file does not carry "
+        "them (offline runs, older files), and for the detections' own 2D boxes that the "
+        "config's image_boxes writes)",
     )
     parser.add_argument(
         "--classes",

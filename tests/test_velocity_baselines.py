@@ -152,6 +152,20 @@ def test_the_motion_evaluation_reads_the_tracker_baselines() -> None:
     assert zero_b > zero_a  # the first output rows, 0 without the tentative detections
 
 
+def test_the_tracker_baselines_need_no_detections() -> None:
+    """An online run's output carries its baselines: scored without the detections (only the
+    detection estimator is then absent); an output without them has none to score."""
+    dets, gts, outputs, _ = _tracked_with_history()
+    with_dets = collect_motion_samples({"s": dets}, {"s": gts}, {"s": outputs}, classes=["car"])
+    alone = collect_motion_samples(None, {"s": gts}, {"s": outputs}, classes=["car"])["car"]
+    assert set(alone.absent) == {Estimator.DETECTION}
+    for e in (Estimator.KALMAN, Estimator.DIFFERENCE, Estimator.CURVE_FIT):
+        np.testing.assert_array_equal(alone.velocity[e], with_dets["car"].velocity[e])
+    bare = [TrackOutput(**{**_fields(o), "baselines": None}) for o in outputs]
+    none = collect_motion_samples(None, {"s": gts}, {"s": bare}, classes=["car"])["car"]
+    assert set(none.absent) == {Estimator.DETECTION, Estimator.DIFFERENCE, Estimator.CURVE_FIT}
+
+
 def _fields(out: TrackOutput) -> dict:
     return {name: getattr(out, name) for name in TrackOutput.__dataclass_fields__}
 

@@ -452,11 +452,8 @@ def _scene_rows(
     det_row_all = np.concatenate(det_rows) if det_rows else np.zeros(0, dtype=np.int64)
     det_boxes = Boxes.concat(det_parts) if det_by_id is not None else None
     time_all = np.concatenate(out_time) if out_time else np.zeros(0)
-    if (
-        det_boxes is not None
-        and tracker_baselines
-        and all(b is not None for b in tracker_baselines)
-    ):  # the tracker's, over every detection its tracks took (tentative ones too)
+    if tracker_baselines and all(b is not None for b in tracker_baselines):
+        # the tracker's, over every detection its tracks took (tentative ones too)
         both = np.concatenate(tracker_baselines)
         baseline = {Estimator.DIFFERENCE: both[:, 0], Estimator.CURVE_FIT: both[:, 1]}
     else:  # over the output's own detection rows
@@ -537,7 +534,8 @@ def collect_motion_samples(
     Parameters
     ----------
     det_scenes : the tracker's input frames per scene (``det_row`` indexes their boxes), or None
-        (then the detection, difference and curve-fit estimators are absent).
+        (then the detection estimator is absent, and the difference and curve-fit ones unless
+        every output carries the tracker's ``baselines``).
     gt_scenes : GT frames per scene (``track_id`` set), any frame order.
     outputs_by_scene : tracker output per scene, any frame order. Scenes without GT are skipped
         (logged).
@@ -563,19 +561,24 @@ def collect_motion_samples(
         category_index(c): float(thresholds.get(c, DEFAULT_MAX_DISTANCE_M)) for c in classes
     }
     from_positions = resolve_gt_velocity(gt_velocity, gt_scenes)[0] == "positions"
+    scenes = sorted(s for s in outputs_by_scene if s in gt_scenes)
+    skipped = sorted(s for s in outputs_by_scene if s not in gt_scenes)
+    if skipped:
+        log.warning("motion evaluation: no ground truth for scenes %s (skipped)", skipped)
     absent: dict[Estimator, str] = {}
     if det_scenes is None:
-        absent = {e: NO_DETECTIONS for e in Estimator if e is not Estimator.KALMAN}
+        # (an online run's output carries the baselines: they need no detections)
+        carried = all(o.baselines is not None for s in scenes for o in outputs_by_scene[s])
+        baselines = (Estimator.DIFFERENCE, Estimator.CURVE_FIT) if carried else ()
+        absent = {
+            e: NO_DETECTIONS for e in Estimator if e is not Estimator.KALMAN and e not in baselines
+        }
     else:
         if detection_velocity is None:
             detection_velocity = _detector_has_velocity(det_scenes, categories)
         if not detection_velocity:
             absent[Estimator.DETECTION] = NO_DETECTOR_VELOCITY
 
-    scenes = sorted(s for s in outputs_by_scene if s in gt_scenes)
-    skipped = sorted(s for s in outputs_by_scene if s not in gt_scenes)
-    if skipped:
-        log.warning("motion evaluation: no ground truth for scenes %s (skipped)", skipped)
     if det_scenes is not None:
         missing = [s for s in scenes if s not in det_scenes]
         if missing:
