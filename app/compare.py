@@ -109,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
     run_a, run_b = load_pair(args)
     result = compare_result(run_a, run_b, tolerance=args.tolerance)
     tracks = record_tracks(run_a, run_b) if args.record else None
+    if tracks is not None:
+        _refuse_run_recordings(out, recorded_sequences(run_a, result, tracks))
     # once the inputs are accepted, in an earlier comparison's folder: its recordings of other
     # sequences or runs (or all of them, before a comparison without --record) would sit
     # beside this one's compare.json. Of recordings/, those its compare.json lists alone: a
@@ -278,6 +280,30 @@ def record_tracks(run_a: Run, run_b: Run) -> list[dict[str, Any]]:
     return tracks
 
 
+def recorded_sequences(
+    run_a: Run, result: Mapping[str, Any], tracks: Sequence[Mapping[str, Any]]
+) -> list[str]:
+    """The sequences :func:`record` writes a recording of: those compared that both runs'
+    tracks (``tracks``: :func:`record_tracks`) hold."""
+    compared = result.get("sequences_compared") or run_a.summary["sequences"]
+    return [s for s in compared if s in tracks[0] and s in tracks[1]]
+
+
+def _refuse_run_recordings(out: Path, seqs: Sequence[str]) -> None:
+    """InputError when ``out`` holds a run (neither compared one: those are refused as --out
+    with --record) whose summary.json lists a recording this comparison writes
+    (recordings/<seq>.rrd): it would be overwritten with the comparison's and still be listed
+    as the run's. Called before anything is written."""
+    own = set(run_recordings(out))
+    for seq in seqs:
+        path = path_in(out / "recordings", seq, ".rrd")
+        if path.relative_to(out).as_posix() in own:
+            raise InputError(
+                f"{path}: the run in {out} lists it as its own recording (its summary.json): "
+                "--record would overwrite it with the comparison's; give another --out"
+            )
+
+
 def record(
     run_a: Run,
     run_b: Run,
@@ -289,8 +315,7 @@ def record(
     :func:`record_tracks`."""
     from viz.compare_record import record_comparison
 
-    compared = result.get("sequences_compared") or run_a.summary["sequences"]
-    seqs = [s for s in compared if s in tracks[0] and s in tracks[1]]
+    seqs = recorded_sequences(run_a, result, tracks)
     gt = _ground_truth(run_a, seqs)
     written: dict[str, str] = {}
     for seq in seqs:

@@ -307,11 +307,35 @@ def outputs_at_stake(
     return at_stake
 
 
-def _refuse_unknown_files(folder: Path, at_stake: tuple[str, ...], patterns: Iterable[str]) -> None:
+#: A Waymo run's result files (one of :data:`NAMED`): the submission step (pred_bin.py) reads
+#: every file under results/, so one of no run's there would enter it unsaid
+WAYMO_RESULTS = "results/*/*.npz"
+
+
+def refuse_foreign_results(folder: Path, at_stake: tuple[str, ...]) -> None:
+    """InputError naming a :data:`WAYMO_RESULTS` file in ``folder`` that is not ``at_stake``
+    (:func:`outputs_at_stake`: the earlier run's segments', this run's own), and how many
+    more: kept by design (a user's file), it would silently enter this run's submission.
+    Called by `waymo` before any work."""
+    _refuse_unknown_files(
+        folder,
+        at_stake,
+        (WAYMO_RESULTS,),
+        reason=(
+            f"a result file of neither the run in {folder} nor this one, and the submission "
+            "(pred_bin.py) reads every file under results/"
+        ),
+    )
+
+
+def _refuse_unknown_files(
+    folder: Path, at_stake: tuple[str, ...], patterns: Iterable[str], *, reason: str | None = None
+) -> None:
     """InputError naming a file of ``patterns`` (:data:`PER_SCENE`, :data:`NAMED`) in
     ``folder`` that is not ``at_stake`` (this run's), and how many more there are (all fixed
     in one go): the earlier run there does not say which are its own, so that one may be
-    anyone's (kept, the folder would mix two runs; removed, a user's file would be lost)."""
+    anyone's (kept, the folder would mix two runs; removed, a user's file would be lost).
+    ``reason``: why such a file is refused, instead (of one that is known not to be a run's)."""
     ours = {p for pattern in at_stake for p in folder.glob(pattern)}
     unknown: list[tuple[Path, str]] = []
     for pattern in patterns:
@@ -325,14 +349,13 @@ def _refuse_unknown_files(folder: Path, at_stake: tuple[str, ...], patterns: Ite
     if not unknown:
         return
     path, pattern = unknown[0]
-    why = (
-        f"its summary.json does not list its {pattern} files"
-        if _run_summary(folder / "summary.json") is not None
-        else f"it was cut short ({RUN_PARTS}/ is there, no summary.json)"
-    )
     more = f" (and {len(unknown) - 1} more)" if len(unknown) > 1 else ""
     which, them = ("these files", "them") if more else ("this file", "it")
-    raise InputError(
-        f"{path}{more}: {folder} holds an earlier run, and {why}: {which} may be anyone's; "
-        f"move or remove {them}, or give another --out"
-    )
+    if reason is None:
+        why = (
+            f"its summary.json does not list its {pattern} files"
+            if _run_summary(folder / "summary.json") is not None
+            else f"it was cut short ({RUN_PARTS}/ is there, no summary.json)"
+        )
+        reason = f"{folder} holds an earlier run, and {why}: {which} may be anyone's"
+    raise InputError(f"{path}{more}: {reason}; move or remove {them}, or give another --out")

@@ -23,7 +23,13 @@ from app.common import (
     write_motion_metrics,
 )
 from app.inputs import add_mode_argument
-from app.outputs import holds_a_run, outputs_at_stake, outputs_of, outputs_replaced_by
+from app.outputs import (
+    holds_a_run,
+    outputs_at_stake,
+    outputs_of,
+    outputs_replaced_by,
+    refuse_foreign_results,
+)
 from app.scenes import SceneRecord
 from tracker.config import TrackerConfig, config_to_dict, load_config
 from tracker.errors import InputError
@@ -161,6 +167,9 @@ def run_waymo(
     # recording) is refused, not kept to mix into the submission pred_bin.py reads
     inputs = {"--data-root": data_root, "--detections": detections, "--gt": gt}
     at_stake = outputs_at_stake("waymo", out, names, record=record)
+    # (in a finished run's folder a user's results/<type>/x.npz stays, but pred_bin.py would
+    # put it in this run's submission)
+    refuse_foreign_results(out, at_stake)
     refuse_inputs_among_outputs(out, at_stake, inputs, outputs_of("waymo", names, record=record))
     # a refused run keeps the earlier one; else its files (of any command) go: pred_bin.py reads
     # every file of results/, and a segment left out or failing now would keep its old results

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from app.cli import main
-from tests.report_fixtures import SEQ, make_runs
+from tests.report_fixtures import RUN_A, SEQ, make_runs, write_run
 from tracker.eval.compare import match_events
 
 
@@ -223,6 +223,31 @@ def test_compare_record_into_a_compared_run_is_refused(which: str, tmp_path: Pat
         " another --out"
     )
     assert not (runs[which] / "recordings").exists()
+
+
+def test_compare_record_into_a_third_run_is_refused_over_its_recordings(
+    tmp_path: Path, capsys
+) -> None:
+    """--record --out C, C holding a third run whose summary.json lists recordings/<seq>.rrd:
+    the comparison's recording was written over the run's own (still listed as its). Refused
+    before anything is written, naming the file, which stays."""
+    a, b, labels = make_runs(tmp_path)
+    for run in (a, b):  # (tracks.json: what --record draws; no frame is needed to refuse)
+        (run / "tracks.json").write_text(json.dumps({SEQ: []}))
+    c = write_run(tmp_path / "c", RUN_A, labels, name="c")
+    own = c / "recordings" / f"{SEQ}.rrd"
+    own.parent.mkdir()
+    own.write_bytes(b"run c's own")
+    summary = json.loads((c / "summary.json").read_text())
+    summary["recordings"] = {SEQ: str(own)}
+    (c / "summary.json").write_text(json.dumps(summary))
+    assert main(["compare", str(a), str(b), "--out", str(c), "--record"]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack compare: error: {own}: the run in {c} lists it as its own recording (its "
+        "summary.json): --record would overwrite it with the comparison's; give another --out"
+    )
+    assert own.read_bytes() == b"run c's own"
+    assert sorted(p.name for p in c.iterdir()) == ["data", "recordings", "summary.json"]
 
 
 @pytest.mark.parametrize(

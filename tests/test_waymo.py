@@ -553,6 +553,33 @@ def test_waymo_into_a_run_cut_short_refuses_results_of_other_segments(
     assert sorted(json.loads((run / "summary.json").read_text())["segments"]) == ["other", SEGMENT]
 
 
+def test_waymo_into_a_finished_run_refuses_a_result_file_of_no_run(
+    segment: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A user's results/<type>/x.npz in a finished run's folder (not of its "segments") is
+    kept by design, but pred_bin.py reads every file under results/: it entered the new run's
+    submission unsaid. Now the run is refused before any work, naming it (and how many more)."""
+    run = tmp_path / "run"
+    argv = ["waymo", "--data-root", str(segment), "--detections", str(segment / "dets")]
+    assert main([*argv, "--out", str(run)]) == 0
+    for kind in ("vehicle", "cyclist"):
+        (run / "results" / kind / "mine.npz").write_bytes(b"mine")
+    before = {p.relative_to(run).as_posix(): p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert main([*argv, "--out", str(run)]) == 2
+    assert capsys.readouterr().err.strip() == (
+        f"mctrack waymo: error: {run / 'results' / 'cyclist' / 'mine.npz'} (and 1 more): a "
+        f"result file of neither the run in {run} nor this one, and the submission (pred_bin.py)"
+        " reads every file under results/; move or remove them, or give another --out"
+    )
+    after = {p.relative_to(run).as_posix(): p.read_bytes() for p in run.rglob("*") if p.is_file()}
+    assert after == before
+    # moved away: the run replaces the earlier one
+    for kind in ("vehicle", "cyclist"):
+        (run / "results" / kind / "mine.npz").unlink()
+    assert main([*argv, "--out", str(run)]) == 0
+
+
 def test_waymo_stopped_after_its_segments_leaves_no_partial_outputs(
     segment: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
