@@ -16,7 +16,7 @@ from tracker.config import load_config
 from tracker.errors import InputError
 from tracker.eval.motion_eval import Estimator, collect_motion_samples
 from tracker.eval.motion_metrics import velocity_curve_fit, velocity_differencing
-from tracker.events import LifecycleChanged, ListObserver, Matched, TrackOutput
+from tracker.events import FrameStarted, LifecycleChanged, ListObserver, Matched, TrackOutput
 from tracker.fusion import fuse_scene
 from tracker.io.synthetic import synthetic_scene
 from tracker.io.writers import read_tracks_file, write_tracks_file
@@ -53,7 +53,7 @@ def _history(dets: list, config) -> tuple[list[TrackOutput], dict]:
     times = iter(f.timestamp_secs for f in dets)
     now = 0.0
     for event in observer.events:
-        if type(event).__name__ == "FrameStarted":
+        if isinstance(event, FrameStarted):
             now = next(times)
         elif isinstance(event, Matched):
             for tid, row in zip(event.track_ids, event.det_rows, strict=True):
